@@ -1,0 +1,204 @@
+"""Pyro Messengers, one effect each, that the causal queries compose.
+
+* :class:`Intervene`   -- do(X := v) or do(X := g(x)): replaces a site's mechanism.
+* :class:`AbductNoise` -- records standardised residuals eps = (x - loc) / scale (Eq. 4.43).
+* :class:`ReplayNoise` -- sets x = loc + scale * eps from given residuals (Eq. 4.39).
+
+They work on any Pyro program whose sites are location-scale distributions written the
+natural way (``Normal(f(pa), sigma)``, optionally ``.to_event``/expanded), ``Uniform``
+and ``Delta``; no ``TransformedDistribution`` is needed. Compose them as
+``Intervene(ReplayNoise(model))``: the inner handler fixes the natural value first and
+the outer one intervenes on it, so shift interventions see the abducted value.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import pyro.distributions as dist
+import torch
+from pyro.poutine.messenger import Messenger
+from pyro.poutine.runtime import Message
+from pyro.poutine.subsample_messenger import _Subsample
+from torch import Tensor
+
+__all__ = [
+    "AbductNoise",
+    "Intervene",
+    "InterventionSpec",
+    "ReplayNoise",
+    "is_variable_site",
+    "location_scale",
+]
+
+InterventionSpec = float | Tensor | Callable[[Tensor], Tensor]
+
+_LOC_SCALE = (dist.Normal, dist.Laplace, dist.Cauchy, dist.StudentT)
+
+
+def is_variable_site(msg: Message) -> bool:
+    """True for ``pyro.sample`` statements of the program (not plate subsampling)."""
+    return msg["type"] == "sample" and not isinstance(msg["fn"], _Subsample)
+
+
+def site_shape(fn: dist.Distribution) -> torch.Size:
+    return fn.batch_shape + fn.event_shape
+
+
+def _base(fn: dist.Distribution) -> dist.Distribution:
+    while isinstance(fn, torch.distributions.Independent):
+        fn = fn.base_dist
+    return fn
+
+
+def location_scale(fn: dist.Distribution, name: str) -> tuple[Tensor, Tensor]:
+    """``(loc, scale)`` with ``x = loc + scale * eps``, both broadcast to the site shape.
+
+    Normal, Laplace, Cauchy and StudentT use their loc and scale (eps in standard
+    units); Uniform uses ``low`` and ``high - low`` (eps in [0, 1)); Delta has scale 0.
+
+    Raises:
+        NotImplementedError: for any other family, naming the site.
+    """
+    shape = site_shape(fn)
+    base = _base(fn)
+    if isinstance(base, _LOC_SCALE):
+        loc, scale = base.loc, base.scale
+    elif isinstance(base, dist.Uniform):
+        loc, scale = base.low, base.high - base.low
+    elif isinstance(base, dist.Delta):
+        loc, scale = base.v, torch.zeros_like(base.v)
+    else:
+        raise NotImplementedError(
+            f"site {name!r} has a {type(base).__name__} distribution; abduction and noise replay "
+            "support the symmetric location-scale families (Normal, Laplace, Cauchy, StudentT), Uniform and Delta"
+        )
+    return loc.expand(shape), scale.expand(shape)
+
+
+def _fix(msg: Message, value: Tensor, flag: str) -> None:
+    """Make the site deterministic at ``value``: Delta with zero log-density, not a latent."""
+    fn = msg["fn"]
+    msg["value"] = value
+    msg["fn"] = dist.Delta(value, event_dim=fn.event_dim)
+    msg["is_observed"] = True
+    msg["infer"] = {**msg["infer"], flag: True}
+
+
+def broadcast_intervention(value: Any, shape: torch.Size, name: str) -> Tensor:
+    """Broadcast a hard intervention value to the site shape ``(..., N, dim)``.
+
+    Accepted: a scalar when dim is 1, a ``(dim,)`` vector (same for every unit), or
+    exactly the trailing shape ``(N, dim)``. Anything else raises.
+    """
+    v = torch.as_tensor(value, dtype=torch.get_default_dtype())
+    dim = shape[-1]
+    if v.ndim == 0:
+        ok = dim == 1
+    elif v.ndim == 1:
+        ok = v.shape[0] == dim
+    else:
+        ok = v.ndim <= len(shape) and v.shape == shape[len(shape) - v.ndim :]
+    if not ok:
+        raise ValueError(
+            f"intervention on {name!r} has shape {tuple(v.shape)}, expected a scalar (dim 1), "
+            f"({dim},) or {tuple(shape[-2:])}"
+        )
+    if not torch.isfinite(v).all():
+        raise ValueError(f"intervention on {name!r} contains NaN or inf")
+    return v.expand(shape)
+
+
+class Intervene(Messenger):
+    """do(): replace the mechanism of each named site by an assignment.
+
+    A hard value ``v`` sets ``X := v``; a callable ``g`` sets ``X := g(x)`` where ``x`` is the
+    value the site takes without the intervention (observed, replayed, or sampled from its
+    mechanism). The intervened site becomes a ``Delta`` with zero log-density, so it carries
+    no evidence about its parents, and children see the new value.
+
+    Args:
+        interventions: site name -> value or callable.
+    """
+
+    def __init__(self, interventions: Mapping[str, InterventionSpec]) -> None:
+        super().__init__()
+        self.interventions = dict(interventions)
+
+    def _pyro_sample(self, msg: Message) -> None:
+        name = msg["name"]
+        if name not in self.interventions or not is_variable_site(msg):
+            return
+        spec = self.interventions[name]
+        fn = msg["fn"]
+        shape = site_shape(fn)
+        if callable(spec):
+            natural = msg["value"] if msg["value"] is not None else fn()
+            value = spec(natural)
+            if not isinstance(value, Tensor) or value.shape != natural.shape:
+                got = tuple(value.shape) if isinstance(value, Tensor) else type(value).__name__
+                raise ValueError(
+                    f"shift intervention on {name!r} returned {got}, expected a tensor of shape {tuple(natural.shape)}"
+                )
+            if not torch.isfinite(value).all():
+                raise ValueError(f"shift intervention on {name!r} produced NaN or inf")
+        else:
+            value = broadcast_intervention(spec, shape, name)
+        _fix(msg, value, "pal_intervened")
+
+
+class AbductNoise(Messenger):
+    """Abduction: record ``eps = (x - loc) / scale`` at every location-scale site.
+
+    After the program runs, :attr:`noise` maps site name -> eps with the site's shape.
+    Intervened and Delta sites get eps = 0.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.noise: dict[str, Tensor] = {}
+
+    def _pyro_post_sample(self, msg: Message) -> None:
+        if not is_variable_site(msg):
+            return
+        loc, scale = location_scale(msg["fn"], msg["name"])
+        safe = torch.where(scale > 0, scale, torch.ones_like(scale))
+        self.noise[msg["name"]] = torch.where(scale > 0, (msg["value"] - loc) / safe, torch.zeros_like(loc))
+
+
+class ReplayNoise(Messenger):
+    """Set every unobserved site to ``loc + scale * eps`` from given residuals.
+
+    Args:
+        noise: site name -> eps, shaped like the site; missing sites use ``default``.
+        default: ``"expected"`` (eps = 0, the mean for symmetric families, Alg. 4.2's
+            u-bar) or ``"error"`` (every site must have a residual).
+
+    Observed sites keep their observed values (Alg. 4.1, line 7).
+    """
+
+    def __init__(self, noise: Mapping[str, Tensor] | None = None, default: str = "error") -> None:
+        super().__init__()
+        if default not in ("expected", "error"):
+            raise ValueError(f"default {default!r} unknown; expected 'expected' or 'error'")
+        self.noise = dict(noise or {})
+        self.default = default
+
+    def _pyro_sample(self, msg: Message) -> None:
+        if not is_variable_site(msg) or msg["is_observed"]:
+            return
+        name = msg["name"]
+        loc, scale = location_scale(msg["fn"], name)
+        if name in self.noise:
+            eps = self.noise[name]
+            if eps.shape != loc.shape:
+                raise ValueError(
+                    f"replayed noise for {name!r} has shape {tuple(eps.shape)}, expected {tuple(loc.shape)}"
+                )
+        elif self.default == "expected":
+            # the mean: eps = 0 for the symmetric families, 1/2 for Uniform(low, high)
+            eps = torch.full_like(loc, 0.5 if isinstance(_base(msg["fn"]), dist.Uniform) else 0.0)
+        else:
+            raise ValueError(f"no replayed noise for site {name!r}; abduct it or pass default='expected'")
+        _fix(msg, loc + scale * eps, "pal_replayed")

@@ -1,0 +1,187 @@
+"""Variational state inference (thesis Eq. 4.41-4.42).
+
+    q* = argmin_q  E_q[ log q(x_lat) - log p_M(x_obs, x_lat) ]
+
+over the latent sites, i.e. every variable that is neither observed nor intervened on,
+with SVI and an AutoNormal (default) or AutoMultivariateNormal guide. Each unit of the
+plate gets its own posterior.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import pyro
+import pyro.distributions as dist
+import torch
+from pyro.infer import SVI, Trace_ELBO
+from pyro.infer.autoguide import AutoMultivariateNormal, AutoNormal
+from pyro.optim import ClippedAdam
+from torch import Tensor
+from tqdm.auto import tqdm
+
+from inference.handlers import Intervene
+from inference.interventions import check_interventions
+from models.variables import Role
+from models.world import WorldModel, as_values
+
+__all__ = ["GUIDES", "StateResult", "infer_state"]
+
+log = logging.getLogger(__name__)
+
+GUIDES = {"normal": AutoNormal, "mvn": AutoMultivariateNormal}
+
+_Z1 = 0.8413447460685429  # Phi(1): (q(Phi(1)) - q(Phi(-1))) / 2 is the sd of a Normal marginal
+
+
+@dataclass(frozen=True)
+class StateResult:
+    """Posterior over latent sites.
+
+    Attributes:
+        latent: names of the inferred sites.
+        mean, sd: name -> ``(N, dim)`` posterior mean and standard deviation; exact for
+            the variational family on unconstrained sites, Monte Carlo otherwise.
+        samples: name -> ``(S, N, dim)`` posterior draws.
+        loss: -ELBO per unit at every SVI step.
+        guide: the fitted autoguide.
+        param_state: its parameters (``pyro.get_param_store().scope(param_state)``
+            restores them for further use of ``guide``).
+    """
+
+    latent: tuple[str, ...]
+    mean: dict[str, Tensor]
+    sd: dict[str, Tensor]
+    samples: dict[str, Tensor]
+    loss: tuple[float, ...]
+    guide: Any = field(repr=False)
+    param_state: dict[str, Any] = field(repr=False)
+
+    def interval(self, name: str, level: float = 0.9) -> tuple[Tensor, Tensor]:
+        """Equal-tailed credible interval from the samples: two ``(N, dim)`` tensors."""
+        if not 0 < level < 1:
+            raise ValueError(f"level must be in (0, 1), got {level}")
+        if name not in self.samples:
+            raise ValueError(f"{name!r} is not a latent site; latent: {list(self.latent)}")
+        q = torch.tensor([(1 - level) / 2, (1 + level) / 2])
+        lo, hi = torch.quantile(self.samples[name], q, dim=0)
+        return lo, hi
+
+
+def split_actions(
+    model: WorldModel, observed: Mapping[str, Tensor]
+) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
+    """Separate executed actions (applied as do, Eq. 4.30) from observed evidence."""
+    acts = {k: v for k, v in observed.items() if model.graph[k].role is Role.ACTION}
+    evidence = {k: v for k, v in observed.items() if k not in acts}
+    return evidence, acts
+
+
+def infer_state(
+    model: WorldModel,
+    observed: Mapping[str, Any],
+    *,
+    interventions: Mapping[str, Any] | None = None,
+    guide: str = "normal",
+    num_steps: int = 500,
+    lr: float = 0.1,
+    lr_final: float = 0.001,
+    num_particles: int = 16,
+    num_samples: int = 1000,
+    init_scale: float = 0.1,
+    seed: int = 0,
+    progress_bar: bool = False,
+) -> StateResult:
+    """SVI posterior over the latent sites given the observed sites.
+
+    Args:
+        model: the world model (any Pyro program with a ``graph`` following the
+            :class:`models.WorldModel` call contract works).
+        observed: name -> ``(N, dim)`` evidence. Executed actions in it are applied as
+            ``do(action)``, not conditioned on.
+        interventions: extra ``do`` assignments (see :func:`inference.do`).
+        guide: ``"normal"`` (AutoNormal, mean field) or ``"mvn"`` (AutoMultivariateNormal).
+        num_steps, lr, lr_final: ClippedAdam with lr decaying geometrically to ``lr_final``.
+        num_particles: vectorised ELBO particles per step.
+        num_samples: posterior draws S returned in ``samples``.
+        init_scale: initial guide scale.
+        seed: seeds Pyro inside an isolated RNG context (the caller's RNG is untouched).
+        progress_bar: show a tqdm bar.
+
+    Returns:
+        :class:`StateResult`.
+    """
+    if guide not in GUIDES:
+        raise ValueError(f"guide {guide!r} unknown; expected one of {sorted(GUIDES)}")
+    for name, value in (
+        ("num_steps", num_steps),
+        ("num_particles", num_particles),
+        ("num_samples", num_samples),
+    ):
+        if not isinstance(value, int) or value < 1:
+            raise ValueError(f"{name} must be a positive int, got {value!r}")
+    if not (lr > 0 and lr_final > 0):
+        raise ValueError(f"lr and lr_final must be > 0, got {lr}, {lr_final}")
+    graph = model.graph
+    obs, n = as_values(graph, observed, what="observed")
+    if n is None:
+        raise ValueError("observed is empty; state inference needs evidence")
+    evidence, acts = split_actions(model, obs)
+    ivs = {**acts, **check_interventions(graph, interventions or {})}
+    both = sorted(set(evidence) & set(ivs))
+    if both:
+        raise ValueError(f"variables {both} are both observed and intervened on; pick one")
+    latent = tuple(v for v in graph.topological_order() if v not in evidence and v not in ivs)
+    if not latent:
+        raise ValueError("every variable is observed or intervened on; there is no latent site to infer")
+    program = Intervene(ivs)(model) if ivs else model
+
+    param_store = pyro.get_param_store()
+    with param_store.scope() as param_state, torch.random.fork_rng():
+        pyro.set_rng_seed(seed)
+        auto = GUIDES[guide](program, init_scale=init_scale)
+        optim = ClippedAdam({"lr": lr, "lrd": (lr_final / lr) ** (1.0 / num_steps)})
+        elbo = Trace_ELBO(
+            num_particles=num_particles, vectorize_particles=num_particles > 1, max_plate_nesting=1
+        )
+        svi = SVI(program, auto, optim, elbo)
+        losses: list[float] = []
+        bar = tqdm(range(num_steps), desc="infer_state", disable=not progress_bar, leave=False)
+        for _ in bar:
+            loss = svi.step(evidence, n) / n
+            if not math.isfinite(loss):
+                raise FloatingPointError(
+                    f"ELBO became {loss} at step {len(losses)}; check that the evidence lies in the "
+                    "support of the model (e.g. within action bounds) or lower lr"
+                )
+            losses.append(loss)
+            if len(losses) % 50 == 0:
+                bar.set_postfix(loss=f"{loss:.4g}")
+        with torch.no_grad():
+            with pyro.plate("_posterior_samples", num_samples, dim=-2):
+                trace = pyro.poutine.trace(auto).get_trace(evidence, n)
+            samples = {k: trace.nodes[k]["value"].detach() for k in latent}
+            median = auto.median(evidence, n)
+            quant = auto.quantiles([1 - _Z1, _Z1], evidence, n)
+        mean, sd = {}, {}
+        for k in latent:
+            if _support_is_real(auto.prototype_trace.nodes[k]["fn"].support):
+                mean[k] = median[k].detach()
+                lo, hi = quant[k].detach()
+                sd[k] = (hi - lo) / 2
+            else:
+                mean[k] = samples[k].mean(0)
+                sd[k] = samples[k].std(0)
+    log.debug("infer_state: %d steps, final loss %.4g", num_steps, losses[-1])
+    return StateResult(latent, mean, sd, samples, tuple(losses), auto, param_state)
+
+
+def _support_is_real(support: Any) -> bool:
+    base = support
+    while hasattr(base, "base_constraint"):
+        base = base.base_constraint
+    return base is dist.constraints.real

@@ -1,0 +1,29 @@
+"""World-model programs: typed variables, causal graphs, mechanisms and the Pyro SCM.
+
+Depends on torch, pyro and networkx only.
+"""
+
+from models.graph import CausalGraph
+from models.io import ModelFileError, load, save
+from models.mechanisms import FunctionMechanism, LinearMechanism, Mechanism, MLPMechanism
+from models.presets import chain_graph, finger_graph, joint_chain_graph, random_graph
+from models.variables import Role, Variable
+from models.world import WorldModel
+
+__all__ = [
+    "CausalGraph",
+    "FunctionMechanism",
+    "LinearMechanism",
+    "MLPMechanism",
+    "Mechanism",
+    "ModelFileError",
+    "Role",
+    "Variable",
+    "WorldModel",
+    "chain_graph",
+    "finger_graph",
+    "joint_chain_graph",
+    "load",
+    "random_graph",
+    "save",
+]

@@ -1,0 +1,279 @@
+"""The causal graph G_M of the world model (thesis §4.3.1) on ``networkx.DiGraph``.
+
+Admissibility (Eq. 4.30, footnote 15): the graph is acyclic, actions are roots
+(deg^-(A_i) = 0), and no edge runs backwards in time (lag 0 -> lag 1).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any
+
+import networkx as nx
+
+from models.variables import Role, Variable
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = ["CausalGraph"]
+
+_FORMAT = "pal.causal_graph/1"
+
+
+class CausalGraph:
+    """A validated DAG over typed :class:`Variable` nodes.
+
+    Parents are ordered by variable declaration order; that order fixes the layout of
+    each mechanism's input vector ``concat(pa_i)``.
+
+    Args:
+        variables: the nodes, with unique names.
+        edges: ``(parent, child)`` name pairs.
+
+    Raises:
+        ValueError: on duplicate or unknown names, cycles, parents of an action,
+            edges from lag 0 to lag 1, self-loops, or a malformed ``lag_of``.
+    """
+
+    def __init__(self, variables: Sequence[Variable], edges: Iterable[tuple[str, str]] = ()) -> None:
+        variables = list(variables)
+        for v in variables:
+            if not isinstance(v, Variable):
+                raise ValueError(f"expected Variable instances, got {type(v).__name__}: {v!r}")
+        names = [v.name for v in variables]
+        seen: set[str] = set()
+        for n in names:
+            if n in seen:
+                raise ValueError(f"duplicate variable name {n!r}")
+            seen.add(n)
+        self._variables: dict[str, Variable] = {v.name: v for v in variables}
+        self._index = {n: i for i, n in enumerate(names)}
+        g = nx.DiGraph()
+        g.add_nodes_from(names)
+        for edge in edges:
+            if len(edge) != 2:
+                raise ValueError(f"edge {edge!r} is not a (parent, child) pair")
+            parent, child = edge
+            for end in (parent, child):
+                if end not in self._variables:
+                    raise ValueError(
+                        f"edge {parent!r} -> {child!r} names unknown variable {end!r}; known: {names}"
+                    )
+            if parent == child:
+                raise ValueError(f"self-loop on {parent!r}; a variable cannot cause itself within a step")
+            pv, cv = self._variables[parent], self._variables[child]
+            if cv.role is Role.ACTION:
+                raise ValueError(f"action {child!r} has parent {parent!r}; actions are roots (Eq. 4.30)")
+            if pv.lag == 0 and cv.lag == 1:
+                raise ValueError(f"edge {parent!r} (lag 0) -> {child!r} (lag 1) runs backwards in time")
+            g.add_edge(parent, child)
+        if not nx.is_directed_acyclic_graph(g):
+            cycle = nx.find_cycle(g)
+            path = " -> ".join([u for u, _ in cycle] + [cycle[0][0]])
+            raise ValueError(f"graph has a cycle: {path}")
+        for v in variables:
+            if v.lag_of is None:
+                continue
+            if v.lag_of not in self._variables:
+                raise ValueError(f"variable {v.name!r}: lag_of names unknown variable {v.lag_of!r}")
+            src = self._variables[v.lag_of]
+            if src.lag != 0 or src.dim != v.dim:
+                raise ValueError(
+                    f"variable {v.name!r}: lag_of {v.lag_of!r} must be a lag-0 variable of dim "
+                    f"{v.dim}, got lag {src.lag}, dim {src.dim}"
+                )
+        self._g = g
+        self._order = tuple(nx.lexicographical_topological_sort(g, key=self._index.__getitem__))
+        self._parents = {n: tuple(sorted(g.predecessors(n), key=self._index.__getitem__)) for n in names}
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def nx(self) -> nx.DiGraph:
+        """A copy of the underlying ``networkx.DiGraph``."""
+        return self._g.copy()
+
+    @property
+    def variables(self) -> dict[str, Variable]:
+        """Name -> Variable, in declaration order."""
+        return dict(self._variables)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Variable names in declaration order."""
+        return tuple(self._variables)
+
+    @property
+    def edges(self) -> tuple[tuple[str, str], ...]:
+        """Edges sorted by (child, parent) declaration order."""
+        return tuple((p, c) for c in self.names for p in self._parents[c])
+
+    def __getitem__(self, name: str) -> Variable:
+        return self._variables[self.check_name(name)]
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._variables
+
+    def __len__(self) -> int:
+        return len(self._variables)
+
+    def check_name(self, name: str, what: str = "variable") -> str:
+        """Return ``name`` or raise a ValueError listing the known names."""
+        if name not in self._variables:
+            raise ValueError(f"unknown {what} {name!r}; known variables: {list(self._variables)}")
+        return name
+
+    def parents(self, name: str) -> tuple[str, ...]:
+        """pa(X_i), in declaration order."""
+        return self._parents[self.check_name(name)]
+
+    def children(self, name: str) -> tuple[str, ...]:
+        """Direct children, in declaration order."""
+        return tuple(sorted(self._g.successors(self.check_name(name)), key=self._index.__getitem__))
+
+    def ancestors(self, name: str) -> set[str]:
+        return set(nx.ancestors(self._g, self.check_name(name)))
+
+    def descendants(self, name: str) -> set[str]:
+        return set(nx.descendants(self._g, self.check_name(name)))
+
+    def topological_order(self) -> tuple[str, ...]:
+        """A deterministic topological order (ties broken by declaration order)."""
+        return self._order
+
+    def is_root(self, name: str) -> bool:
+        return not self._parents[self.check_name(name)]
+
+    @property
+    def roots(self) -> tuple[str, ...]:
+        return tuple(n for n in self._order if not self._parents[n])
+
+    @property
+    def non_roots(self) -> tuple[str, ...]:
+        """Variables with a mechanism f_i, in topological order."""
+        return tuple(n for n in self._order if self._parents[n])
+
+    def by_role(self, role: Role | str) -> tuple[str, ...]:
+        role = Role(role)
+        return tuple(n for n, v in self._variables.items() if v.role is role)
+
+    @property
+    def actions(self) -> tuple[str, ...]:
+        return self.by_role(Role.ACTION)
+
+    @property
+    def lagged(self) -> dict[str, str]:
+        """Lag-1 slot -> the lag-0 variable that fills it at the next step."""
+        return {n: v.lag_of for n, v in self._variables.items() if v.lag_of is not None}
+
+    # ------------------------------------------------------------------ editing
+    def with_edges(
+        self, add: Iterable[tuple[str, str]] = (), remove: Iterable[tuple[str, str]] = ()
+    ) -> CausalGraph:
+        """A new graph with edges added and removed (validated as a whole)."""
+        remove = set(map(tuple, remove))
+        missing = remove - set(self.edges)
+        if missing:
+            raise ValueError(f"cannot remove edges {sorted(missing)}: not in the graph")
+        edges = [e for e in self.edges if e not in remove]
+        edges += [tuple(e) for e in add if tuple(e) not in edges]
+        return CausalGraph(list(self._variables.values()), edges)
+
+    # ------------------------------------------------------------------ serialisation
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible description: format tag, variables, edges."""
+        return {
+            "format": _FORMAT,
+            "variables": [v.to_dict() for v in self._variables.values()],
+            "edges": [list(e) for e in self.edges],
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> CausalGraph:
+        if not isinstance(data, Mapping) or data.get("format") != _FORMAT:
+            got = data.get("format") if isinstance(data, Mapping) else type(data).__name__
+            raise ValueError(f"not a causal graph description: format {got!r}, expected {_FORMAT!r}")
+        return cls([Variable.from_dict(v) for v in data["variables"]], [tuple(e) for e in data["edges"]])
+
+    def to_json(self, indent: int | None = 2) -> str:
+        return json.dumps(self.to_dict(), indent=indent, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> CausalGraph:
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise ValueError(f"causal graph JSON is malformed: {err}") from None
+        return cls.from_dict(data)
+
+    def fingerprint(self) -> str:
+        """SHA-256 of the canonical JSON (descriptions excluded); equal graphs share it."""
+        d = self.to_dict()
+        for v in d["variables"]:
+            v.pop("description")
+        return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, CausalGraph) and self.fingerprint() == other.fingerprint()
+
+    def __hash__(self) -> int:
+        return hash(self.fingerprint())
+
+    def __repr__(self) -> str:
+        return (
+            f"CausalGraph({len(self)} variables, {self._g.number_of_edges()} edges: "
+            + ", ".join(f"{p}->{c}" for p, c in self.edges)
+            + ")"
+        )
+
+    def to_dot(self) -> str:
+        """Graphviz DOT text; shape encodes the role, dashed borders mark lag-1 slots."""
+        shapes = {Role.ACTION: "box", Role.OBSERVED: "ellipse", Role.LATENT: "ellipse"}
+        fills = {Role.ACTION: "#f4c06b", Role.OBSERVED: "#9cc3e6", Role.LATENT: "#ffffff"}
+        lines = ["digraph world_model {", "  rankdir=LR;"]
+        for n, v in self._variables.items():
+            style = "filled,dashed" if v.lag else "filled"
+            label = n if not v.unit else f"{n}\\n[{v.unit}]"
+            lines.append(
+                f'  "{n}" [label="{label}", shape={shapes[v.role]}, style="{style}", fillcolor="{fills[v.role]}"];'
+            )
+        lines += [f'  "{p}" -> "{c}";' for p, c in self.edges]
+        lines.append("}")
+        return "\n".join(lines) + "\n"
+
+    def plot(self, ax: Any = None, edge_labels: Mapping[tuple[str, str], str] | None = None) -> Figure:
+        """Draw the graph in topological layers; returns the matplotlib Figure."""
+        import matplotlib.pyplot as plt  # plotting is optional; imported on use
+
+        if ax is None:
+            fig, ax = plt.subplots(figsize=(1.8 + 1.6 * len(list(nx.topological_generations(self._g))), 3.2))
+        else:
+            fig = ax.figure
+        g = self._g.copy()
+        for layer, nodes in enumerate(nx.topological_generations(g)):
+            for node in nodes:
+                g.nodes[node]["layer"] = layer
+        pos = nx.multipartite_layout(g, subset_key="layer")
+        colors = {Role.ACTION: "#f4c06b", Role.OBSERVED: "#9cc3e6", Role.LATENT: "#e8e8e8"}
+        nx.draw_networkx(
+            g,
+            pos,
+            ax=ax,
+            node_color=[colors[self._variables[n].role] for n in g.nodes],
+            node_size=1400,
+            font_size=8,
+            arrowsize=14,
+            edgecolors="#333333",
+        )
+        if edge_labels:
+            nx.draw_networkx_edge_labels(g, pos, edge_labels=dict(edge_labels), ax=ax, font_size=7)
+        handles = [
+            plt.Line2D([], [], marker="o", ls="", color=c, markersize=10, label=r.value)
+            for r, c in colors.items()
+        ]
+        ax.legend(handles=handles, loc="best", fontsize=7, frameon=False)
+        ax.set_axis_off()
+        fig.tight_layout()
+        return fig

@@ -1,0 +1,143 @@
+"""Typed world-model variables (thesis Eq. 4.28).
+
+A :class:`Variable` is one node of the causal graph: an action, an observed state
+descriptor or a latent quantity, with a dimension, optional bounds, a unit and a time
+lag. ``lag=1`` marks the value of ``lag_of`` at the previous interaction step t-1.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import Any
+
+__all__ = ["Role", "Variable"]
+
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z0-9_]+)*$")
+
+
+class Role(StrEnum):
+    """Architectural role of a variable (Eq. 4.28): V_act, V_obs or V_lat."""
+
+    ACTION = "action"
+    OBSERVED = "observed"
+    LATENT = "latent"
+
+
+def _as_bounds(value: Any, dim: int, name: str) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
+    if value is None:
+        return None
+    if not isinstance(value, Sequence) or isinstance(value, str) or len(value) != 2:
+        raise ValueError(f"variable {name!r}: bounds must be a pair (low, high), got {value!r}")
+    sides = []
+    for side in value:
+        if isinstance(side, (int, float)):
+            side = (float(side),) * dim
+        else:
+            side = tuple(float(s) for s in side)
+            if len(side) != dim:
+                raise ValueError(
+                    f"variable {name!r}: bounds side has {len(side)} entries, expected {dim} (dim)"
+                )
+        if not all(math.isfinite(s) for s in side):
+            raise ValueError(f"variable {name!r}: bounds must be finite, got {value!r}")
+        sides.append(side)
+    low, high = sides
+    for i, (lo, hi) in enumerate(zip(low, high, strict=True)):
+        if not lo < hi:
+            raise ValueError(
+                f"variable {name!r}: bounds low >= high in component {i} ({lo} >= {hi}); expected low < high"
+            )
+    return low, high
+
+
+@dataclass(frozen=True)
+class Variable:
+    """One typed node of the world model.
+
+    Args:
+        name: site name, e.g. ``"q"`` or ``"q.finger"``; it is the public name of the
+            Pyro sample site.
+        role: ``"action"``, ``"observed"`` or ``"latent"``.
+        dim: number of components of the value; values have shape ``(..., dim)``.
+        bounds: ``(low, high)``, scalars or ``dim``-sequences with ``low < high``.
+            Required for actions (their prior is ``Uniform(low, high)``).
+        unit: physical unit, e.g. ``"rad"``; informational.
+        lag: 0 for the current step t, 1 for the previous step t-1.
+        lag_of: for ``lag=1``, the lag-0 variable whose previous value this is; rollouts
+            copy that variable's prediction into this slot (Alg. 4.1, line 11).
+    """
+
+    name: str
+    role: Role
+    dim: int = 1
+    bounds: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    unit: str = ""
+    lag: int = 0
+    lag_of: str | None = None
+    description: str = field(default="", compare=False)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not _NAME.match(self.name):
+            raise ValueError(
+                f"variable name {self.name!r} is not valid; expected letters, digits and "
+                "underscores, optionally dotted (e.g. 'q' or 'q.finger')"
+            )
+        try:
+            object.__setattr__(self, "role", Role(self.role))
+        except ValueError:
+            raise ValueError(
+                f"variable {self.name!r}: role {self.role!r} is not one of {[r.value for r in Role]}"
+            ) from None
+        if isinstance(self.dim, bool) or not isinstance(self.dim, int) or self.dim < 1:
+            raise ValueError(f"variable {self.name!r}: dim must be a positive int, got {self.dim!r}")
+        if self.lag not in (0, 1):
+            raise ValueError(f"variable {self.name!r}: lag must be 0 or 1, got {self.lag!r}")
+        object.__setattr__(self, "bounds", _as_bounds(self.bounds, self.dim, self.name))
+        if self.role is Role.ACTION:
+            if self.bounds is None:
+                raise ValueError(
+                    f"action {self.name!r} has no bounds; actions need (low, high) for their "
+                    "Uniform prior and for clipping"
+                )
+            if self.lag != 0:
+                raise ValueError(f"action {self.name!r} must have lag 0, got lag {self.lag}")
+        if self.lag == 0 and self.lag_of is not None:
+            raise ValueError(f"variable {self.name!r}: lag_of is only meaningful with lag=1")
+
+    @property
+    def low(self) -> tuple[float, ...] | None:
+        """Lower bounds, one per component, or None."""
+        return None if self.bounds is None else self.bounds[0]
+
+    @property
+    def high(self) -> tuple[float, ...] | None:
+        """Upper bounds, one per component, or None."""
+        return None if self.bounds is None else self.bounds[1]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible description."""
+        return {
+            "name": self.name,
+            "role": self.role.value,
+            "dim": self.dim,
+            "bounds": None if self.bounds is None else [list(self.bounds[0]), list(self.bounds[1])],
+            "unit": self.unit,
+            "lag": self.lag,
+            "lag_of": self.lag_of,
+            "description": self.description,
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Variable:
+        """Inverse of :meth:`to_dict`."""
+        known = {"name", "role", "dim", "bounds", "unit", "lag", "lag_of", "description"}
+        unknown = set(data) - known
+        if unknown:
+            raise ValueError(f"unknown variable fields {sorted(unknown)}; expected {sorted(known)}")
+        if "name" not in data or "role" not in data:
+            raise ValueError(f"variable entry {dict(data)!r} needs 'name' and 'role'")
+        return cls(**dict(data))

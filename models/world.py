@@ -1,0 +1,392 @@
+"""The world model M^wm as a Pyro program (thesis Eq. 4.27-4.31, 4.39, 4.44, Alg. 4.1).
+
+For every variable in topological order, inside ``pyro.plate("units", N)``:
+
+    A_j  ~ Uniform(low_j, high_j)                      (action roots)
+    R_k  ~ Normal(mu_k, s_k)                           (other roots; fitted from data)
+    X_i  ~ Normal(f_i(pa_i), sigma_i)                  (every non-root, Eq. 5.4)
+
+Values passed in ``data`` enter as ``obs=``. The program contains no ``do``, no
+conditioning flags: :mod:`inference` adds those with handlers. Site names are the
+variable names. Values have shape ``(N, dim)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import pyro
+import pyro.distributions as dist
+import torch
+from pyro.nn import PyroModule
+from torch import Tensor, nn
+
+from models.graph import CausalGraph
+from models.mechanisms import LinearMechanism, Mechanism, MLPMechanism
+from models.variables import Role
+
+__all__ = ["NoiseSpec", "WorldModel", "as_values", "module_key"]
+
+NoiseSpec = str | Mapping[str, Tensor]
+
+
+def module_key(name: str) -> str:
+    """ModuleDict key for a variable name ('.' is not allowed in module names)."""
+    return name.replace(".", ":")
+
+
+def as_values(
+    graph: CausalGraph,
+    values: Mapping[str, Any] | None,
+    n: int | None = None,
+    what: str = "data",
+    extra_dims: int = 0,
+) -> tuple[dict[str, Tensor], int | None]:
+    """Validate a mapping name -> array of shape ``(N, dim)`` (plus ``extra_dims`` after N).
+
+    Returns float tensors of the default dtype and the common N (or ``n`` when empty).
+
+    Raises:
+        ValueError: unknown names, wrong rank or dim, mismatched N, NaN or inf.
+    """
+    out: dict[str, Tensor] = {}
+    values = {} if values is None else values
+    if not isinstance(values, Mapping):
+        raise ValueError(f"{what} must be a mapping name -> array, got {type(values).__name__}")
+    for name, raw in values.items():
+        graph.check_name(name, what=f"variable in {what}")
+        var = graph[name]
+        t = torch.as_tensor(raw, dtype=torch.get_default_dtype()) if not isinstance(raw, Tensor) else raw
+        if not t.is_floating_point():
+            t = t.to(torch.get_default_dtype())
+        expected = f"(N, {', '.join(['T'] * extra_dims + [str(var.dim)])})"
+        if t.ndim != 2 + extra_dims or t.shape[-1] != var.dim:
+            hint = " (reshape a 1-d column with x[:, None])" if t.ndim == 1 + extra_dims else ""
+            raise ValueError(f"{what}[{name!r}] has shape {tuple(t.shape)}, expected {expected}{hint}")
+        if n is None:
+            n = t.shape[0]
+        elif t.shape[0] != n:
+            raise ValueError(f"{what}[{name!r}] has {t.shape[0]} rows, expected {n} like the others")
+        if not torch.isfinite(t).all():
+            bad = int((~torch.isfinite(t)).sum())
+            raise ValueError(f"{what}[{name!r}] contains {bad} NaN or inf entries; expected finite values")
+        out[name] = t
+    return out, n
+
+
+class _RootPriors(nn.Module):
+    """Buffers mu_k, s_k of the Normal priors of non-action roots."""
+
+    def __init__(self, graph: CausalGraph) -> None:
+        super().__init__()
+        for name in graph.roots:
+            var = graph[name]
+            if var.role is Role.ACTION:
+                continue
+            self.register_buffer(f"{module_key(name)}_loc", torch.zeros(var.dim))
+            self.register_buffer(f"{module_key(name)}_scale", torch.ones(var.dim))
+
+    def get(self, name: str) -> tuple[Tensor, Tensor]:
+        return getattr(self, f"{module_key(name)}_loc"), getattr(self, f"{module_key(name)}_scale")
+
+
+class WorldModel(PyroModule):
+    """A structural causal world model written as a Pyro program.
+
+    Args:
+        graph: the validated causal graph.
+        mechanisms: optional name -> :class:`Mechanism` for some non-roots; the others
+            get a default mechanism.
+        kind: default mechanism class, ``"mlp"`` or ``"linear"``.
+        hidden: MLP hidden widths (default 2 x 32, §5.2.1).
+        activation: MLP activation (default tanh).
+
+    Attributes:
+        graph: the :class:`CausalGraph`.
+        mechanisms: ``nn.ModuleDict`` of f_i, keyed by :func:`module_key`.
+        provenance: JSON-compatible record of how the model was made (seed, config,
+            versions); :func:`models.io.load` restores it.
+    """
+
+    def __init__(
+        self,
+        graph: CausalGraph,
+        mechanisms: Mapping[str, Mechanism] | None = None,
+        *,
+        kind: str = "mlp",
+        hidden: tuple[int, ...] = (32, 32),
+        activation: str = "tanh",
+    ) -> None:
+        super().__init__()
+        if not isinstance(graph, CausalGraph):
+            raise ValueError(f"graph must be a CausalGraph, got {type(graph).__name__}")
+        if kind not in ("mlp", "linear"):
+            raise ValueError(f"kind {kind!r} unknown; expected 'mlp' or 'linear'")
+        given = dict(mechanisms or {})
+        for name in given:
+            graph.check_name(name, what="mechanism target")
+            if graph.is_root(name):
+                raise ValueError(f"{name!r} is a root; roots have no mechanism")
+        self.graph = graph
+        mods: dict[str, Mechanism] = {}
+        for name in graph.non_roots:
+            in_dim = self.parent_dim(name)
+            out_dim = graph[name].dim
+            mech = given.get(name)
+            if mech is None:
+                mech = (
+                    MLPMechanism(in_dim, out_dim, hidden=hidden, activation=activation)
+                    if kind == "mlp"
+                    else LinearMechanism(in_dim, out_dim)
+                )
+            if not isinstance(mech, Mechanism):
+                raise ValueError(f"mechanism for {name!r} must be a Mechanism, got {type(mech).__name__}")
+            if (mech.in_dim, mech.out_dim) != (in_dim, out_dim):
+                raise ValueError(
+                    f"mechanism for {name!r} maps {mech.in_dim} -> {mech.out_dim}, expected "
+                    f"{in_dim} (parents {list(graph.parents(name))}) -> {out_dim}"
+                )
+            mods[module_key(name)] = mech
+        self.mechanisms = nn.ModuleDict(mods)
+        self.root_priors = _RootPriors(graph)
+        # Plain references for the program. PyroModule.__getattr__ would lift every
+        # parameter of a plain submodule into the Pyro param store on each access, which
+        # is slow and would let SVI train the world model during state inference.
+        self.__dict__["_mech_by_name"] = {n: mods[module_key(n)] for n in graph.non_roots}
+        self.__dict__["_priors"] = self.root_priors
+        self.provenance: dict[str, Any] = {}
+
+    # ------------------------------------------------------------------ structure
+    def parent_dim(self, name: str) -> int:
+        """Total dimension of concat(pa_i)."""
+        return sum(self.graph[p].dim for p in self.graph.parents(name))
+
+    def mechanism(self, name: str) -> Mechanism:
+        """f_i of a non-root variable."""
+        mech = self._mech_by_name.get(name)
+        if mech is None:
+            self.graph.check_name(name)
+            raise ValueError(f"{name!r} is a root and has no mechanism")
+        return mech
+
+    def sigma(self, name: str) -> Tensor:
+        """sigma_i, shape ``(dim,)``."""
+        return self.mechanism(name).sigma
+
+    def loc(self, name: str, values: Mapping[str, Tensor]) -> Tensor:
+        """f_i(pa_i) from the parent values in ``values``; shape ``(..., dim)``."""
+        parents = self.graph.parents(name)
+        if len(parents) == 1:
+            return self.mechanism(name)(values[parents[0]])
+        pas = [values[p] for p in parents]
+        batch = torch.broadcast_shapes(*(p.shape[:-1] for p in pas))
+        pa = torch.cat([p.expand(*batch, p.shape[-1]) for p in pas], -1)
+        return self.mechanism(name)(pa)
+
+    def bounds(self, name: str) -> tuple[Tensor, Tensor]:
+        """``(low, high)`` tensors of shape ``(dim,)``; raises if the variable has none."""
+        var = self.graph[name]
+        if var.bounds is None:
+            raise ValueError(f"variable {name!r} has no bounds")
+        return torch.tensor(var.low), torch.tensor(var.high)
+
+    def set_root_prior(self, name: str, loc: Any, scale: Any) -> None:
+        """Set the Normal prior of a non-action root (:func:`inference.fit` does this from data)."""
+        var = self.graph[name]
+        if not self.graph.is_root(name) or var.role is Role.ACTION:
+            raise ValueError(f"{name!r} is not a non-action root; only those have a Normal prior")
+        loc_t, scale_t = (
+            torch.as_tensor(v, dtype=torch.get_default_dtype()).reshape(-1) for v in (loc, scale)
+        )
+        if loc_t.numel() != var.dim or scale_t.numel() != var.dim:
+            raise ValueError(f"root prior of {name!r} needs {var.dim} loc and scale entries")
+        if not (torch.isfinite(loc_t).all() and (scale_t > 0).all() and torch.isfinite(scale_t).all()):
+            raise ValueError(
+                f"root prior of {name!r} needs finite loc and positive scale, got {loc_t}, {scale_t}"
+            )
+        cur_loc, cur_scale = self._priors.get(name)
+        cur_loc.copy_(loc_t)
+        cur_scale.copy_(scale_t)
+
+    def site_distribution(self, name: str, values: Mapping[str, Tensor], n: int) -> dist.Distribution:
+        """The distribution of site ``name`` given earlier values; batch ``(N,)``, event ``(dim,)``."""
+        var = self.graph[name]
+        if self.graph.is_root(name):
+            if var.role is Role.ACTION:
+                low, high = self.bounds(name)
+                return dist.Uniform(low, high).expand([n, var.dim]).to_event(1)
+            loc, scale = self._priors.get(name)
+            return dist.Normal(loc, scale).expand([n, var.dim]).to_event(1)
+        return dist.Normal(self.loc(name, values), self.sigma(name)).to_event(1)
+
+    # ------------------------------------------------------------------ the program
+    def forward(self, data: Mapping[str, Any] | None = None, n: int | None = None) -> dict[str, Tensor]:
+        """Run the generative program.
+
+        Args:
+            data: name -> ``(N, dim)`` observed values, passed as ``obs=``.
+            n: number of units N when ``data`` is empty (else must agree with it).
+
+        Returns:
+            name -> value of every site, shape ``(N, dim)`` (with any outer batch dims
+            that enclosing plates add).
+        """
+        data, n = as_values(self.graph, data, n)
+        if n is None:
+            raise ValueError("the program needs data or n (the number of units)")
+        values: dict[str, Tensor] = {}
+        with pyro.plate("units", n, dim=-1):
+            for name in self.graph.topological_order():
+                values[name] = pyro.sample(name, self.site_distribution(name, values, n), obs=data.get(name))
+        return values
+
+    # ------------------------------------------------------------------ forward queries
+    def _noise(
+        self, name: str, noise: NoiseSpec, shape: torch.Size, generator: torch.Generator | None
+    ) -> Tensor | None:
+        if isinstance(noise, str):
+            if noise == "expected":
+                return None
+            if noise == "sampled":
+                return torch.randn(shape, generator=generator)
+            raise ValueError(f"noise {noise!r} unknown; expected 'expected', 'sampled' or a mapping")
+        if name not in noise:
+            raise ValueError(
+                f"noise mapping has no residual for {name!r}; give eps for every predicted variable"
+            )
+        eps = noise[name]
+        if eps.shape != shape:
+            raise ValueError(f"noise[{name!r}] has shape {tuple(eps.shape)}, expected {tuple(shape)}")
+        return eps
+
+    def predict(
+        self,
+        values: Mapping[str, Any],
+        noise: NoiseSpec = "expected",
+        generator: torch.Generator | None = None,
+    ) -> dict[str, Tensor]:
+        """The forward query Phi (Eq. 4.39, 4.44): one step of Alg. 4.1.
+
+        Given values are kept (an assignment replaces the mechanism, as ``do`` does);
+        every other variable is ``x_i = f_i(pa_i) + sigma_i * eps_i`` in topological order.
+
+        Args:
+            values: name -> ``(N, dim)``; must assign every root (actions and observed roots).
+            noise: ``"expected"`` (eps = 0), ``"sampled"`` (eps ~ N(0, I) from
+                ``generator``), or name -> ``(N, dim)`` standardised residuals, e.g.
+                abducted ones (Eq. 4.43), for every predicted variable.
+            generator: torch generator for ``"sampled"``.
+
+        Returns:
+            name -> ``(N, dim)`` for every variable.
+        """
+        out, _ = as_values(self.graph, values, what="values")
+        missing = [r for r in self.graph.roots if r not in out]
+        if missing:
+            raise ValueError(f"predict needs a value for every root; missing {missing}")
+        if isinstance(noise, Mapping):
+            unknown = [k for k in noise if k not in self.graph or self.graph.is_root(k)]
+            if unknown:
+                raise ValueError(f"noise names {unknown} are not non-root variables of the graph")
+        for name in self.graph.non_roots:
+            if name in out:
+                continue
+            loc = self.loc(name, out)
+            eps = self._noise(name, noise, loc.shape, generator)
+            out[name] = loc if eps is None else loc + self.sigma(name) * eps
+        return out
+
+    def sample(self, n: int, generator: torch.Generator | None = None) -> dict[str, Tensor]:
+        """Draw n units from the observational distribution; name -> ``(n, dim)``.
+
+        Roots come from their priors, the rest from ``predict(noise="sampled")``.
+        """
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ValueError(f"n must be a positive int, got {n!r}")
+        roots: dict[str, Tensor] = {}
+        with torch.no_grad():
+            for name in self.graph.roots:
+                var = self.graph[name]
+                u = torch.rand(n, var.dim, generator=generator) if var.role is Role.ACTION else None
+                if u is not None:
+                    low, high = self.bounds(name)
+                    roots[name] = low + (high - low) * u
+                else:
+                    loc, scale = self._priors.get(name)
+                    roots[name] = loc + scale * torch.randn(n, var.dim, generator=generator)
+            return self.predict(roots, noise="sampled", generator=generator)
+
+    def residuals(self, values: Mapping[str, Any]) -> dict[str, Tensor]:
+        """Standardised residuals eps_i = (x_i - f_i(pa_i)) / sigma_i (Eq. 4.43).
+
+        Args:
+            values: name -> ``(N, dim)`` for every variable of the graph.
+
+        Returns:
+            name -> ``(N, dim)`` for every non-root variable.
+        """
+        vals, _ = as_values(self.graph, values, what="values")
+        missing = [v for v in self.graph.names if v not in vals]
+        if missing:
+            raise ValueError(f"residuals need every variable; missing {missing}")
+        return {n: (vals[n] - self.loc(n, vals)) / self.sigma(n) for n in self.graph.non_roots}
+
+    def rollout(
+        self,
+        initial: Mapping[str, Any],
+        inputs: Mapping[str, Any],
+        noise: NoiseSpec = "expected",
+        generator: torch.Generator | None = None,
+    ) -> dict[str, Tensor]:
+        """Mental simulation over h' steps (Alg. 4.1, Eq. 4.40).
+
+        At step tau the lag-1 slots take the previous step's values of their ``lag_of``
+        variables (``initial`` at tau = 0); the per-step ``inputs`` (actions and any other
+        lag-0 roots) are assigned; the rest is predicted with :meth:`predict`.
+
+        Args:
+            initial: name -> ``(N, dim)`` for every lag-1 root.
+            inputs: name -> ``(N, H, dim)`` for every lag-0 root, e.g. the action sequence.
+            noise: ``"expected"``, ``"sampled"``, or name -> residuals of shape
+                ``(N, dim)`` (reused at every step, the thesis's abduction scheme) or
+                ``(N, H, dim)`` (one per step).
+            generator: torch generator for ``"sampled"``.
+
+        Returns:
+            name -> ``(N, H, dim)``: the simulated trajectory T^sim.
+        """
+        seq, n = as_values(self.graph, inputs, what="inputs", extra_dims=1)
+        init, n = as_values(self.graph, initial, n=n, what="initial")
+        lagged = self.graph.lagged
+        lag1_roots = [r for r in self.graph.roots if self.graph[r].lag == 1]
+        lag0_roots = [r for r in self.graph.roots if self.graph[r].lag == 0]
+        missing = [r for r in lag1_roots if r not in init] + [r for r in lag0_roots if r not in seq]
+        if missing:
+            raise ValueError(
+                f"rollout needs initial values of lag-1 roots and inputs of lag-0 roots; missing {missing}"
+            )
+        extra = [k for k in init if k not in lag1_roots] + [k for k in seq if k not in lag0_roots]
+        if extra:
+            raise ValueError(f"rollout got values for {extra}, which are not roots of the right lag")
+        horizons = {v.shape[1] for v in seq.values()}
+        if len(horizons) != 1:
+            raise ValueError(f"inputs have different horizons {sorted(horizons)}")
+        (horizon,) = horizons
+        for r in lag1_roots:
+            if r not in lagged and horizon > 1:
+                raise ValueError(f"lag-1 root {r!r} has no lag_of variable, so it cannot be rolled forward")
+        state = dict(init)
+        steps: list[dict[str, Tensor]] = []
+        for tau in range(horizon):
+            values = {**state, **{k: v[:, tau] for k, v in seq.items()}}
+            step_noise: NoiseSpec = noise
+            if isinstance(noise, Mapping):
+                step_noise = {k: (e[:, tau] if e.ndim == 3 else e) for k, e in noise.items()}
+            pred = self.predict(values, step_noise, generator)
+            steps.append(pred)
+            state = {r: pred[lagged[r]] for r in lag1_roots if r in lagged}
+        return {k: torch.stack([s[k] for s in steps], 1) for k in self.graph.names}
+
+    def extra_repr(self) -> str:
+        return repr(self.graph)

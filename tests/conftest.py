@@ -1,0 +1,29 @@
+"""Every test starts from fixed seeds and an empty Pyro parameter store."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np
+import pyro
+import pytest
+import torch
+
+
+@pytest.fixture(autouse=True)
+def _seed_everything():
+    pyro.set_rng_seed(0)
+    pyro.clear_param_store()
+    torch.set_num_threads(1)  # small tensors: one thread is faster and immune to a busy second core
+    yield
+    import matplotlib.pyplot as plt
+
+    plt.close("all")
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(0)

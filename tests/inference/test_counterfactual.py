@@ -1,0 +1,159 @@
+"""Counterfactuals against closed-form answers on the linear-Gaussian chain."""
+
+import pytest
+import torch
+
+from inference import counterfactual, infer_state
+from models import CausalGraph, LinearMechanism, MLPMechanism, Variable, WorldModel
+
+FACTUAL = {"x": torch.tensor([[1.0]]), "y": torch.tensor([[2.5]]), "z": torch.tensor([[-3.0]])}
+
+
+def test_fully_observed_do_x(chain):
+    r = counterfactual(chain, FACTUAL, {"x": 0.0})
+    assert r.exact and r.posterior is None
+    assert r.samples["y"].shape == (1, 1, 1, 1)
+    assert float(r.mean["y"][0, 0, 0]) == pytest.approx(0.5, abs=1e-5)
+    assert float(r.mean["z"][0, 0, 0]) == pytest.approx(0.0, abs=1e-5)
+    assert float(r.mean["x"][0, 0, 0]) == pytest.approx(0.0, abs=1e-5)
+
+
+def test_fully_observed_do_y(chain):
+    r = counterfactual(chain, FACTUAL, {"y": 0.0})
+    assert float(r.mean["z"][0, 0, 0]) == pytest.approx(0.75, abs=1e-5)
+    # non-descendants keep their factual values
+    assert float(r.mean["x"][0, 0, 0]) == pytest.approx(1.0, abs=1e-5)
+
+
+def test_scenarios_run_as_one_batch_and_match_single_runs(chain):
+    g = torch.Generator().manual_seed(0)
+    n = 50
+    x = torch.randn(n, 1, generator=g)
+    y = 2 * x + torch.randn(n, 1, generator=g)
+    z = -1.5 * y + torch.randn(n, 1, generator=g)
+    fact = {"x": x, "y": y, "z": z}
+    scenarios = [{"x": 0.0}, {"y": torch.linspace(-1, 1, n)[:, None]}, {"x": lambda v: v + 1.0}, {}]
+    batch = counterfactual(chain, fact, scenarios)
+    assert batch.samples["z"].shape == (1, 4, n, 1)
+    for k, sc in enumerate(scenarios):
+        single = counterfactual(chain, fact, sc)
+        torch.testing.assert_close(batch.samples["z"][:, k], single.samples["z"][:, 0])
+    # shift: Z_cf - Z = -1.5 * 2 * 1
+    torch.testing.assert_close(batch.mean["z"][2] - z, torch.full((n, 1), -3.0), atol=1e-5, rtol=0)
+    # the empty scenario reproduces the factual world
+    torch.testing.assert_close(batch.mean["z"][3], z, atol=1e-5, rtol=0)
+
+
+def test_exact_for_nonlinear_normal_sites_written_naturally():
+    torch.manual_seed(0)
+    g = CausalGraph([Variable("x", "observed"), Variable("y", "latent")], [("x", "y")])
+    mech = MLPMechanism(1, 1, sigma=0.3)
+    m = WorldModel(g, {"y": mech})
+    x, y = torch.tensor([[0.7]]), torch.tensor([[1.1]])
+    r = counterfactual(m, {"x": x, "y": y}, {"x": -0.2})
+    with torch.no_grad():
+        u = y - mech(x)
+        expected = mech(torch.tensor([[-0.2]])) + u
+    torch.testing.assert_close(r.mean["y"][0], expected, atol=1e-6, rtol=0)
+
+
+def test_latent_y_oracle(chain):
+    r = counterfactual(
+        chain, {"x": torch.tensor([[1.0]]), "z": torch.tensor([[-2.0]])}, {"x": 0.0}, num_samples=4000
+    )
+    assert not r.exact
+    # Z_cf = -1.5 U_y + U_z = 3 + Z - 1.5 * 2 X... = 1.0 for every posterior draw
+    torch.testing.assert_close(r.samples["z"], torch.ones_like(r.samples["z"]), atol=1e-4, rtol=0)
+    post = r.posterior
+    u_mean = float(post.mean["y"][0, 0]) - 2.0
+    u_var = float(post.sd["y"][0, 0]) ** 2
+    assert u_mean == pytest.approx(-0.4615, abs=0.02)
+    assert u_var == pytest.approx(0.3077, rel=0.05)
+    # Y_cf = U_y, so its samples carry the posterior of U_y
+    assert float(r.samples["y"].mean()) == pytest.approx(-0.4615, abs=0.03)
+    assert float(r.noise["y"].var()) == pytest.approx(0.3077, rel=0.08)
+
+
+@pytest.mark.slow
+def test_latent_counterfactual_intervals_are_calibrated(chain):
+    """90 % intervals for Y_cf = U_y under do(X=0) cover the truth 88-92 % of the time."""
+    n = 2000
+    coverages = []
+    for seed in (0, 1):
+        g = torch.Generator().manual_seed(100 + seed)
+        x = torch.randn(n, 1, generator=g)
+        u_y = torch.randn(n, 1, generator=g)
+        z = -1.5 * (2 * x + u_y) + torch.randn(n, 1, generator=g)
+        r = counterfactual(chain, {"x": x, "z": z}, {"x": 0.0}, num_samples=1000, seed=seed)
+        lo, hi = r.interval("y", 0.9)
+        truth = u_y  # Y_cf = 2 * 0 + U_y
+        coverages.append(float(((lo[0] <= truth) & (truth <= hi[0])).float().mean()))
+    for c in coverages:
+        assert 0.88 <= c <= 0.92, coverages
+
+
+def test_no_evidence_counted_twice(chain):
+    """The abduction uses one posterior over Y, not a second conditioning on Z."""
+    r = counterfactual(
+        chain, {"x": torch.tensor([[1.0]]), "z": torch.tensor([[-2.0]])}, {"y": 0.0}, num_samples=2000
+    )
+    # Z_cf = U_z = Z + 1.5 Y with Y ~ posterior N(1.538, 0.3077): mean 0.3077, var 2.25 * 0.3077
+    assert float(r.samples["z"].mean()) == pytest.approx(-2 + 1.5 * 1.5385, abs=0.05)
+    assert float(r.samples["z"].var()) == pytest.approx(2.25 * 0.3077, rel=0.1)
+
+
+@pytest.mark.parametrize(
+    ("interventions", "match"),
+    [
+        ({"w": 0.0}, "unknown intervention target 'w'"),
+        ({"x": float("nan")}, "NaN or inf"),
+        ({"x": torch.zeros(3, 1)}, "has 3 rows, expected 1"),
+        ({"x": torch.zeros(1, 2)}, "expected a scalar"),
+        ([], "empty sequence"),
+    ],
+)
+def test_bad_interventions(chain, interventions, match):
+    with pytest.raises(ValueError, match=match):
+        counterfactual(chain, FACTUAL, interventions)
+
+
+def test_bad_factual(chain):
+    with pytest.raises(ValueError, match="unknown variable in factual 'w'"):
+        counterfactual(chain, {"w": torch.zeros(1, 1)}, {"x": 0.0})
+    with pytest.raises(ValueError, match="NaN or inf"):
+        counterfactual(chain, {"x": torch.tensor([[float("nan")]])}, {"x": 0.0})
+
+
+def test_state_posterior_matches_closed_form(chain):
+    post = infer_state(chain, {"x": torch.tensor([[1.0]]), "z": torch.tensor([[-2.0]])})
+    assert post.latent == ("y",)
+    assert float(post.mean["y"][0, 0]) == pytest.approx(5 / 3.25, abs=0.02)
+    assert float(post.sd["y"][0, 0]) ** 2 == pytest.approx(1 / 3.25, rel=0.05)
+    assert post.samples["y"].shape == (1000, 1, 1)
+    assert len(post.loss) == 500 and post.loss[-1] < post.loss[0]
+
+
+def test_state_mvn_guide_captures_correlation():
+    """Two latents Y1, Y2 with a common child Z: the posterior is correlated."""
+    g = CausalGraph(
+        [Variable("y1", "latent"), Variable("y2", "latent"), Variable("z", "observed")],
+        [("y1", "z"), ("y2", "z")],
+    )
+    m = WorldModel(g, {"z": LinearMechanism.from_coefficients([[1.0, 1.0]], sigma=0.5)})
+    post = infer_state(m, {"z": torch.tensor([[2.0]])}, guide="mvn", num_steps=800)
+    # prior N(0, I), z = y1 + y2 + N(0, .25): posterior mean 2/2.25 each, var 1 - 1/2.25
+    assert float(post.mean["y1"][0, 0]) == pytest.approx(2 / 2.25, abs=0.05)
+    assert float(post.sd["y1"][0, 0]) ** 2 == pytest.approx(1 - 1 / 2.25, rel=0.1)
+    corr = torch.corrcoef(torch.stack([post.samples["y1"].ravel(), post.samples["y2"].ravel()]))[0, 1]
+    assert float(corr) == pytest.approx(-(1 / 2.25) / (1 - 1 / 2.25), abs=0.1)
+
+
+def test_state_errors(chain):
+    with pytest.raises(ValueError, match="guide 'x' unknown"):
+        infer_state(chain, {"x": torch.ones(1, 1)}, guide="x")
+    with pytest.raises(ValueError, match="no latent site"):
+        infer_state(chain, FACTUAL)
+    with pytest.raises(ValueError, match="both observed and intervened"):
+        infer_state(chain, {"x": torch.ones(1, 1)}, interventions={"x": 0.0})
+    with pytest.raises(ValueError, match="observed is empty"):
+        infer_state(chain, {})
