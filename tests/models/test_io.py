@@ -51,6 +51,7 @@ def test_load_in_a_fresh_process(model, tmp_path):
     script = textwrap.dedent(
         f"""
         import json, torch
+        torch.set_num_threads(1)  # the same kernels as the test process
         from models import load, finger_graph
         g = torch.Generator().manual_seed(0)
         x = {{"act.finger": torch.rand(7, 1, generator=g) - 0.5, "q_prev.finger": torch.randn(7, 1, generator=g)}}
