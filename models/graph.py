@@ -274,6 +274,7 @@ class CausalGraph:
             for r, c in colors.items()
         ]
         ax.legend(handles=handles, loc="best", fontsize=7, frameon=False)
+        ax.margins(x=0.12, y=0.22)
         ax.set_axis_off()
         fig.tight_layout()
         return fig
