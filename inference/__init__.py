@@ -11,7 +11,7 @@ from inference.counterfactual import CounterfactualResult, abduct, counterfactua
 from inference.curiosity import CuriositySampler, normalized_entropy, occupancy
 from inference.fit import FitResult, fit
 from inference.handlers import AbductNoise, Intervene, ReplayNoise
-from inference.interventions import do
+from inference.interventions import do, simulate
 from inference.state import StateResult, infer_state
 
 __all__ = [
@@ -32,4 +32,5 @@ __all__ = [
     "infer_state",
     "normalized_entropy",
     "occupancy",
+    "simulate",
 ]

@@ -18,7 +18,7 @@ from typing import Any
 
 import torch
 from torch import Tensor
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 from inference.handlers import Intervene, ReplayNoise
 from models.variables import Role
@@ -92,7 +92,7 @@ def _initial(
 
 def infer_action(
     model: WorldModel,
-    state: Mapping[str, Any],
+    state: Mapping[str, Any] | None,
     targets: Mapping[str, Any] | None = None,
     *,
     actions: Sequence[str] | None = None,
@@ -110,7 +110,7 @@ def infer_action(
     Args:
         model: the world model (fixed).
         state: name -> ``(N, dim)`` current state estimate s(t) (e.g. ``q_prev``), and
-            any actions that are held fixed.
+            any actions that are held fixed; None if the graph has no other roots.
         targets: name -> ``(N, dim)`` desired values; with the default Gaussian
             preference the loss is ``sum 0.5 ((Phi - target) / scale)^2``.
         actions: action variables to optimise (default: every action not in ``state``).

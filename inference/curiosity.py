@@ -143,15 +143,13 @@ class CuriositySampler:
         raw = cur[None, :] * self.locality(current)
         return raw / raw.sum(1, keepdims=True)
 
-    def sample(
-        self, current: Any | None = None, rng: np.random.Generator | None = None, size: int | None = None
-    ) -> np.ndarray:
+    def sample(self, rng: np.random.Generator, current: Any | None = None, *, size: int | None = None) -> np.ndarray:
         """Draw targets x* ~ p_tar (Eq. 4.38).
 
         Args:
+            rng: numpy Generator (randomness is an argument).
             current: ``(N,)`` current values x(t); one target per entry. If None, ``size``
                 targets are drawn from p_cur.
-            rng: numpy Generator (required: randomness is an argument).
             size: number of targets when ``current`` is None.
 
         Returns:
@@ -199,6 +197,9 @@ class CuriositySampler:
         if current is not None:
             ax.axvline(current, color="#1f77b4", ls="--", label="current")
         ax.set_xlabel("value")
-        fig.legend(loc="upper right", fontsize=7)
+        handles = ax.get_legend_handles_labels()[0] + twin.get_legend_handles_labels()[0]
+        ax.legend(
+            handles=handles, loc="upper center", bbox_to_anchor=(0.5, 1.18), ncol=3, fontsize=7, frameon=False
+        )
         fig.tight_layout()
         return fig

@@ -12,7 +12,9 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
+import pyro
 import torch
+from torch import Tensor
 
 from inference.handlers import Intervene, InterventionSpec
 from models.graph import CausalGraph
@@ -66,3 +68,29 @@ def do(model: Callable[..., Any], interventions: Mapping[str, InterventionSpec])
     """
     specs = check_interventions(getattr(model, "graph", None), interventions)
     return Intervene(specs)(model)
+
+
+def simulate(
+    model: Callable[..., Any],
+    n: int,
+    interventions: Mapping[str, InterventionSpec] | None = None,
+    *,
+    seed: int = 0,
+) -> dict[str, Tensor]:
+    """Draw n units from p(V) or, with interventions, from p(V | do(...)).
+
+    Args:
+        model: the program.
+        n: number of units.
+        interventions: as for :func:`do`; None samples the observational distribution.
+        seed: seeds Pyro inside an isolated RNG context.
+
+    Returns:
+        name -> ``(n, dim)`` tensors without autograd history.
+    """
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"n must be a positive int, got {n!r}")
+    program = do(model, interventions) if interventions else model
+    with torch.random.fork_rng(), torch.no_grad():
+        pyro.set_rng_seed(seed)
+        return program(None, n)

@@ -257,16 +257,27 @@ class CausalGraph:
                 g.nodes[node]["layer"] = layer
         pos = nx.multipartite_layout(g, subset_key="layer")
         colors = {Role.ACTION: "#f4c06b", Role.OBSERVED: "#9cc3e6", Role.LATENT: "#e8e8e8"}
-        nx.draw_networkx(
+        nx.draw_networkx_nodes(
             g,
             pos,
             ax=ax,
             node_color=[colors[self._variables[n].role] for n in g.nodes],
             node_size=1400,
-            font_size=8,
-            arrowsize=14,
             edgecolors="#333333",
         )
+        nx.draw_networkx_labels(g, pos, ax=ax, font_size=8)
+        # edges that skip a layer are drawn curved so they do not hide behind the others
+        for bend, keep in ((0.0, lambda d: d <= 1), (0.25, lambda d: d > 1)):
+            edges = [(u, v) for u, v in g.edges if keep(g.nodes[v]["layer"] - g.nodes[u]["layer"])]
+            nx.draw_networkx_edges(
+                g,
+                pos,
+                edgelist=edges,
+                ax=ax,
+                arrowsize=14,
+                node_size=1400,
+                connectionstyle=f"arc3,rad={bend}",
+            )
         if edge_labels:
             nx.draw_networkx_edge_labels(g, pos, edge_labels=dict(edge_labels), ax=ax, font_size=7)
         handles = [

@@ -180,9 +180,15 @@ class LinearMechanism(Mechanism):
 
     @classmethod
     def from_coefficients(cls, weight: Any, bias: Any = 0.0, sigma: Any = 1.0) -> LinearMechanism:
-        """Exact linear mechanism ``W pa + b`` with ``weight`` of shape (out_dim, in_dim)."""
+        """Exact linear mechanism ``W pa + b``.
+
+        ``weight`` has shape (out_dim, in_dim); a scalar means 1 -> 1 and a vector means
+        in_dim -> 1. ``bias`` and ``sigma`` are per output component (a scalar fills all).
+        """
         w = torch.as_tensor(weight, dtype=torch.get_default_dtype())
-        if w.ndim == 1:
+        if w.ndim == 0:
+            w = w.reshape(1, 1)
+        elif w.ndim == 1:
             w = w.reshape(1, -1)
         if w.ndim != 2:
             raise ValueError(f"weight has shape {tuple(w.shape)}, expected (out_dim, in_dim)")

@@ -265,6 +265,7 @@ class WorldModel(PyroModule):
         values: Mapping[str, Any],
         noise: NoiseSpec = "expected",
         generator: torch.Generator | None = None,
+        grad: bool = False,
     ) -> dict[str, Tensor]:
         """The forward query Phi (Eq. 4.39, 4.44): one step of Alg. 4.1.
 
@@ -277,10 +278,18 @@ class WorldModel(PyroModule):
                 ``generator``), or name -> ``(N, dim)`` standardised residuals, e.g.
                 abducted ones (Eq. 4.43), for every predicted variable.
             generator: torch generator for ``"sampled"``.
+            grad: keep the autograd graph (for planning through the model); by default
+                the outputs are plain tensors.
 
         Returns:
             name -> ``(N, dim)`` for every variable.
         """
+        with torch.set_grad_enabled(grad):
+            return self._predict(values, noise, generator)
+
+    def _predict(
+        self, values: Mapping[str, Any], noise: NoiseSpec, generator: torch.Generator | None
+    ) -> dict[str, Tensor]:
         out, _ = as_values(self.graph, values, what="values")
         missing = [r for r in self.graph.roots if r not in out]
         if missing:
@@ -315,7 +324,7 @@ class WorldModel(PyroModule):
                 else:
                     loc, scale = self._priors.get(name)
                     roots[name] = loc + scale * torch.randn(n, var.dim, generator=generator)
-            return self.predict(roots, noise="sampled", generator=generator)
+            return self._predict(roots, "sampled", generator)
 
     def residuals(self, values: Mapping[str, Any]) -> dict[str, Tensor]:
         """Standardised residuals eps_i = (x_i - f_i(pa_i)) / sigma_i (Eq. 4.43).
@@ -338,6 +347,7 @@ class WorldModel(PyroModule):
         inputs: Mapping[str, Any],
         noise: NoiseSpec = "expected",
         generator: torch.Generator | None = None,
+        grad: bool = False,
     ) -> dict[str, Tensor]:
         """Mental simulation over h' steps (Alg. 4.1, Eq. 4.40).
 
@@ -352,6 +362,7 @@ class WorldModel(PyroModule):
                 ``(N, dim)`` (reused at every step, the thesis's abduction scheme) or
                 ``(N, H, dim)`` (one per step).
             generator: torch generator for ``"sampled"``.
+            grad: keep the autograd graph.
 
         Returns:
             name -> ``(N, H, dim)``: the simulated trajectory T^sim.
@@ -383,7 +394,7 @@ class WorldModel(PyroModule):
             step_noise: NoiseSpec = noise
             if isinstance(noise, Mapping):
                 step_noise = {k: (e[:, tau] if e.ndim == 3 else e) for k, e in noise.items()}
-            pred = self.predict(values, step_noise, generator)
+            pred = self.predict(values, step_noise, generator, grad=grad)
             steps.append(pred)
             state = {r: pred[lagged[r]] for r in lag1_roots if r in lagged}
         return {k: torch.stack([s[k] for s in steps], 1) for k in self.graph.names}

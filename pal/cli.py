@@ -3,6 +3,8 @@
 pal demo [--out DIR] [--quick]
 pal bench NAME [--json] [--out DIR]
 pal experiment NAME [--json] [--out DIR] [--quick]
+pal babble [--body finger|arm | --mjcf PATH] [--joint J ...] [--actuator A ...] --steps N --seed S
+           --out DIR [--policy uniform|ou] [--resume] [--json]
 """
 
 from __future__ import annotations
@@ -93,6 +95,46 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _babble(args: argparse.Namespace) -> int:
+    from pal.sim.babbling import BabbleConfig, babble
+
+    if args.mjcf and args.body:
+        raise SystemExit("give either --body or --mjcf, not both")
+    try:
+        config = BabbleConfig(
+            body=args.mjcf or args.body or "finger",
+            joints=tuple(args.joint) if args.joint else None,
+            actuators=tuple(args.actuator) if args.actuator else None,
+            steps=args.steps,
+            seed=args.seed,
+            policy=args.policy,
+            frame_skip=args.frame_skip,
+            reset_every=args.reset_every,
+            chunk_size=args.chunk_size,
+        )
+        start = time.perf_counter()
+        dataset = babble(config, args.out, resume=args.resume, progress_bar=sys.stderr.isatty())
+    except ValueError as err:  # bad names, bad MJCF, an occupied or corrupted directory
+        raise SystemExit(str(err)) from None
+    q = {j: dataset.columns[f"q.{j}"][:, 0] for j in dataset.joints}
+    summary = {
+        "out": str(args.out),
+        "rows": len(dataset),
+        "body": dataset.metadata["body"],
+        "joints": dataset.joints,
+        "q": {j: {"min": float(v.min()), "max": float(v.max()), "mean": float(v.mean()), "std": float(v.std())}
+              for j, v in q.items()},
+    }
+    if args.json:
+        print(json.dumps(summary, indent=2, sort_keys=True))
+    else:
+        print(f"{len(dataset)} transitions of {summary['body']!r} in {args.out} "
+              f"({time.perf_counter() - start:.1f} s)")
+        for j, st in summary["q"].items():
+            print(f"  q.{j}: [{st['min']:.3f}, {st['max']:.3f}] rad, mean {st['mean']:.3f}, std {st['std']:.3f}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="pal", description="Causal perception-action learning toolkit.")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -112,6 +154,22 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--quick", action="store_true", help="small configuration")
         p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a config field")
         p.set_defaults(func=lambda a, k=kind: _run_registered(k, a))
+
+    p = sub.add_parser("babble", help="record motor-babbling transitions to a dataset directory")
+    p.add_argument("--body", default=None, help="shipped body: finger (default) or arm")
+    p.add_argument("--mjcf", default=None, metavar="PATH", help="any MJCF file instead of a shipped body")
+    p.add_argument("--joint", action="append", metavar="NAME", help="record this joint (repeatable; default all)")
+    p.add_argument("--actuator", action="append", metavar="NAME", help="babble this actuator (repeatable; default all)")
+    p.add_argument("--steps", type=int, default=100_000, help="transitions (default 100000)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, help="dataset directory")
+    p.add_argument("--policy", choices=["uniform", "ou"], default="uniform", help="babbling policy (default uniform)")
+    p.add_argument("--frame-skip", type=int, default=50, help="MuJoCo steps per transition (default 50)")
+    p.add_argument("--reset-every", type=int, default=10_000, help="environment reset period (default 10000)")
+    p.add_argument("--chunk-size", type=int, default=10_000, help="rows per chunk file (default 10000)")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(func=_babble)
     return parser
 
 

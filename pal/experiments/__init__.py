@@ -21,6 +21,7 @@ BENCHMARKS: dict[str, str] = {
     "counterfactual": "pal.experiments.bench_counterfactual",
     "svi": "pal.experiments.bench_svi",
     "action": "pal.experiments.bench_action",
+    "babble": "pal.experiments.bench_babble",
 }
 
 

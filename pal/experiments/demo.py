@@ -204,7 +204,7 @@ def run(config: Config, progress_bar: bool = False) -> Iterator[str]:
     yield "4. Curiosity targets (Eq. 5.8-5.9: 20 bins, alpha 0.5, sigma = range / 10)"
     cur = CuriositySampler(Q_RANGE[0], Q_RANGE[1], bins=20, alpha=0.5).fit(train[f"q.{JOINT}"].numpy())
     rng = np.random.default_rng(config.seed)
-    targets_cur = cur.sample(state[f"q_prev.{JOINT}"].numpy()[:, 0], rng)
+    targets_cur = cur.sample(rng, state[f"q_prev.{JOINT}"].numpy()[:, 0])
     res = infer_action(
         models["state"], state, {f"q.{JOINT}": torch.tensor(targets_cur[:, None], dtype=torch.float32)}
     )

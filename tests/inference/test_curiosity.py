@@ -48,14 +48,14 @@ def test_locality_favours_bins_near_the_current_value():
 def test_sampling_follows_the_density():
     s = sampler(alpha=0.5)
     rng = np.random.default_rng(0)
-    targets = s.sample(np.full(20000, 0.5), rng)
+    targets = s.sample(rng, np.full(20000, 0.5))
     assert targets.shape == (20000,)
     assert targets.min() >= 0.0 and targets.max() <= 1.0
     freq = np.histogram(targets, bins=10, range=(0, 1))[0] / 20000
     np.testing.assert_allclose(freq, s.density([0.5])[0], atol=0.01)
-    again = s.sample(np.full(20000, 0.5), np.random.default_rng(0))
+    again = s.sample(np.random.default_rng(0), np.full(20000, 0.5))
     np.testing.assert_array_equal(targets, again)
-    assert s.sample(rng=rng, size=5).shape == (5,)
+    assert s.sample(rng, size=5).shape == (5,)
 
 
 def test_metrics():
@@ -94,4 +94,4 @@ def test_bad_values_and_rng():
     with pytest.raises(ValueError, match="expected \\(N,\\) or \\(N, 1\\)"):
         s.fit(np.zeros((3, 2)))
     with pytest.raises(ValueError, match="numpy.random.Generator"):
-        s.sample([0.5], rng=None)
+        s.sample(None, [0.5])

@@ -73,13 +73,26 @@ def test_predict_with_given_noise_and_residuals_round_trip(chain):
         torch.testing.assert_close(back[k], values[k])
 
 
+def test_predict_has_no_autograd_history_unless_asked():
+    m = WorldModel(finger_graph("thesis"))
+    x = {"act.finger": torch.zeros(2, 1), "q_prev.finger": torch.zeros(2, 1)}
+    assert not m.predict(x)["q.finger"].requires_grad
+    assert m.predict(x, grad=True)["q.finger"].requires_grad
+
+
+def test_scalar_coefficient():
+    mech = LinearMechanism.from_coefficients(2.0, bias=1.0, sigma=0.5)
+    torch.testing.assert_close(mech(torch.tensor([[3.0]])).detach(), torch.tensor([[7.0]]))
+    torch.testing.assert_close(mech.sigma.detach(), torch.tensor([0.5]))
+
+
 def test_sampled_noise_is_seeded_and_has_the_right_scale(chain):
     x = torch.zeros(20000, 1)
     a = chain.predict({"x": x}, "sampled", torch.Generator().manual_seed(1))
     b = chain.predict({"x": x}, "sampled", torch.Generator().manual_seed(1))
     torch.testing.assert_close(a["z"], b["z"])
     # Var(Z) = 1.5^2 * 1 + 1 = 3.25 when X = 0
-    assert abs(float(a["z"].detach().var()) - 3.25) < 0.1
+    assert abs(float(a["z"].var()) - 3.25) < 0.1
 
 
 def test_sample_draws_observational_distribution(chain):
@@ -112,7 +125,7 @@ def test_rollout_feeds_lag0_into_lag1_slots():
     torch.testing.assert_close(traj["q_prev"][0, 1:, 0], torch.tensor(expected[:-1]))
     # abducted residuals reused at every step shift every step by sigma * eps
     traj2 = m.rollout({"q_prev": torch.tensor([[2.0]])}, {"a": actions}, noise={"q": torch.tensor([[1.0]])})
-    assert float((traj2["q"] - traj["q"])[0, 0, 0].detach()) == pytest.approx(1.0)
+    assert float((traj2["q"] - traj["q"])[0, 0, 0]) == pytest.approx(1.0)
 
 
 def test_rollout_is_batched_and_checks_inputs():
