@@ -22,6 +22,9 @@ from typing import Any
 
 __all__ = ["main"]
 
+#: ``pal experiment|bench`` flags that set the config field of the same name when given
+BODY_FLAGS = ("body", "mjcf", "joint", "actuator")
+
 
 def _configure(verbose: bool, threads: int) -> None:
     os.environ.setdefault("MPLBACKEND", "Agg")
@@ -44,9 +47,16 @@ def _config_from_args(module: Any, args: argparse.Namespace) -> Any:
             raise SystemExit(f"{module.__name__} has no --quick configuration")
         config = module.Config.quick()
     overrides = {}
+    names = {f.name for f in fields(config)}
+    for flag in BODY_FLAGS:
+        value = getattr(args, flag, None)
+        if value is None:
+            continue
+        if flag not in names:
+            raise SystemExit(f"--{flag}: {module.__name__} has no {flag!r} setting")
+        overrides[flag] = tuple(value) if isinstance(value, list) else value
     for item in getattr(args, "set", None) or []:
         key, sep, raw = item.partition("=")
-        names = {f.name for f in fields(config)}
         if not sep or key not in names:
             raise SystemExit(f"--set {item!r}: expected KEY=VALUE with KEY one of {sorted(names)}")
         try:
@@ -122,16 +132,22 @@ def _babble(args: argparse.Namespace) -> int:
         "rows": len(dataset),
         "body": dataset.metadata["body"],
         "joints": dataset.joints,
-        "q": {j: {"min": float(v.min()), "max": float(v.max()), "mean": float(v.mean()), "std": float(v.std())}
-              for j, v in q.items()},
+        "q": {
+            j: {"min": float(v.min()), "max": float(v.max()), "mean": float(v.mean()), "std": float(v.std())}
+            for j, v in q.items()
+        },
     }
     if args.json:
         print(json.dumps(summary, indent=2, sort_keys=True))
     else:
-        print(f"{len(dataset)} transitions of {summary['body']!r} in {args.out} "
-              f"({time.perf_counter() - start:.1f} s)")
+        print(
+            f"{len(dataset)} transitions of {summary['body']!r} in {args.out} "
+            f"({time.perf_counter() - start:.1f} s)"
+        )
         for j, st in summary["q"].items():
-            print(f"  q.{j}: [{st['min']:.3f}, {st['max']:.3f}] rad, mean {st['mean']:.3f}, std {st['std']:.3f}")
+            print(
+                f"  q.{j}: [{st['min']:.3f}, {st['max']:.3f}] rad, mean {st['mean']:.3f}, std {st['std']:.3f}"
+            )
     return 0
 
 
@@ -153,17 +169,27 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--out", default=None, help="directory for JSON, markdown and PNG figures")
         p.add_argument("--quick", action="store_true", help="small configuration")
         p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a config field")
+        p.add_argument("--body", default=None, help="shipped body (finger, arm) where the run uses one")
+        p.add_argument("--mjcf", default=None, metavar="PATH", help="any MJCF file instead of a shipped body")
+        p.add_argument("--joint", action="append", metavar="NAME", help="joint to analyse (repeatable)")
+        p.add_argument("--actuator", action="append", metavar="NAME", help="actuator to drive (repeatable)")
         p.set_defaults(func=lambda a, k=kind: _run_registered(k, a))
 
     p = sub.add_parser("babble", help="record motor-babbling transitions to a dataset directory")
     p.add_argument("--body", default=None, help="shipped body: finger (default) or arm")
     p.add_argument("--mjcf", default=None, metavar="PATH", help="any MJCF file instead of a shipped body")
-    p.add_argument("--joint", action="append", metavar="NAME", help="record this joint (repeatable; default all)")
-    p.add_argument("--actuator", action="append", metavar="NAME", help="babble this actuator (repeatable; default all)")
+    p.add_argument(
+        "--joint", action="append", metavar="NAME", help="record this joint (repeatable; default all)"
+    )
+    p.add_argument(
+        "--actuator", action="append", metavar="NAME", help="babble this actuator (repeatable; default all)"
+    )
     p.add_argument("--steps", type=int, default=100_000, help="transitions (default 100000)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="dataset directory")
-    p.add_argument("--policy", choices=["uniform", "ou"], default="uniform", help="babbling policy (default uniform)")
+    p.add_argument(
+        "--policy", choices=["uniform", "ou"], default="uniform", help="babbling policy (default uniform)"
+    )
     p.add_argument("--frame-skip", type=int, default=50, help="MuJoCo steps per transition (default 50)")
     p.add_argument("--reset-every", type=int, default=10_000, help="environment reset period (default 10000)")
     p.add_argument("--chunk-size", type=int, default=10_000, help="rows per chunk file (default 10000)")
