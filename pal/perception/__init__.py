@@ -1,0 +1,112 @@
+"""pal.perception: the perceptual subsystem Π of thesis §4.2, from RGB-D frames to ŝ_vis(t).
+
+Stages (one module each): :mod:`~pal.perception.frames` (``RGBDFrame``),
+:mod:`~pal.perception.sequence` / :mod:`~pal.perception.tum` (recordings),
+:mod:`~pal.perception.segmentation` (Σ, Eq. 4.8), :mod:`~pal.perception.tracking`
+(Eq. 4.9-4.11), :mod:`~pal.perception.memory` (EEMS, Eq. 4.12-4.13),
+:mod:`~pal.perception.pose` (Eq. 4.14-4.17), :mod:`~pal.perception.trajectory` (Eq. 4.18),
+:mod:`~pal.perception.filters` (1€), :mod:`~pal.perception.kinematic` and
+:mod:`~pal.perception.visual` (descriptors), :mod:`~pal.perception.normalise`,
+:mod:`~pal.perception.concepts` (Eq. 1.3-1.7, 4.23-4.26), :mod:`~pal.perception.spatial`,
+:mod:`~pal.perception.relations` (Eq. 4.21-4.22), :mod:`~pal.perception.scene` (Table 5.6) and
+:mod:`~pal.perception.pipeline` (Π, Eq. 4.5). :mod:`~pal.perception.synthetic` renders
+analytic RGB-D scenes with exact ground truth.
+
+This package consumes frames; it imports neither ``models``, ``inference`` nor ``pal.sim``.
+"""
+
+from pal.perception.concepts import Categorization, ConceptualSpace, Domain, Entity
+from pal.perception.filters import OneEuroConfig, OneEuroFilter, one_euro
+from pal.perception.frames import RGBDFrame, backproject, check_intrinsics, crop_intrinsics, project
+from pal.perception.kinematic import (
+    KINEMATIC_DIM,
+    KinematicConfig,
+    KinematicDescriptor,
+    kinematic_descriptor,
+    trajectory_descriptor,
+)
+from pal.perception.masks import Mask, iom, iou
+from pal.perception.memory import AdmissionConfig, AdmissionDecision, Gallery, ObjectRecord, Snapshot
+from pal.perception.normalise import NotFittedError, RobustNormaliser
+from pal.perception.pipeline import ObjectState, PerceptionState, Pipeline, PipelineConfig
+from pal.perception.pose import PoseConfig, PoseEstimator
+from pal.perception.relations import TOPOLOGY, PairRelation, RelationConfig, SceneRelations, scene_relations
+from pal.perception.scene import OBJECT_KEYS, SCENE_KEYS, scene_descriptor
+from pal.perception.segmentation import Candidate, GeometricSegmenter, OracleSegmenter, SegmentationConfig
+from pal.perception.sequence import (
+    FrameSequence,
+    RecordedSequence,
+    SequenceError,
+    SequenceWriter,
+    open_sequence,
+)
+from pal.perception.spatial import SpatialDescriptor, spatial_descriptor
+from pal.perception.tracking import Observation, Tracker, TrackerConfig
+from pal.perception.trajectory import Pose, PoseDiagnostics, Trajectory
+from pal.perception.tum import TUMSequence
+from pal.perception.visual import VISUAL_DIM, VISUAL_FAMILIES, visual_descriptor
+
+__all__ = [
+    "KINEMATIC_DIM",
+    "OBJECT_KEYS",
+    "SCENE_KEYS",
+    "TOPOLOGY",
+    "VISUAL_DIM",
+    "VISUAL_FAMILIES",
+    "AdmissionConfig",
+    "AdmissionDecision",
+    "Candidate",
+    "Categorization",
+    "ConceptualSpace",
+    "Domain",
+    "Entity",
+    "FrameSequence",
+    "Gallery",
+    "GeometricSegmenter",
+    "KinematicConfig",
+    "KinematicDescriptor",
+    "Mask",
+    "NotFittedError",
+    "ObjectRecord",
+    "ObjectState",
+    "Observation",
+    "OneEuroConfig",
+    "OneEuroFilter",
+    "OracleSegmenter",
+    "PairRelation",
+    "PerceptionState",
+    "Pipeline",
+    "PipelineConfig",
+    "Pose",
+    "PoseConfig",
+    "PoseDiagnostics",
+    "PoseEstimator",
+    "RGBDFrame",
+    "RecordedSequence",
+    "RelationConfig",
+    "RobustNormaliser",
+    "SceneRelations",
+    "SegmentationConfig",
+    "SequenceError",
+    "SequenceWriter",
+    "Snapshot",
+    "SpatialDescriptor",
+    "TUMSequence",
+    "Tracker",
+    "TrackerConfig",
+    "Trajectory",
+    "backproject",
+    "check_intrinsics",
+    "crop_intrinsics",
+    "iom",
+    "iou",
+    "kinematic_descriptor",
+    "one_euro",
+    "open_sequence",
+    "project",
+    "scene_descriptor",
+    "scene_relations",
+    "spatial_descriptor",
+    "trajectory_descriptor",
+    "visual_descriptor",
+]

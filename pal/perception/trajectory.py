@@ -1,0 +1,198 @@
+"""Poses with their provenance (Eq. 4.17) and per-object trajectories T_i(t) (Eq. 4.18).
+
+Every pose carries its *source*:
+
+- ``"estimated"``: measured this frame by a geometric solver (or the canonical-frame
+  definition); the only poses counted as valid.
+- ``"propagated"``: predicted (constant velocity from the last two estimated poses), flagged
+  and never counted as valid — the proof of concept stored such guesses as valid poses.
+- ``"lost"``: no pose; ``camera_from_object`` is None.
+
+A pose is the transform ``camera_from_object`` of the object's canonical frame (see
+:mod:`pal.perception.pose`) into the OpenCV camera frame: position in metres, orientation as a
+rotation matrix / rotation vector (rad).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from pal.perception.atomic import atomic_write_npz, versions
+
+__all__ = ["SOURCES", "Pose", "PoseDiagnostics", "PoseSource", "Trajectory"]
+
+PoseSource = Literal["estimated", "propagated", "lost"]
+#: Pose sources in the order of their integer codes on disk.
+SOURCES: tuple[str, ...] = ("lost", "estimated", "propagated")
+_FORMAT = "pal.trajectory/1"
+
+
+@dataclass(frozen=True)
+class PoseDiagnostics:
+    """How a pose came about.
+
+    Attributes:
+        matches: ratio-test matches inside both masks, summed over the snapshots tried.
+        pairs: of those, matches with valid depth on both sides (3-D/3-D pairs).
+        inliers: inliers of the accepted fit.
+        rmse: inlier RMSE: metres (``kabsch``), pixels (``pnp``); None without a fit.
+        solver: ``"canonical"`` (frame definition), ``"kabsch"``, ``"pnp"``,
+            ``"constant_velocity"`` (propagation) or None.
+        reason: human-readable outcome, e.g. why estimation failed.
+        snapshot: index of the gallery snapshot that contributed most inliers, if any.
+        attempts: snapshots tried.
+    """
+
+    matches: int = 0
+    pairs: int = 0
+    inliers: int = 0
+    rmse: float | None = None
+    solver: str | None = None
+    reason: str = ""
+    snapshot: int | None = None
+    attempts: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible dict (None stays null)."""
+        return asdict(self)
+
+
+@dataclass(frozen=True, eq=False)
+class Pose:
+    """One pose sample (module docstring).
+
+    Attributes:
+        timestamp: s.
+        source: ``"estimated"``, ``"propagated"`` or ``"lost"``.
+        camera_from_object: (4, 4) float64, or None when lost.
+        diagnostics: how it was obtained.
+    """
+
+    timestamp: float
+    source: PoseSource
+    camera_from_object: np.ndarray | None
+    diagnostics: PoseDiagnostics = PoseDiagnostics()
+
+    def __post_init__(self) -> None:
+        if self.source not in SOURCES:
+            raise ValueError(f"pose source {self.source!r} unknown; expected one of {SOURCES}")
+        if (self.camera_from_object is None) != (self.source == "lost"):
+            raise ValueError(f"a {self.source} pose must {'not ' if self.source == 'lost' else ''}carry a transform")
+        if self.camera_from_object is not None:
+            T = np.asarray(self.camera_from_object, dtype=np.float64)
+            if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+                raise ValueError(f"camera_from_object must be a finite (4, 4) matrix, got shape {T.shape}")
+            object.__setattr__(self, "camera_from_object", T)
+
+    @property
+    def is_valid(self) -> bool:
+        """True only for estimated poses."""
+        return self.source == "estimated"
+
+    @property
+    def position(self) -> np.ndarray | None:
+        """(3,) metres, camera frame; None when lost."""
+        return None if self.camera_from_object is None else self.camera_from_object[:3, 3].copy()
+
+    @property
+    def rotation(self) -> np.ndarray | None:
+        """(3, 3) rotation camera_R_object; None when lost."""
+        return None if self.camera_from_object is None else self.camera_from_object[:3, :3].copy()
+
+    @property
+    def rotvec(self) -> np.ndarray | None:
+        """(3,) rotation vector, rad (Eq. 4.17); None when lost."""
+        R = self.rotation
+        return None if R is None else Rotation.from_matrix(R).as_rotvec()
+
+
+class Trajectory:
+    """The ordered pose samples of one object (all sources; filter with :meth:`valid`)."""
+
+    def __init__(self) -> None:
+        self.poses: list[Pose] = []
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    def append(self, pose: Pose) -> None:
+        """Add a sample; timestamps must not decrease."""
+        if self.poses and pose.timestamp < self.poses[-1].timestamp:
+            raise ValueError(f"pose at {pose.timestamp} s is earlier than the last sample at {self.poses[-1].timestamp} s")
+        self.poses.append(pose)
+
+    @property
+    def num_valid(self) -> int:
+        return sum(p.is_valid for p in self.poses)
+
+    def last_valid(self, k: int = 1) -> list[Pose]:
+        """The last ``k`` estimated poses, oldest first."""
+        out: list[Pose] = []
+        for p in reversed(self.poses):
+            if p.is_valid:
+                out.append(p)
+                if len(out) == k:
+                    break
+        return out[::-1]
+
+    def valid(self) -> tuple[np.ndarray, np.ndarray]:
+        """Estimated samples only: ((M,) timestamps s, (M, 4, 4) camera_from_object)."""
+        ps = [p for p in self.poses if p.is_valid]
+        ts = np.array([p.timestamp for p in ps], dtype=np.float64)
+        Ts = np.stack([p.camera_from_object for p in ps]) if ps else np.zeros((0, 4, 4))  # type: ignore[misc]
+        return ts, Ts
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Columnar arrays of all samples: ``timestamps`` (N,), ``source`` (N,) int8 codes into
+        :data:`SOURCES`, ``poses`` (N, 4, 4) (zeros where lost)."""
+        n = len(self.poses)
+        poses = np.zeros((n, 4, 4))
+        for k, p in enumerate(self.poses):
+            if p.camera_from_object is not None:
+                poses[k] = p.camera_from_object
+        return {
+            "timestamps": np.array([p.timestamp for p in self.poses], dtype=np.float64),
+            "source": np.array([SOURCES.index(p.source) for p in self.poses], dtype=np.int8),
+            "poses": poses,
+        }
+
+    def save(self, path: str | os.PathLike[str], metadata: Mapping[str, Any] | None = None) -> Path:
+        """Write an ``.npz`` (no pickle) with the arrays, the diagnostics and provenance as JSON."""
+        meta = {
+            "format": _FORMAT, "versions": versions(), "metadata": dict(metadata or {}),
+            "diagnostics": [p.diagnostics.to_dict() for p in self.poses],
+        }
+        blob = np.frombuffer(json.dumps(meta, allow_nan=False).encode(), dtype=np.uint8)
+        return atomic_write_npz(path, {**self.arrays(), "__meta__": blob})
+
+    @staticmethod
+    def load(path: str | os.PathLike[str]) -> tuple[Trajectory, dict[str, Any]]:
+        """Read a file written by :meth:`save`; returns the trajectory and its metadata.
+
+        Raises:
+            ValueError: the file is missing, corrupted or not a trajectory.
+        """
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                arrays = {k: npz[k] for k in npz.files}
+        except (OSError, zipfile.BadZipFile, EOFError) as err:
+            raise ValueError(f"{path} is not a readable trajectory file ({type(err).__name__}: {err})") from None
+        if "__meta__" not in arrays:
+            raise ValueError(f"{path} has no __meta__ entry; it is not a trajectory file")
+        meta = json.loads(arrays["__meta__"].tobytes().decode())
+        if meta.get("format") != _FORMAT:
+            raise ValueError(f"{path}: format {meta.get('format')!r}, expected {_FORMAT!r}")
+        traj = Trajectory()
+        for t, code, T, diag in zip(arrays["timestamps"], arrays["source"], arrays["poses"], meta["diagnostics"], strict=True):
+            src = SOURCES[int(code)]
+            traj.append(Pose(float(t), src, None if src == "lost" else T, PoseDiagnostics(**diag)))  # type: ignore[arg-type]
+        return traj, meta

@@ -1,0 +1,143 @@
+"""Reader of the TUM RGB-D benchmark layout (Sturm et al., 2012).
+
+A TUM sequence directory holds ``rgb.txt`` and ``depth.txt`` (lines ``<timestamp> <file>``,
+``#`` comments), the images they name (8-bit colour PNG; 16-bit depth PNG with 5000 units
+per metre, 0 = invalid) and optionally ``groundtruth.txt`` (``t tx ty tz qx qy qz qw``, the
+camera pose in the motion-capture world).
+
+RGB and depth images are associated as in TUM's ``associate.py``: every pair within
+``max_difference`` seconds is a candidate, and pairs are taken greedily by increasing time
+difference, each image used at most once. Frame timestamps are the RGB timestamps.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from pal.perception.frames import RGBDFrame, check_intrinsics
+from pal.perception.sequence import FrameSequence, SequenceError, decode_depth, read_image
+
+__all__ = ["FREIBURG_DEFAULT_K", "TUM_DEPTH_SCALE", "TUMSequence", "associate"]
+
+#: TUM's default ("ROS default") intrinsics of the Kinect at 640x480, pixels.
+FREIBURG_DEFAULT_K = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
+#: TUM depth PNGs store 5000 units per metre.
+TUM_DEPTH_SCALE = 1.0 / 5000.0
+
+
+def _read_list(path: Path) -> tuple[np.ndarray, list[str]]:
+    if not path.is_file():
+        raise SequenceError(f"{path} does not exist; a TUM sequence needs rgb.txt and depth.txt")
+    stamps, files = [], []
+    for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = line.split()
+        if len(parts) < 2:
+            raise SequenceError(f"{path}:{n}: expected '<timestamp> <file>', got {line!r}")
+        try:
+            stamps.append(float(parts[0]))
+        except ValueError:
+            raise SequenceError(f"{path}:{n}: timestamp {parts[0]!r} is not a number") from None
+        files.append(parts[1])
+    if not stamps:
+        raise SequenceError(f"{path} lists no images")
+    return np.asarray(stamps), files
+
+
+def associate(first: np.ndarray, second: np.ndarray, max_difference: float = 0.02) -> list[tuple[int, int]]:
+    """Greedy one-to-one association of two timestamp lists (TUM ``associate.py``).
+
+    Returns:
+        index pairs ``(i, j)`` sorted by ``i``, with ``|first[i] - second[j]| < max_difference``.
+    """
+    order = np.argsort(second)
+    sorted_second = second[order]
+    candidates = []
+    for i, t in enumerate(first):
+        lo = np.searchsorted(sorted_second, t - max_difference, side="left")
+        hi = np.searchsorted(sorted_second, t + max_difference, side="right")
+        for k in range(lo, hi):
+            diff = abs(t - sorted_second[k])
+            if diff < max_difference:
+                candidates.append((diff, i, int(order[k])))
+    candidates.sort()
+    used_a, used_b, pairs = set(), set(), []
+    for _, i, j in candidates:
+        if i not in used_a and j not in used_b:
+            used_a.add(i)
+            used_b.add(j)
+            pairs.append((i, j))
+    return sorted(pairs)
+
+
+class TUMSequence(FrameSequence):
+    """A TUM RGB-D sequence as :class:`RGBDFrame` s.
+
+    Args:
+        path: the directory with ``rgb.txt`` and ``depth.txt``.
+        K: (3, 3) intrinsics; default :data:`FREIBURG_DEFAULT_K` (TUM's recommendation when
+            the sequence's calibration is unknown; fr1/fr2/fr3 have their own values).
+        depth_scale: metres per depth unit, default 1/5000.
+        max_difference: RGB-depth association tolerance, s.
+
+    Raises:
+        SequenceError: missing or malformed lists, or no RGB image has a depth partner.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        K: np.ndarray | None = None,
+        depth_scale: float = TUM_DEPTH_SCALE,
+        max_difference: float = 0.02,
+    ) -> None:
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise SequenceError(f"sequence directory {self.path} does not exist or is not a directory")
+        self.K = check_intrinsics(FREIBURG_DEFAULT_K if K is None else K)
+        if not depth_scale > 0:
+            raise ValueError(f"depth_scale is {depth_scale}, expected > 0 metres per unit")
+        self.depth_scale = float(depth_scale)
+        rgb_t, rgb_f = _read_list(self.path / "rgb.txt")
+        depth_t, depth_f = _read_list(self.path / "depth.txt")
+        pairs = associate(rgb_t, depth_t, max_difference)
+        if not pairs:
+            raise SequenceError(f"{self.path}: no RGB image has a depth image within {max_difference} s")
+        self.timestamps = np.array([rgb_t[i] for i, _ in pairs])
+        self._files = [(rgb_f[i], depth_f[j]) for i, j in pairs]
+        self.depth_timestamps = np.array([depth_t[j] for _, j in pairs])
+
+    def frame(self, index: int) -> RGBDFrame:
+        rgb_file, depth_file = self._files[index]
+        rgb = read_image(self.path / rgb_file)
+        depth = decode_depth(read_image(self.path / depth_file, depth=True), self.depth_scale)
+        if rgb.shape[:2] != depth.shape:
+            raise SequenceError(f"{rgb_file} is {rgb.shape[:2]} but {depth_file} is {depth.shape}; TUM images must be aligned")
+        return RGBDFrame(rgb=rgb, depth=depth, K=self.K, timestamp=float(self.timestamps[index]))
+
+    def groundtruth(self, max_difference: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+        """Camera poses from ``groundtruth.txt`` at the frame timestamps (nearest within tolerance).
+
+        Returns:
+            ((N, 7) float64 ``tx ty tz qx qy qz qw`` rows, (N,) bool valid); invalid rows are 0.
+
+        Raises:
+            SequenceError: the file is missing or malformed.
+        """
+        path = self.path / "groundtruth.txt"
+        if not path.is_file():
+            raise SequenceError(f"{path} does not exist")
+        rows = [line.split() for line in path.read_text(encoding="utf-8").splitlines() if line.strip() and not line.startswith("#")]
+        if not rows or any(len(r) != 8 for r in rows):
+            raise SequenceError(f"{path}: expected rows 't tx ty tz qx qy qz qw'")
+        data = np.array(rows, dtype=np.float64)
+        out, valid = np.zeros((len(self), 7)), np.zeros(len(self), dtype=bool)
+        for i, j in associate(self.timestamps, data[:, 0], max_difference):
+            out[i], valid[i] = data[j, 1:], True
+        return out, valid
