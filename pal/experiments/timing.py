@@ -1,0 +1,129 @@
+"""Wall-clock timing shared by the benchmarks (``pal bench NAME``).
+
+Every figure is the median of ``repeats`` timed calls (``time.perf_counter``) after
+``warmup`` untimed calls, so lazy initialisation, allocator growth and first-call
+dispatch costs stay out of it. :func:`measure_interleaved` alternates the contenders
+within each repeat, so a change in machine load hits both sides of a ratio alike.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import statistics
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+__all__ = ["Timing", "markdown_table", "measure", "measure_interleaved", "ratio", "torch_threads"]
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Timed repeats of one call.
+
+    Attributes:
+        seconds: wall time of each timed repeat, s.
+        result: return value of the last call (not compared, not printed).
+    """
+
+    seconds: tuple[float, ...]
+    result: Any = field(default=None, repr=False, compare=False)
+
+    @property
+    def median(self) -> float:
+        """Median wall time, s."""
+        return statistics.median(self.seconds)
+
+    @property
+    def ms(self) -> float:
+        """Median wall time, ms."""
+        return 1e3 * self.median
+
+
+def _check(repeats: int, warmup: int) -> None:
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
+        raise ValueError(f"repeats must be a positive int, got {repeats!r}")
+    if isinstance(warmup, bool) or not isinstance(warmup, int) or warmup < 0:
+        raise ValueError(f"warmup must be a non-negative int, got {warmup!r}")
+
+
+def measure(fn: Callable[[], Any], repeats: int = 5, warmup: int = 1, no_grad: bool = False) -> Timing:
+    """Time ``fn()``: ``warmup`` untimed calls, then ``repeats`` timed ones.
+
+    Args:
+        fn: the call to time, without arguments.
+        repeats: number of timed calls (>= 1).
+        warmup: number of untimed calls before them (>= 0).
+        no_grad: run every call under ``torch.no_grad()``.
+
+    Returns:
+        :class:`Timing` with one wall time per timed call.
+    """
+    return measure_interleaved({"fn": fn}, repeats, warmup, no_grad)["fn"]
+
+
+def measure_interleaved(
+    fns: Mapping[str, Callable[[], Any]], repeats: int = 5, warmup: int = 1, no_grad: bool = False
+) -> dict[str, Timing]:
+    """Time several calls, alternating them inside each repeat (see :func:`measure`).
+
+    Returns:
+        name -> :class:`Timing`.
+    """
+    _check(repeats, warmup)
+    if not fns:
+        raise ValueError("fns is empty; give at least one call to time")
+    ctx = torch.no_grad if no_grad else contextlib.nullcontext
+    times: dict[str, list[float]] = {k: [] for k in fns}
+    results: dict[str, Any] = {}
+    with ctx():
+        for _ in range(warmup):
+            for fn in fns.values():
+                fn()
+        for _ in range(repeats):
+            for name, fn in fns.items():
+                start = time.perf_counter()
+                results[name] = fn()
+                times[name].append(time.perf_counter() - start)
+    return {k: Timing(tuple(v), results[k]) for k, v in times.items()}
+
+
+def ratio(numerator: float | None, denominator: float | None) -> float | None:
+    """``numerator / denominator``, or None when either is missing or the denominator is 0."""
+    if numerator is None or denominator is None or denominator == 0:
+        return None
+    return numerator / denominator
+
+
+@contextlib.contextmanager
+def torch_threads(threads: int | None) -> Iterator[None]:
+    """Run the block with ``torch.set_num_threads(threads)`` (None: leave it), then restore it."""
+    if threads is None:
+        yield
+        return
+    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+        raise ValueError(f"threads must be a positive int or None, got {threads!r}")
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """A GitHub markdown table; floats get 4 significant digits, None shows as ``n/a``."""
+
+    def cell(v: Any) -> str:
+        if v is None:
+            return "n/a"
+        if isinstance(v, float):
+            return f"{v:.4g}"
+        return str(v)
+
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in rows]
+    return "\n".join(lines)
