@@ -20,6 +20,7 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
+from inference.frozen import frozen_parameters
 from inference.handlers import Intervene, ReplayNoise
 from models.variables import Role
 from models.world import WorldModel, as_values
@@ -168,10 +169,7 @@ def infer_action(
         return program(evidence, n)
 
     history: list[float] = []
-    requires = [p.requires_grad for p in model.parameters()]
-    for p in model.parameters():
-        p.requires_grad_(False)
-    try:
+    with frozen_parameters(model):
         for _ in tqdm(range(steps), desc="infer_action", disable=not progress_bar, leave=False):
             optim.zero_grad()
             per_unit = -log_preference(forward())
@@ -187,9 +185,6 @@ def infer_action(
         with torch.no_grad():
             predicted = forward()
             final = -log_preference(predicted)
-    finally:
-        for p, r in zip(model.parameters(), requires, strict=True):
-            p.requires_grad_(r)
     if not torch.isfinite(final).all():
         raise FloatingPointError("action inference produced a non-finite loss; check targets and scales")
     acts = {k: v.detach().clone() for k, v in params.items()}

@@ -143,7 +143,9 @@ class CuriositySampler:
         raw = cur[None, :] * self.locality(current)
         return raw / raw.sum(1, keepdims=True)
 
-    def sample(self, rng: np.random.Generator, current: Any | None = None, *, size: int | None = None) -> np.ndarray:
+    def sample(
+        self, rng: np.random.Generator, current: Any | None = None, *, size: int | None = None
+    ) -> np.ndarray:
         """Draw targets x* ~ p_tar (Eq. 4.38).
 
         Args:

@@ -24,6 +24,7 @@ from pyro.optim import ClippedAdam
 from torch import Tensor
 from tqdm import tqdm
 
+from inference.frozen import frozen_parameters
 from inference.handlers import Intervene
 from inference.interventions import check_interventions
 from models.variables import Role
@@ -141,7 +142,7 @@ def infer_state(
     program = Intervene(ivs)(model) if ivs else model
 
     param_store = pyro.get_param_store()
-    with param_store.scope() as param_state, torch.random.fork_rng():
+    with param_store.scope() as param_state, torch.random.fork_rng(), frozen_parameters(model):
         pyro.set_rng_seed(seed)
         auto = GUIDES[guide](program, init_scale=init_scale)
         optim = ClippedAdam({"lr": lr, "lrd": (lr_final / lr) ** (1.0 / num_steps)})
