@@ -10,7 +10,7 @@ from inference.action import ActionResult, gaussian_log_preference, infer_action
 from inference.counterfactual import CounterfactualResult, abduct, counterfactual
 from inference.curiosity import CuriositySampler, normalized_entropy, occupancy
 from inference.fit import FitResult, fit
-from inference.handlers import AbductNoise, Intervene, ReplayNoise
+from inference.handlers import AbductNoise, Intervene, MeasurementScale, ReplayNoise
 from inference.interventions import do, simulate
 from inference.state import StateResult, infer_state
 
@@ -21,6 +21,7 @@ __all__ = [
     "CuriositySampler",
     "FitResult",
     "Intervene",
+    "MeasurementScale",
     "ReplayNoise",
     "StateResult",
     "abduct",

@@ -3,6 +3,7 @@
 * :class:`Intervene`   -- do(X := v) or do(X := g(x)): replaces a site's mechanism.
 * :class:`AbductNoise` -- records standardised residuals eps = (x - loc) / scale (Eq. 4.43).
 * :class:`ReplayNoise` -- sets x = loc + scale * eps from given residuals (Eq. 4.39).
+* :class:`MeasurementScale` -- per-unit sigma on measurement sites o_obs ~ Normal(o, sigma_t).
 
 They work on any Pyro program whose sites are location-scale distributions written the
 natural way (``Normal(f(pa), sigma)``, optionally ``.to_event``/expanded), ``Uniform``
@@ -27,6 +28,7 @@ __all__ = [
     "AbductNoise",
     "Intervene",
     "InterventionSpec",
+    "MeasurementScale",
     "ReplayNoise",
     "is_variable_site",
     "location_scale",
@@ -202,3 +204,41 @@ class ReplayNoise(Messenger):
         else:
             raise ValueError(f"no replayed noise for site {name!r}; abduct it or pass default='expected'")
         _fix(msg, loc + scale * eps, "pal_replayed")
+
+
+class MeasurementScale(Messenger):
+    """Set a per-unit scale on Normal measurement sites: ``o_obs ~ Normal(o, sigma_t)``.
+
+    Perception reports a different uncertainty for every frame (from its pose
+    diagnostics); the model's learned sigma of a measurement site is replaced by it.
+
+    Args:
+        scales: site name -> sigma, ``(dim,)`` or ``(N, dim)``, finite and > 0.
+    """
+
+    def __init__(self, scales: Mapping[str, Tensor]) -> None:
+        super().__init__()
+        for name, s in scales.items():
+            if not isinstance(s, Tensor) or s.ndim not in (1, 2):
+                raise ValueError(f"measurement scale of {name!r} must be a (dim,) or (N, dim) tensor")
+            if not (torch.isfinite(s).all() and (s > 0).all()):
+                raise ValueError(f"measurement scale of {name!r} must be finite and > 0, got {s}")
+        self.scales = dict(scales)
+
+    def _pyro_sample(self, msg: Message) -> None:
+        name = msg["name"]
+        if name not in self.scales or not is_variable_site(msg):
+            return
+        base = _base(msg["fn"])
+        if not isinstance(base, dist.Normal):
+            raise ValueError(f"measurement site {name!r} must be Normal, got {type(base).__name__}")
+        scale = self.scales[name]
+        shape = site_shape(msg["fn"])
+        # trailing (N, dim) or (dim,); outer dims (e.g. vectorised particles) are broadcast
+        if scale.shape != shape[-scale.ndim :]:
+            raise ValueError(
+                f"measurement scale of {name!r} has shape {tuple(scale.shape)}, expected "
+                f"{tuple(shape[-1:])} or {tuple(shape[-2:])}"
+            )
+        event_dims = len(msg["fn"].event_shape)
+        msg["fn"] = dist.Normal(base.loc.expand(shape), scale.expand(shape)).to_event(event_dims)

@@ -25,7 +25,7 @@ from torch import Tensor
 from tqdm import tqdm
 
 from inference.frozen import frozen_parameters
-from inference.handlers import Intervene
+from inference.handlers import Intervene, MeasurementScale
 from inference.interventions import check_interventions
 from models.variables import Role
 from models.world import WorldModel, as_values
@@ -87,6 +87,7 @@ def infer_state(
     observed: Mapping[str, Any],
     *,
     interventions: Mapping[str, Any] | None = None,
+    measurement_scale: Mapping[str, Tensor] | None = None,
     guide: str = "normal",
     num_steps: int = 500,
     lr: float = 0.1,
@@ -105,6 +106,9 @@ def infer_state(
         observed: name -> ``(N, dim)`` evidence. Executed actions in it are applied as
             ``do(action)``, not conditioned on.
         interventions: extra ``do`` assignments (see :func:`inference.do`).
+        measurement_scale: observed measurement site -> per-unit sigma ``(N, dim)`` or
+            ``(dim,)`` replacing its learned sigma (:class:`inference.MeasurementScale`),
+            e.g. the uncertainty perception reports for each frame.
         guide: ``"normal"`` (AutoNormal, mean field) or ``"mvn"`` (AutoMultivariateNormal).
         num_steps, lr, lr_final: ClippedAdam with lr decaying geometrically to ``lr_final``.
         num_particles: vectorised ELBO particles per step.
@@ -140,6 +144,14 @@ def infer_state(
     if not latent:
         raise ValueError("every variable is observed or intervened on; there is no latent site to infer")
     program = Intervene(ivs)(model) if ivs else model
+    if measurement_scale:
+        unobserved = sorted(set(measurement_scale) - set(evidence))
+        if unobserved:
+            raise ValueError(f"measurement_scale names {unobserved}, which are not observed sites")
+        for name, scale in measurement_scale.items():
+            if scale.ndim == 2 and scale.shape[0] != n:
+                raise ValueError(f"measurement_scale[{name!r}] has {scale.shape[0]} rows, expected {n}")
+        program = MeasurementScale(measurement_scale)(program)
 
     param_store = pyro.get_param_store()
     with param_store.scope() as param_state, torch.random.fork_rng(), frozen_parameters(model):
