@@ -25,6 +25,7 @@ __all__ = [
     "chain_graph",
     "finger_graph",
     "joint_chain_graph",
+    "pushing_graph",
     "random_graph",
 ]
 
@@ -128,4 +129,69 @@ def random_graph(d: int, expected_parents: float = 2.0, seed: int = 0, prefix: s
         Variable(f"{prefix}{k}", Role.LATENT if f"{prefix}{k}" in children else Role.OBSERVED)
         for k in range(d)
     ]
+    return CausalGraph(variables, edges)
+
+
+def pushing_graph(
+    joints: Sequence[str],
+    action_ranges: Mapping[str, tuple[float, float]],
+    objects: Sequence[str] = ("box",),
+    *,
+    q_ranges: Mapping[str, tuple[float, float]] | None = None,
+    object_dim: int = 2,
+) -> CausalGraph:
+    """The pushing world model: actions move joints, joints move the hand, the hand pushes objects.
+
+    Per joint j (the ``"state"`` chain): ``act.j -> dq.j -> q.j <- q_prev.j``, ``q_prev.j -> dq.j``.
+    Hand: ``{q.j} -> hand`` and ``{q_prev.j} -> hand_prev`` (learned kinematics, 3-D, m).
+    Per object o (position on the table, ``object_dim``-D, m)::
+
+        hand_prev, hand, pos_prev.o -> contact.o            (contact strength, 1-D)
+        contact.o, hand_prev, hand, pos_prev.o -> dpos.o    (displacement over the step)
+        pos_prev.o, dpos.o -> pos.o -> meas.o               (meas.o ~ Normal(pos.o, sigma_perception))
+
+    ``meas.o`` is the measurement site through which perceived positions enter the model;
+    ``pos.o`` is the true (latent) position. ``pos_prev.o`` is the previous step's estimate.
+    """
+    if object_dim not in (2, 3):
+        raise ValueError(f"object_dim must be 2 (table plane) or 3, got {object_dim}")
+    if not objects:
+        raise ValueError("objects is empty; expected at least one object name")
+    clash = sorted(set(objects) & {"hand", "hand_prev"})
+    if clash:
+        raise ValueError(f"object names {clash} clash with the hand variables")
+    arm = joint_chain_graph(joints, action_ranges, variant="state", q_ranges=q_ranges)
+    variables = [arm[n] for n in arm.names]
+    edges = list(arm.edges)
+    variables += [
+        Variable("hand_prev", Role.LATENT, dim=3, unit="m", lag=1, lag_of="hand", description="hand at t-1"),
+        Variable("hand", Role.LATENT, dim=3, unit="m", description="hand position after the action"),
+    ]
+    edges += [(f"q.{j}", "hand") for j in joints] + [(f"q_prev.{j}", "hand_prev") for j in joints]
+    for o in objects:
+        variables += [
+            Variable(
+                f"pos_prev.{o}",
+                Role.OBSERVED,
+                dim=object_dim,
+                unit="m",
+                lag=1,
+                lag_of=f"pos.{o}",
+                description="object position before the action (previous estimate)",
+            ),
+            Variable(f"contact.{o}", Role.LATENT, unit="1", description="hand-object contact strength"),
+            Variable(f"dpos.{o}", Role.LATENT, dim=object_dim, unit="m", description="object displacement"),
+            Variable(f"pos.{o}", Role.LATENT, dim=object_dim, unit="m", description="true object position"),
+            Variable(
+                f"meas.{o}",
+                Role.OBSERVED,
+                dim=object_dim,
+                unit="m",
+                description="perceived object position (measurement site)",
+            ),
+        ]
+        context = ("hand_prev", "hand", f"pos_prev.{o}")
+        edges += [(c, f"contact.{o}") for c in context]
+        edges += [(c, f"dpos.{o}") for c in (f"contact.{o}", *context)]
+        edges += [(f"pos_prev.{o}", f"pos.{o}"), (f"dpos.{o}", f"pos.{o}"), (f"pos.{o}", f"meas.{o}")]
     return CausalGraph(variables, edges)
