@@ -6,7 +6,7 @@ Depends on torch, pyro and networkx only.
 from models.graph import CausalGraph
 from models.io import ModelFileError, load, save
 from models.mechanisms import FunctionMechanism, LinearMechanism, Mechanism, MLPMechanism
-from models.presets import chain_graph, finger_graph, joint_chain_graph, random_graph
+from models.presets import chain_graph, finger_graph, joint_chain_graph, pushing_graph, random_graph
 from models.variables import Role, Variable
 from models.world import WorldModel
 
@@ -24,6 +24,7 @@ __all__ = [
     "finger_graph",
     "joint_chain_graph",
     "load",
+    "pushing_graph",
     "random_graph",
     "save",
 ]
