@@ -44,7 +44,7 @@ from pal.perception.spatial import SpatialDescriptor, spatial_descriptor
 from pal.perception.tracking import Observation, Tracker, TrackerConfig
 from pal.perception.trajectory import Pose, PoseDiagnostics, Trajectory
 from pal.perception.tum import TUMSequence
-from pal.perception.visual import VISUAL_DIM, VISUAL_FAMILIES, visual_descriptor
+from pal.perception.visual import VISUAL_DIM, VISUAL_FAMILIES, VISUAL_HISTOGRAMS, visual_descriptor
 
 __all__ = [
     "KINEMATIC_DIM",
@@ -53,6 +53,7 @@ __all__ = [
     "TOPOLOGY",
     "VISUAL_DIM",
     "VISUAL_FAMILIES",
+    "VISUAL_HISTOGRAMS",
     "AdmissionConfig",
     "AdmissionDecision",
     "Candidate",

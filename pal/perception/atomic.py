@@ -68,7 +68,9 @@ def atomic_write_png(path: str | os.PathLike[str], image: np.ndarray) -> Path:
     """
     ok, buf = cv2.imencode(".png", image)
     if not ok:
-        raise ValueError(f"OpenCV could not encode an image of shape {image.shape} and dtype {image.dtype} as PNG")
+        raise ValueError(
+            f"OpenCV could not encode an image of shape {image.shape} and dtype {image.dtype} as PNG"
+        )
     return atomic_write_bytes(path, buf.tobytes())
 
 

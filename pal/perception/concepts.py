@@ -48,7 +48,9 @@ class Domain:
         if self.weights is not None:
             w = np.asarray(self.weights, dtype=np.float64)
             if w.shape != (len(self.dimensions),) or not np.all(np.isfinite(w)) or np.any(w <= 0):
-                raise ValueError(f"domain {self.name!r}: weights must be {len(self.dimensions)} finite values > 0")
+                raise ValueError(
+                    f"domain {self.name!r}: weights must be {len(self.dimensions)} finite values > 0"
+                )
 
     @property
     def size(self) -> int:
@@ -113,7 +115,9 @@ class ConceptualSpace:
         self.domains: dict[str, Domain] = {d.name: d for d in domains}
         sal = {n: 1.0 for n in names} if salience is None else {str(k): float(v) for k, v in salience.items()}
         if set(sal) != set(names):
-            raise ValueError(f"salience is given for {sorted(sal)}, expected exactly the domains {sorted(names)}")
+            raise ValueError(
+                f"salience is given for {sorted(sal)}, expected exactly the domains {sorted(names)}"
+            )
         bad = {k: v for k, v in sal.items() if not (math.isfinite(v) and v > 0)}
         if bad:
             raise ValueError(f"salience weights must be finite and > 0 (Eq. 1.6); got {bad}")
@@ -135,7 +139,9 @@ class ConceptualSpace:
         checked = {}
         for dom, x in points.items():
             if dom not in self.domains:
-                raise ValueError(f"entity {name!r}: unknown domain {dom!r}; the space has {sorted(self.domains)}")
+                raise ValueError(
+                    f"entity {name!r}: unknown domain {dom!r}; the space has {sorted(self.domains)}"
+                )
             checked[dom] = self.domains[dom].check(x)
         if not checked:
             raise ValueError(f"entity {name!r} has no projection into any domain")
@@ -151,11 +157,15 @@ class ConceptualSpace:
             for d in domains:
                 missing = [e.name for e in (a, b) if d not in e.points]
                 if missing:
-                    raise ValueError(f"required domain {d!r} is missing on {missing}; they have {sorted(a.domains)} and {sorted(b.domains)}")
+                    raise ValueError(
+                        f"required domain {d!r} is missing on {missing}; they have {sorted(a.domains)} and {sorted(b.domains)}"
+                    )
             return tuple(dict.fromkeys(domains))
         shared = tuple(d for d in self.domains if d in a.points and d in b.points)
         if not shared:
-            raise ValueError(f"{a.name!r} ({sorted(a.domains)}) and {b.name!r} ({sorted(b.domains)}) share no domain")
+            raise ValueError(
+                f"{a.name!r} ({sorted(a.domains)}) and {b.name!r} ({sorted(b.domains)}) share no domain"
+            )
         return shared
 
     def distance(self, a: Entity, b: Entity, domains: Sequence[str] | None = None) -> float:
@@ -185,7 +195,9 @@ class ConceptualSpace:
             groups.setdefault(str(lab), []).append(e)
         return {lab: self.prototype(lab, es) for lab, es in sorted(groups.items())}
 
-    def categorize(self, entity: Entity, prototypes: Mapping[str, Entity], domains: Sequence[str] | None = None) -> Categorization:
+    def categorize(
+        self, entity: Entity, prototypes: Mapping[str, Entity], domains: Sequence[str] | None = None
+    ) -> Categorization:
         """Nearest prototype (Eq. 1.7) over one set of domains for all prototypes.
 
         Args:
@@ -197,7 +209,11 @@ class ConceptualSpace:
         if not prototypes:
             raise ValueError("categorize needs at least one prototype")
         if domains is None:
-            common = [d for d in self.domains if d in entity.points and all(d in p.points for p in prototypes.values())]
+            common = [
+                d
+                for d in self.domains
+                if d in entity.points and all(d in p.points for p in prototypes.values())
+            ]
             if not common:
                 raise ValueError(f"{entity.name!r} shares no domain with every prototype")
             domains = common

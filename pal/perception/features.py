@@ -1,7 +1,11 @@
 """Local image features on an object's mask (ORB by default, SIFT optionally) and ratio-test matching.
 
-Features are detected inside the object mask only (OpenCV detection mask) on a region padded by
-``margin`` pixels, so descriptor patches near the silhouette still fit in the image. Keypoints
+Features are detected inside the object mask eroded by ``border`` pixels (OpenCV detection mask),
+on a region padded by ``margin`` pixels so descriptor patches near the silhouette still fit in
+the image. The erosion drops corners on the silhouette itself: there the descriptor patch mixes
+the object with whatever lies behind it, so such a corner is not fixed on the object (on a
+smooth one-colour ball every ORB corner is a silhouette corner, and matching them would invent
+an orientation). Keypoints
 are returned in full-image pixel coordinates. Matching is brute force (Hamming for ORB, L2 for
 SIFT) with Lowe's ratio test; matches whose keypoints fall outside either mask are dropped.
 """
@@ -29,6 +33,8 @@ class FeatureConfig:
         ratio: Lowe ratio-test threshold (best / second-best distance).
         margin: pixels of context around the mask's box for descriptor patches.
         fast_threshold: ORB's FAST corner threshold (lower finds more corners on weak texture).
+        border: keypoints closer than this many pixels to the mask's boundary are not detected
+            (0 keeps silhouette corners).
     """
 
     kind: Literal["orb", "sift"] = "orb"
@@ -36,6 +42,7 @@ class FeatureConfig:
     ratio: float = 0.8
     margin: int = 32
     fast_threshold: int = 12
+    border: int = 3
 
     def __post_init__(self) -> None:
         if self.kind not in ("orb", "sift"):
@@ -44,8 +51,10 @@ class FeatureConfig:
             raise ValueError(f"n_features is {self.n_features}, expected >= 1")
         if not 0 < self.ratio < 1:
             raise ValueError(f"ratio is {self.ratio}, expected in (0, 1)")
-        if self.margin < 0 or self.fast_threshold < 1:
-            raise ValueError(f"margin ({self.margin}) must be >= 0 and fast_threshold ({self.fast_threshold}) >= 1")
+        if self.margin < 0 or self.fast_threshold < 1 or self.border < 0:
+            raise ValueError(
+                f"margin ({self.margin}) and border ({self.border}) must be >= 0 and fast_threshold ({self.fast_threshold}) >= 1"
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,12 +114,21 @@ class FeatureExtractor:
             raise ValueError(f"gray has shape {gray.shape} dtype {gray.dtype}, expected (H, W) uint8")
         if gray.shape != mask.image_shape:
             raise ValueError(f"gray has shape {gray.shape} but the mask lives in {mask.image_shape}")
-        m = self.config.margin
+        cfg = self.config
+        m = cfg.margin
         h, w = gray.shape
         x0, y0, x1, y1 = mask.bbox
         rx0, ry0, rx1, ry1 = max(0, x0 - m), max(0, y0 - m), min(w, x1 + m), min(h, y1 + m)
         region = np.ascontiguousarray(gray[ry0:ry1, rx0:rx1])
         detect_mask = mask.region(rx0, ry0, rx1, ry1).view(np.uint8) * np.uint8(255)
+        if cfg.border > 0:
+            # zero-padded: the image edge counts as boundary too
+            detect_mask = cv2.erode(
+                detect_mask,
+                np.ones((2 * cfg.border + 1,) * 2, np.uint8),
+                borderType=cv2.BORDER_CONSTANT,
+                borderValue=0,
+            )
         kps, desc = self._detector.detectAndCompute(region, detect_mask)
         if desc is None or not kps:
             return self.empty()

@@ -86,7 +86,9 @@ class OneEuroFilter:
             raise ValueError(f"sample has shape {x.shape}, expected {self._x.shape} like the first sample")
         dt = float(t) - self._t
         if not dt > 0:
-            raise ValueError(f"timestamp {t} s does not increase (previous {self._t} s); the 1€ filter needs dt > 0")
+            raise ValueError(
+                f"timestamp {t} s does not increase (previous {self._t} s); the 1€ filter needs dt > 0"
+            )
         cfg = self.config
         a_d = _alpha(cfg.d_cutoff, dt)
         self._dx = a_d * (x - self._x) / dt + (1.0 - a_d) * self._dx

@@ -34,7 +34,9 @@ def check_intrinsics(K: np.ndarray | None, name: str = "K") -> np.ndarray:
             not ``[0, 0, 1]``.
     """
     if K is None:
-        raise ValueError(f"{name} (camera intrinsics) is missing; pass a (3, 3) matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]")
+        raise ValueError(
+            f"{name} (camera intrinsics) is missing; pass a (3, 3) matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]"
+        )
     K = np.asarray(K, dtype=np.float64)
     if K.shape != (3, 3):
         raise ValueError(f"{name} has shape {K.shape}, expected (3, 3)")
@@ -124,7 +126,9 @@ class RGBDFrame:
         if rgb.shape[0] == 0 or rgb.shape[1] == 0:
             raise ValueError(f"the frame is empty: rgb has shape {rgb.shape}, expected H, W >= 1")
         if depth.shape != rgb.shape[:2]:
-            raise ValueError(f"depth has shape {depth.shape}, expected {rgb.shape[:2]} to match rgb {rgb.shape}")
+            raise ValueError(
+                f"depth has shape {depth.shape}, expected {rgb.shape[:2]} to match rgb {rgb.shape}"
+            )
         if depth.dtype != np.float32:
             raise ValueError(f"depth has dtype {depth.dtype}, expected float32 metres (0 = invalid)")
         if not np.isfinite(depth).all():
@@ -174,11 +178,16 @@ class RGBDFrame:
         """
         x0, y0, x1, y1 = (int(v) for v in (x0, y0, x1, y1))
         if not (0 <= x0 < x1 <= self.width and 0 <= y0 < y1 <= self.height):
-            raise ValueError(f"crop box ({x0}, {y0}, {x1}, {y1}) is empty or outside the {self.width}x{self.height} frame")
+            raise ValueError(
+                f"crop box ({x0}, {y0}, {x1}, {y1}) is empty or outside the {self.width}x{self.height} frame"
+            )
         labels = None if self.labels is None else self.labels[y0:y1, x0:x1]
         return RGBDFrame(
-            rgb=self.rgb[y0:y1, x0:x1], depth=self.depth[y0:y1, x0:x1], K=crop_intrinsics(self.K, x0, y0),
-            timestamp=self.timestamp, labels=labels,
+            rgb=self.rgb[y0:y1, x0:x1],
+            depth=self.depth[y0:y1, x0:x1],
+            K=crop_intrinsics(self.K, x0, y0),
+            timestamp=self.timestamp,
+            labels=labels,
         )
 
     def points(self) -> np.ndarray:

@@ -30,7 +30,14 @@ from scipy.spatial.transform import Rotation, Slerp
 from pal.perception.filters import OneEuroConfig, one_euro
 from pal.perception.trajectory import Trajectory
 
-__all__ = ["KINEMATIC_DIM", "KINEMATIC_NAMES", "KinematicConfig", "KinematicDescriptor", "kinematic_descriptor", "trajectory_descriptor"]
+__all__ = [
+    "KINEMATIC_DIM",
+    "KINEMATIC_NAMES",
+    "KinematicConfig",
+    "KinematicDescriptor",
+    "kinematic_descriptor",
+    "trajectory_descriptor",
+]
 
 _COMPONENTS = ("tx", "ty", "tz", "rx", "ry", "rz")
 KINEMATIC_DIM = 90
@@ -57,9 +64,13 @@ class KinematicConfig:
 
     def __post_init__(self) -> None:
         if self.n_samples < 2 or not 1 <= self.n_coeffs <= self.n_samples:
-            raise ValueError(f"need n_samples >= 2 and 1 <= n_coeffs <= n_samples; got {self.n_samples}, {self.n_coeffs}")
+            raise ValueError(
+                f"need n_samples >= 2 and 1 <= n_coeffs <= n_samples; got {self.n_samples}, {self.n_coeffs}"
+            )
         if not self.max_gap_s > 0 or self.min_valid < 2:
-            raise ValueError(f"max_gap_s must be > 0 s and min_valid >= 2; got {self.max_gap_s}, {self.min_valid}")
+            raise ValueError(
+                f"max_gap_s must be > 0 s and min_valid >= 2; got {self.max_gap_s}, {self.min_valid}"
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,7 +95,10 @@ class KinematicDescriptor:
 
 
 def kinematic_descriptor(
-    timestamps: np.ndarray, poses: np.ndarray, valid: np.ndarray | None = None, config: KinematicConfig | None = None
+    timestamps: np.ndarray,
+    poses: np.ndarray,
+    valid: np.ndarray | None = None,
+    config: KinematicConfig | None = None,
 ) -> KinematicDescriptor:
     """The descriptor of a pose sequence (module docstring).
 
@@ -133,12 +147,18 @@ def kinematic_descriptor(
     long_gaps = gaps[gaps > cfg.max_gap_s]
     frac = float(long_gaps.sum() / duration) if duration > 0 else 0.0
     return KinematicDescriptor(
-        vector=coeffs.T.reshape(-1), n_valid=int(ts.shape[0]), duration_s=duration, max_gap_s=float(gaps.max()),
-        gap_fraction=frac, reliable=bool(ts.shape[0] >= cfg.min_valid and long_gaps.size == 0),
+        vector=coeffs.T.reshape(-1),
+        n_valid=int(ts.shape[0]),
+        duration_s=duration,
+        max_gap_s=float(gaps.max()),
+        gap_fraction=frac,
+        reliable=bool(ts.shape[0] >= cfg.min_valid and long_gaps.size == 0),
     )
 
 
-def trajectory_descriptor(trajectory: Trajectory, config: KinematicConfig | None = None) -> KinematicDescriptor:
+def trajectory_descriptor(
+    trajectory: Trajectory, config: KinematicConfig | None = None
+) -> KinematicDescriptor:
     """:func:`kinematic_descriptor` of a :class:`Trajectory` (estimated poses only)."""
     ts, T = trajectory.valid()
     return kinematic_descriptor(ts, T, None, config)

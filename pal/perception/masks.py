@@ -42,7 +42,9 @@ class Mask:
             raise ValueError(f"mask has shape {mask.shape}, expected (H, W)")
         rows = np.flatnonzero(mask.any(axis=1))
         if rows.size == 0:
-            raise ValueError(f"mask of shape {mask.shape} is empty (zero-size); an object mask needs >= 1 pixel")
+            raise ValueError(
+                f"mask of shape {mask.shape} is empty (zero-size); an object mask needs >= 1 pixel"
+            )
         cols = np.flatnonzero(mask.any(axis=0))
         y0, y1, x0, x1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
         crop = mask[y0:y1, x0:x1].copy()
@@ -63,11 +65,18 @@ class Mask:
             raise ValueError(f"mask crop at ({x0}, {y0}) of size {w}x{h} leaves the image {image_shape}")
         rows = np.flatnonzero(crop.any(axis=1))
         if rows.size == 0:
-            raise ValueError(f"mask crop of shape {crop.shape} is empty (zero-size); an object mask needs >= 1 pixel")
+            raise ValueError(
+                f"mask crop of shape {crop.shape} is empty (zero-size); an object mask needs >= 1 pixel"
+            )
         cols = np.flatnonzero(crop.any(axis=0))
         r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
         tight = crop[r0:r1, c0:c1].copy()
-        return Mask((x0 + c0, y0 + r0, x0 + c1, y0 + r1), tight, (int(image_shape[0]), int(image_shape[1])), int(tight.sum()))
+        return Mask(
+            (x0 + c0, y0 + r0, x0 + c1, y0 + r1),
+            tight,
+            (int(image_shape[0]), int(image_shape[1])),
+            int(tight.sum()),
+        )
 
     @property
     def xywh(self) -> tuple[int, int, int, int]:
@@ -92,7 +101,9 @@ class Mask:
         bx0, by0, bx1, by1 = self.bbox
         ix0, iy0, ix1, iy1 = max(x0, bx0), max(y0, by0), min(x1, bx1), min(y1, by1)
         if ix0 < ix1 and iy0 < iy1:
-            out[iy0 - y0 : iy1 - y0, ix0 - x0 : ix1 - x0] = self.crop[iy0 - by0 : iy1 - by0, ix0 - bx0 : ix1 - bx0]
+            out[iy0 - y0 : iy1 - y0, ix0 - x0 : ix1 - x0] = self.crop[
+                iy0 - by0 : iy1 - by0, ix0 - bx0 : ix1 - bx0
+            ]
         return out
 
 

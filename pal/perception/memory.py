@@ -39,7 +39,15 @@ from pal.perception.masks import Mask
 from pal.perception.trajectory import PoseDiagnostics, Trajectory
 from pal.perception.visual import gallery_visual_descriptor, visual_descriptor
 
-__all__ = ["AdmissionConfig", "AdmissionDecision", "Gallery", "ObjectRecord", "Snapshot", "sharpness", "thumbnail"]
+__all__ = [
+    "AdmissionConfig",
+    "AdmissionDecision",
+    "Gallery",
+    "ObjectRecord",
+    "Snapshot",
+    "sharpness",
+    "thumbnail",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -77,7 +85,9 @@ class AdmissionConfig:
 
     def __post_init__(self) -> None:
         if self.min_area < 1 or self.rank_window < 1 or self.redundancy_window < 1 or self.capacity < 2:
-            raise ValueError(f"min_area, rank_window, redundancy_window must be >= 1 and capacity >= 2; got {self}")
+            raise ValueError(
+                f"min_area, rank_window, redundancy_window must be >= 1 and capacity >= 2; got {self}"
+            )
         if not 0 < self.rank_tolerance <= 1:
             raise ValueError(f"rank_tolerance is {self.rank_tolerance}, expected in (0, 1]")
         if self.min_sharpness < 0 or self.min_mse < 0 or self.max_feature_matches < 0:
@@ -178,17 +188,32 @@ class Gallery:
     def anchored(self) -> list[Snapshot]:
         return [s for s in self.snapshots if s.anchor is not None]
 
-    def _make(self, frame: RGBDFrame, mask: Mask, sharp: float, features: Features | None, anchor: np.ndarray | None) -> Snapshot:
+    def _make(
+        self, frame: RGBDFrame, mask: Mask, sharp: float, features: Features | None, anchor: np.ndarray | None
+    ) -> Snapshot:
         m = self.config.margin
         x0, y0, x1, y1 = mask.bbox
-        bx0, by0, bx1, by1 = max(0, x0 - m), max(0, y0 - m), min(frame.width, x1 + m), min(frame.height, y1 + m)
+        bx0, by0, bx1, by1 = (
+            max(0, x0 - m),
+            max(0, y0 - m),
+            min(frame.width, x1 + m),
+            min(frame.height, y1 + m),
+        )
         rgb = np.array(frame.rgb[by0:by1, bx0:bx1])
         mcrop = mask.region(bx0, by0, bx1, by1)
         snap = Snapshot(
-            index=self._serial, timestamp=frame.timestamp, bbox=(bx0, by0, bx1, by1), rgb=rgb,
-            depth=np.array(frame.depth[by0:by1, bx0:bx1]), mask=mcrop, K=np.array(frame.K), sharpness=sharp,
-            features=features, anchor=None if anchor is None else np.array(anchor, dtype=np.float64),
-            thumb=thumbnail(rgb, mcrop, self.config.thumb_size), visual=visual_descriptor(rgb, mcrop),
+            index=self._serial,
+            timestamp=frame.timestamp,
+            bbox=(bx0, by0, bx1, by1),
+            rgb=rgb,
+            depth=np.array(frame.depth[by0:by1, bx0:bx1]),
+            mask=mcrop,
+            K=np.array(frame.K),
+            sharpness=sharp,
+            features=features,
+            anchor=None if anchor is None else np.array(anchor, dtype=np.float64),
+            thumb=thumbnail(rgb, mcrop, self.config.thumb_size),
+            visual=visual_descriptor(rgb, mcrop),
         )
         self._serial += 1
         return snap
@@ -208,7 +233,9 @@ class Gallery:
         self.snapshots.append(snap)
         return evicted
 
-    def set_canonical(self, frame: RGBDFrame, gray: np.ndarray, mask: Mask, features: Features, anchor: np.ndarray) -> AdmissionDecision:
+    def set_canonical(
+        self, frame: RGBDFrame, gray: np.ndarray, mask: Mask, features: Features, anchor: np.ndarray
+    ) -> AdmissionDecision:
         """Admit the view that defines the object's canonical frame (skips the sharpness rank and
         redundancy checks, which would compare with nothing useful)."""
         if self.canonical is not None:
@@ -252,7 +279,12 @@ class Gallery:
         if recent:
             m = cfg.margin
             x0, y0, x1, y1 = mask.bbox
-            bx0, by0, bx1, by1 = max(0, x0 - m), max(0, y0 - m), min(frame.width, x1 + m), min(frame.height, y1 + m)
+            bx0, by0, bx1, by1 = (
+                max(0, x0 - m),
+                max(0, y0 - m),
+                min(frame.width, x1 + m),
+                min(frame.height, y1 + m),
+            )
             thumb = thumbnail(frame.rgb[by0:by1, bx0:bx1], mask.region(bx0, by0, bx1, by1), cfg.thumb_size)
             if min(_mse(thumb, s.thumb) for s in recent) < cfg.min_mse:
                 return AdmissionDecision(False, "mse")
@@ -261,7 +293,10 @@ class Gallery:
             if extractor is None:
                 raise ValueError("an extractor is needed to match features for the redundancy check")
             for s in recent:
-                if s.features is not None and len(extractor.match(feats, s.features)) > cfg.max_feature_matches:
+                if (
+                    s.features is not None
+                    and len(extractor.match(feats, s.features)) > cfg.max_feature_matches
+                ):
                     return AdmissionDecision(False, "features")
         snap = self._make(frame, mask, sharp, feats, anchor)
         evicted = self._insert(snap)

@@ -90,7 +90,9 @@ class PipelineConfig:
             raise ValueError(f"segmenter {self.segmenter!r} unknown; expected 'geometric' or 'oracle'")
         if self.position_source not in ("pose_then_centroid", "centroid", "pose"):
             raise ValueError(f"position_source {self.position_source!r} unknown")
-        if not self.visible_window_s >= 0 or (self.forget_after_s is not None and not self.forget_after_s >= 0):
+        if not self.visible_window_s >= 0 or (
+            self.forget_after_s is not None and not self.forget_after_s >= 0
+        ):
             raise ValueError("visible_window_s and forget_after_s must be >= 0 seconds")
 
 
@@ -155,12 +157,19 @@ class PerceptionState:
 
     def observations(self) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         """``{obj_id: (position (3,), std (3,))}`` in metres, only for objects with evidence now."""
-        return {o.obj_id: (o.position, o.position_std) for o in self.objects if o.position is not None and o.position_std is not None}
+        return {
+            o.obj_id: (o.position, o.position_std)
+            for o in self.objects
+            if o.position is not None and o.position_std is not None
+        }
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-compatible summary: scene descriptor, relations and timings."""
-        return {"scene": self.scene, "relations": None if self.relations is None else self.relations.to_dict(),
-                "timings": dict(self.timings)}
+        return {
+            "scene": self.scene,
+            "relations": None if self.relations is None else self.relations.to_dict(),
+            "timings": dict(self.timings),
+        }
 
 
 class Pipeline:
@@ -225,11 +234,15 @@ class Pipeline:
         for obs in observations:
             rec = self.records.get(obs.track_id)
             if rec is None:
-                rec = ObjectRecord(obs.track_id, Gallery(cfg.admission), t, t, obs.mask, obs.label, num_observations=0)
+                rec = ObjectRecord(
+                    obs.track_id, Gallery(cfg.admission), t, t, obs.mask, obs.label, num_observations=0
+                )
                 self.records[obs.track_id] = rec
             rec.last_updated, rec.last_mask, rec.label = t, obs.mask, obs.label
             rec.num_observations += 1
-            spatial = spatial_descriptor(frame, obs.mask, min_depth=cfg.pose.min_depth, max_depth=cfg.pose.max_depth)
+            spatial = spatial_descriptor(
+                frame, obs.mask, min_depth=cfg.pose.min_depth, max_depth=cfg.pose.max_depth
+            )
             if spatial is not None:
                 rec.centroids.append((t, spatial.centroid))
             pose: Pose | None = None
@@ -239,7 +252,14 @@ class Pipeline:
                 pose, decision = self.estimator.estimate(rec, frame, gray, obs.mask, feats)
                 c1 = time.perf_counter()
                 if decision is None:
-                    decision = rec.gallery.consider(frame, gray, obs.mask, feats, self.estimator.extractor, self.estimator.anchor_for(pose))
+                    decision = rec.gallery.consider(
+                        frame,
+                        gray,
+                        obs.mask,
+                        feats,
+                        self.estimator.extractor,
+                        self.estimator.anchor_for(pose),
+                    )
                 rec.trajectory.append(pose)
                 rec.last_pose_diagnostics = pose.diagnostics
             else:
@@ -254,8 +274,20 @@ class Pipeline:
             t_mem += time.perf_counter() - c1
             rec.last_decision = decision
             position, std, source = self._position(obs.track_id, frame, pose, spatial)
-            states[obs.track_id] = ObjectState(obs.track_id, True, obs.status, obs.label, obs.mask, spatial, pose,
-                                               position, std, source, len(rec.gallery), decision)
+            states[obs.track_id] = ObjectState(
+                obs.track_id,
+                True,
+                obs.status,
+                obs.label,
+                obs.mask,
+                spatial,
+                pose,
+                position,
+                std,
+                source,
+                len(rec.gallery),
+                decision,
+            )
         timings["pose"], timings["memory"] = t_pose, t_mem
         clock = time.perf_counter()
         for tid in sorted(self.tracker.tracks):
@@ -264,31 +296,51 @@ class Pipeline:
             rec = self.records[tid]
             pose = None
             if cfg.estimate_pose:
-                pose = self.estimator.missing(rec, t, PoseDiagnostics(reason="object not detected in this frame"))
+                pose = self.estimator.missing(
+                    rec, t, PoseDiagnostics(reason="object not detected in this frame")
+                )
                 rec.trajectory.append(pose)
                 rec.last_pose_diagnostics = pose.diagnostics
             self._filters.pop(tid, None)
-            states[tid] = ObjectState(tid, False, None, rec.label, None, None, pose, None, None, None, len(rec.gallery), None)
+            states[tid] = ObjectState(
+                tid, False, None, rec.label, None, None, pose, None, None, None, len(rec.gallery), None
+            )
         self._forget(t)
         relations = None
         if cfg.relations is not None:
             histories = {}
             for tid in states:
                 cents = self.records[tid].centroids
-                histories[tid] = (np.array([c[0] for c in cents]), np.array([c[1] for c in cents]).reshape(-1, 3))
-            relations = scene_relations(frame, {i: s.spatial for i, s in states.items()},
-                                        {i: s.mask for i, s in states.items() if s.mask is not None}, histories, cfg.relations)
+                histories[tid] = (
+                    np.array([c[0] for c in cents]),
+                    np.array([c[1] for c in cents]).reshape(-1, 3),
+                )
+            relations = scene_relations(
+                frame,
+                {i: s.spatial for i, s in states.items()},
+                {i: s.mask for i, s in states.items() if s.mask is not None},
+                histories,
+                cfg.relations,
+            )
         timings["relations"], clock = time.perf_counter() - clock, time.perf_counter()
         self.frame_count += 1
         scene = scene_descriptor(list(self.records.values()), t, self.frame_count, cfg.visible_window_s)
         timings["scene"] = time.perf_counter() - clock
         objects = tuple(states[i] for i in sorted(states))
         for o in objects:
-            if o.position is not None and not (np.all(np.isfinite(o.position)) and o.position_std is not None and np.all(np.isfinite(o.position_std))):
-                raise RuntimeError(f"internal error: object {o.obj_id} has a non-finite position {o.position} / std {o.position_std}")
+            if o.position is not None and not (
+                np.all(np.isfinite(o.position))
+                and o.position_std is not None
+                and np.all(np.isfinite(o.position_std))
+            ):
+                raise RuntimeError(
+                    f"internal error: object {o.obj_id} has a non-finite position {o.position} / std {o.position_std}"
+                )
         return PerceptionState(t, self.frame_count - 1, objects, scene, relations, timings)
 
-    def _position(self, tid: int, frame: RGBDFrame, pose: Pose | None, spatial: SpatialDescriptor | None) -> tuple[np.ndarray | None, np.ndarray | None, str | None]:
+    def _position(
+        self, tid: int, frame: RGBDFrame, pose: Pose | None, spatial: SpatialDescriptor | None
+    ) -> tuple[np.ndarray | None, np.ndarray | None, str | None]:
         src = self.config.position_source
         position = std = source = None
         if src in ("pose_then_centroid", "pose") and pose is not None and pose.is_valid:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Plane", "fit_plane_ransac", "plane_height"]
+__all__ = ["Plane", "fit_plane_ransac", "plane_height", "refit_plane"]
 
 
 @dataclass(frozen=True)
@@ -33,7 +33,9 @@ class Plane:
     def __post_init__(self) -> None:
         n = np.asarray(self.normal, dtype=np.float64)
         if n.shape != (3,) or not np.all(np.isfinite(n)) or not np.isfinite(self.offset):
-            raise ValueError(f"plane normal {n} / offset {self.offset} must be a finite (3,) vector and scalar")
+            raise ValueError(
+                f"plane normal {n} / offset {self.offset} must be a finite (3,) vector and scalar"
+            )
         norm = np.linalg.norm(n)
         if norm < 1e-9:
             raise ValueError("plane normal has zero length")
@@ -48,7 +50,8 @@ class Plane:
         return np.asarray(points) @ self.normal + self.offset
 
 
-def _refit(points: np.ndarray) -> tuple[np.ndarray, float]:
+def refit_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Total-least-squares plane ``(normal (3,), offset)`` through (N >= 3, 3) points."""
     centre = points.mean(axis=0)
     _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
     n = vt[-1]
@@ -101,7 +104,7 @@ def fit_plane_ransac(
     for _ in range(refinements):
         if inliers.sum() < 3:
             break
-        n, d = _refit(pts[inliers])
+        n, d = refit_plane(pts[inliers])
         inliers = np.abs(pts @ n + d) < threshold
     return Plane(n, d, float(inliers.mean()), int(pts.shape[0]))
 

@@ -98,15 +98,31 @@ class PoseConfig:
         if not 0 < self.min_depth < self.max_depth:
             raise ValueError(f"depth range [{self.min_depth}, {self.max_depth}] m is invalid")
         if not 0 < self.ransac_threshold <= 0.1:
-            raise ValueError(f"ransac_threshold is {self.ransac_threshold} m; expected metres in (0, 0.1], e.g. 0.015")
+            raise ValueError(
+                f"ransac_threshold is {self.ransac_threshold} m; expected metres in (0, 0.1], e.g. 0.015"
+            )
         if self.min_pairs < 6 or self.min_inliers < 3 or self.min_pnp_inliers < 4:
-            raise ValueError(f"min_pairs >= 6, min_inliers >= 3 and min_pnp_inliers >= 4 are required; got {self}")
-        if self.max_snapshots < 1 or self.max_speed <= 0 or self.max_angular_speed <= 0 or self.propagate_s < 0:
-            raise ValueError(f"max_snapshots >= 1, max_speed > 0 and propagate_s >= 0 are required; got {self}")
+            raise ValueError(
+                f"min_pairs >= 6, min_inliers >= 3 and min_pnp_inliers >= 4 are required; got {self}"
+            )
+        if (
+            self.max_snapshots < 1
+            or self.max_speed <= 0
+            or self.max_angular_speed <= 0
+            or self.propagate_s < 0
+        ):
+            raise ValueError(
+                f"max_snapshots >= 1, max_speed > 0 and propagate_s >= 0 are required; got {self}"
+            )
 
 
 def lift(
-    points: np.ndarray, depth: np.ndarray, origin: tuple[int, int], K: np.ndarray, min_depth: float, max_depth: float
+    points: np.ndarray,
+    depth: np.ndarray,
+    origin: tuple[int, int],
+    K: np.ndarray,
+    min_depth: float,
+    max_depth: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Lift pixels to 3-D with the depth at their nearest pixel.
 
@@ -176,11 +192,18 @@ class PoseEstimator:
     def anchor_for(self, pose: Pose) -> np.ndarray | None:
         """object_from_camera with which a snapshot taken at this pose may be anchored, or None."""
         d = pose.diagnostics
-        if pose.is_valid and pose.camera_from_object is not None and d.solver == "kabsch" and d.inliers >= self.config.anchor_min_inliers:
+        if (
+            pose.is_valid
+            and pose.camera_from_object is not None
+            and d.solver == "kabsch"
+            and d.inliers >= self.config.anchor_min_inliers
+        ):
             return np.linalg.inv(pose.camera_from_object)
         return None
 
-    def estimate(self, record: ObjectRecord, frame: RGBDFrame, gray: np.ndarray, mask: Mask, feats: Features) -> tuple[Pose, AdmissionDecision | None]:
+    def estimate(
+        self, record: ObjectRecord, frame: RGBDFrame, gray: np.ndarray, mask: Mask, feats: Features
+    ) -> tuple[Pose, AdmissionDecision | None]:
         """The pose of ``record``'s object in ``frame``.
 
         Returns:
@@ -195,7 +218,9 @@ class PoseEstimator:
         snaps = self._choose(record)
         if not snaps:
             return self._fallback(record, t, PoseDiagnostics(reason="no anchored snapshot")), None
-        live_pts, live_valid = lift(feats.keypoints, frame.depth, (0, 0), frame.K, cfg.min_depth, cfg.max_depth)
+        live_pts, live_valid = lift(
+            feats.keypoints, frame.depth, (0, 0), frame.K, cfg.min_depth, cfg.max_depth
+        )
         obj, live_idx, owner, has3d = [], [], [], []
         for snap in snaps:
             pairs, ref_pts, ref_valid = self._correspond(snap, feats)
@@ -210,15 +235,30 @@ class PoseEstimator:
             has3d.append(ref_valid)
         matches = int(sum(len(i) for i in live_idx))
         if matches < cfg.min_pairs:
-            diag = PoseDiagnostics(matches=matches, reason=f"{matches} matches inside the masks < {cfg.min_pairs}", attempts=len(snaps))
+            diag = PoseDiagnostics(
+                matches=matches,
+                reason=f"{matches} matches inside the masks < {cfg.min_pairs}",
+                attempts=len(snaps),
+            )
             return self._fallback(record, t, diag), None
-        obj_pts, li, own, ref_ok = np.concatenate(obj), np.concatenate(live_idx), np.concatenate(owner), np.concatenate(has3d)
+        obj_pts, li, own, ref_ok = (
+            np.concatenate(obj),
+            np.concatenate(live_idx),
+            np.concatenate(owner),
+            np.concatenate(has3d),
+        )
         both = ref_ok & live_valid[li]
         n3 = int(both.sum())
         fit, solver, used, reason = None, "", np.zeros(0, dtype=np.int64), ""
         if n3 >= cfg.min_pairs:
-            fit = ransac_rigid(obj_pts[both], live_pts[li[both]], cfg.ransac_threshold, self.rng,
-                               iterations=cfg.ransac_iterations, min_inliers=cfg.min_inliers)
+            fit = ransac_rigid(
+                obj_pts[both],
+                live_pts[li[both]],
+                cfg.ransac_threshold,
+                self.rng,
+                iterations=cfg.ransac_iterations,
+                min_inliers=cfg.min_inliers,
+            )
             if fit is not None and fit.num_inliers >= cfg.min_inlier_ratio * n3:
                 solver, used = "kabsch", own[both][fit.inliers]
             else:
@@ -229,9 +269,15 @@ class PoseEstimator:
         if fit is None:
             n2 = int(ref_ok.sum())
             if n2 >= cfg.min_pairs:
-                fit = pnp_ransac(obj_pts[ref_ok], feats.keypoints[li[ref_ok]], frame.K, iterations=cfg.pnp_iterations,
-                                 reprojection_error=cfg.pnp_reprojection_px, confidence=cfg.pnp_confidence,
-                                 min_inliers=cfg.min_pnp_inliers)
+                fit = pnp_ransac(
+                    obj_pts[ref_ok],
+                    feats.keypoints[li[ref_ok]],
+                    frame.K,
+                    iterations=cfg.pnp_iterations,
+                    reprojection_error=cfg.pnp_reprojection_px,
+                    confidence=cfg.pnp_confidence,
+                    min_inliers=cfg.min_pnp_inliers,
+                )
                 if fit is not None and fit.num_inliers >= cfg.min_inlier_ratio * n2:
                     solver, used = "pnp", own[ref_ok][fit.inliers]
                 else:
@@ -247,7 +293,9 @@ class PoseEstimator:
         diag = PoseDiagnostics(matches, n3, fit.num_inliers, fit.rmse, solver, "ok", top, len(snaps))
         implausible = self._implausible(record, t, T)
         if implausible:
-            diag = PoseDiagnostics(matches, n3, fit.num_inliers, fit.rmse, solver, f"rejected: {implausible}", top, len(snaps))
+            diag = PoseDiagnostics(
+                matches, n3, fit.num_inliers, fit.rmse, solver, f"rejected: {implausible}", top, len(snaps)
+            )
             return self._fallback(record, t, diag), None
         return Pose(t, "estimated", T, diag), None
 
@@ -267,25 +315,52 @@ class PoseEstimator:
             return f"implausible turn of {math.degrees(turn):.1f} deg in {dt:.3f} s"
         return ""
 
-    def _define_canonical(self, record: ObjectRecord, frame: RGBDFrame, gray: np.ndarray, mask: Mask, feats: Features) -> tuple[Pose, AdmissionDecision | None]:
+    def _define_canonical(
+        self, record: ObjectRecord, frame: RGBDFrame, gray: np.ndarray, mask: Mask, feats: Features
+    ) -> tuple[Pose, AdmissionDecision | None]:
         cfg = self.config
         t = frame.timestamp
         adm = record.gallery.config
         _, valid = lift(feats.keypoints, frame.depth, (0, 0), frame.K, cfg.min_depth, cfg.max_depth)
         n3d = int(valid.sum())
         if mask.area < adm.min_area:
-            return Pose(t, "lost", None, PoseDiagnostics(reason=f"no canonical frame yet: mask area {mask.area} < {adm.min_area} px")), None
+            return Pose(
+                t,
+                "lost",
+                None,
+                PoseDiagnostics(reason=f"no canonical frame yet: mask area {mask.area} < {adm.min_area} px"),
+            ), None
         if n3d < cfg.min_canonical_points:
-            return Pose(t, "lost", None, PoseDiagnostics(
-                matches=len(feats), reason=f"no canonical frame yet: {n3d} depth-backed features < {cfg.min_canonical_points}")), None
+            return Pose(
+                t,
+                "lost",
+                None,
+                PoseDiagnostics(
+                    matches=len(feats),
+                    reason=f"no canonical frame yet: {n3d} depth-backed features < {cfg.min_canonical_points}",
+                ),
+            ), None
         pts = mask_points(frame, mask, cfg.min_depth, cfg.max_depth)
         c0 = np.median(pts, axis=0)
         anchor = to_homogeneous(np.eye(3), -c0)
         decision = record.gallery.set_canonical(frame, gray, mask, feats, anchor)
         if not decision.admitted:
-            return Pose(t, "lost", None, PoseDiagnostics(reason=f"no canonical frame yet: view rejected ({decision.reason})")), decision
-        diag = PoseDiagnostics(matches=len(feats), pairs=n3d, inliers=n3d, rmse=0.0, solver="canonical",
-                               reason="canonical frame defined", snapshot=decision.snapshot, attempts=0)
+            return Pose(
+                t,
+                "lost",
+                None,
+                PoseDiagnostics(reason=f"no canonical frame yet: view rejected ({decision.reason})"),
+            ), decision
+        diag = PoseDiagnostics(
+            matches=len(feats),
+            pairs=n3d,
+            inliers=n3d,
+            rmse=0.0,
+            solver="canonical",
+            reason="canonical frame defined",
+            snapshot=decision.snapshot,
+            attempts=0,
+        )
         return Pose(t, "estimated", np.linalg.inv(anchor), diag), decision
 
     def _choose(self, record: ObjectRecord) -> list[Snapshot]:
@@ -318,8 +393,14 @@ class PoseEstimator:
         ok = (u >= 0) & (v >= 0) & (u < snap.mask.shape[1]) & (v < snap.mask.shape[0])
         ok[ok] = snap.mask[v[ok], u[ok]]
         pairs = pairs[ok]
-        ref_pts, ref_valid = lift(snap.features.keypoints[pairs[:, 1]], snap.depth, (x0, y0), snap.K,
-                                  self.config.min_depth, self.config.max_depth)
+        ref_pts, ref_valid = lift(
+            snap.features.keypoints[pairs[:, 1]],
+            snap.depth,
+            (x0, y0),
+            snap.K,
+            self.config.min_depth,
+            self.config.max_depth,
+        )
         return pairs, ref_pts, ref_valid
 
     def missing(self, record: ObjectRecord, t: float, diag: PoseDiagnostics) -> Pose:
@@ -338,7 +419,15 @@ class PoseEstimator:
                 T[:3, 3] = Tb[:3, 3] + s * (Tb[:3, 3] - Ta[:3, 3])
                 rel = Rotation.from_matrix(Tb[:3, :3] @ Ta[:3, :3].T).as_rotvec()
                 T[:3, :3] = Rotation.from_rotvec(s * rel).as_matrix() @ Tb[:3, :3]
-                d = PoseDiagnostics(diag.matches, diag.pairs, diag.inliers, diag.rmse, "constant_velocity",
-                                    f"{diag.reason}; propagated {t - tb:.3f} s from the last estimate", diag.snapshot, diag.attempts)
+                d = PoseDiagnostics(
+                    diag.matches,
+                    diag.pairs,
+                    diag.inliers,
+                    diag.rmse,
+                    "constant_velocity",
+                    f"{diag.reason}; propagated {t - tb:.3f} s from the last estimate",
+                    diag.snapshot,
+                    diag.attempts,
+                )
                 return Pose(t, "propagated", T, d)
         return Pose(t, "lost", None, diag)

@@ -52,7 +52,16 @@ __all__ = [
 
 TOPOLOGY: tuple[str, ...] = ("disjoint", "touching", "overlapping", "contained")
 _OBJ_FIELDS = ("present", "cx", "cy", "cz", "distance", "azimuth", "elevation")
-_PAIR_FIELDS = ("present", "dx", "dy", "dz", "distance", *(f"topo_{t}" for t in TOPOLOGY), "synchrony", "synchrony_defined")
+_PAIR_FIELDS = (
+    "present",
+    "dx",
+    "dy",
+    "dz",
+    "distance",
+    *(f"topo_{t}" for t in TOPOLOGY),
+    "synchrony",
+    "synchrony_defined",
+)
 
 
 @dataclass(frozen=True)
@@ -69,9 +78,13 @@ class RelationConfig:
 
     def __post_init__(self) -> None:
         if self.touch_px < 1 or not self.touch_gap > 0 or not self.sync_window_s > 0 or self.min_speed < 0:
-            raise ValueError(f"touch_px >= 1, touch_gap > 0, sync_window_s > 0 and min_speed >= 0 are required; got {self}")
+            raise ValueError(
+                f"touch_px >= 1, touch_gap > 0, sync_window_s > 0 and min_speed >= 0 are required; got {self}"
+            )
         if not 0 < self.overlap_fraction < self.contain_fraction <= 1 or self.max_objects < 1:
-            raise ValueError(f"need 0 < overlap_fraction < contain_fraction <= 1 and max_objects >= 1; got {self}")
+            raise ValueError(
+                f"need 0 < overlap_fraction < contain_fraction <= 1 and max_objects >= 1; got {self}"
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,10 +102,14 @@ class PairRelation:
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "a": self.a, "b": self.b,
+            "a": self.a,
+            "b": self.b,
             "displacement": None if self.displacement is None else self.displacement.tolist(),
-            "distance": self.distance, "direction": None if self.direction is None else self.direction.tolist(),
-            "topology": self.topology, "container": self.container, "synchrony": self.synchrony,
+            "distance": self.distance,
+            "direction": None if self.direction is None else self.direction.tolist(),
+            "topology": self.topology,
+            "container": self.container,
+            "synchrony": self.synchrony,
         }
 
 
@@ -103,7 +120,9 @@ def _hull_fill(m: np.ndarray) -> np.ndarray:
     return out.view(bool)
 
 
-def topology(frame: RGBDFrame, a: Mask, b: Mask, config: RelationConfig | None = None, ids: tuple[int, int] = (0, 1)) -> tuple[str, int | None]:
+def topology(
+    frame: RGBDFrame, a: Mask, b: Mask, config: RelationConfig | None = None, ids: tuple[int, int] = (0, 1)
+) -> tuple[str, int | None]:
     """Topological relation of two masks: (label in :data:`TOPOLOGY`, container id or None)."""
     cfg = config or RelationConfig()
     inter = intersection_area(a, b)
@@ -151,7 +170,10 @@ def topology(frame: RGBDFrame, a: Mask, b: Mask, config: RelationConfig | None =
 
 
 def synchrony(
-    history_a: tuple[np.ndarray, np.ndarray], history_b: tuple[np.ndarray, np.ndarray], now: float, config: RelationConfig | None = None
+    history_a: tuple[np.ndarray, np.ndarray],
+    history_b: tuple[np.ndarray, np.ndarray],
+    now: float,
+    config: RelationConfig | None = None,
 ) -> float | None:
     """Velocity correlation of two (timestamps (N,), positions (N, 3)) histories (module docstring)."""
     cfg = config or RelationConfig()
@@ -179,7 +201,12 @@ def scene_vector_names(max_objects: int) -> list[str]:
     ``obj{k}.{present,cx,cy,cz,distance,azimuth,elevation}``, then per slot pair k < l
     ``pair{k}_{l}.{present,dx,dy,dz,distance,topo_*(4),synchrony,synchrony_defined}``."""
     names = [f"obj{k}.{f}" for k in range(max_objects) for f in _OBJ_FIELDS]
-    names += [f"pair{k}_{m}.{f}" for k in range(max_objects) for m in range(k + 1, max_objects) for f in _PAIR_FIELDS]
+    names += [
+        f"pair{k}_{m}.{f}"
+        for k in range(max_objects)
+        for m in range(k + 1, max_objects)
+        for f in _PAIR_FIELDS
+    ]
     return names
 
 
@@ -238,7 +265,8 @@ class SceneRelations:
     def to_dict(self) -> dict[str, Any]:
         return {
             "objects": {str(k): None if v is None else v.to_dict() for k, v in self.objects.items()},
-            "visible": sorted(self.visible), "pairs": [p.to_dict() for p in self.pairs],
+            "visible": sorted(self.visible),
+            "pairs": [p.to_dict() for p in self.pairs],
         }
 
 
@@ -266,7 +294,11 @@ def scene_relations(
     sync: dict[tuple[int, int], float | None] = {}
     for k, a in enumerate(ids):
         for b in ids[k + 1 :]:
-            topo[(a, b)] = topology(frame, masks[a], masks[b], cfg, (a, b)) if a in masks and b in masks else (None, None)
+            topo[(a, b)] = (
+                topology(frame, masks[a], masks[b], cfg, (a, b))
+                if a in masks and b in masks
+                else (None, None)
+            )
             sync[(a, b)] = synchrony(histories.get(a, empty), histories.get(b, empty), frame.timestamp, cfg)
     pairs = []
     for a in ids:
@@ -282,4 +314,6 @@ def scene_relations(
                 direc = disp / dist if dist > 0 else np.zeros(3)
             label, container = topo[key]
             pairs.append(PairRelation(a, b, disp, dist, direc, label, container, sync[key]))
-    return SceneRelations({i: spatial.get(i) for i in ids}, frozenset(i for i in ids if i in masks), tuple(pairs))
+    return SceneRelations(
+        {i: spatial.get(i) for i in ids}, frozenset(i for i in ids if i in masks), tuple(pairs)
+    )

@@ -47,7 +47,9 @@ def to_homogeneous(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return T
 
 
-def kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def kabsch(
+    src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares rotation and translation with ``dst ≈ R src + t`` (Umeyama 1991, no scale).
 
     Batched: ``src`` and ``dst`` may be (..., N, 3); returns (..., 3, 3) and (..., 3).
@@ -106,8 +108,8 @@ def ransac_rigid(
     # three distinct indices per hypothesis
     idx = _distinct_triples(rng, n, iterations)
     R, t = kabsch(src[idx], dst[idx])
-    pred = np.einsum("hij,nj->hni", R, src) + t[:, None, :]
-    res = np.linalg.norm(pred - dst[None], axis=2)
+    diff = src @ R.transpose(0, 2, 1) + (t[:, None, :] - dst[None])  # (h, n, 3) residual vectors
+    res = np.sqrt(np.einsum("hni,hni->hn", diff, diff))
     counts = (res < threshold).sum(axis=1)
     best = int(np.argmax(counts))
     if counts[best] < min_inliers:
@@ -167,14 +169,22 @@ def pnp_ransac(
     if obj.shape[0] < max(6, min_inliers):
         return None
     ok, rvec, tvec, idx = cv2.solvePnPRansac(
-        obj, img, np.asarray(K, dtype=np.float64), None, iterationsCount=iterations,
-        reprojectionError=reprojection_error, confidence=confidence, flags=cv2.SOLVEPNP_EPNP,
+        obj,
+        img,
+        np.asarray(K, dtype=np.float64),
+        None,
+        iterationsCount=iterations,
+        reprojectionError=reprojection_error,
+        confidence=confidence,
+        flags=cv2.SOLVEPNP_EPNP,
     )
     if not ok or idx is None or len(idx) < min_inliers:
         return None
     inliers = np.zeros(obj.shape[0], dtype=bool)
     inliers[idx.ravel()] = True
-    rvec, tvec = cv2.solvePnPRefineLM(obj[inliers], img[inliers], np.asarray(K, dtype=np.float64), None, rvec, tvec)
+    rvec, tvec = cv2.solvePnPRefineLM(
+        obj[inliers], img[inliers], np.asarray(K, dtype=np.float64), None, rvec, tvec
+    )
     R, _ = cv2.Rodrigues(rvec)
     t = tvec.ravel()
     cam = obj @ R.T + t

@@ -41,8 +41,19 @@ __all__ = ["OBJECT_KEYS", "SCENE_KEYS", "object_descriptor", "scene_descriptor"]
 
 SCENE_KEYS: tuple[str, ...] = ("timestamp", "frame_count", "num_objects", "num_visible_objects", "objects")
 OBJECT_KEYS: tuple[str, ...] = (
-    "obj_id", "visible", "age_s", "last_updated", "is_busy", "bbox", "num_snapshots", "num_poses",
-    "num_valid_poses", "has_pose", "pose", "velocity", "last_pose_diagnostics",
+    "obj_id",
+    "visible",
+    "age_s",
+    "last_updated",
+    "is_busy",
+    "bbox",
+    "num_snapshots",
+    "num_poses",
+    "num_valid_poses",
+    "has_pose",
+    "pose",
+    "velocity",
+    "last_pose_diagnostics",
 )
 
 
@@ -50,7 +61,9 @@ def _floats(x: np.ndarray) -> list[float]:
     return [float(v) for v in np.asarray(x, dtype=np.float64).ravel()]
 
 
-def object_descriptor(record: ObjectRecord, timestamp: float, visible_window_s: float = 2.0) -> dict[str, Any]:
+def object_descriptor(
+    record: ObjectRecord, timestamp: float, visible_window_s: float = 2.0
+) -> dict[str, Any]:
     """The per-object entry of the scene descriptor (module docstring)."""
     mask = record.last_mask
     x0, y0, x1, y1 = mask.bbox
@@ -59,7 +72,11 @@ def object_descriptor(record: ObjectRecord, timestamp: float, visible_window_s: 
     pose = velocity = None
     if valid:
         last = valid[-1]
-        pose = {"position": _floats(last.position), "orientation": _floats(last.rotvec), "timestamp": last.timestamp}  # type: ignore[arg-type]
+        pose = {
+            "position": _floats(last.position),
+            "orientation": _floats(last.rotvec),
+            "timestamp": last.timestamp,
+        }  # type: ignore[arg-type]
         if len(valid) == 2:
             dt = last.timestamp - valid[0].timestamp
             if dt > 0:
@@ -73,7 +90,12 @@ def object_descriptor(record: ObjectRecord, timestamp: float, visible_window_s: 
         "age_s": float(timestamp - record.first_seen),
         "last_updated": float(record.last_updated),
         "is_busy": False,
-        "bbox": {"xyxy": [x0, y0, x1, y1], "xywh": [x0, y0, x1 - x0, y1 - y0], "centroid": [cu, cv], "area": int(mask.area)},
+        "bbox": {
+            "xyxy": [x0, y0, x1, y1],
+            "xywh": [x0, y0, x1 - x0, y1 - y0],
+            "centroid": [cu, cv],
+            "area": int(mask.area),
+        },
         "num_snapshots": len(record.gallery),
         "num_poses": len(record.trajectory),
         "num_valid_poses": int(n_valid),
@@ -84,9 +106,13 @@ def object_descriptor(record: ObjectRecord, timestamp: float, visible_window_s: 
     }
 
 
-def scene_descriptor(records: Sequence[ObjectRecord], timestamp: float, frame_count: int, visible_window_s: float = 2.0) -> dict[str, Any]:
+def scene_descriptor(
+    records: Sequence[ObjectRecord], timestamp: float, frame_count: int, visible_window_s: float = 2.0
+) -> dict[str, Any]:
     """The scene descriptor (Table 5.6) of the records in memory at ``timestamp``."""
-    objects = [object_descriptor(r, timestamp, visible_window_s) for r in sorted(records, key=lambda r: r.obj_id)]
+    objects = [
+        object_descriptor(r, timestamp, visible_window_s) for r in sorted(records, key=lambda r: r.obj_id)
+    ]
     return {
         "timestamp": float(timestamp),
         "frame_count": int(frame_count),

@@ -4,8 +4,11 @@ Two segmenters share the interface ``segmenter(frame) -> list[Candidate]``:
 
 - :class:`GeometricSegmenter` (default, no learned weights): fit the support plane by RANSAC
   on a subsampled back-projection, keep valid pixels that rise more than ``min_height`` above
-  it, cut the foreground at depth discontinuities, label 4-connected components and drop
-  those below ``min_area`` pixels.
+  it, label its 4-connected components, split each at depth discontinuities (computed inside
+  the component's box only, which is what keeps 640x480 frames fast) and drop pieces below
+  ``min_area`` pixels. With ``track_plane`` the previous frame's plane is kept (refined by
+  least squares) while it still explains the sampled points as well as when it was fitted, so
+  RANSAC runs only when the support changes.
 - :class:`OracleSegmenter`: one candidate per ground-truth id in ``frame.labels`` (e.g.
   MuJoCo segmentation), for ablations and evaluation.
 """
@@ -22,9 +25,15 @@ from scipy import ndimage
 
 from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask
-from pal.perception.plane import Plane, fit_plane_ransac, plane_height
+from pal.perception.plane import Plane, fit_plane_ransac, plane_height, refit_plane
 
-__all__ = ["Candidate", "GeometricSegmenter", "OracleSegmenter", "SegmentationConfig", "depth_discontinuities"]
+__all__ = [
+    "Candidate",
+    "GeometricSegmenter",
+    "OracleSegmenter",
+    "SegmentationConfig",
+    "depth_discontinuities",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -60,6 +69,9 @@ class SegmentationConfig:
             ``max(jump_min, jump_footprints * z / fx)``, so oblique surfaces are not cut.
         min_area: minimum component area, pixels.
         plane: a known support plane; when given, RANSAC is skipped.
+        track_plane: reuse the previous frame's plane while its inlier fraction on this frame's
+            sample stays at least ``track_tolerance`` times the fraction it was fitted with.
+        track_tolerance: see ``track_plane``, in (0, 1].
     """
 
     min_depth: float = 0.1
@@ -74,6 +86,8 @@ class SegmentationConfig:
     jump_footprints: float = 6.0
     min_area: int = 150
     plane: Plane | None = None
+    track_plane: bool = True
+    track_tolerance: float = 0.9
 
     def __post_init__(self) -> None:
         if not 0 <= self.min_depth < self.max_depth:
@@ -87,6 +101,8 @@ class SegmentationConfig:
             raise ValueError("plane_iterations >= 1, plane_samples >= 3 and min_area >= 1 are required")
         if self.plane_stride is not None and self.plane_stride < 1:
             raise ValueError(f"plane_stride is {self.plane_stride}, expected >= 1 or None")
+        if not 0 < self.track_tolerance <= 1:
+            raise ValueError(f"track_tolerance is {self.track_tolerance}, expected in (0, 1]")
 
 
 def depth_discontinuities(depth: np.ndarray, threshold: np.ndarray | float) -> np.ndarray:
@@ -146,35 +162,80 @@ class GeometricSegmenter:
             pick = self.rng.choice(vs.size, size=cfg.plane_samples, replace=False)
             vs, us = vs[pick], us[pick]
         pts = backproject(us * stride, vs * stride, sub[vs, us], frame.K)
+        prev = self.last_plane if cfg.track_plane else None
+        if prev is not None:
+            inliers = np.abs(pts @ prev.normal + prev.offset) < cfg.plane_threshold
+            if inliers.sum() >= 3 and inliers.mean() >= cfg.track_tolerance * prev.inlier_fraction:
+                n, d = refit_plane(pts[inliers])
+                return Plane(n, d, prev.inlier_fraction, int(pts.shape[0]))
         return fit_plane_ransac(pts, cfg.plane_threshold, self.rng, iterations=cfg.plane_iterations)
 
-    def foreground(self, frame: RGBDFrame) -> np.ndarray:
-        """(H, W) bool: valid pixels above the support plane, cut at depth discontinuities."""
+    def _support(self, frame: RGBDFrame) -> np.ndarray:
+        """(H, W) bool: valid pixels between ``min_height`` and ``max_height`` above the plane."""
         cfg = self.config
         depth = frame.depth
-        valid = (depth > cfg.min_depth) & (depth < cfg.max_depth)
         plane = self.fit_plane(frame)
         self.last_plane = plane
         if plane is None:
             logger.debug("frame at t=%.3f s: too few valid depth pixels for a support plane", frame.timestamp)
             return np.zeros(depth.shape, dtype=bool)
         height = plane_height(depth, frame.K, plane)
-        fg = valid & (height > cfg.min_height) & (height < cfg.max_height)
-        thr = np.maximum(np.float32(cfg.jump_min), depth * np.float32(cfg.jump_footprints / frame.K[0, 0]))
-        return fg & ~depth_discontinuities(depth, thr)
+        return (
+            (depth > cfg.min_depth)
+            & (depth < cfg.max_depth)
+            & (height > cfg.min_height)
+            & (height < cfg.max_height)
+        )
+
+    def _pieces(self, frame: RGBDFrame, min_area: int) -> list[tuple[int, int, np.ndarray]]:
+        """Foreground pieces ``(x0, y0, crop)``: components of the support cut at depth jumps
+        (components smaller than ``min_area`` pixels are skipped before cutting)."""
+        cfg = self.config
+        above = self._support(frame)
+        _, labels = cv2.connectedComponents(above.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
+        H, W = above.shape
+        scale = np.float32(cfg.jump_footprints / frame.K[0, 0])
+        pieces = []
+        for k, sl in enumerate(ndimage.find_objects(labels), start=1):
+            if sl is None:
+                continue
+            # one pixel of context around the component: jumps to its neighbours are seen
+            y0, y1 = max(sl[0].start - 1, 0), min(sl[0].stop + 1, H)
+            x0, x1 = max(sl[1].start - 1, 0), min(sl[1].stop + 1, W)
+            comp = labels[y0:y1, x0:x1] == k
+            if np.count_nonzero(comp) < min_area:
+                continue
+            d = frame.depth[y0:y1, x0:x1]
+            comp &= ~depth_discontinuities(d, np.maximum(np.float32(cfg.jump_min), d * scale))
+            _, sub = cv2.connectedComponents(comp.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
+            for j, ssl in enumerate(ndimage.find_objects(sub), start=1):
+                if ssl is not None:
+                    pieces.append((x0 + ssl[1].start, y0 + ssl[0].start, sub[ssl] == j))
+        return pieces
+
+    def foreground(self, frame: RGBDFrame) -> np.ndarray:
+        """(H, W) bool: valid pixels above the support plane, cut at depth discontinuities."""
+        out = np.zeros(frame.shape, dtype=bool)
+        for x0, y0, crop in self._pieces(frame, 1):
+            h, w = crop.shape
+            out[y0 : y0 + h, x0 : x0 + w] |= crop
+        return out
 
     def __call__(self, frame: RGBDFrame) -> list[Candidate]:
-        """Candidates of ``frame``, in raster order of their first pixel."""
-        fg = self.foreground(frame)
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(fg.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
-        out = []
-        for k in range(1, n):
-            x, y, w, h, area = (int(v) for v in stats[k])
-            if area < self.config.min_area:
-                continue
-            crop = labels[y : y + h, x : x + w] == k
-            out.append(Candidate(Mask((x, y, x + w, y + h), crop, frame.shape, area), k))
-        return out
+        """Candidates of ``frame`` in raster order of their first pixel, labelled 1, 2, ... in that order."""
+        kept = []
+        for x0, y0, crop in self._pieces(frame, self.config.min_area):
+            area = int(np.count_nonzero(crop))
+            if area >= self.config.min_area:
+                first = int(np.argmax(crop[0]))  # the top row of a tight crop is never empty
+                kept.append(
+                    (
+                        (y0, x0 + first),
+                        Mask((x0, y0, x0 + crop.shape[1], y0 + crop.shape[0]), crop, frame.shape, area),
+                    )
+                )
+        kept.sort(key=lambda item: item[0])
+        return [Candidate(mask, k) for k, (_, mask) in enumerate(kept, start=1)]
 
 
 class OracleSegmenter:
@@ -200,11 +261,15 @@ class OracleSegmenter:
         """
         labels = frame.labels if labels is None else np.asarray(labels)
         if labels is None:
-            raise ValueError("OracleSegmenter needs frame.labels (a ground-truth id image); the frame has none")
+            raise ValueError(
+                "OracleSegmenter needs frame.labels (a ground-truth id image); the frame has none"
+            )
         if labels.shape != frame.shape:
             raise ValueError(f"labels has shape {labels.shape}, expected {frame.shape}")
         if labels.size and labels.min() < 0:
-            raise ValueError(f"labels has negative ids (min {labels.min()}); shift ids so that 0 is background")
+            raise ValueError(
+                f"labels has negative ids (min {labels.min()}); shift ids so that 0 is background"
+            )
         out = []
         for index, sl in enumerate(ndimage.find_objects(labels), start=1):
             if sl is None or index in self.background_ids:
@@ -214,5 +279,7 @@ class OracleSegmenter:
             if area < self.min_area:
                 continue
             ys, xs = sl
-            out.append(Candidate(Mask((xs.start, ys.start, xs.stop, ys.stop), crop, frame.shape, area), index))
+            out.append(
+                Candidate(Mask((xs.start, ys.start, xs.stop, ys.stop), crop, frame.shape, area), index)
+            )
         return out

@@ -72,8 +72,12 @@ def encode_depth(depth: np.ndarray, scale: float) -> np.ndarray:
     units = np.rint(np.asarray(depth, dtype=np.float64) / scale)
     over = units > _MAX_U16
     if over.any():
-        logger.warning("%d depth pixels beyond %.3f m cannot be stored at scale %g; marked invalid (0)",
-                       int(over.sum()), _MAX_U16 * scale, scale)
+        logger.warning(
+            "%d depth pixels beyond %.3f m cannot be stored at scale %g; marked invalid (0)",
+            int(over.sum()),
+            _MAX_U16 * scale,
+            scale,
+        )
         units[over] = 0
     return units.astype(np.uint16)
 
@@ -96,7 +100,9 @@ def read_image(path: Path, *, depth: bool = False) -> np.ndarray:
         raise SequenceError(f"{path} is not a readable image")
     if depth:
         if image.ndim != 2 or image.dtype != np.uint16:
-            raise SequenceError(f"{path} has shape {image.shape} dtype {image.dtype}; expected a 16-bit single-channel depth PNG")
+            raise SequenceError(
+                f"{path} has shape {image.shape} dtype {image.dtype}; expected a 16-bit single-channel depth PNG"
+            )
         return image
     if image.ndim == 2:
         image = cv2.cvtColor(image, cv2.COLOR_GRAY2RGB)
@@ -168,19 +174,27 @@ class RecordedSequence(FrameSequence):
             raise SequenceError(f"sequence directory {self.path} does not exist or is not a directory")
         info = _read_json(self.path / "sequence.json")
         if info.get("format") != FORMAT:
-            raise SequenceError(f"{self.path / 'sequence.json'}: format {info.get('format')!r}, expected {FORMAT!r}")
+            raise SequenceError(
+                f"{self.path / 'sequence.json'}: format {info.get('format')!r}, expected {FORMAT!r}"
+            )
         intr = _read_json(self.path / "intrinsics.json")
         try:
-            self.K = check_intrinsics(np.asarray(intr.get("K"), dtype=np.float64) if intr.get("K") is not None else None)
+            self.K = check_intrinsics(
+                np.asarray(intr.get("K"), dtype=np.float64) if intr.get("K") is not None else None
+            )
         except ValueError as err:
             raise SequenceError(f"{self.path / 'intrinsics.json'}: {err}") from None
         self.depth_scale = float(info.get("depth_scale", 0))
         if not self.depth_scale > 0:
-            raise SequenceError(f"{self.path / 'sequence.json'}: depth_scale {info.get('depth_scale')!r}, expected > 0")
+            raise SequenceError(
+                f"{self.path / 'sequence.json'}: depth_scale {info.get('depth_scale')!r}, expected > 0"
+            )
         try:
             self.width, self.height, n = int(info["width"]), int(info["height"]), int(info["num_frames"])
         except (KeyError, TypeError, ValueError) as err:
-            raise SequenceError(f"{self.path / 'sequence.json'} lacks a valid width/height/num_frames ({err!r})") from None
+            raise SequenceError(
+                f"{self.path / 'sequence.json'} lacks a valid width/height/num_frames ({err!r})"
+            ) from None
         self.timestamps = self._read_timestamps(n)
         self.metadata: dict[str, Any] = dict(info.get("metadata", {}))
         self.label_names: dict[int, str] = {int(k): str(v) for k, v in info.get("label_names", {}).items()}
@@ -190,7 +204,9 @@ class RecordedSequence(FrameSequence):
         if names:
             gt_path = self.path / "gt" / "poses.npz"
             if not gt_path.is_file():
-                raise SequenceError(f"{gt_path} is missing but sequence.json lists ground-truth objects {names}")
+                raise SequenceError(
+                    f"{gt_path} is missing but sequence.json lists ground-truth objects {names}"
+                )
             with np.load(gt_path, allow_pickle=False) as npz:
                 self._gt = {k: npz[k] for k in npz.files}
             for name in names:
@@ -202,7 +218,11 @@ class RecordedSequence(FrameSequence):
         path = self.path / "timestamps.txt"
         if not path.is_file():
             raise SequenceError(f"{path} does not exist")
-        rows = [line.split() for line in path.read_text(encoding="utf-8").splitlines() if line.strip() and not line.startswith("#")]
+        rows = [
+            line.split()
+            for line in path.read_text(encoding="utf-8").splitlines()
+            if line.strip() and not line.startswith("#")
+        ]
         if len(rows) != n or any(len(r) != 2 for r in rows):
             raise SequenceError(f"{path} has {len(rows)} '<index> <time>' rows, expected {n}")
         ts = np.array([float(r[1]) for r in rows], dtype=np.float64)
@@ -221,7 +241,9 @@ class RecordedSequence(FrameSequence):
             raise SequenceError(
                 f"frame {index} has rgb {rgb.shape} and depth {depth.shape}; sequence.json says {self.height}x{self.width}"
             )
-        return RGBDFrame(rgb=rgb, depth=depth, K=self.K, timestamp=float(self.timestamps[index]), labels=labels)
+        return RGBDFrame(
+            rgb=rgb, depth=depth, K=self.K, timestamp=float(self.timestamps[index]), labels=labels
+        )
 
     def gt_poses(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """Ground-truth ``camera_from_object`` poses of ``name``: ((N, 4, 4) float64, (N,) bool valid)."""
@@ -283,23 +305,31 @@ class SequenceWriter:
         if frame.shape != self._shape:
             raise ValueError(f"frame has size {frame.shape}, expected {self._shape} like the first frame")
         if not np.allclose(frame.K, self._K):
-            raise ValueError(f"frame intrinsics {frame.K.tolist()} differ from the first frame's {self._K.tolist()}")
+            raise ValueError(
+                f"frame intrinsics {frame.K.tolist()} differ from the first frame's {self._K.tolist()}"
+            )
         if (frame.labels is not None) != self._has_masks:
             raise ValueError("either every frame carries ground-truth labels or none does")
         index = len(self._timestamps)
         name = f"{index:06d}.png"
-        atomic_write_png(self.path / "rgb" / name, cv2.cvtColor(np.ascontiguousarray(frame.rgb), cv2.COLOR_RGB2BGR))
+        atomic_write_png(
+            self.path / "rgb" / name, cv2.cvtColor(np.ascontiguousarray(frame.rgb), cv2.COLOR_RGB2BGR)
+        )
         atomic_write_png(self.path / "depth" / name, encode_depth(frame.depth, self.depth_scale))
         if frame.labels is not None:
             if frame.labels.min() < 0 or frame.labels.max() > _MAX_U16:
-                raise ValueError(f"labels span [{frame.labels.min()}, {frame.labels.max()}]; expected ids in [0, 65535]")
+                raise ValueError(
+                    f"labels span [{frame.labels.min()}, {frame.labels.max()}]; expected ids in [0, 65535]"
+                )
             atomic_write_png(self.path / "gt" / "masks" / name, frame.labels.astype(np.uint16))
         for key in self._gt:
             self._gt[key].append(None)
         for key, pose in (gt_poses or {}).items():
             pose = np.asarray(pose, dtype=np.float64)
             if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
-                raise ValueError(f"ground-truth pose of {key!r} has shape {pose.shape} or non-finite entries; expected finite (4, 4)")
+                raise ValueError(
+                    f"ground-truth pose of {key!r} has shape {pose.shape} or non-finite entries; expected finite (4, 4)"
+                )
             self._gt.setdefault(str(key), [None] * (index + 1))[index] = pose
         self._timestamps.append(frame.timestamp)
         return index
@@ -312,19 +342,31 @@ class SequenceWriter:
             raise SequenceError(f"no frame was written to {self.path}; an empty sequence is not valid")
         lines = ["# index timestamp_s"] + [f"{i} {t:.9f}" for i, t in enumerate(self._timestamps)]
         atomic_write_bytes(self.path / "timestamps.txt", ("\n".join(lines) + "\n").encode())
-        atomic_write_json(self.path / "intrinsics.json", {"K": self._K.tolist(), "width": self._shape[1], "height": self._shape[0]})
+        atomic_write_json(
+            self.path / "intrinsics.json",
+            {"K": self._K.tolist(), "width": self._shape[1], "height": self._shape[0]},
+        )
         if self._gt:
             arrays: dict[str, np.ndarray] = {}
             for key, poses in self._gt.items():
                 arrays[key] = np.stack([np.zeros((4, 4)) if p is None else p for p in poses])
                 arrays[f"{key}.valid"] = np.array([p is not None for p in poses])
             atomic_write_npz(self.path / "gt" / "poses.npz", arrays)
-        atomic_write_json(self.path / "sequence.json", {
-            "format": FORMAT, "num_frames": len(self._timestamps), "width": self._shape[1], "height": self._shape[0],
-            "depth_scale": self.depth_scale, "has_masks": bool(self._has_masks), "gt_objects": sorted(self._gt),
-            "label_names": {str(k): v for k, v in self.label_names.items()}, "metadata": self.metadata,
-            "versions": versions(),
-        })
+        atomic_write_json(
+            self.path / "sequence.json",
+            {
+                "format": FORMAT,
+                "num_frames": len(self._timestamps),
+                "width": self._shape[1],
+                "height": self._shape[0],
+                "depth_scale": self.depth_scale,
+                "has_masks": bool(self._has_masks),
+                "gt_objects": sorted(self._gt),
+                "label_names": {str(k): v for k, v in self.label_names.items()},
+                "metadata": self.metadata,
+                "versions": versions(),
+            },
+        )
         self._closed = True
         return self.path
 
@@ -355,4 +397,6 @@ def open_sequence(path: str | os.PathLike[str], **tum_options: Any) -> FrameSequ
         return RecordedSequence(p)
     if (p / "rgb.txt").is_file() and (p / "depth.txt").is_file():
         return TUMSequence(p, **tum_options)
-    raise SequenceError(f"{p} is neither a pal sequence (sequence.json) nor a TUM RGB-D sequence (rgb.txt + depth.txt)")
+    raise SequenceError(
+        f"{p} is neither a pal sequence (sequence.json) nor a TUM RGB-D sequence (rgb.txt + depth.txt)"
+    )

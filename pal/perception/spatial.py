@@ -49,8 +49,12 @@ class SpatialDescriptor:
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "centroid": self.centroid.tolist(), "distance": self.distance, "azimuth": self.azimuth,
-            "elevation": self.elevation, "spread": self.spread.tolist(), "num_points": self.num_points,
+            "centroid": self.centroid.tolist(),
+            "distance": self.distance,
+            "azimuth": self.azimuth,
+            "elevation": self.elevation,
+            "spread": self.spread.tolist(),
+            "num_points": self.num_points,
         }
 
 
@@ -64,6 +68,10 @@ def spatial_descriptor(
     q25, c, q75 = np.percentile(pts, [25, 50, 75], axis=0)
     x, y, z = (float(v) for v in c)
     return SpatialDescriptor(
-        centroid=c, distance=float(np.linalg.norm(c)), azimuth=math.atan2(x, z),
-        elevation=math.atan2(-y, math.hypot(x, z)), spread=(q75 - q25) / 2.0, num_points=int(pts.shape[0]),
+        centroid=c,
+        distance=float(np.linalg.norm(c)),
+        azimuth=math.atan2(x, z),
+        elevation=math.atan2(-y, math.hypot(x, z)),
+        spread=(q75 - q25) / 2.0,
+        num_points=int(pts.shape[0]),
     )

@@ -89,8 +89,14 @@ class SyntheticCamera:
         table_color: RGB of the table (a faint texture is added).
     """
 
-    def __init__(self, width: int = 160, height: int = 120, K: np.ndarray | None = None,
-                 table: np.ndarray | None = None, table_color: tuple[int, int, int] = (150, 140, 120)) -> None:
+    def __init__(
+        self,
+        width: int = 160,
+        height: int = 120,
+        K: np.ndarray | None = None,
+        table: np.ndarray | None = None,
+        table_color: tuple[int, int, int] = (150, 140, 120),
+    ) -> None:
         self.width, self.height = int(width), int(height)
         self.K = pinhole(self.width, self.height) if K is None else np.asarray(K, dtype=np.float64)
         self.table = table_pose() if table is None else np.asarray(table, dtype=np.float64)
@@ -102,8 +108,14 @@ class SyntheticCamera:
         self._ray_norm2 = (self._rays**2).sum(axis=0)
         self._textures: dict[tuple[int, int], np.ndarray] = {}
 
-    def render(self, objects: Sequence[Box | Sphere], timestamp: float = 0.0, *, depth_noise: float = 0.0,
-               rng: np.random.Generator | None = None) -> RGBDFrame:
+    def render(
+        self,
+        objects: Sequence[Box | Sphere],
+        timestamp: float = 0.0,
+        *,
+        depth_noise: float = 0.0,
+        rng: np.random.Generator | None = None,
+    ) -> RGBDFrame:
         """Ray-cast one frame.
 
         Args:
@@ -141,8 +153,11 @@ class SyntheticCamera:
                 raise ValueError("depth_noise > 0 needs an rng")
             z = np.where(valid, z + rng.normal(0.0, depth_noise, z.shape), 0.0).clip(0.0, None)
         return RGBDFrame(
-            rgb=np.clip(rgb, 0, 255).astype(np.uint8).reshape(H, W, 3), depth=z.astype(np.float32).reshape(H, W),
-            K=self.K, timestamp=timestamp, labels=labels.reshape(H, W),
+            rgb=np.clip(rgb, 0, 255).astype(np.uint8).reshape(H, W, 3),
+            depth=z.astype(np.float32).reshape(H, W),
+            K=self.K,
+            timestamp=timestamp,
+            labels=labels.reshape(H, W),
         )
 
     def _box(self, box: Box, d: np.ndarray, depth: np.ndarray, rgb: np.ndarray, labels: np.ndarray) -> None:
@@ -193,7 +208,9 @@ class SyntheticCamera:
         disc = b * b - a * (c @ c - radius**2)
         return np.flatnonzero((disc >= 0) & (b > 0))
 
-    def _sphere(self, sph: Sphere, d: np.ndarray, depth: np.ndarray, rgb: np.ndarray, labels: np.ndarray) -> None:
+    def _sphere(
+        self, sph: Sphere, d: np.ndarray, depth: np.ndarray, rgb: np.ndarray, labels: np.ndarray
+    ) -> None:
         c = np.asarray(sph.center, dtype=np.float64)
         cand = self._sphere_hits(c, sph.radius, d)
         if cand.size == 0:

@@ -3,7 +3,12 @@
 A candidate i and a memory reference j are *compatible* when ``IoU >= tau_iou`` or
 ``IoM >= tau_iom`` (Eq. 4.9-4.10, against the reference's last stored mask). Among compatible
 pairs, a one-to-one assignment maximising the summed IoU (IoM breaks ties) is found by the
-Hungarian method (``scipy.optimize.linear_sum_assignment``). Association runs in stages:
+Hungarian method (``scipy.optimize.linear_sum_assignment``). With ``predict_s > 0`` a track
+is also compared with its last mask shifted by its image velocity (constant velocity of the mask
+centroid over the last two observations, for at most ``predict_s`` seconds ahead), and the
+better of the two overlaps counts: a fast object (a rolling ball moving a third of its width
+per frame) keeps its id, and a static one is compared exactly as before. Association runs in
+stages:
 
 0. with ``trust_labels`` (oracle segmentation), a candidate whose label equals a live track's
    label joins that track;
@@ -42,19 +47,23 @@ class TrackerConfig:
         tau_iom: IoM acceptance threshold (auxiliary criterion).
         reid_window_s: a missing track can be re-identified for this long, s; then it dies.
         trust_labels: associate candidates to tracks by equal segmenter label first (oracle).
+        predict_s: horizon of the constant-velocity mask prediction, s (0: no prediction).
     """
 
     tau_iou: float = 0.5
     tau_iom: float = 0.9
     reid_window_s: float = 2.0
     trust_labels: bool = False
+    predict_s: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("tau_iou", "tau_iom"):
             if not 0 < getattr(self, name) <= 1:
                 raise ValueError(f"{name} is {getattr(self, name)}, expected in (0, 1]")
-        if not self.reid_window_s >= 0:
-            raise ValueError(f"reid_window_s is {self.reid_window_s}, expected >= 0 seconds")
+        if not self.reid_window_s >= 0 or not self.predict_s >= 0:
+            raise ValueError(
+                f"reid_window_s ({self.reid_window_s}) and predict_s ({self.predict_s}) must be >= 0 seconds"
+            )
 
 
 @dataclass(frozen=True)
@@ -87,6 +96,20 @@ class Track:
     first_seen: float
     last_seen: float
     hits: int = 1
+    velocity: tuple[float, float] = (0.0, 0.0)
+
+    def predicted(self, t: float, horizon: float) -> Mask | None:
+        """The last mask shifted by velocity * (t - last_seen) (clipped to ``horizon`` s), or None
+        when the shift rounds to zero pixels. The shifted box may leave the image; it is only
+        used for overlaps."""
+        dt = min(t - self.last_seen, horizon)
+        dx, dy = round(self.velocity[0] * dt), round(self.velocity[1] * dt)
+        if dx == 0 and dy == 0:
+            return None
+        x0, y0, x1, y1 = self.mask.bbox
+        return Mask(
+            (x0 + dx, y0 + dy, x1 + dx, y1 + dy), self.mask.crop, self.mask.image_shape, self.mask.area
+        )
 
 
 def overlap_matrices(masks_a: Sequence[Mask], masks_b: Sequence[Mask]) -> tuple[np.ndarray, np.ndarray]:
@@ -117,16 +140,31 @@ class Tracker:
         self._next_id = 1
         self._last_time: float | None = None
 
-    def _assign(self, cands: list[int], tracks: list[int], candidates: Sequence[Candidate]) -> list[tuple[int, int, float, float]]:
+    def _assign(
+        self, cands: list[int], tracks: list[int], candidates: Sequence[Candidate], t: float
+    ) -> list[tuple[int, int, float, float]]:
         if not cands or not tracks:
             return []
-        iou, iom = overlap_matrices([candidates[i].mask for i in cands], [self.tracks[t].mask for t in tracks])
+        masks = [candidates[i].mask for i in cands]
+        iou, iom = overlap_matrices(masks, [self.tracks[t].mask for t in tracks])
+        if self.config.predict_s > 0:
+            for c, tid in enumerate(tracks):
+                pred = self.tracks[tid].predicted(t, self.config.predict_s)
+                if pred is None:
+                    continue
+                piou, piom = overlap_matrices(masks, [pred])
+                better = piou[:, 0] > iou[:, c]
+                iou[better, c], iom[better, c] = piou[better, 0], piom[better, 0]
         ok = (iou >= self.config.tau_iou) | (iom >= self.config.tau_iom)
         if not ok.any():
             return []
         cost = np.where(ok, -(iou + 1e-3 * iom), 1e3)
         rows, cols = linear_sum_assignment(cost)
-        return [(cands[r], tracks[c], float(iou[r, c]), float(iom[r, c])) for r, c in zip(rows, cols, strict=True) if ok[r, c]]
+        return [
+            (cands[r], tracks[c], float(iou[r, c]), float(iom[r, c]))
+            for r, c in zip(rows, cols, strict=True)
+            if ok[r, c]
+        ]
 
     def update(self, candidates: Sequence[Candidate], timestamp: float) -> list[Observation]:
         """Associate this frame's candidates; returns one observation per candidate, in input order.
@@ -157,7 +195,7 @@ class Tracker:
         recent = [tid for tid, tr in self.tracks.items() if tr.last_seen == prev and tid not in taken]
         missing = [tid for tid, tr in self.tracks.items() if tr.last_seen != prev and tid not in taken]
         for pool, status in ((recent, "tracked"), (missing, "reidentified")):
-            for i, tid, a, b in self._assign(free, pool, candidates):
+            for i, tid, a, b in self._assign(free, pool, candidates, t):
                 self._update_track(tid, candidates[i], t)
                 result[i] = Observation(tid, candidates[i].mask, candidates[i].label, status, a, b)  # type: ignore[arg-type]
                 free.remove(i)
@@ -170,4 +208,7 @@ class Tracker:
 
     def _update_track(self, tid: int, cand: Candidate, t: float) -> None:
         tr = self.tracks[tid]
+        if t > tr.last_seen:
+            (u0, v0), (u1, v1) = tr.mask.centroid(), cand.mask.centroid()
+            tr.velocity = ((u1 - u0) / (t - tr.last_seen), (v1 - v0) / (t - tr.last_seen))
         tr.mask, tr.label, tr.last_seen, tr.hits = cand.mask, cand.label, t, tr.hits + 1

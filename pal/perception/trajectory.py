@@ -86,7 +86,9 @@ class Pose:
         if self.source not in SOURCES:
             raise ValueError(f"pose source {self.source!r} unknown; expected one of {SOURCES}")
         if (self.camera_from_object is None) != (self.source == "lost"):
-            raise ValueError(f"a {self.source} pose must {'not ' if self.source == 'lost' else ''}carry a transform")
+            raise ValueError(
+                f"a {self.source} pose must {'not ' if self.source == 'lost' else ''}carry a transform"
+            )
         if self.camera_from_object is not None:
             T = np.asarray(self.camera_from_object, dtype=np.float64)
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
@@ -127,7 +129,9 @@ class Trajectory:
     def append(self, pose: Pose) -> None:
         """Add a sample; timestamps must not decrease."""
         if self.poses and pose.timestamp < self.poses[-1].timestamp:
-            raise ValueError(f"pose at {pose.timestamp} s is earlier than the last sample at {self.poses[-1].timestamp} s")
+            raise ValueError(
+                f"pose at {pose.timestamp} s is earlier than the last sample at {self.poses[-1].timestamp} s"
+            )
         self.poses.append(pose)
 
     @property
@@ -168,7 +172,9 @@ class Trajectory:
     def save(self, path: str | os.PathLike[str], metadata: Mapping[str, Any] | None = None) -> Path:
         """Write an ``.npz`` (no pickle) with the arrays, the diagnostics and provenance as JSON."""
         meta = {
-            "format": _FORMAT, "versions": versions(), "metadata": dict(metadata or {}),
+            "format": _FORMAT,
+            "versions": versions(),
+            "metadata": dict(metadata or {}),
             "diagnostics": [p.diagnostics.to_dict() for p in self.poses],
         }
         blob = np.frombuffer(json.dumps(meta, allow_nan=False).encode(), dtype=np.uint8)
@@ -185,14 +191,18 @@ class Trajectory:
             with np.load(path, allow_pickle=False) as npz:
                 arrays = {k: npz[k] for k in npz.files}
         except (OSError, zipfile.BadZipFile, EOFError) as err:
-            raise ValueError(f"{path} is not a readable trajectory file ({type(err).__name__}: {err})") from None
+            raise ValueError(
+                f"{path} is not a readable trajectory file ({type(err).__name__}: {err})"
+            ) from None
         if "__meta__" not in arrays:
             raise ValueError(f"{path} has no __meta__ entry; it is not a trajectory file")
         meta = json.loads(arrays["__meta__"].tobytes().decode())
         if meta.get("format") != _FORMAT:
             raise ValueError(f"{path}: format {meta.get('format')!r}, expected {_FORMAT!r}")
         traj = Trajectory()
-        for t, code, T, diag in zip(arrays["timestamps"], arrays["source"], arrays["poses"], meta["diagnostics"], strict=True):
+        for t, code, T, diag in zip(
+            arrays["timestamps"], arrays["source"], arrays["poses"], meta["diagnostics"], strict=True
+        ):
             src = SOURCES[int(code)]
             traj.append(Pose(float(t), src, None if src == "lost" else T, PoseDiagnostics(**diag)))  # type: ignore[arg-type]
         return traj, meta

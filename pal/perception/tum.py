@@ -118,7 +118,9 @@ class TUMSequence(FrameSequence):
         rgb = read_image(self.path / rgb_file)
         depth = decode_depth(read_image(self.path / depth_file, depth=True), self.depth_scale)
         if rgb.shape[:2] != depth.shape:
-            raise SequenceError(f"{rgb_file} is {rgb.shape[:2]} but {depth_file} is {depth.shape}; TUM images must be aligned")
+            raise SequenceError(
+                f"{rgb_file} is {rgb.shape[:2]} but {depth_file} is {depth.shape}; TUM images must be aligned"
+            )
         return RGBDFrame(rgb=rgb, depth=depth, K=self.K, timestamp=float(self.timestamps[index]))
 
     def groundtruth(self, max_difference: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
@@ -133,7 +135,11 @@ class TUMSequence(FrameSequence):
         path = self.path / "groundtruth.txt"
         if not path.is_file():
             raise SequenceError(f"{path} does not exist")
-        rows = [line.split() for line in path.read_text(encoding="utf-8").splitlines() if line.strip() and not line.startswith("#")]
+        rows = [
+            line.split()
+            for line in path.read_text(encoding="utf-8").splitlines()
+            if line.strip() and not line.startswith("#")
+        ]
         if not rows or any(len(r) != 8 for r in rows):
             raise SequenceError(f"{path}: expected rows 't tx ty tz qx qy qz qw'")
         data = np.array(rows, dtype=np.float64)

@@ -18,7 +18,8 @@ dims  family       feature
 
 The object-level descriptor (Eq. 4.20) is the mean over the gallery. The families have very
 different scales (Hu moments are unbounded), so distances should be taken after
-:class:`pal.perception.normalise.RobustNormaliser`.
+:class:`pal.perception.normalise.RobustNormaliser` with the histogram families scaled as a
+whole: ``RobustNormaliser(VISUAL_FAMILIES, shared=VISUAL_HISTOGRAMS)``.
 """
 
 from __future__ import annotations
@@ -29,7 +30,14 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-__all__ = ["VISUAL_DIM", "VISUAL_FAMILIES", "VISUAL_NAMES", "gallery_visual_descriptor", "visual_descriptor"]
+__all__ = [
+    "VISUAL_DIM",
+    "VISUAL_FAMILIES",
+    "VISUAL_HISTOGRAMS",
+    "VISUAL_NAMES",
+    "gallery_visual_descriptor",
+    "visual_descriptor",
+]
 
 VISUAL_FAMILIES: dict[str, slice] = {
     "geometry": slice(0, 6),
@@ -39,8 +47,16 @@ VISUAL_FAMILIES: dict[str, slice] = {
     "orientation": slice(46, 54),
 }
 VISUAL_DIM = 54
+#: The families that are histograms (distributions over bins): normalise them as a whole,
+#: ``RobustNormaliser(VISUAL_FAMILIES, shared=VISUAL_HISTOGRAMS)``.
+VISUAL_HISTOGRAMS: tuple[str, ...] = ("hsv", "orientation")
 VISUAL_NAMES: tuple[str, ...] = (
-    "area_ratio", "aspect_ratio", "extent", "solidity", "compactness", "eccentricity",
+    "area_ratio",
+    "aspect_ratio",
+    "extent",
+    "solidity",
+    "compactness",
+    "eccentricity",
     *(f"hu_{k}" for k in range(1, 8)),
     *(f"hsv_h{h}_s{s}" for h in range(8) for s in range(4)),
     "edge_density",
@@ -64,7 +80,16 @@ def _geometry(mask_u8: np.ndarray, area: int) -> np.ndarray:
     common = math.sqrt(((mu20 - mu02) / 2.0) ** 2 + mu11**2)
     lam1, lam2 = (mu20 + mu02) / 2.0 + common, (mu20 + mu02) / 2.0 - common
     ecc = math.sqrt(max(0.0, 1.0 - lam2 / lam1)) if lam1 > 1e-12 else 0.0
-    return np.array([area / float(h * w), bw / float(bh), area / float(bw * bh), area / float(hull_area), compactness, ecc])
+    return np.array(
+        [
+            area / float(h * w),
+            bw / float(bh),
+            area / float(bw * bh),
+            area / float(hull_area),
+            compactness,
+            ecc,
+        ]
+    )
 
 
 def visual_descriptor(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -88,7 +113,9 @@ def visual_descriptor(rgb: np.ndarray, mask: np.ndarray) -> np.ndarray:
         raise ValueError(f"mask has shape {mask.shape}, expected {rgb.shape[:2]}")
     area = int(mask.sum())
     if area == 0:
-        raise ValueError(f"mask of shape {mask.shape} is empty (zero-size); a visual descriptor needs >= 1 pixel")
+        raise ValueError(
+            f"mask of shape {mask.shape} is empty (zero-size); a visual descriptor needs >= 1 pixel"
+        )
     rgb = np.ascontiguousarray(rgb)
     mask_u8 = mask.astype(np.uint8)
     geometry = _geometry(mask_u8, area)

@@ -58,8 +58,10 @@ def test_prototypes_average_per_domain_with_their_support(space):
     assert cat.label == "box" and cat.distances["box"] < cat.distances["ball"]
     # restricted to motion, the probe falls in the ball's Voronoi cell (Eq. 1.7)
     assert space.categorize(probe, protos, ["motion"]).label == "ball"
-    tie = space.categorize(space.entity("mid", {"colour": [5.5, 5.5]}), {"b": Entity("b", {"colour": np.zeros(2)}),
-                                                                          "a": Entity("a", {"colour": np.full(2, 11.0)})})
+    tie = space.categorize(
+        space.entity("mid", {"colour": [5.5, 5.5]}),
+        {"b": Entity("b", {"colour": np.zeros(2)}), "a": Entity("a", {"colour": np.full(2, 11.0)})},
+    )
     assert tie.label == "a"  # equal distances: the label that sorts first
 
 

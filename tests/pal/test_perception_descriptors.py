@@ -120,7 +120,9 @@ def test_visual_descriptor_of_known_shapes():
 
 def test_robust_normaliser_balances_families():
     rng = np.random.default_rng(0)
-    X = np.concatenate([rng.normal(0, 1000.0, (30, 2)), rng.normal(5, 0.01, (30, 8)), np.ones((30, 1))], axis=1)
+    X = np.concatenate(
+        [rng.normal(0, 1000.0, (30, 2)), rng.normal(5, 0.01, (30, 8)), np.ones((30, 1))], axis=1
+    )
     X[0, 0] = 1e6  # an outlier does not move median/IQR much
     fam = {"big": slice(0, 2), "small": slice(2, 10), "const": slice(10, 11)}
     norm = RobustNormaliser(fam).fit(X)
@@ -140,3 +142,24 @@ def test_robust_normaliser_balances_families():
         norm.transform(X[:, :3])
     visual = RobustNormaliser(VISUAL_FAMILIES).fit(rng.random((10, 54)))
     assert visual.weight_[13] == pytest.approx(1 / math.sqrt(32)) and visual.weight_[45] == 1.0
+
+
+def test_histogram_families_are_scaled_as_a_whole():
+    """Near-empty bins must not dominate: per-bin IQR scaling divides their count noise by ~0."""
+    rng = np.random.default_rng(1)
+    a = np.tile([0.7, 0.3, 0.0], (6, 1))
+    b = np.tile([0.3, 0.7, 0.0], (6, 1))
+    X = np.concatenate([a, b]) + rng.normal(0, 0.01, (12, 3)).clip(0)
+    X[:, 2] = np.where(rng.random(12) < 0.3, 0.01, 0.0)  # a nearly empty, noisy bin
+    fam = {"hist": slice(0, 3)}
+    per_bin = RobustNormaliser(fam).fit_transform(X)
+    shared = RobustNormaliser(fam, shared=("hist",)).fit(X)
+    Z = shared.transform(X)
+    assert np.ptp(shared.scale_) == 0.0 and shared.weight_[0] == 1.0
+    # the noisy bin's share of the squared distances from the median
+    share = lambda M: np.sum((M[:, 2] - np.median(M[:, 2])) ** 2) / np.sum((M - np.median(M, axis=0)) ** 2)  # noqa: E731
+    assert share(Z) < 0.01 < share(per_bin)
+    state = json.loads(json.dumps(shared.to_dict()))
+    assert np.allclose(RobustNormaliser.from_dict(state).transform(X), Z)
+    with pytest.raises(ValueError, match="shared families"):
+        RobustNormaliser(fam, shared=("hsv",))

@@ -23,7 +23,12 @@ K = np.array([[100.0, 0.0, 31.5], [0.0, 100.0, 23.5], [0.0, 0.0, 1.0]])
 
 
 def frame(h: int = 48, w: int = 64, **kw) -> RGBDFrame:
-    args = {"rgb": np.zeros((h, w, 3), np.uint8), "depth": np.ones((h, w), np.float32), "K": K, "timestamp": 0.0}
+    args = {
+        "rgb": np.zeros((h, w, 3), np.uint8),
+        "depth": np.ones((h, w), np.float32),
+        "K": K,
+        "timestamp": 0.0,
+    }
     args.update(kw)
     return RGBDFrame(**args)
 
@@ -95,7 +100,9 @@ def _render_sequence(n: int = 3) -> list[RGBDFrame]:
 def test_sequence_roundtrip_with_ground_truth(tmp_path):
     frames = _render_sequence()
     gt = [np.eye(4) + k for k in range(3)]
-    with SequenceWriter(tmp_path / "seq", metadata={"seed": 0, "motion": "test"}, label_names={3: "box"}) as w:
+    with SequenceWriter(
+        tmp_path / "seq", metadata={"seed": 0, "motion": "test"}, label_names={3: "box"}
+    ) as w:
         for k, f in enumerate(frames):
             w.append(f, gt_poses={"box": gt[k]} if k != 1 else {})
     seq = open_sequence(tmp_path / "seq")
@@ -124,7 +131,9 @@ def test_writer_rejects_inconsistent_frames(tmp_path):
     w.append(frames[0])
     with pytest.raises(ValueError, match="size"):
         w.append(frame(h=40))
-    other = RGBDFrame(frames[0].rgb, frames[0].depth, frames[0].K * np.array([[2, 1, 1], [1, 2, 1], [1, 1, 1]]), 1.0)
+    other = RGBDFrame(
+        frames[0].rgb, frames[0].depth, frames[0].K * np.array([[2, 1, 1], [1, 2, 1], [1, 1, 1]]), 1.0
+    )
     with pytest.raises(ValueError, match="intrinsics"):
         w.append(other)
     w.close()
@@ -196,3 +205,18 @@ def test_tum_layout_with_association_scale_and_intrinsics(tmp_path):
 def test_association_is_greedy_and_one_to_one():
     pairs = associate(np.array([0.0, 0.01, 0.5]), np.array([0.004, 0.012]), 0.02)
     assert pairs == [(0, 0), (1, 1)]
+
+
+def test_missing_or_invalid_intrinsics_in_a_sequence_raise(tmp_path):
+    with SequenceWriter(tmp_path / "s") as w:
+        w.append(_render_sequence(1)[0])
+    intr = tmp_path / "s" / "intrinsics.json"
+    intr.write_text(json.dumps({"width": 64, "height": 48}))  # no K
+    with pytest.raises(SequenceError, match=r"intrinsics\.json: K \(camera intrinsics\) is missing"):
+        open_sequence(tmp_path / "s")
+    intr.write_text(json.dumps({"K": [[100, 0, 30], [0, 100, 20]]}))
+    with pytest.raises(SequenceError, match=r"expected \(3, 3\)"):
+        open_sequence(tmp_path / "s")
+    intr.unlink()
+    with pytest.raises(SequenceError, match=r"intrinsics\.json does not exist"):
+        open_sequence(tmp_path / "s")

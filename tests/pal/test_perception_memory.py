@@ -38,16 +38,31 @@ def test_admission_checks_run_in_order():
     assert first.admitted and first.reason == "admitted" and first.snapshot == 0
     assert consider(g, view(0.0, 0.1)).reason == "mse"  # the same view is redundant
     bright = view(0.0, 0.2)
-    bright = RGBDFrame(np.clip(bright.rgb.astype(np.float32) * 1.4, 0, 255).astype(np.uint8), bright.depth, bright.K, 0.2, bright.labels)
+    bright = RGBDFrame(
+        np.clip(bright.rgb.astype(np.float32) * 1.4, 0, 255).astype(np.uint8),
+        bright.depth,
+        bright.K,
+        0.2,
+        bright.labels,
+    )
     assert consider(g, bright).reason == "features"  # pixels differ, but the same features match
     blurred = view(40.0, 0.3)
-    blurred = RGBDFrame(cv2.GaussianBlur(np.ascontiguousarray(blurred.rgb), (9, 9), 3.0), blurred.depth, blurred.K, 0.3, blurred.labels)
+    blurred = RGBDFrame(
+        cv2.GaussianBlur(np.ascontiguousarray(blurred.rgb), (9, 9), 3.0),
+        blurred.depth,
+        blurred.K,
+        0.3,
+        blurred.labels,
+    )
     assert consider(g, blurred).reason == "rank"  # much blurrier than the last views
     turned = consider(g, view(40.0, 0.4))
     assert turned.admitted and turned.snapshot == 1
     assert len(g) == 2 and g.visual_descriptor().shape == (54,)
     assert consider(Gallery(AdmissionConfig(min_area=10**6)), view(0.0)).reason == "area"
-    assert consider(Gallery(AdmissionConfig(min_area=100, min_sharpness=10.0)), view(0.0, sphere=True)).reason == "sharpness"
+    assert (
+        consider(Gallery(AdmissionConfig(min_area=100, min_sharpness=10.0)), view(0.0, sphere=True)).reason
+        == "sharpness"
+    )
 
 
 def test_eviction_removes_the_most_redundant_snapshot_but_never_the_canonical():

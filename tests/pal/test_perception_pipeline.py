@@ -33,7 +33,9 @@ def frames(n: int = 14) -> list[RGBDFrame]:
             Sphere(0.04, (CAM.table @ np.array([0.0, -0.14, 0.04, 1.0]))[:3], label=3),
         ]
         if k not in HIDDEN:
-            objects.append(Box((0.14, 0.1, 0.08), on_table(-0.12 + 0.004 * k, 0.0, 0.04, 2.0 * k), label=1, seed=1))
+            objects.append(
+                Box((0.14, 0.1, 0.08), on_table(-0.12 + 0.004 * k, 0.0, 0.04, 2.0 * k), label=1, seed=1)
+            )
         out.append(CAM.render(objects, 0.1 * k))
     return out
 
@@ -76,7 +78,9 @@ def test_live_pipeline_keeps_ids_and_reports_positions(run):
     ball = states[-1].object(first[3])
     assert ball.pose is not None and ball.pose.source == "lost" and ball.pose.rotvec is None
     assert ball.position_source == "centroid" and ball.position is not None
-    assert ball.spatial is not None and ball.spatial.distance == pytest.approx(float(np.linalg.norm(ball.position)))
+    assert ball.spatial is not None and ball.spatial.distance == pytest.approx(
+        float(np.linalg.norm(ball.position))
+    )
     assert pipe.visual_descriptor(ball.obj_id).shape == (54,)
 
 
@@ -136,4 +140,6 @@ def test_bad_input_and_config():
     with pytest.raises(ValueError, match="segmenter"):
         PipelineConfig(segmenter="yolo")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="needs frame.labels"):
-        Pipeline(PipelineConfig(segmenter="oracle"))(RGBDFrame(FRAMES[0].rgb, FRAMES[0].depth, FRAMES[0].K, 0.0))
+        Pipeline(PipelineConfig(segmenter="oracle"))(
+            RGBDFrame(FRAMES[0].rgb, FRAMES[0].depth, FRAMES[0].K, 0.0)
+        )

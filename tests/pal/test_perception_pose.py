@@ -8,10 +8,12 @@ from __future__ import annotations
 
 import itertools
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from pal.perception.features import FeatureConfig, FeatureExtractor
 from pal.perception.frames import RGBDFrame, project
 from pal.perception.memory import AdmissionConfig, Gallery, ObjectRecord
 from pal.perception.pose import PoseConfig, PoseEstimator, position_std
@@ -79,7 +81,9 @@ def box_pose(k: int, n: int, yaw_total_deg: float) -> np.ndarray:
     return CAM.table @ T
 
 
-def track(frames: list[RGBDFrame], config: PoseConfig | None = None, depth_hole: bool = False) -> tuple[ObjectRecord, list[Pose]]:
+def track(
+    frames: list[RGBDFrame], config: PoseConfig | None = None, depth_hole: bool = False
+) -> tuple[ObjectRecord, list[Pose]]:
     est = PoseEstimator(config or PoseConfig(), rng=0)
     seg = OracleSegmenter()
     rec = None
@@ -143,7 +147,9 @@ def test_pose_of_a_rotating_translating_box_against_ground_truth():
 def test_pnp_fallback_when_live_depth_is_missing():
     truth = [box_pose(0, 10, 0.0), box_pose(1, 10, 10.0)]
     f0, f1 = (CAM.render([Box(SIZE, T, label=1, seed=3)], k / 10) for k, T in enumerate(truth))
-    holes = RGBDFrame(f1.rgb, np.where(f1.labels == 1, 0.0, f1.depth).astype(np.float32), f1.K, f1.timestamp, f1.labels)
+    holes = RGBDFrame(
+        f1.rgb, np.where(f1.labels == 1, 0.0, f1.depth).astype(np.float32), f1.K, f1.timestamp, f1.labels
+    )
     _, poses = track([f0, holes])
     assert poses[1].is_valid and poses[1].diagnostics.solver == "pnp"
     err = errors(poses, truth)
@@ -152,7 +158,9 @@ def test_pnp_fallback_when_live_depth_is_missing():
 
 def test_a_featureless_ball_is_lost_not_invented():
     ball = (CAM.table @ np.array([0.0, 0.0, 0.05, 1.0]))[:3]
-    frames = [CAM.render([Sphere(0.05, ball + np.array([0.005 * k, 0, 0]), label=1)], k / 10) for k in range(3)]
+    frames = [
+        CAM.render([Sphere(0.05, ball + np.array([0.005 * k, 0, 0]), label=1)], k / 10) for k in range(3)
+    ]
     rec, poses = track(frames)
     assert all(p.source == "lost" and p.camera_from_object is None and p.rotvec is None for p in poses)
     assert "no canonical frame" in poses[0].diagnostics.reason
@@ -189,7 +197,9 @@ def test_trajectory_roundtrip_and_pose_checks(tmp_path):
     back, meta = Trajectory.load(path)
     assert meta["metadata"] == {"object": "box"} and "numpy" in meta["versions"]
     assert [p.source for p in back.poses] == ["estimated", "lost", "propagated"]
-    assert back.poses[0].diagnostics == traj.poses[0].diagnostics and np.allclose(back.poses[2].camera_from_object, T)
+    assert back.poses[0].diagnostics == traj.poses[0].diagnostics and np.allclose(
+        back.poses[2].camera_from_object, T
+    )
     with pytest.raises(ValueError, match="earlier"):
         traj.append(Pose(0.1, "lost", None))
     with pytest.raises(ValueError, match="must not carry"):
@@ -209,3 +219,27 @@ def test_pose_config_is_checked():
         PoseConfig(ransac_threshold=3.0)  # the proof of concept's unit mistake
     with pytest.raises(ValueError, match="min_pairs"):
         PoseConfig(min_pairs=4)
+
+
+def test_silhouette_corners_are_not_features():
+    """A smooth one-colour sphere only has corners on its silhouette: none survive the border."""
+    cam = SyntheticCamera(320, 240)
+    frame = cam.render(
+        [
+            Sphere(0.05, (cam.table @ np.array([0.08, 0.0, 0.05, 1.0]))[:3], label=1),
+            Box(
+                (0.1, 0.08, 0.06),
+                cam.table @ np.array([[1, 0, 0, -0.08], [0, 1, 0, 0], [0, 0, 1, 0.03], [0, 0, 0, 1.0]]),
+                label=2,
+            ),
+        ]
+    )
+    sphere, box = OracleSegmenter()(frame)
+    assert len(FeatureExtractor(FeatureConfig(border=0))(frame.gray(), sphere.mask)) > 5
+    assert len(FeatureExtractor(FeatureConfig(border=3))(frame.gray(), sphere.mask)) == 0
+    feats = FeatureExtractor(FeatureConfig(border=3))(frame.gray(), box.mask)
+    inside = cv2.distanceTransform(box.mask.full().astype(np.uint8), cv2.DIST_L2, 3)
+    kp = np.rint(feats.keypoints).astype(int)
+    assert len(feats) > 20 and inside[kp[:, 1], kp[:, 0]].min() >= 3.0
+    with pytest.raises(ValueError, match="border"):
+        FeatureConfig(border=-1)

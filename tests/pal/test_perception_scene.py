@@ -36,7 +36,10 @@ def box(x0: int, x1: int, y0: int, y1: int) -> np.ndarray:
 def test_topology_from_masks_and_depth():
     a, b = box(10, 30, 20, 40), box(30, 50, 20, 40)
     assert topology(flat(), Mask.from_full(a), Mask.from_full(b)) == ("touching", None)
-    assert topology(flat(1.3, b), Mask.from_full(a), Mask.from_full(b)) == ("disjoint", None)  # apart in depth
+    assert topology(flat(1.3, b), Mask.from_full(a), Mask.from_full(b)) == (
+        "disjoint",
+        None,
+    )  # apart in depth
     assert topology(flat(), Mask.from_full(a), Mask.from_full(box(60, 80, 20, 40))) == ("disjoint", None)
     assert topology(flat(), Mask.from_full(a), Mask.from_full(box(20, 40, 20, 40))) == ("overlapping", None)
     ring = box(10, 60, 10, 60) & ~box(20, 50, 20, 50)

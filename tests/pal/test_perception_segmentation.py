@@ -10,7 +10,7 @@ from pal.perception.frames import RGBDFrame
 from pal.perception.masks import Mask, intersection_area, iom, iou
 from pal.perception.plane import Plane, fit_plane_ransac
 from pal.perception.segmentation import GeometricSegmenter, OracleSegmenter, SegmentationConfig
-from pal.perception.synthetic import Box, Sphere, SyntheticCamera
+from pal.perception.synthetic import Box, Sphere, SyntheticCamera, table_pose
 
 
 def on_table(cam: SyntheticCamera, x: float, y: float, z: float, yaw: float = 0.0) -> np.ndarray:
@@ -21,11 +21,13 @@ def on_table(cam: SyntheticCamera, x: float, y: float, z: float, yaw: float = 0.
 
 
 def scene(cam: SyntheticCamera) -> RGBDFrame:
-    return cam.render([
-        Box((0.12, 0.08, 0.06), on_table(cam, -0.12, 0.0, 0.03, 0.3), label=1, seed=1),
-        Box((0.08, 0.08, 0.10), on_table(cam, 0.12, 0.05, 0.05, -0.2), label=2, seed=2),
-        Sphere(0.04, (cam.table @ np.array([0.0, -0.12, 0.04, 1.0]))[:3], label=3),
-    ])
+    return cam.render(
+        [
+            Box((0.12, 0.08, 0.06), on_table(cam, -0.12, 0.0, 0.03, 0.3), label=1, seed=1),
+            Box((0.08, 0.08, 0.10), on_table(cam, 0.12, 0.05, 0.05, -0.2), label=2, seed=2),
+            Sphere(0.04, (cam.table @ np.array([0.0, -0.12, 0.04, 1.0]))[:3], label=3),
+        ]
+    )
 
 
 def best_iou(gt: Mask, masks: list[Mask]) -> float:
@@ -76,7 +78,11 @@ def test_min_area_and_frames_without_depth():
 
 def test_segmentation_is_deterministic_for_a_seed():
     cam = SyntheticCamera(160, 120)
-    f = cam.render([Box((0.1, 0.1, 0.05), on_table(cam, 0, 0, 0.025), seed=4)], depth_noise=0.002, rng=np.random.default_rng(1))
+    f = cam.render(
+        [Box((0.1, 0.1, 0.05), on_table(cam, 0, 0, 0.025), seed=4)],
+        depth_noise=0.002,
+        rng=np.random.default_rng(1),
+    )
     a = GeometricSegmenter(SegmentationConfig(min_area=30), rng=7)(f)
     b = GeometricSegmenter(SegmentationConfig(min_area=30), rng=7)(f)
     assert [(c.mask.bbox, c.mask.area) for c in a] == [(c.mask.bbox, c.mask.area) for c in b]
@@ -144,3 +150,26 @@ def test_segmentation_config_is_checked():
         SegmentationConfig(min_depth=2.0, max_depth=1.0)
     with pytest.raises(ValueError, match="plane_threshold"):
         SegmentationConfig(plane_threshold=0.0)
+
+
+def test_the_plane_is_tracked_and_refitted_when_the_support_changes(monkeypatch):
+    import pal.perception.segmentation as segmentation
+
+    calls = []
+    real = segmentation.fit_plane_ransac
+    monkeypatch.setattr(segmentation, "fit_plane_ransac", lambda *a, **k: calls.append(1) or real(*a, **k))
+    cam = SyntheticCamera(160, 120)
+    f = scene(cam)
+    seg = GeometricSegmenter(SegmentationConfig(min_area=30), rng=0)
+    first = seg(f)
+    again = seg(f)  # same support: the previous plane is refined, no RANSAC
+    assert len(calls) == 1 and [c.mask.area for c in again] == [c.mask.area for c in first]
+    assert np.allclose(seg.last_plane.normal, cam.table[:3, 2], atol=1e-3)
+    tilted = SyntheticCamera(160, 120, table=table_pose(0.7, 30.0))
+    seg(scene(tilted))  # a different support plane: RANSAC again
+    assert len(calls) == 2 and np.allclose(seg.last_plane.normal, tilted.table[:3, 2], atol=1e-3)
+    untracked = GeometricSegmenter(SegmentationConfig(min_area=30, track_plane=False), rng=0)
+    untracked(f), untracked(f)
+    assert len(calls) == 4
+    with pytest.raises(ValueError, match="track_tolerance"):
+        SegmentationConfig(track_tolerance=0.0)

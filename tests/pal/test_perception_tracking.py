@@ -85,3 +85,15 @@ def test_time_must_not_go_backwards_and_config_is_checked():
         TrackerConfig(tau_iou=0.0)
     with pytest.raises(ValueError, match="reid_window_s"):
         TrackerConfig(reid_window_s=-1.0)
+
+
+def test_constant_velocity_prediction_keeps_a_fast_object():
+    """A 20 px mask accelerating to 12 px per update (IoU 0.25 with its last mask) keeps its id."""
+    x = [5, 9, 17, 29, 41, 53, 65]  # steps 4, 8, 12, 12, ... px
+    fast = [rect(x0, x0 + 20) for x0 in x]
+    tr = Tracker()
+    assert {tr.update([c], 0.1 * k)[0].track_id for k, c in enumerate(fast)} == {1}
+    still = Tracker(TrackerConfig(predict_s=0.0))  # without prediction: a new id from the 8 px step on
+    assert len({still.update([c], 0.1 * k)[0].track_id for k, c in enumerate(fast)}) == len(fast) - 1
+    with pytest.raises(ValueError, match="predict_s"):
+        TrackerConfig(predict_s=-1.0)
