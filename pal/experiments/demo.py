@@ -5,6 +5,9 @@
    spring pulls the joint towards an action-dependent equilibrium, so the displacement
    depends on the previous angle): the thesis graph (Fig. 5.5) against the graph with
    q_prev -> dq, action inference for 128 targets, and curiosity targets.
+3. A short B1/B2 on the MuJoCo finger: uniform motor babbling, both graphs fitted, and the
+   inferred actions executed in the simulator from the recorded states
+   (:mod:`pal.experiments.b1`, :mod:`pal.experiments.b2` at small sizes).
 
 ``run`` yields the report line by line and writes figures and a JSON summary.
 """
@@ -14,7 +17,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +34,9 @@ from inference import (
 )
 from models import FunctionMechanism, LinearMechanism, WorldModel, chain_graph, finger_graph, save
 from models.presets import FINGER_ACTION_RANGE
+from pal.experiments import b1, b2
 from pal.experiments.output import save_figure, write_json
+from pal.experiments.wm_setup import prepare
 
 __all__ = ["Config", "run", "spring_finger"]
 
@@ -43,7 +48,11 @@ Q_RANGE = (-2.79, 0.14)
 
 @dataclass(frozen=True)
 class Config:
-    """Sizes of the demo; the defaults take about a minute on 2 cores."""
+    """Sizes of the demo; the defaults take about a minute on 2 cores.
+
+    ``mujoco_*`` size the B1/B2 run on the MuJoCo finger: babbling steps, training epochs
+    (batch ``batch_size``) and action-inference targets.
+    """
 
     out_dir: str = "pal-demo"
     transitions: int = 20000
@@ -51,10 +60,15 @@ class Config:
     batch_size: int = 512
     targets: int = 128
     seed: int = 0
+    mujoco_steps: int = 20000
+    mujoco_epochs: int = 60
+    mujoco_targets: int = 128
 
     @classmethod
     def quick(cls) -> Config:
-        return cls(transitions=4000, epochs=15, targets=32)
+        return cls(
+            transitions=4000, epochs=15, targets=32, mujoco_steps=3000, mujoco_epochs=15, mujoco_targets=16
+        )
 
 
 def spring_finger() -> WorldModel:
@@ -227,6 +241,8 @@ def run(config: Config, progress_bar: bool = False) -> Iterator[str]:
         f"entropy {b3['random_entropy_real']:.3f}"
     )
     save_figure(cur.plot(current=float(state[f"q_prev.{JOINT}"][0, 0])), out / "curiosity.png")
+    yield ""
+    yield from _mujoco_finger(config, out, summary, progress_bar)
     for section in ("b1", "b2", "b3"):
         for key, value in dict(summary[section]).items():  # type: ignore[arg-type]
             if isinstance(value, float) and not math.isfinite(value):
@@ -234,6 +250,54 @@ def run(config: Config, progress_bar: bool = False) -> Iterator[str]:
     write_json(out / "demo.json", summary)
     yield ""
     yield f"Figures and demo.json written to {out}"
+
+
+def _mujoco_finger(
+    config: Config, out: Path, summary: dict[str, object], progress_bar: bool
+) -> Iterator[str]:
+    """Section 5: B1 and B2 on the MuJoCo finger at small sizes; adds ``summary["mujoco"]``."""
+    cfg = b2.Config(
+        steps=config.mujoco_steps,
+        seed=config.seed,
+        cache=False,
+        epochs=config.mujoco_epochs,
+        batch_size=config.batch_size,
+        targets=config.mujoco_targets,
+    )
+    yield (
+        f"5. MuJoCo finger: {cfg.steps} uniform babbling transitions (80:20), both graphs, "
+        f"{cfg.epochs} epochs (B1, Table 5.7)"
+    )
+    prep = prepare(cfg, progress_bar=progress_bar)
+    metrics = b1.evaluate(prep)
+    yield f"   {'graph':<12}{'dq MSE':>10}{'q MSE':>10}{'q MAE':>10}"
+    for graph in cfg.graphs:
+        m = metrics[graph]
+        yield f"   {graph:<12}{m['dq_mse']:>10.4f}{m['q_mse']:>10.4f}{m['q_mae']:>10.4f}"
+    p = metrics["persistence"]
+    yield f"   {'persistence':<12}{'':>10}{p['q_mse']:>10.4f}{p['q_mae']:>10.4f}"
+    b2_metrics, b2_extra, points = b2.evaluate(prep, cfg)
+    yield (
+        f"   B2: {len(points['target'])} test targets, actions inferred from the midpoint (Alg. 4.2) and "
+        "executed from the recorded simulator states"
+    )
+    for graph in cfg.graphs:
+        inf, rnd = b2_metrics[graph]["inferred"], b2_metrics[graph]["random"]
+        yield (
+            f"   {graph:<8} MAE model {inf['mae_model']:.3f} rad, realized {inf['mae_real']:.3f} rad, "
+            f"{100 * inf['within_005_real']:.1f}% within 0.05 rad realized (random actions: {rnd['mae_real']:.3f} rad)"
+        )
+    restarts, _, _ = b2.evaluate(prep, replace(cfg, graphs=("state",), action_starts=3))
+    inf = restarts["state"]["inferred"]
+    yield (
+        f"   state, Alg. 4.2 restarted from 3 points of X_a: realized MAE {inf['mae_real']:.3f} rad, "
+        f"{100 * inf['within_005_real']:.1f}% within 0.05 rad (the midpoint start can stall on the plateau "
+        "at the flexion limit)"
+    )
+    b2_result = b2.Result(b2_metrics, b2_extra, prep.info(), cfg, points)
+    for name, fig in b2_result.figures().items():
+        save_figure(fig, out / f"mujoco_b2_{name}.png")
+    summary["mujoco"] = {"b1": metrics, "b2": b2_metrics}
 
 
 def _scatter(target: torch.Tensor, predicted: torch.Tensor, real: torch.Tensor, random_real: torch.Tensor):

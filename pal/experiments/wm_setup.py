@@ -1,0 +1,264 @@
+"""The shared protocol of experiments B1-B3 (thesis §5.2.1): data, split, both graphs, fit.
+
+Protocol: 100 000 uniform-babbling transitions split 80:20 at random; for each graph
+variant (``"thesis"``: Fig. 5.5, ``"state"``: with q_prev -> dq) a world model with MLP
+mechanisms (2 x 32, tanh) trained with MSE for 120 epochs, batch 2048, lr 0.01 (Eq. 4.33).
+:func:`prepare` runs it once and hands B1, B2 and B3 the same data and models.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+import torch
+
+from inference import FitResult, fit, infer_action
+from models import WorldModel
+from models.presets import GRAPH_VARIANTS, joint_chain_graph
+from pal.data import TransitionDataset
+from pal.experiments.wm_data import DataConfig, JointData, Realizer, babble_or_load
+
+__all__ = [
+    "Prepared",
+    "ProtocolConfig",
+    "abs_errors",
+    "build_model",
+    "infer_actions",
+    "predict_q",
+    "prepare",
+    "setup_line",
+]
+
+log = logging.getLogger(__name__)
+
+
+def _positive_int(name: str, value: object) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{name} must be a positive int, got {value!r}")
+
+
+@dataclass(frozen=True)
+class ProtocolConfig(DataConfig):
+    """Data and training protocol shared by B1-B3 (defaults: thesis §5.2.1).
+
+    Attributes:
+        graphs: graph variants to fit, from ``("thesis", "state")``.
+        split: training share of the random split.
+        epochs, batch_size, lr: Adam schedule of :func:`inference.fit` (MSE loss).
+        hidden: MLP hidden widths (tanh).
+    """
+
+    graphs: tuple[str, ...] = GRAPH_VARIANTS
+    split: float = 0.8
+    epochs: int = 120
+    batch_size: int = 2048
+    lr: float = 0.01
+    hidden: tuple[int, ...] = (32, 32)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        graphs = (self.graphs,) if isinstance(self.graphs, str) else tuple(self.graphs)
+        unknown = [g for g in graphs if g not in GRAPH_VARIANTS]
+        if unknown or not graphs or len(set(graphs)) != len(graphs):
+            raise ValueError(
+                f"graphs {list(graphs)!r} invalid; expected distinct names from {list(GRAPH_VARIANTS)}"
+            )
+        object.__setattr__(self, "graphs", graphs)
+        object.__setattr__(self, "hidden", tuple(self.hidden))
+        if not 0 < self.split < 1:
+            raise ValueError(f"split must be in (0, 1), got {self.split}")
+        for name in ("epochs", "batch_size"):
+            _positive_int(name, getattr(self, name))
+        if not self.lr > 0:
+            raise ValueError(f"lr must be > 0, got {self.lr}")
+
+
+@dataclass
+class Prepared:
+    """Data and fitted models of one protocol run.
+
+    Attributes:
+        config: the protocol.
+        dataset: all transitions; ``train`` and ``test`` are its random split.
+        joint: the analysed joint and its actuator.
+        q_range: observed range X_q of q.J in the training data, rad.
+        models: graph variant -> fitted :class:`WorldModel`.
+        fits: graph variant -> :class:`FitResult` (loss curves).
+        seconds: wall time of ``data`` and ``fit_<graph>``.
+    """
+
+    config: ProtocolConfig
+    dataset: TransitionDataset
+    train: TransitionDataset
+    test: TransitionDataset
+    joint: JointData
+    q_range: tuple[float, float]
+    models: dict[str, WorldModel] = field(default_factory=dict)
+    fits: dict[str, FitResult] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    @cached_property
+    def test_columns(self) -> dict[str, np.ndarray]:
+        """The analysed joint's test columns, name -> ``(N_test, 1)`` float32."""
+        return self.joint.columns(self.test)
+
+    @cached_property
+    def realizer(self) -> Realizer:
+        """Replays test transitions in the simulator (rows index :attr:`test`)."""
+        return Realizer(self.test, self.joint, self.config.source)
+
+    def info(self) -> dict[str, object]:
+        """Facts for reports: body, joint, actuator, sizes, ranges, seconds."""
+        return {
+            "body": self.dataset.metadata.get("body"),
+            "joint": self.joint.joint,
+            "actuator": self.joint.actuator,
+            "babbling_actuators": len(self.dataset.actuators),
+            "n_train": len(self.train),
+            "n_test": len(self.test),
+            "action_range": list(self.joint.action_range),
+            "q_range": list(self.q_range),
+            "seconds": dict(self.seconds),
+        }
+
+
+def build_model(
+    joint: JointData,
+    variant: str,
+    q_range: tuple[float, float],
+    seed: int,
+    hidden: tuple[int, ...] = (32, 32),
+) -> WorldModel:
+    """An unfitted world model over the analysed joint; tanh MLP weights drawn from ``seed``."""
+    graph = joint_chain_graph(
+        [joint.joint], {joint.joint: joint.action_range}, variant=variant, q_ranges={joint.joint: q_range}
+    )
+    with torch.random.fork_rng():
+        torch.manual_seed(seed)
+        return WorldModel(graph, hidden=hidden, activation="tanh")
+
+
+def prepare(config: ProtocolConfig, progress_bar: bool = False) -> Prepared:
+    """Babble (or load) the data, split it and fit one world model per graph variant."""
+    start = time.perf_counter()
+    dataset = babble_or_load(config, progress_bar=progress_bar)
+    joint = JointData.select(dataset, config.joint)
+    train, test = dataset.split(config.split, seed=config.seed)
+    prep = Prepared(config, dataset, train, test, joint, joint.q_range(train))
+    prep.seconds["data"] = time.perf_counter() - start
+    data = joint.columns(train)
+    for variant in config.graphs:
+        start = time.perf_counter()
+        model = build_model(joint, variant, prep.q_range, config.seed, config.hidden)
+        prep.fits[variant] = fit(
+            model,
+            data,
+            loss="mse",
+            epochs=config.epochs,
+            batch_size=config.batch_size,
+            lr=config.lr,
+            seed=config.seed,
+            progress_bar=progress_bar,
+        )
+        prep.models[variant] = model
+        prep.seconds[f"fit_{variant}"] = time.perf_counter() - start
+        log.info("fitted the %s graph in %.1f s", variant, prep.seconds[f"fit_{variant}"])
+    return prep
+
+
+def abs_errors(pred: np.ndarray | torch.Tensor, target: np.ndarray | torch.Tensor) -> np.ndarray:
+    """``|pred - target|`` as a flat float64 array (inputs ``(n,)`` or ``(n, 1)``)."""
+    p = pred.detach().numpy() if isinstance(pred, torch.Tensor) else np.asarray(pred)
+    t = target.detach().numpy() if isinstance(target, torch.Tensor) else np.asarray(target)
+    p, t = p.astype(np.float64).reshape(-1), t.astype(np.float64).reshape(-1)
+    if p.shape != t.shape:
+        raise ValueError(f"prediction has {p.size} entries, target {t.size}")
+    return np.abs(p - t)
+
+
+def predict_q(model: WorldModel, joint: JointData, q_prev: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    """Model-predicted post-action angle Phi(q_prev, a) (Eq. 5.7) with expected residuals.
+
+    Args:
+        q_prev, actions: ``(n,)`` or ``(n, 1)``; rad and dimensionless.
+
+    Returns:
+        ``(n,)`` float64 predicted q.J, rad.
+    """
+    act, qp, _, q = joint.names
+    values = {
+        qp: torch.as_tensor(np.asarray(q_prev, np.float32).reshape(-1, 1)),
+        act: torch.as_tensor(np.asarray(actions, np.float32).reshape(-1, 1)),
+    }
+    return model.predict(values)[q].numpy().astype(np.float64).reshape(-1)
+
+
+def infer_actions(
+    model: WorldModel,
+    joint: JointData,
+    q_prev: np.ndarray,
+    targets: np.ndarray,
+    steps: int,
+    lr: float,
+    starts: int = 1,
+    rng: np.random.Generator | None = None,
+) -> tuple[np.ndarray, np.ndarray, tuple[float, ...]]:
+    """Alg. 4.2 for each (q_prev, target) pair: projected Adam on the action, clipped to X_a.
+
+    The loss is ``0.5 (Phi(q_prev, a) - target)^2`` per pair (the thesis's MSE objective).
+    With ``starts = 1`` Adam starts from the midpoint of X_a (thesis §5.2.3). With
+    ``starts = k > 1`` it starts from the k interior points of ``linspace(low, high, k + 2)``
+    (the midpoint among them when k is odd), all in one batch, and keeps per pair the
+    action with the lowest final loss under the model. With ``rng`` the k starts of every
+    pair are drawn uniformly from X_a instead, so that where the model predicts no effect
+    of the action (a flat loss) the chosen action stays random rather than fixed.
+
+    Returns:
+        ``(actions (n,), predicted q (n,), mean loss per Adam step)``; the loss curve is
+        averaged over all pairs and starts.
+    """
+    if isinstance(starts, bool) or not isinstance(starts, int) or starts < 1:
+        raise ValueError(f"starts must be a positive int, got {starts!r}")
+    act, qp, _, q = joint.names
+    qp_arr = np.asarray(q_prev, np.float32).reshape(-1, 1)
+    tg_arr = np.asarray(targets, np.float32).reshape(-1, 1)
+    n = len(qp_arr)
+    low, high = joint.action_range
+    if rng is not None:
+        init: str | dict[str, np.ndarray] = {
+            act: rng.uniform(low, high, size=(starts * n, 1)).astype(np.float32)
+        }
+    elif starts == 1:
+        init = "midpoint"
+    else:
+        init = {act: np.repeat(np.linspace(low, high, starts + 2)[1:-1], n)[:, None].astype(np.float32)}
+    res = infer_action(
+        model,
+        {qp: np.tile(qp_arr, (starts, 1))},
+        {q: np.tile(tg_arr, (starts, 1))},
+        actions=[act],
+        steps=steps,
+        lr=lr,
+        init=init,
+    )
+    best = res.final_loss.numpy().reshape(starts, n).argmin(0) * n + np.arange(n)
+    return (
+        res.actions[act].numpy().astype(np.float64).reshape(-1)[best],
+        res.predicted[q].numpy().astype(np.float64).reshape(-1)[best],
+        res.loss,
+    )
+
+
+def setup_line(info: dict[str, Any]) -> str:
+    """One markdown sentence describing the run from :meth:`Prepared.info`."""
+    return (
+        f"Body `{info['body']}`, joint `{info['joint']}` (action: actuator `{info['actuator']}`, "
+        f"{info['babbling_actuators']} actuator(s) babbling), {info['n_train']} training / {info['n_test']} "
+        f"test transitions, X_a = [{info['action_range'][0]:.3f}, {info['action_range'][1]:.3f}], "
+        f"X_q = [{info['q_range'][0]:.3f}, {info['q_range'][1]:.3f}] rad."
+    )
