@@ -36,6 +36,7 @@ from models import FunctionMechanism, LinearMechanism, WorldModel, chain_graph, 
 from models.presets import FINGER_ACTION_RANGE
 from pal.experiments import b1, b2
 from pal.experiments.output import save_figure, write_json
+from pal.experiments.perception_demo import perception_demo_lines
 from pal.experiments.wm_setup import prepare
 
 __all__ = ["Config", "run", "spring_finger"]
@@ -51,7 +52,8 @@ class Config:
     """Sizes of the demo; the defaults take about a minute on 2 cores.
 
     ``mujoco_*`` size the B1/B2 run on the MuJoCo finger: babbling steps, training epochs
-    (batch ``batch_size``) and action-inference targets.
+    (batch ``batch_size``) and action-inference targets. ``quick_perception`` renders the
+    tabletop recordings at 320x240 and 6 frames/s instead of 640x480 and 15 frames/s.
     """
 
     out_dir: str = "pal-demo"
@@ -63,11 +65,18 @@ class Config:
     mujoco_steps: int = 20000
     mujoco_epochs: int = 60
     mujoco_targets: int = 128
+    quick_perception: bool = False
 
     @classmethod
     def quick(cls) -> Config:
         return cls(
-            transitions=4000, epochs=15, targets=32, mujoco_steps=3000, mujoco_epochs=15, mujoco_targets=16
+            transitions=4000,
+            epochs=15,
+            targets=32,
+            mujoco_steps=3000,
+            mujoco_epochs=15,
+            mujoco_targets=16,
+            quick_perception=True,
         )
 
 
@@ -243,6 +252,10 @@ def run(config: Config, progress_bar: bool = False) -> Iterator[str]:
     save_figure(cur.plot(current=float(state[f"q_prev.{JOINT}"][0, 0])), out / "curiosity.png")
     yield ""
     yield from _mujoco_finger(config, out, summary, progress_bar)
+    yield ""
+    lines = perception_demo_lines(out, quick=config.quick_perception)
+    yield "6. " + lines[0]
+    yield from lines[1:]
     for section in ("b1", "b2", "b3"):
         for key, value in dict(summary[section]).items():  # type: ignore[arg-type]
             if isinstance(value, float) and not math.isfinite(value):
