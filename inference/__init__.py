@@ -7,11 +7,17 @@ it, inside ``pyro.plate("units", N)``, passing ``data`` as ``obs=``.
 """
 
 from inference.action import ActionResult, gaussian_log_preference, infer_action
+from inference.admissible import admissible_parents
+from inference.context import active_subgraph, subgraph_model
 from inference.counterfactual import CounterfactualResult, abduct, counterfactual
 from inference.curiosity import CuriositySampler, normalized_entropy, occupancy
+from inference.discovery import DiscoveryResult, discover, shd
+from inference.ensemble import Ensemble
 from inference.fit import FitResult, fit
 from inference.handlers import AbductNoise, Intervene, MeasurementScale, ReplayNoise
 from inference.interventions import do, simulate
+from inference.metalearn import ResidualMonitor, Revision, revise
+from inference.rewire import RewireResult, rewire
 from inference.state import StateResult, infer_state
 
 __all__ = [
@@ -19,13 +25,21 @@ __all__ = [
     "ActionResult",
     "CounterfactualResult",
     "CuriositySampler",
+    "DiscoveryResult",
+    "Ensemble",
     "FitResult",
     "Intervene",
     "MeasurementScale",
     "ReplayNoise",
+    "ResidualMonitor",
+    "Revision",
+    "RewireResult",
     "StateResult",
     "abduct",
+    "active_subgraph",
+    "admissible_parents",
     "counterfactual",
+    "discover",
     "do",
     "fit",
     "gaussian_log_preference",
@@ -33,5 +47,9 @@ __all__ = [
     "infer_state",
     "normalized_entropy",
     "occupancy",
+    "revise",
+    "rewire",
+    "shd",
     "simulate",
+    "subgraph_model",
 ]

@@ -32,13 +32,23 @@ class CausalGraph:
     Args:
         variables: the nodes, with unique names.
         edges: ``(parent, child)`` name pairs.
+        confidence: optional ``(parent, child) -> c`` in [0, 1] for some edges, e.g. the
+            posterior edge probability that structure learning assigns; it travels with
+            the graph (JSON, :meth:`with_edges`) but is not part of its identity
+            (:meth:`fingerprint`, ``==``).
 
     Raises:
         ValueError: on duplicate or unknown names, cycles, parents of an action,
-            edges from lag 0 to lag 1, self-loops, or a malformed ``lag_of``.
+            edges from lag 0 to lag 1, self-loops, a malformed ``lag_of``, or a
+            confidence for a missing edge or outside [0, 1].
     """
 
-    def __init__(self, variables: Sequence[Variable], edges: Iterable[tuple[str, str]] = ()) -> None:
+    def __init__(
+        self,
+        variables: Sequence[Variable],
+        edges: Iterable[tuple[str, str]] = (),
+        confidence: Mapping[tuple[str, str], float] | None = None,
+    ) -> None:
         variables = list(variables)
         for v in variables:
             if not isinstance(v, Variable):
@@ -85,6 +95,18 @@ class CausalGraph:
                     f"variable {v.name!r}: lag_of {v.lag_of!r} must be a lag-0 variable of dim "
                     f"{v.dim}, got lag {src.lag}, dim {src.dim}"
                 )
+        self._confidence: dict[tuple[str, str], float] = {}
+        for edge, value in dict(confidence or {}).items():
+            edge = tuple(edge)
+            if len(edge) != 2 or not g.has_edge(*edge):
+                raise ValueError(f"confidence given for {edge!r}, which is not an edge of the graph")
+            c = float(value)
+            if not 0.0 <= c <= 1.0:
+                raise ValueError(
+                    f"confidence of edge {edge[0]!r} -> {edge[1]!r} is {value!r}, expected [0, 1]"
+                )
+            self._confidence[edge] = c
+            g.edges[edge]["confidence"] = c
         self._g = g
         self._order = tuple(nx.lexicographical_topological_sort(g, key=self._index.__getitem__))
         self._parents = {n: tuple(sorted(g.predecessors(n), key=self._index.__getitem__)) for n in names}
@@ -109,6 +131,25 @@ class CausalGraph:
     def edges(self) -> tuple[tuple[str, str], ...]:
         """Edges sorted by (child, parent) declaration order."""
         return tuple((p, c) for c in self.names for p in self._parents[c])
+
+    @property
+    def confidence(self) -> dict[tuple[str, str], float]:
+        """Edge -> confidence in [0, 1] for the edges that carry one (others are absent)."""
+        return dict(self._confidence)
+
+    def edge_confidence(self, parent: str, child: str) -> float | None:
+        """The confidence of ``parent -> child``, or None if it carries none.
+
+        Raises:
+            ValueError: the edge is not in the graph.
+        """
+        if not self._g.has_edge(parent, child):
+            raise ValueError(f"{parent!r} -> {child!r} is not an edge of the graph")
+        return self._confidence.get((parent, child))
+
+    def with_confidence(self, confidence: Mapping[tuple[str, str], float]) -> CausalGraph:
+        """The same graph with these edge confidences (replacing any it had)."""
+        return CausalGraph(list(self._variables.values()), self.edges, confidence)
 
     def __getitem__(self, name: str) -> Variable:
         return self._variables[self.check_name(name)]
@@ -179,23 +220,36 @@ class CausalGraph:
             raise ValueError(f"cannot remove edges {sorted(missing)}: not in the graph")
         edges = [e for e in self.edges if e not in remove]
         edges += [tuple(e) for e in add if tuple(e) not in edges]
-        return CausalGraph(list(self._variables.values()), edges)
+        kept = {e: c for e, c in self._confidence.items() if e not in remove}
+        return CausalGraph(list(self._variables.values()), edges, kept)
 
     # ------------------------------------------------------------------ serialisation
     def to_dict(self) -> dict[str, Any]:
-        """JSON-compatible description: format tag, variables, edges."""
-        return {
+        """JSON-compatible description: format tag, variables, edges (and edge confidences if any)."""
+        out: dict[str, Any] = {
             "format": _FORMAT,
             "variables": [v.to_dict() for v in self._variables.values()],
             "edges": [list(e) for e in self.edges],
         }
+        if self._confidence:
+            out["confidence"] = [
+                [p, c, self._confidence[p, c]] for p, c in self.edges if (p, c) in self._confidence
+            ]
+        return out
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> CausalGraph:
         if not isinstance(data, Mapping) or data.get("format") != _FORMAT:
             got = data.get("format") if isinstance(data, Mapping) else type(data).__name__
             raise ValueError(f"not a causal graph description: format {got!r}, expected {_FORMAT!r}")
-        return cls([Variable.from_dict(v) for v in data["variables"]], [tuple(e) for e in data["edges"]])
+        confidence = {}
+        for entry in data.get("confidence", []):
+            if not isinstance(entry, Sequence) or len(entry) != 3:
+                raise ValueError(f"confidence entry {entry!r} is not [parent, child, value]")
+            confidence[entry[0], entry[1]] = entry[2]
+        return cls(
+            [Variable.from_dict(v) for v in data["variables"]], [tuple(e) for e in data["edges"]], confidence
+        )
 
     def to_json(self, indent: int | None = 2) -> str:
         return json.dumps(self.to_dict(), indent=indent, sort_keys=True)
@@ -211,6 +265,7 @@ class CausalGraph:
     def fingerprint(self) -> str:
         """SHA-256 of the canonical JSON (descriptions excluded); equal graphs share it."""
         d = self.to_dict()
+        d.pop("confidence", None)
         for v in d["variables"]:
             v.pop("description")
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()
@@ -244,7 +299,10 @@ class CausalGraph:
         return "\n".join(lines) + "\n"
 
     def plot(self, ax: Any = None, edge_labels: Mapping[tuple[str, str], str] | None = None) -> Figure:
-        """Draw the graph in topological layers; returns the matplotlib Figure."""
+        """Draw the graph in topological layers; returns the matplotlib Figure.
+
+        Without ``edge_labels``, edges that carry a confidence are labelled with it.
+        """
         import matplotlib.pyplot as plt  # plotting is optional; imported on use
 
         if ax is None:
@@ -278,8 +336,18 @@ class CausalGraph:
                 node_size=1400,
                 connectionstyle=f"arc3,rad={bend}",
             )
+        if edge_labels is None and self._confidence:
+            edge_labels = {e: f"{c:.2f}" for e, c in self._confidence.items()}
         if edge_labels:
-            nx.draw_networkx_edge_labels(g, pos, edge_labels=dict(edge_labels), ax=ax, font_size=7)
+            labels = dict(edge_labels)
+            for bend, keep in ((0.0, lambda d: d <= 1), (0.25, lambda d: d > 1)):
+                part = {
+                    e: t for e, t in labels.items() if keep(g.nodes[e[1]]["layer"] - g.nodes[e[0]]["layer"])
+                }
+                if part:
+                    nx.draw_networkx_edge_labels(
+                        g, pos, edge_labels=part, ax=ax, font_size=7, connectionstyle=f"arc3,rad={bend}"
+                    )
         handles = [
             plt.Line2D([], [], marker="o", ls="", color=c, markersize=10, label=r.value)
             for r, c in colors.items()

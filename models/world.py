@@ -13,7 +13,8 @@ variable names. Values have shape ``(N, dim)``.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import copy
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import pyro
@@ -155,6 +156,7 @@ class WorldModel(PyroModule):
         # is slow and would let SVI train the world model during state inference.
         self.__dict__["_mech_by_name"] = {n: mods[module_key(n)] for n in graph.non_roots}
         self.__dict__["_priors"] = self.root_priors
+        self.__dict__["_defaults"] = {"kind": kind, "hidden": tuple(hidden), "activation": activation}
         self.provenance: dict[str, Any] = {}
 
     # ------------------------------------------------------------------ structure
@@ -399,5 +401,100 @@ class WorldModel(PyroModule):
             state = {r: pred[lagged[r]] for r in lag1_roots if r in lagged}
         return {k: torch.stack([s[k] for s in steps], 1) for k in self.graph.names}
 
+    # ------------------------------------------------------------------ editing
+    def with_graph(self, graph: CausalGraph) -> WorldModel:
+        """A new model on an edited ``graph`` that warm-starts from this one.
+
+        For every non-root X_i of ``graph``:
+
+        - same parents as here: a copy of f_i (weights, normalisers, sigma_i) - "kept";
+        - other parents, and f_i is an MLP or linear mechanism: a copy whose first layer
+          keeps the weight columns of the parents that remain and has zero columns for the
+          new ones, so f_i is unchanged when parents are only added - "rewired";
+        - otherwise (new variable, root here, or a function mechanism): a fresh default
+          mechanism - "new".
+
+        Root priors of variables that stay roots are copied. The new model's provenance
+        records the per-variable outcome under ``"warm_start"``. This model is not changed.
+
+        Raises:
+            ValueError: a variable of ``graph`` exists here with another dim.
+        """
+        if not isinstance(graph, CausalGraph):
+            raise ValueError(f"graph must be a CausalGraph, got {type(graph).__name__}")
+        for name in graph.names:
+            if name in self.graph and self.graph[name].dim != graph[name].dim:
+                raise ValueError(
+                    f"variable {name!r} has dim {graph[name].dim} in the new graph, expected "
+                    f"{self.graph[name].dim} as in the model"
+                )
+        mechs: dict[str, Mechanism] = {}
+        outcome: dict[str, str] = {}
+        for name in graph.non_roots:
+            old = self._mech_by_name.get(name) if name in self.graph else None
+            new_parents = graph.parents(name)
+            if old is None:
+                outcome[name] = "new"
+                continue
+            if self.graph.parents(name) == new_parents:
+                mechs[name] = copy.deepcopy(old)
+                outcome[name] = "kept"
+                continue
+            rewired = _rewire(old, self.graph, self.graph.parents(name), graph, new_parents)
+            if rewired is None:
+                outcome[name] = "new"
+            else:
+                mechs[name] = rewired
+                outcome[name] = "rewired"
+        model = WorldModel(graph, mechs, **self._defaults)
+        for name in graph.roots:
+            if name in self.graph and self.graph.is_root(name) and graph[name].role is not Role.ACTION:
+                loc, scale = self._priors.get(name)
+                model.set_root_prior(name, loc, scale)
+        model.provenance = {**copy.deepcopy(self.provenance), "warm_start": outcome}
+        return model
+
     def extra_repr(self) -> str:
         return repr(self.graph)
+
+
+def _columns(graph: CausalGraph, parents: Sequence[str]) -> dict[str, slice]:
+    out, start = {}, 0
+    for p in parents:
+        out[p] = slice(start, start + graph[p].dim)
+        start += graph[p].dim
+    return out
+
+
+def _rewire(
+    mech: Mechanism,
+    old_graph: CausalGraph,
+    old_parents: Sequence[str],
+    new_graph: CausalGraph,
+    new_parents: Sequence[str],
+) -> Mechanism | None:
+    """A copy of ``mech`` reading ``new_parents``: kept parents keep their input columns
+    (first-layer weights and input normalisers), new ones start with zero weights."""
+    if isinstance(mech, MLPMechanism):
+        first = "net.0"
+    elif isinstance(mech, LinearMechanism):
+        first = "linear"
+    else:
+        return None
+    new_dim = sum(new_graph[p].dim for p in new_parents)
+    if isinstance(mech, MLPMechanism):
+        out = MLPMechanism(new_dim, mech.out_dim, hidden=mech.hidden, activation=mech.activation)
+    else:
+        out = LinearMechanism(new_dim, mech.out_dim)
+    state = {k: v.clone() for k, v in mech.state_dict().items()}
+    old_cols, new_cols = _columns(old_graph, old_parents), _columns(new_graph, new_parents)
+    weight = torch.zeros(state[f"{first}.weight"].shape[0], new_dim)
+    in_loc, in_scale = torch.zeros(new_dim), torch.ones(new_dim)
+    for p, cols in new_cols.items():
+        if p in old_cols:
+            weight[:, cols] = state[f"{first}.weight"][:, old_cols[p]]
+            in_loc[cols] = state["in_loc"][old_cols[p]]
+            in_scale[cols] = state["in_scale"][old_cols[p]]
+    state[f"{first}.weight"], state["in_loc"], state["in_scale"] = weight, in_loc, in_scale
+    out.load_state_dict(state, strict=True)
+    return out

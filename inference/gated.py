@@ -1,0 +1,125 @@
+"""Group-lasso-gated MLP parent selection (sparsification step of structure learning).
+
+Every child X_i gets a one-hidden-layer MLP over *all* its candidate parents,
+
+    f_i(x) = W2_i tanh(W1_i (m_i * x) + b1_i) + b2_i,
+
+where ``m_i`` masks non-candidates. The first-layer columns of parent j form a group
+g_ij = W1_i[:, cols(j)], and training minimises
+
+    sum_i mean_{rows r evident about X_i} ||x_ri - f_i(x_r)||^2 / dim_i  +  lambda * sum_ij ||g_ij||_2
+
+with Adam steps followed by the group soft-threshold g <- g * max(0, 1 - lr * lambda / ||g||),
+which sets whole groups exactly to zero. Over a decreasing penalty path (warm-started), each
+child keeps the parent set (non-zero groups) of the penalty whose held-out Gaussian
+log-likelihood is best. All children train in one batched tensor program.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+
+import torch
+
+from inference.admissible import StructureData
+
+__all__ = ["select_parents"]
+
+
+def select_parents(
+    data: StructureData,
+    candidates: Mapping[str, Sequence[str]],
+    *,
+    penalties: Sequence[float] = (0.3, 0.1, 0.03, 0.01),
+    hidden: int = 16,
+    steps: int = 300,
+    lr: float = 0.01,
+    val_fraction: float = 0.2,
+    seed: int = 0,
+) -> dict[str, tuple[str, ...]]:
+    """Select parents among ``candidates`` (child -> names) with gated MLPs.
+
+    Args:
+        data: standardised data and evidence masks.
+        candidates: child -> candidate parents (must be acyclic-consistent, e.g. the
+            predecessors in a topological order); children without candidates get none.
+        penalties: the lambda path, in decreasing order.
+        hidden: hidden units per child.
+        steps: Adam steps per penalty.
+        lr: Adam learning rate (also the proximal step).
+        val_fraction: held-out share of rows for the selection.
+        seed: seeds the split and the initial weights.
+
+    Returns:
+        child -> selected parents (declaration order).
+    """
+    if (
+        not penalties
+        or any(not p > 0 for p in penalties)
+        or list(penalties) != sorted(penalties, reverse=True)
+    ):
+        raise ValueError(f"penalties must be positive and decreasing, got {list(penalties)}")
+    if not 0 < val_fraction < 1:
+        raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction}")
+    names = data.names
+    children = [c for c in names if candidates.get(c)]
+    if not children:
+        return {c: () for c in names}
+    gen = torch.Generator().manual_seed(seed)
+    n, d_in = data.x.shape
+    v = len(children)
+    x = data.x.double()
+    in_mask = torch.zeros(v, d_in, dtype=torch.float64)
+    out_mask = torch.zeros(v, d_in, dtype=torch.float64)
+    rows = torch.stack([data.rows[c] for c in children], 1).double()  # (n, V)
+    for k, c in enumerate(children):
+        in_mask[k, data.columns(candidates[c])] = 1.0
+        out_mask[k, data.columns([c])] = 1.0 / len(data.columns([c]))
+    perm = torch.randperm(n, generator=gen)
+    val = torch.zeros(n, dtype=torch.bool)
+    val[perm[: max(1, round(val_fraction * n))]] = True
+    w1 = (
+        torch.randn(v, hidden, d_in, generator=gen, dtype=torch.float64) * 0.3 * in_mask[:, None]
+    ).requires_grad_()
+    b1 = torch.zeros(v, hidden, dtype=torch.float64, requires_grad=True)
+    w2 = (
+        torch.randn(v, hidden, d_in, generator=gen, dtype=torch.float64) * 0.3 / math.sqrt(hidden)
+    ).requires_grad_()
+    b2 = torch.zeros(v, d_in, dtype=torch.float64, requires_grad=True)
+    groups = {c: [(p, data.columns([p])) for p in candidates[c]] for c in children}
+    col_group = torch.zeros(d_in, len(names), dtype=torch.float64)  # column -> its variable
+    for j, nm in enumerate(names):
+        col_group[data.columns([nm]), j] = 1.0
+
+    def sq_error(idx: torch.Tensor) -> torch.Tensor:
+        h = torch.tanh(torch.einsum("nd,vhd->nvh", x[idx], w1 * in_mask[:, None]) + b1)
+        out = torch.einsum("nvh,vhd->nvd", h, w2) + b2
+        return ((out - x[idx][:, None, :]) ** 2 * out_mask).sum(-1)  # (n_idx, V)
+
+    train_rows, val_rows = rows[~val], rows[val]
+    optim = torch.optim.Adam([w1, b1, w2, b2], lr=lr)
+    best = torch.full((v,), math.inf, dtype=torch.float64)
+    chosen: dict[str, tuple[str, ...]] = {c: tuple(candidates[c]) for c in children}
+    for lam in penalties:
+        for _ in range(steps):
+            optim.zero_grad()
+            err = sq_error(~val)
+            loss = ((err * train_rows).sum(0) / train_rows.sum(0).clamp_min(1)).sum()
+            loss.backward()
+            optim.step()
+            with torch.no_grad():
+                norms = ((w1**2).sum(1) @ col_group).sqrt()  # (V, variables)
+                shrink = torch.clamp(1 - lr * lam / norms.clamp_min(1e-12), min=0.0) @ col_group.T  # (V, D)
+                w1.mul_(shrink[:, None, :])
+        with torch.no_grad():
+            mse_tr = (sq_error(~val) * train_rows).sum(0) / train_rows.sum(0).clamp_min(1)
+            mse_val = (sq_error(val) * val_rows).sum(0) / val_rows.sum(0).clamp_min(1)
+            var = mse_tr.clamp_min(1e-12)
+            nll = 0.5 * torch.log(2 * math.pi * var) + mse_val / (2 * var)
+            for k, c in enumerate(children):
+                if nll[k] < best[k]:
+                    best[k] = nll[k]
+                    chosen[c] = tuple(p for p, cols in groups[c] if float(w1[k][:, cols].norm()) > 0)
+    order = {nm: i for i, nm in enumerate(names)}
+    return {c: tuple(sorted(chosen.get(c, ()), key=order.__getitem__)) for c in names}

@@ -1,0 +1,339 @@
+"""Meta-learning: structural revision of the world model under persistent residuals (thesis §4.3.6).
+
+A :class:`ResidualMonitor` keeps, per variable X_i, the windowed mean of Eq. 4.50,
+
+    m_i(t) = (1 / W) * sum_{tau = t-W}^{t-1} ||u_i(tau)||^2,   u_i = (x_i - f_i(pa_i)) / s_i,
+
+with s_i a reference scale: a per-variable tolerance when given (the error the agent can
+accept), else sigma_i of the model when the monitor was made. A variable is *flagged* when
+m_i exceeds ``threshold`` x dim_i after ``patience`` consecutive updates (each after a refit).
+
+:func:`revise` then proposes and tests, for every flagged X_i, the revisions
+
+- ``add_parent``: pa_i + j for every admissible, acyclic j;
+- ``capacity``: an MLP with twice the hidden width and one more layer;
+- ``split``: a regime split f_i = f_i^a if x_s < c else f_i^b, on the parent component x_s
+  whose median split lowers the residual most (c = that median),
+
+each fitted (Eq. 4.33) on a training part of the recent data and scored by the Gaussian
+log-likelihood of X_i on the held-out part. A revision is kept only if it beats the current
+mechanism, refitted the same way, by more than ``min_gain`` nats. Every test is logged as a
+:class:`Revision` with its evidence.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import logging
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from inference.admissible import admissible_parents
+from inference.fit import fit
+from models.graph import CausalGraph
+from models.mechanisms import Mechanism, MLPMechanism
+from models.world import WorldModel, as_values
+
+__all__ = ["ResidualMonitor", "Revision", "SplitMechanism", "revise"]
+
+log = logging.getLogger(__name__)
+
+
+class ResidualMonitor:
+    """Windowed mean squared standardised residuals per variable (Eq. 4.50).
+
+    Args:
+        model: the world model whose non-roots are monitored.
+        window: W, rows in the window.
+        tolerance: optional name -> reference sd s_i (the variable's units); default sigma_i.
+        threshold: a variable is high when m_i > threshold * dim_i.
+        patience: consecutive high updates before it is flagged.
+    """
+
+    def __init__(
+        self,
+        model: WorldModel,
+        window: int = 1000,
+        tolerance: Mapping[str, float] | None = None,
+        threshold: float = 2.0,
+        patience: int = 2,
+    ) -> None:
+        if isinstance(window, bool) or not isinstance(window, int) or window < 1:
+            raise ValueError(f"window must be a positive int, got {window!r}")
+        if not threshold > 0:
+            raise ValueError(f"threshold must be > 0, got {threshold}")
+        if isinstance(patience, bool) or not isinstance(patience, int) or patience < 1:
+            raise ValueError(f"patience must be a positive int, got {patience!r}")
+        self.window, self.threshold, self.patience = window, float(threshold), patience
+        tol = dict(tolerance or {})
+        for name in tol:
+            model.graph.check_name(name, what="tolerance variable")
+        self.scale = {
+            n: torch.as_tensor(tol[n], dtype=torch.get_default_dtype()).expand(model.graph[n].dim).clone()
+            if n in tol
+            else model.sigma(n).detach().clone()
+            for n in model.graph.non_roots
+        }
+        self.dims = {n: model.graph[n].dim for n in model.graph.non_roots}
+        self.history: dict[str, list[float]] = {n: [] for n in self.scale}
+        self.levels: dict[str, list[float]] = {n: [] for n in self.scale}
+
+    def update(self, model: WorldModel, values: Mapping[str, Any]) -> dict[str, float]:
+        """Add rows (name -> ``(N, dim)`` for every variable) and return m_i per monitored variable."""
+        vals, _ = as_values(model.graph, values, what="values")
+        out = {}
+        with torch.no_grad():
+            for name in self.scale:
+                if name not in model.graph or model.graph.is_root(name):
+                    continue
+                u = (vals[name] - model.loc(name, vals)) / self.scale[name]
+                self.history[name] = (self.history[name] + u.pow(2).sum(-1).tolist())[-self.window :]
+                out[name] = float(np.mean(self.history[name]))
+                self.levels[name].append(out[name])
+        return out
+
+    def flagged(self) -> list[str]:
+        """Variables whose last ``patience`` levels all exceed threshold * dim."""
+        return [
+            n
+            for n, lv in self.levels.items()
+            if len(lv) >= self.patience
+            and all(v > self.threshold * self.dims[n] for v in lv[-self.patience :])
+        ]
+
+
+class SplitMechanism(Mechanism):
+    """A regime split f(z) = f_a(z) if z_s < c else f_b(z) (z: the concatenated parents).
+
+    Not serialisable by :mod:`models.io` (only MLP and linear mechanisms are).
+    """
+
+    kind = "split"
+
+    def __init__(self, low: Mechanism, high: Mechanism, component: int, cut: float) -> None:
+        super().__init__(low.in_dim, low.out_dim)
+        if (high.in_dim, high.out_dim) != (low.in_dim, low.out_dim):
+            raise ValueError("both regimes of a split need the same input and output dims")
+        if not 0 <= component < low.in_dim:
+            raise ValueError(f"split component {component} out of range for in_dim {low.in_dim}")
+        self.low, self.high, self.component, self.cut = low, high, int(component), float(cut)
+        self.log_sigma = nn.Parameter(torch.maximum(low.log_sigma, high.log_sigma).detach().clone())
+
+    def forward(self, parents: Tensor) -> Tensor:
+        below = parents[..., self.component : self.component + 1] < self.cut
+        return torch.where(below, self.low(parents), self.high(parents))
+
+
+@dataclass(frozen=True)
+class Revision:
+    """One tested revision and its evidence (held-out log-likelihoods in nats)."""
+
+    kind: str
+    variable: str
+    detail: str
+    loglik_before: float
+    loglik_after: float
+    gain: float
+    accepted: bool
+    n_train: int
+    n_val: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _local_graph(graph: CausalGraph, child: str, parents: Sequence[str]) -> CausalGraph:
+    """The star pa_i -> X_i (lag_of links to variables outside it are dropped)."""
+    names = {*parents, child}
+    variables = [
+        graph[n] if graph[n].lag_of in (None, *names) else dataclasses.replace(graph[n], lag_of=None)
+        for n in graph.names
+        if n in names
+    ]
+    return CausalGraph(variables, [(p, child) for p in parents])
+
+
+def _trained(
+    graph: CausalGraph,
+    child: str,
+    parents: Sequence[str],
+    mech: Mechanism | None,
+    train: Mapping[str, Tensor],
+    hidden: tuple[int, ...],
+    fit_kwargs: Mapping[str, Any],
+) -> WorldModel:
+    local = _local_graph(graph, child, parents)
+    with torch.random.fork_rng():  # new weights come from the fit seed, not the global RNG
+        torch.manual_seed(int(fit_kwargs.get("seed", 0)))
+        model = WorldModel(local, None if mech is None else {child: mech}, hidden=hidden)
+    if mech is None or not isinstance(mech, SplitMechanism):
+        fit(model, {k: v for k, v in train.items() if k in local}, variables=[child], **fit_kwargs)
+    return model
+
+
+def _loglik(model: WorldModel, child: str, val: Mapping[str, Tensor]) -> float:
+    with torch.no_grad():
+        loc = model.loc(child, val)
+        dist = torch.distributions.Normal(loc, model.sigma(child))
+        return float(dist.log_prob(val[child]).sum())
+
+
+def _split(
+    graph: CausalGraph,
+    child: str,
+    parents: Sequence[str],
+    train: Mapping[str, Tensor],
+    hidden: tuple[int, ...],
+    fit_kwargs: Mapping[str, Any],
+) -> tuple[WorldModel, str] | None:
+    z = torch.cat([train[p] for p in parents], -1)
+    base = _trained(graph, child, parents, None, train, hidden, fit_kwargs)
+    with torch.no_grad():
+        resid = (train[child] - base.loc(child, train)).pow(2).sum(-1)
+    best = None
+    for k in range(z.shape[1]):
+        cut = float(z[:, k].median())
+        below = z[:, k] < cut
+        if int(below.sum()) < 8 or int((~below).sum()) < 8:
+            continue
+        spread = float(abs(resid[below].mean() - resid[~below].mean()))
+        if best is None or spread > best[0]:
+            best = (spread, k, cut)
+    if best is None:
+        return None
+    _, k, cut = best
+    parts = []
+    for mask in (z[:, k] < cut, z[:, k] >= cut):
+        sub = {n: v[mask] for n, v in train.items()}
+        parts.append(_trained(graph, child, parents, None, sub, hidden, fit_kwargs).mechanism(child))
+    mech = SplitMechanism(parts[0], parts[1], k, cut)
+    local = _local_graph(graph, child, parents)
+    model = WorldModel(local, {child: mech})
+    with torch.no_grad():
+        r = train[child] - model.loc(child, train)
+        mech.set_sigma(r.pow(2).mean(0).sqrt().clamp_min(1e-6))
+    return model, f"component {k} of concat({', '.join(parents)}) at {cut:.4g}"
+
+
+def revise(
+    model: WorldModel,
+    data: Mapping[str, Any],
+    variables: Sequence[str],
+    *,
+    kinds: Sequence[str] = ("add_parent", "capacity", "split"),
+    tiers: Sequence[Sequence[str]] | None = None,
+    val_fraction: float = 0.3,
+    min_gain: float = 10.0,
+    hidden: tuple[int, ...] = (32, 32),
+    seed: int = 0,
+    fit_kwargs: Mapping[str, Any] | None = None,
+) -> tuple[WorldModel, list[Revision]]:
+    """Propose, test and apply structural revisions for ``variables`` (e.g. ``monitor.flagged()``).
+
+    Args:
+        model: the current model (left unchanged).
+        data: name -> ``(N, dim)`` recent rows of every variable.
+        variables: the variables to revise.
+        kinds: revisions to try, from ``("add_parent", "capacity", "split")``.
+        tiers: background knowledge for admissible parents (:func:`admissible_parents`).
+        val_fraction: held-out share of the rows.
+        min_gain: held-out log-likelihood gain (nats) a revision needs to be kept.
+        hidden: hidden widths of new MLP mechanisms.
+        seed: seeds the split and the fits.
+        fit_kwargs: passed to :func:`inference.fit` (default: 60 epochs, batch 256).
+
+    Returns:
+        ``(revised model, log)``; the best accepted revision per variable is applied, and the
+        revised mechanism is refitted on all rows.
+    """
+    unknown = [k for k in kinds if k not in ("add_parent", "capacity", "split")]
+    if unknown:
+        raise ValueError(f"unknown revision kinds {unknown}; expected add_parent, capacity, split")
+    if not 0 < val_fraction < 1:
+        raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction}")
+    vals, n = as_values(model.graph, data, what="data")
+    missing = [v for v in model.graph.names if v not in vals]
+    if missing:
+        raise ValueError(f"revise needs rows of every variable; missing {missing}")
+    fkw = {"epochs": 60, "batch_size": 256, "seed": seed, **dict(fit_kwargs or {})}
+    perm = torch.randperm(n, generator=torch.Generator().manual_seed(seed))
+    n_val = max(1, round(val_fraction * n))
+    val = {k: v[perm[:n_val]] for k, v in vals.items()}
+    train = {k: v[perm[n_val:]] for k, v in vals.items()}
+    graph = model.graph
+    allowed = admissible_parents(graph, tiers=tiers)
+    current = model
+    log_: list[Revision] = []
+    for child in variables:
+        graph.check_name(child, what="variable to revise")
+        if graph.is_root(child):
+            raise ValueError(f"{child!r} is a root; only mechanisms can be revised")
+        parents = list(current.graph.parents(child))
+        baseline = _trained(
+            current.graph, child, parents, copy.deepcopy(current.mechanism(child)), train, hidden, fkw
+        )
+        before = _loglik(baseline, child, val)
+        candidates: list[tuple[str, str, WorldModel, list[str]]] = []
+        if "add_parent" in kinds:
+            desc = current.graph.descendants(child)
+            for j in allowed[child]:
+                if j in parents or j in desc:
+                    continue
+                new_parents = [p for p in graph.names if p in {*parents, j}]
+                cand = _trained(current.graph, child, new_parents, None, train, hidden, fkw)
+                candidates.append(("add_parent", f"{j} -> {child}", cand, new_parents))
+        if "capacity" in kinds:
+            mech = current.mechanism(child)
+            width = max(getattr(mech, "hidden", hidden) or hidden)
+            bigger = tuple([2 * width] * (len(getattr(mech, "hidden", hidden)) + 1))
+            with torch.random.fork_rng():
+                torch.manual_seed(seed)
+                cand_mech = MLPMechanism(mech.in_dim, mech.out_dim, hidden=bigger)
+            cand = _trained(current.graph, child, parents, cand_mech, train, hidden, fkw)
+            candidates.append(("capacity", f"MLP hidden {list(bigger)}", cand, parents))
+        if "split" in kinds and parents:
+            split = _split(current.graph, child, parents, train, hidden, fkw)
+            if split is not None:
+                candidates.append(("split", split[1], split[0], parents))
+        best = None
+        for kind, detail, cand, new_parents in candidates:
+            after = _loglik(cand, child, val)
+            gain = after - before
+            rev = Revision(kind, child, detail, before, after, gain, False, n - n_val, n_val)
+            log_.append(rev)
+            if gain > min_gain and (best is None or gain > best[0].gain):
+                best = (rev, cand, new_parents)
+        if best is None:
+            log.info("revise %s: no revision beats the current mechanism by %.1f nats", child, min_gain)
+            continue
+        rev, cand, new_parents = best
+        log_[log_.index(rev)] = Revision(**{**rev.to_dict(), "accepted": True})
+        edited = current.graph.with_edges(add=[(p, child) for p in new_parents if p not in parents])
+        mech = cand.mechanism(child)
+        with torch.random.fork_rng():
+            torch.manual_seed(seed)
+            fresh = current.with_graph(edited)
+        mechs = {v: fresh.mechanism(v) for v in edited.non_roots}
+        mechs[child] = mech
+        current = WorldModel(edited, mechs, hidden=hidden)
+        for r in edited.roots:
+            if r in model.graph and edited[r].role.value != "action" and model.graph.is_root(r):
+                loc, scale = model.root_priors.get(r)
+                current.set_root_prior(r, loc, scale)
+        if not isinstance(mech, SplitMechanism):
+            fit(current, {k: v for k, v in vals.items()}, variables=[child], **fkw)
+        current.provenance = {
+            **model.provenance,
+            "revisions": [*model.provenance.get("revisions", []), rev.to_dict() | {"accepted": True}],
+        }
+        log.info("revise %s: kept %s (%s), +%.1f nats held out", child, rev.kind, rev.detail, rev.gain)
+    if not math.isfinite(sum(r.gain for r in log_)):
+        raise FloatingPointError("a revision produced a non-finite log-likelihood")
+    return current, log_

@@ -1,0 +1,125 @@
+"""Peer structure learners from causal-learn (GRaSP, PC), used only when it is importable.
+
+causal-learn is optional (not a dependency of pal). Both peers return a CPDAG: directed
+edges plus undirected ones. :func:`cpdag_shd` compares a CPDAG with the true DAG pair by
+pair: a missing, extra, reversed *or undirected* adjacency counts 1 (an undirected edge is
+an orientation the method did not commit to); ``undirected_cost=0`` gives the optimistic
+reading in which an undirected true edge counts as right.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import random
+import time
+from collections.abc import Iterable, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["PEERS", "PeerGraph", "available", "cpdag_shd", "run_peer"]
+
+PEERS = ("grasp", "pc")
+
+
+@dataclass(frozen=True)
+class PeerGraph:
+    """A CPDAG from a peer: directed ``(parent, child)`` pairs and undirected pairs (sorted names)."""
+
+    directed: frozenset[tuple[str, str]]
+    undirected: frozenset[tuple[str, str]]
+    seconds: float
+
+
+def available() -> bool:
+    """True when causal-learn can be imported."""
+    return importlib.util.find_spec("causallearn") is not None
+
+
+@contextmanager
+def _seeded(seed: int) -> Any:
+    """causal-learn draws from numpy's and Python's global generators (GRaSP shuffles with
+    ``random``): seed both for the call, then restore them."""
+    np_state, py_state = np.random.get_state(), random.getstate()
+    np.random.seed(seed)
+    random.seed(seed)
+    try:
+        yield
+    finally:
+        np.random.set_state(np_state)
+        random.setstate(py_state)
+
+
+def _from_general_graph(adj: np.ndarray, names: Sequence[str]) -> tuple[set, set]:
+    directed, undirected = set(), set()
+    d = len(names)
+    for i in range(d):
+        for j in range(i + 1, d):
+            a, b = adj[i, j], adj[j, i]
+            if a == 0 and b == 0:
+                continue
+            if a == -1 and b == 1:
+                directed.add((names[i], names[j]))
+            elif a == 1 and b == -1:
+                directed.add((names[j], names[i]))
+            else:  # -1/-1 undirected; anything else (bidirected) is left unoriented
+                undirected.add(tuple(sorted((names[i], names[j]))))
+    return directed, undirected
+
+
+def run_peer(
+    method: str, x: np.ndarray, names: Sequence[str], *, seed: int = 0, alpha: float = 0.01
+) -> PeerGraph:
+    """Run GRaSP (BIC score) or PC (Fisher-z, level ``alpha``) on ``x`` (N, d).
+
+    Raises:
+        ValueError: unknown method, or causal-learn is not installed.
+    """
+    if method not in PEERS:
+        raise ValueError(f"peer {method!r} unknown; expected one of {PEERS}")
+    if not available():
+        raise ValueError("causal-learn is not installed; install it to compare with GRaSP and PC")
+    x = np.asarray(x, dtype=float)
+    if x.ndim != 2 or x.shape[1] != len(names):
+        raise ValueError(f"x has shape {x.shape}, expected (N, {len(names)})")
+    start = time.perf_counter()
+    with _seeded(seed):
+        if method == "grasp":
+            from causallearn.search.PermutationBased.GRaSP import grasp
+
+            adj = grasp(x, score_func="local_score_BIC_from_cov", verbose=False).graph
+        else:
+            from causallearn.search.ConstraintBased.PC import pc
+
+            adj = pc(x, alpha=alpha, indep_test="fisherz", show_progress=False).G.graph
+    directed, undirected = _from_general_graph(np.asarray(adj), list(names))
+    return PeerGraph(frozenset(directed), frozenset(undirected), time.perf_counter() - start)
+
+
+def cpdag_shd(
+    directed: Iterable[tuple[str, str]],
+    undirected: Iterable[tuple[str, str]],
+    truth: Iterable[tuple[str, str]],
+    undirected_cost: float = 1.0,
+) -> float:
+    """SHD of a CPDAG against a DAG; every pair whose state differs counts 1.
+
+    An undirected edge where the DAG has an edge (either way) counts ``undirected_cost``
+    (1: the method did not commit to the orientation; 0: the optimistic reading that any
+    orientation consistent with the CPDAG is right).
+    """
+    state: dict[frozenset, Any] = {}
+    for p, c in directed:
+        state[frozenset((p, c))] = (p, c)
+    for p, c in undirected:
+        state[frozenset((p, c))] = "undirected"
+    true: Mapping[frozenset, Any] = {frozenset(e): tuple(e) for e in truth}
+    total = 0.0
+    for k in set(state) | set(true):
+        got, want = state.get(k), true.get(k)
+        if got == want:
+            continue
+        total += undirected_cost if got == "undirected" and want is not None else 1.0
+    return int(total) if float(total).is_integer() else total
