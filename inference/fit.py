@@ -141,7 +141,7 @@ def fit(
                 raise ValueError(f"cannot fit {v!r}: data has no column for {missing}")
     skipped = [v for v in graph.non_roots if v not in targets]
     if skipped:
-        log.info("fit: not training %s (not requested or columns missing)", skipped)
+        log.debug("fit: not training %s (not requested or columns missing)", skipped)
 
     gen = torch.Generator().manual_seed(seed)
     perm = torch.randperm(n, generator=gen)

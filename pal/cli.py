@@ -5,6 +5,8 @@ pal bench NAME [--json] [--out DIR]
 pal experiment NAME [--json] [--out DIR] [--quick]
 pal babble [--body finger|arm | --mjcf PATH] [--joint J ...] [--actuator A ...] --steps N --seed S
            --out DIR [--policy uniform|ou] [--resume] [--json]
+pal record --motion MOTION --seed S --out DIR [--fps F] [--width W] [--height H] [--overwrite] [--json]
+pal loop --steps N [--video out.mp4] [--babble B] [--goal X,Y] [--seed S] [--json]
 """
 
 from __future__ import annotations
@@ -28,6 +30,8 @@ BODY_FLAGS = ("body", "mjcf", "joint", "actuator")
 
 def _configure(verbose: bool, threads: int) -> None:
     os.environ.setdefault("MPLBACKEND", "Agg")
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, str(threads))  # before numpy/torch load their thread pools
     import torch
 
     # The models work on small tensors: one intra-op thread is faster, and OpenMP threads
@@ -74,7 +78,10 @@ def _run_registered(kind: str, args: argparse.Namespace) -> int:
         module = load_module(kind, args.name)
     except ValueError as err:
         raise SystemExit(str(err)) from None
-    config = _config_from_args(module, args)
+    try:
+        config = _config_from_args(module, args)
+    except (ValueError, TypeError) as err:  # a config field out of range or of the wrong type
+        raise SystemExit(f"pal {kind} {args.name}: {err}") from None
     start = time.perf_counter()
     result = module.run(config, progress_bar=not args.json and sys.stderr.isatty())
     elapsed = time.perf_counter() - start
@@ -151,6 +158,81 @@ def _babble(args: argparse.Namespace) -> int:
     return 0
 
 
+def _record(args: argparse.Namespace) -> int:
+    from pal.perception import RecordedSequence
+    from pal.sim.recording import RecordConfig, record
+
+    if (Path(args.out) / "sequence.json").exists() and not args.overwrite:
+        raise SystemExit(f"{args.out} already holds a sequence; pass --overwrite to replace it")
+    try:
+        config = RecordConfig(
+            args.motion,
+            seed=args.seed,
+            fps=args.fps,
+            width=args.width,
+            height=args.height,
+            depth_noise=args.depth_noise,
+            rgb_noise=args.rgb_noise,
+        )
+        start = time.perf_counter()
+        path = record(
+            config, args.out, overwrite=args.overwrite, progress_bar=not args.json and sys.stderr.isatty()
+        )
+    except ValueError as err:  # unknown motion, bad sizes, an occupied directory
+        raise SystemExit(str(err)) from None
+    seq = RecordedSequence(path)
+    summary = {
+        "out": str(path),
+        "motion": args.motion,
+        "seed": args.seed,
+        "frames": len(seq),
+        "object": seq.metadata["object"],
+        "gt_objects": list(seq.gt_objects),
+        "backend": seq.metadata.get("backend"),
+    }
+    if args.json:
+        print(json.dumps(summary, indent=2, sort_keys=True))
+    else:
+        print(
+            f"{len(seq)} frames of {args.motion!r} (seed {args.seed}) in {path} ({time.perf_counter() - start:.1f} s)"
+        )
+    return 0
+
+
+def _loop(args: argparse.Namespace) -> int:
+    from pal.experiments.closed_loop import LoopConfig, run_loop
+
+    goal = None
+    if args.goal is not None:
+        try:
+            goal = tuple(float(v) for v in args.goal.split(","))
+        except ValueError:
+            raise SystemExit(f"--goal {args.goal!r}: expected X,Y in metres, e.g. --goal 0.05,0.15") from None
+        if len(goal) != 2:
+            raise SystemExit(f"--goal {args.goal!r}: expected two numbers X,Y in metres")
+    if args.video is not None and not str(args.video).endswith(".mp4"):
+        raise SystemExit(f"--video {args.video!r}: expected a path ending in .mp4")
+    try:
+        config = LoopConfig(steps=args.steps, babble=args.babble, goal=goal, seed=args.seed)
+    except ValueError as err:
+        raise SystemExit(str(err)) from None
+    summary = run_loop(config, args.video, progress_bar=not args.json and sys.stderr.isatty())
+    if args.json:
+        print(json.dumps(summary, indent=2, sort_keys=True))
+    else:
+        modes = ", ".join(f"{k} {v}" for k, v in sorted(summary["modes"].items()))
+        print(
+            f"{summary['steps']} loop steps ({summary['babble_steps']} babbling, then {modes}) in "
+            f"{summary['seconds']:.1f} s; "
+            f"world model fitted on {summary['fit_rows']}"
+        )
+        lost = ", ".join(f"{o} {100 * f:.0f} %" for o, f in summary["lost_fraction"].items())
+        print(f"objects lost by perception: {lost}")
+        if summary["video"]:
+            print(f"video: {summary['video']} ({summary['video_frames']} frames)")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="pal", description="Causal perception-action learning toolkit.")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
@@ -196,6 +278,34 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(func=_babble)
+
+    p = sub.add_parser("record", help="record a scripted tabletop run as an RGB-D sequence with ground truth")
+    p.add_argument("--motion", required=True, help="scripted motion of thesis Table 5.1, e.g. box-rotation")
+    p.add_argument("--seed", type=int, default=0, help="run seed: path, speed, sensor noise (default 0)")
+    p.add_argument("--out", required=True, help="sequence directory")
+    p.add_argument("--fps", type=float, default=15.0, help="frames per second (default 15)")
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--height", type=int, default=480)
+    p.add_argument(
+        "--depth-noise", type=float, default=0.002, help="depth noise std at 1 m, metres (default 0.002)"
+    )
+    p.add_argument("--rgb-noise", type=float, default=2.0, help="colour noise std, grey levels (default 2)")
+    p.add_argument("--overwrite", action="store_true", help="replace a sequence already in --out")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(func=_record)
+
+    p = sub.add_parser("loop", help="run the closed perception-action loop on the pushing world")
+    p.add_argument("--steps", type=int, default=60, help="loop steps, babbling included (default 60)")
+    p.add_argument(
+        "--babble", type=int, default=None, help="babbling steps before the first fit (default half)"
+    )
+    p.add_argument(
+        "--video", default=None, metavar="PATH", help="write an mp4 with the detections and targets"
+    )
+    p.add_argument("--goal", default=None, metavar="X,Y", help="push the box to this table position, m")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(func=_loop)
     return parser
 
 

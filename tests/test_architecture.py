@@ -66,7 +66,7 @@ def test_body_and_senses_do_not_import_the_world_model(path):
     assert not imports(path) & {"models", "inference"}
 
 
-WIRING = {"agent.py", "cli.py", "experiments"}
+WIRING = {"agent.py", "agent", "cli.py", "experiments"}
 
 
 @pytest.mark.parametrize("path", sources("pal"), ids=lambda p: str(p.relative_to(ROOT)))

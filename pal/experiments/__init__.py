@@ -14,7 +14,21 @@ from types import ModuleType
 __all__ = ["BENCHMARKS", "EXPERIMENTS", "load_module"]
 
 #: ``pal experiment NAME`` -> module
-EXPERIMENTS: dict[str, str] = {}
+EXPERIMENTS: dict[str, str] = {
+    "a1": "pal.experiments.a1_kinematic",
+    "a2": "pal.experiments.a2_visual",
+    "a3": "pal.experiments.a3_multidomain",
+    "b1": "pal.experiments.b1",
+    "b2": "pal.experiments.b2",
+    "b3": "pal.experiments.b3",
+    "explore": "pal.experiments.explore",
+    "discovery": "pal.experiments.discovery",
+    "active_design": "pal.experiments.active_design",
+    "c1": "pal.experiments.c1",
+    "c2": "pal.experiments.c2",
+    "c3": "pal.experiments.c3",
+    "c4": "pal.experiments.c4",
+}
 
 #: ``pal bench NAME`` -> module
 BENCHMARKS: dict[str, str] = {
@@ -22,6 +36,8 @@ BENCHMARKS: dict[str, str] = {
     "svi": "pal.experiments.bench_svi",
     "action": "pal.experiments.bench_action",
     "babble": "pal.experiments.bench_babble",
+    "discovery": "pal.experiments.bench_discovery",
+    "perception": "pal.experiments.bench_perception",
 }
 
 

@@ -35,6 +35,7 @@ from inference import (
 from models import FunctionMechanism, LinearMechanism, WorldModel, chain_graph, finger_graph, save
 from models.presets import FINGER_ACTION_RANGE
 from pal.experiments import b1, b2
+from pal.experiments.closed_loop import loop_demo_lines
 from pal.experiments.output import save_figure, write_json
 from pal.experiments.perception_demo import perception_demo_lines
 from pal.experiments.wm_setup import prepare
@@ -53,7 +54,8 @@ class Config:
 
     ``mujoco_*`` size the B1/B2 run on the MuJoCo finger: babbling steps, training epochs
     (batch ``batch_size``) and action-inference targets. ``quick_perception`` renders the
-    tabletop recordings at 320x240 and 6 frames/s instead of 640x480 and 15 frames/s.
+    tabletop recordings at 320x240 and 6 frames/s instead of 640x480 and 15 frames/s, and
+    runs the closed loop with fewer training epochs.
     """
 
     out_dir: str = "pal-demo"
@@ -255,6 +257,10 @@ def run(config: Config, progress_bar: bool = False) -> Iterator[str]:
     yield ""
     lines = perception_demo_lines(out, quick=config.quick_perception)
     yield "6. " + lines[0]
+    yield from lines[1:]
+    yield ""
+    lines = loop_demo_lines(out, quick=config.quick_perception)
+    yield "7. " + lines[0]
     yield from lines[1:]
     for section in ("b1", "b2", "b3"):
         for key, value in dict(summary[section]).items():  # type: ignore[arg-type]

@@ -18,6 +18,8 @@ def test_demo_quick_writes_figures_and_summary(tmp_path, capsys):
         "graph_thesis.png",
         "fit_state.png",
         "world_model_state.npz",
+        "perception_trajectories.png",
+        "loop.mp4",
     ):
         assert (tmp_path / name).stat().st_size > 0, name
 
@@ -27,3 +29,7 @@ def test_unknown_names_and_bad_arguments(capsys):
         main(["bench", "nope"])
     with pytest.raises(SystemExit, match="--threads must be >= 1"):
         main(["--threads", "0", "demo"])
+    with pytest.raises(SystemExit, match="pal experiment b1: unknown body 'hand'"):
+        main(["experiment", "b1", "--quick", "--body", "hand"])
+    with pytest.raises(SystemExit, match="--mjcf: pal.experiments.bench_svi has no 'mjcf' setting"):
+        main(["bench", "svi", "--mjcf", "x.xml"])

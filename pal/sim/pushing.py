@@ -1,0 +1,467 @@
+"""The pushing world: the arm at the tabletop, pushing a box and a ball (issue 6).
+
+The scene is composed with ``mujoco.MjSpec`` from the shipped tabletop (:func:`pal.sim.tabletop.tabletop_spec`)
+and the shipped arm (``assets/arm.xml``); neither file is changed:
+
+- **Arm.** Only ``shoulder_horizontal`` and ``elbow`` stay joints (both hinge about the vertical),
+  so the arm moves in a horizontal plane 3.5 cm above the table top and its hand sweeps the table;
+  the other joints are removed (rigid). The torque motors are replaced by position servos
+  (``kp``, ``kv``, torque limit ``max_torque``): the action is the target angle of each joint, rad,
+  within the joint's range. The torso sits behind the far edge of the table, facing the camera.
+- **Objects.** The tabletop's ball (radius 4 cm) and its printed box, resized to a toy carton of
+  9 x 7 x 6 cm, 0.12 kg (:data:`BOX_HALF`), in proportion to the infant arm's 25 cm reach.
+- **Contacts.** The arm's limb and hand geoms collide with the objects only (contype 2); the
+  objects collide with the table, each other, the arm and an invisible fence (geom group 3, never
+  rendered, contype 4) that runs along the table's edges so nothing falls off. The ball gets
+  rolling friction (condim 6), so it stops within a few centimetres instead of rolling forever.
+- **Camera.** The tabletop's oblique RGB-D camera, moved (same tilt, 44 deg from the vertical) so
+  that it looks at the arm's workspace from ``camera_distance``.
+
+Senses: the gymnasium observation is the proprioception ``[q, dq/dt]`` of the two joints (as in
+:class:`~pal.sim.env.BabblingEnv`). ``info`` of every step adds ``hand`` (3,), the palm centre in
+table coordinates, metres (the agent's sense of where its hand is), and ``touch`` (n_objects,),
+the fraction of the step's physics sub-steps in which the arm touched each object (touch sensing).
+RGB-D comes from :meth:`PushingEnv.camera_frame`. Ground truth for evaluation only:
+:meth:`PushingEnv.object_positions`, :meth:`PushingEnv.object_poses`.
+
+Frames: the *table frame* of :mod:`pal.sim.tabletop` (origin at the centre of the table top, z up,
++y away from the camera). ``gymnasium.make("pal/Pushing-v0")`` builds the default world.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import gymnasium
+import mujoco
+import numpy as np
+
+from pal.sim.bodies import LoadedModel, body_path
+from pal.sim.camera import Camera, CameraFrame
+from pal.sim.env import BabblingEnv
+from pal.sim.tabletop import CAMERA, OBJECTS, RESTING_HEIGHT, tabletop_path, tabletop_spec
+
+__all__ = [
+    "BOX_HALF",
+    "ENV_ID",
+    "JOINTS",
+    "OBJECT_RADIUS",
+    "RESTING",
+    "PushingEnv",
+    "PushingLayout",
+    "pushing_spec",
+]
+
+#: gymnasium registry id.
+ENV_ID = "pal/Pushing-v0"
+#: Short joint name (world-model variables) -> joint name in the compiled model.
+JOINTS: dict[str, str] = {"shoulder": "arm/shoulder_horizontal", "elbow": "arm/elbow"}
+#: Half extents (x, y, z) of the box in this world, m: a toy carton an infant's hand can push
+#: (the tabletop's 14 x 10 x 8 cm carton is large for a 25 cm reach); same texture, 0.12 kg.
+BOX_HALF: tuple[float, float, float] = (0.045, 0.035, 0.03)
+BOX_MASS = 0.12
+#: Radius of each object's footprint (circumscribed circle), metres: spacing at placement.
+OBJECT_RADIUS: dict[str, float] = {"box": math.hypot(BOX_HALF[0], BOX_HALF[1]), "ball": 0.04, "boat": 0.12}
+#: Height of each object's body origin above the table top at rest, m.
+RESTING: dict[str, float] = {**RESTING_HEIGHT, "box": BOX_HALF[2]}
+_ARM_CONTACT_GEOMS = (
+    "upper_arm",
+    "forearm",
+    "palm",
+    "thumb",
+    "finger_index",
+    "finger_middle",
+    "finger_ring",
+    "finger_little",
+)
+_FENCE_GROUP = 3
+
+
+@dataclass(frozen=True)
+class PushingLayout:
+    """Where things are, table frame (metres, degrees).
+
+    Attributes:
+        shoulder: (x, y, z) of the shoulder joint; z is the arm's height above the table top.
+        yaw_deg: heading of the arm at q = 0 (degrees about z; 180 points at the camera).
+        kp, kv: servo stiffness (N m / rad) and damping (N m s / rad).
+        max_torque: servo torque limit, N m.
+        home: (shoulder, elbow) angles at reset, rad (the hand tucked in near the torso).
+        spawn_radius: objects are placed at this range of distances from the shoulder, m.
+        spawn_angle_deg: ... and within this range of bearings from the workspace's central bearing
+            (the hand's bearing with the shoulder at mid-range, at the middle spawn radius).
+        camera_target: (x, y) on the table the camera looks at.
+        camera_distance: camera distance from that point, m.
+        fence_inset: distance of the invisible fence from the table's edges, m.
+        ball_rolling_friction: rolling friction of the ball, m.
+    """
+
+    shoulder: tuple[float, float, float] = (0.0, 0.36, 0.035)
+    yaw_deg: float = 240.0
+    kp: float = 3.0
+    kv: float = 1.0
+    max_torque: float = 1.5
+    home: tuple[float, float] = (math.radians(-25.0), math.radians(-140.0))
+    spawn_radius: tuple[float, float] = (0.19, 0.26)
+    spawn_angle_deg: tuple[float, float] = (-40.0, 40.0)
+    camera_target: tuple[float, float] = (0.03, 0.15)
+    camera_distance: float = 0.6
+    fence_inset: float = 0.01
+    ball_rolling_friction: float = 0.03
+
+    def __post_init__(self) -> None:
+        lo, hi = self.spawn_radius
+        if not 0 < lo < hi:
+            raise ValueError(f"spawn_radius {self.spawn_radius} must satisfy 0 < low < high (metres)")
+        if not self.spawn_angle_deg[0] < self.spawn_angle_deg[1]:
+            raise ValueError(f"spawn_angle_deg {self.spawn_angle_deg} must satisfy low < high")
+        if not (self.kp > 0 and self.kv >= 0 and self.max_torque > 0 and self.camera_distance > 0):
+            raise ValueError(f"kp, max_torque and camera_distance must be > 0 and kv >= 0, got {self}")
+
+
+def _quat_z(deg: float) -> np.ndarray:
+    q = np.zeros(4)
+    mujoco.mju_euler2Quat(q, np.array([0.0, 0.0, math.radians(deg)]), "xyz")
+    return q
+
+
+def pushing_spec(
+    objects: tuple[str, ...] = ("box", "ball"), layout: PushingLayout | None = None, texture_seed: int = 0
+) -> mujoco.MjSpec:
+    """The uncompiled pushing world (module docstring).
+
+    Args:
+        objects: objects on the table, a subset of :data:`pal.sim.tabletop.OBJECTS`.
+        layout: placement and servo parameters.
+        texture_seed: seed of the procedural textures.
+    """
+    layout = layout or PushingLayout()
+    spec = tabletop_spec(objects, texture_seed)
+    table_z = 0.3  # the "table" frame of tabletop.xml: the table top's surface
+    arm = mujoco.MjSpec.from_file(str(body_path("arm")))
+    arm.option.timestep, arm.option.iterations = spec.option.timestep, spec.option.iterations
+    keep = {j.split("/", 1)[1] for j in JOINTS.values()}
+    for joint in list(arm.joints):
+        if joint.name not in keep:
+            arm.delete(joint)
+    for actuator in list(arm.actuators):
+        arm.delete(actuator)
+    for geom in arm.geoms:
+        if geom.name in _ARM_CONTACT_GEOMS:
+            geom.contype, geom.conaffinity = 2, 0
+    # the torso body sits 0.4 m above its frame and the shoulder 0.1 m along the arm's +y
+    yaw = math.radians(layout.yaw_deg)
+    sx, sy, sz = layout.shoulder
+    base = np.array([sx + 0.1 * math.sin(yaw), sy - 0.1 * math.cos(yaw), table_z + sz - 0.4])
+    spec.worldbody.add_frame(pos=base, quat=_quat_z(layout.yaw_deg)).attach_body(
+        arm.body("torso"), "arm/", ""
+    )
+    for short, joint in JOINTS.items():
+        act = spec.add_actuator(name=short, target=joint, trntype=mujoco.mjtTrn.mjTRN_JOINT)
+        act.set_to_position(kp=layout.kp, kv=layout.kv)
+        rng = np.radians(spec.joint(joint).range)
+        act.ctrllimited, act.ctrlrange = True, rng
+        act.forcelimited, act.forcerange = True, [-layout.max_torque, layout.max_torque]
+    for name in objects:
+        for geom in spec.body(name).geoms:
+            geom.conaffinity = 1 | 2 | 4
+    if "box" in objects:
+        box = spec.geom("box")
+        box.size, box.mass = list(BOX_HALF), BOX_MASS
+        spec.body("box").pos = [spec.body("box").pos[0], spec.body("box").pos[1], BOX_HALF[2]]
+    if "ball" in objects:
+        ball = spec.geom("ball")
+        ball.condim = 6
+        ball.friction = [ball.friction[0], ball.friction[1], layout.ball_rolling_friction]
+    # invisible fence along the table edges (table top: 0.9 x 0.7 m)
+    hx, hy, h = 0.45 - layout.fence_inset, 0.35 - layout.fence_inset, 0.1
+    for name, pos, size in (
+        ("fence_left", (-hx - 0.01, 0, h / 2), (0.01, hy, h / 2)),
+        ("fence_right", (hx + 0.01, 0, h / 2), (0.01, hy, h / 2)),
+        ("fence_near", (0, -hy - 0.01, h / 2), (hx, 0.01, h / 2)),
+        ("fence_far", (0, hy + 0.01, h / 2), (hx, 0.01, h / 2)),
+    ):
+        spec.worldbody.add_geom(
+            name=name,
+            type=mujoco.mjtGeom.mjGEOM_BOX,
+            pos=[pos[0], pos[1], table_z + pos[2]],
+            size=list(size),
+            group=_FENCE_GROUP,
+            contype=4,
+            conaffinity=4,
+            rgba=[0, 0, 0, 0],
+        )
+    # the camera: same orientation as in tabletop.xml, looking at the workspace
+    cam = spec.camera(CAMERA)
+    tilt = math.atan2(0.6897, 0.7241)  # angle of the optical axis from the vertical
+    tx, ty = layout.camera_target
+    d = layout.camera_distance
+    cam.pos = [tx, ty - d * math.sin(tilt), d * math.cos(tilt)]
+    return spec
+
+
+class PushingEnv(BabblingEnv):
+    """The pushing world as a gymnasium environment (module docstring).
+
+    Action: target angles of (shoulder, elbow), rad, float32 Box over the joint ranges.
+    Observation: ``[q_shoulder, q_elbow, dq_shoulder/dt, dq_elbow/dt]`` float64.
+
+    Reset: joints at ``layout.home`` (servo targets too), zero velocity, and the objects at
+    seeded random places (``spawn_radius`` x ``spawn_angle_deg`` around the shoulder, upright,
+    random yaw, non-overlapping); ``options={"objects": {name: (x, y, yaw_deg)}}`` places some
+    explicitly, ``options={"q": (shoulder, elbow)}`` sets the joints, and
+    ``options={"state": s}`` restores a :meth:`get_state` vector instead.
+
+    Args:
+        objects: objects on the table (default box and ball).
+        layout: geometry and servo parameters.
+        frame_skip: physics steps of 2 ms per environment step (default 200: 0.4 s).
+        texture_seed: seed of the object textures.
+        camera_size: (width, height) of :meth:`camera_frame`, pixels.
+        camera_backend: :data:`pal.sim.camera.BACKENDS` entry.
+        touch_every: physics steps between two contact checks for ``info["touch"]``.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"]}  # noqa: RUF012 - gymnasium's class attribute
+
+    def __init__(
+        self,
+        objects: tuple[str, ...] | list[str] = ("box", "ball"),
+        *,
+        layout: PushingLayout | None = None,
+        frame_skip: int = 200,
+        texture_seed: int = 0,
+        camera_size: tuple[int, int] = (320, 240),
+        camera_backend: str = "auto",
+        touch_every: int = 5,
+        render_mode: str | None = None,
+    ) -> None:
+        objects = tuple(objects)
+        if not objects:
+            raise ValueError("objects is empty; expected a subset of " + str(list(OBJECTS)))
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode {render_mode!r} unknown; expected None or 'rgb_array'")
+        if isinstance(touch_every, bool) or not isinstance(touch_every, int) or touch_every < 1:
+            raise ValueError(f"touch_every must be an int >= 1, got {touch_every!r}")
+        self.layout = layout or PushingLayout()
+        spec = pushing_spec(objects, self.layout, texture_seed)
+        model = spec.compile()
+        digest = hashlib.sha256(
+            (spec.to_xml() + repr(sorted(asdict(self.layout).items())) + str(texture_seed)).encode()
+        ).hexdigest()
+        loaded = LoadedModel(model=model, name="pushing", path=tabletop_path(), sha256=digest)
+        super().__init__(loaded, joints=list(JOINTS.values()), actuators=list(JOINTS), frame_skip=frame_skip)
+        self.render_mode = render_mode
+        self.metadata = {"render_modes": ["rgb_array"], "render_fps": 1.0 / self.dt}
+        self.objects: tuple[str, ...] = tuple(n for n in OBJECTS if n in objects)
+        self.touch_every = touch_every
+        self.camera_size = (int(camera_size[0]), int(camera_size[1]))
+        self.camera_backend = camera_backend
+        self._camera: Camera | None = None
+        m = self.model
+        top = int(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "table_top"))
+        self.world_from_table = np.eye(4)
+        self.world_from_table[:3, 3] = self.data.geom_xpos[top] + np.array([0.0, 0.0, m.geom_size[top][2]])
+        bodies = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, i) or "" for i in range(m.nbody)]
+        self.arm_body_ids = np.array([i for i, n in enumerate(bodies) if n.startswith("arm/")], dtype=np.intp)
+        self._arm_geoms = np.array(
+            [i for i in range(m.ngeom) if int(m.geom_bodyid[i]) in set(self.arm_body_ids.tolist())], np.intp
+        )
+        self._object_body = {n: bodies.index(n) for n in self.objects}
+        self._object_geoms = {
+            n: np.flatnonzero(np.asarray(m.geom_bodyid) == b).astype(np.intp)
+            for n, b in self._object_body.items()
+        }
+        self._object_qpos = {n: int(m.jnt_qposadr[m.body_jntadr[b]]) for n, b in self._object_body.items()}
+        self._object_qvel = {n: int(m.jnt_dofadr[m.body_jntadr[b]]) for n, b in self._object_body.items()}
+        self._hand_body = bodies.index("arm/hand")
+        # the workspace's central bearing: the hand's bearing about the shoulder with the shoulder at
+        # mid-range and the elbow bent so that the hand is at the middle of the spawn radii
+        self._shoulder = np.array(self.layout.shoulder[:2])
+        mid = float(np.mean(self.model.jnt_range[self.joint_ids[0]]))
+        r_mid = float(np.mean(self.layout.spawn_radius))
+        best = (np.inf, 0.0)
+        for elbow in np.linspace(*self.model.jnt_range[self.joint_ids[1]], 301):
+            self.data.qpos[self.qpos_indices] = (mid, elbow)
+            d = self.hand_position()[:2] - self._shoulder
+            best = min(best, (abs(float(np.linalg.norm(d)) - r_mid), math.atan2(d[1], d[0])))
+        self._heading = best[1]
+        self.reset(seed=0)
+
+    @property
+    def workspace_bearing(self) -> float:
+        """Central bearing of the workspace about the shoulder, rad (where objects are placed)."""
+        return float(self._heading)
+
+    # ------------------------------------------------------------------ senses
+    def hand_position(self) -> np.ndarray:
+        """(3,) palm centre in table coordinates, metres (after the last step or reset)."""
+        mujoco.mj_kinematics(self.model, self.data)
+        b = self._hand_body
+        world = self.data.xpos[b] + self.data.xmat[b].reshape(3, 3) @ np.array([0.0, 0.03, 0.0])
+        return world - self.world_from_table[:3, 3]
+
+    def _touching(self) -> np.ndarray:
+        n = int(self.data.ncon)
+        out = np.zeros(len(self.objects))
+        if n == 0:
+            return out
+        pairs = np.asarray(self.data.contact.geom[:n])
+        arm_a, arm_b = np.isin(pairs[:, 0], self._arm_geoms), np.isin(pairs[:, 1], self._arm_geoms)
+        for k, name in enumerate(self.objects):
+            g = self._object_geoms[name]
+            hit = (arm_a & np.isin(pairs[:, 1], g)) | (arm_b & np.isin(pairs[:, 0], g))
+            out[k] = float(hit.any())
+        return out
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        """Servo towards the target angles for ``frame_skip`` physics steps.
+
+        Returns:
+            ``(observation, 0.0, False, False, info)``; ``info`` has ``ctrl`` (applied targets),
+            ``time`` (s), ``hand`` (3,) m and ``touch`` (n_objects,) in [0, 1] (module docstring).
+        """
+        ctrl = self.check_action(action)
+        self.data.ctrl[self.actuator_ids] = ctrl
+        touch = np.zeros(len(self.objects))
+        checks = 0
+        done = 0
+        while done < self.frame_skip:
+            n = min(self.touch_every, self.frame_skip - done)
+            mujoco.mj_step(self.model, self.data, nstep=n)
+            done += n
+            touch += self._touching()
+            checks += 1
+        info = {
+            "ctrl": ctrl,
+            "time": float(self.data.time),
+            "hand": self.hand_position(),
+            "touch": touch / checks,
+        }
+        return self._obs(), 0.0, False, False, info
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset (class docstring). ``info`` has ``time``, ``hand`` and zero ``touch``."""
+        options = dict(options or {})
+        unknown = sorted(set(options) - {"state", "objects", "q"})
+        if unknown:
+            raise ValueError(f"unknown reset option(s) {unknown}; expected 'state', 'objects' or 'q'")
+        placements = dict(options.pop("objects", None) or {})
+        q0 = options.pop("q", None)
+        if "state" in options and (placements or q0 is not None):
+            raise ValueError("reset option 'state' cannot be combined with 'objects' or 'q'")
+        bad = sorted(set(placements) - set(getattr(self, "objects", placements)))
+        if bad:
+            raise ValueError(f"reset places unknown object(s) {bad}; the scene has {list(self.objects)}")
+        super().reset(seed=seed, options=options)
+        if "state" not in options:
+            q = np.asarray(self.layout.home if q0 is None else q0, dtype=np.float64)
+            if q.shape != (len(JOINTS),) or not np.all(np.isfinite(q)):
+                raise ValueError(
+                    f"reset q has shape {q.shape} or non-finite entries; expected ({len(JOINTS)},) rad"
+                )
+            q = np.clip(q, self.ctrl_low, self.ctrl_high)
+            self.data.qpos[self.qpos_indices] = q
+            self.data.ctrl[self.actuator_ids] = q
+            self._place(placements)
+            mujoco.mj_forward(self.model, self.data)
+        info = {
+            "time": float(self.data.time),
+            "hand": self.hand_position(),
+            "touch": np.zeros(len(self.objects)),
+        }
+        return self._obs(), info
+
+    def _place(self, placements: dict[str, Any]) -> None:
+        rng = self.np_random
+        placed: dict[str, np.ndarray] = {}
+        for name in self.objects:
+            if name in placements:
+                p = np.asarray(placements[name], dtype=np.float64)
+                if p.shape != (3,) or not np.all(np.isfinite(p)):
+                    raise ValueError(
+                        f"placement of {name!r} is {placements[name]!r}; expected (x, y, yaw_deg)"
+                    )
+                x, y, yaw = p
+            else:
+                for _ in range(1000):
+                    r = rng.uniform(*self.layout.spawn_radius)
+                    a = self._heading + math.radians(rng.uniform(*self.layout.spawn_angle_deg))
+                    x, y = (
+                        self.layout.shoulder[0] + r * math.cos(a),
+                        self.layout.shoulder[1] + r * math.sin(a),
+                    )
+                    clear = all(
+                        math.dist((x, y), other[:2]) > OBJECT_RADIUS[name] + OBJECT_RADIUS[o] + 0.01
+                        for o, other in placed.items()
+                    )
+                    if clear:
+                        break
+                yaw = rng.uniform(-180.0, 180.0)
+            placed[name] = np.array([x, y, yaw])
+            adr, dof = self._object_qpos[name], self._object_qvel[name]
+            self.data.qpos[adr : adr + 3] = self.world_from_table[:3, 3] + [x, y, RESTING[name]]
+            self.data.qpos[adr + 3 : adr + 7] = _quat_z(float(yaw))
+            self.data.qvel[dof : dof + 6] = 0.0
+
+    # ------------------------------------------------------------------ ground truth (evaluation)
+    def object_poses(self) -> dict[str, np.ndarray]:
+        """Ground truth ``table_from_object`` (4, 4) of every object."""
+        mujoco.mj_kinematics(self.model, self.data)
+        out = {}
+        for name, b in self._object_body.items():
+            T = np.eye(4)
+            T[:3, :3] = self.data.xmat[b].reshape(3, 3)
+            T[:3, 3] = self.data.xpos[b] - self.world_from_table[:3, 3]
+            out[name] = T
+        return out
+
+    def object_positions(self) -> dict[str, np.ndarray]:
+        """Ground truth (3,) body centre of every object, table frame, metres."""
+        return {k: v[:3, 3].copy() for k, v in self.object_poses().items()}
+
+    # ------------------------------------------------------------------ camera
+    @property
+    def camera(self) -> Camera:
+        """The oblique RGB-D camera (opened on first use, closed by :meth:`close`)."""
+        if self._camera is None:
+            w, h = self.camera_size
+            self._camera = Camera(
+                self.model, self.data, CAMERA, width=w, height=h, backend=self.camera_backend
+            )
+        return self._camera
+
+    def camera_frame(self) -> CameraFrame:
+        """Render the current state: RGB, depth (m), segmentation, K, camera pose."""
+        return self.camera.render()
+
+    def arm_mask(self, frame: CameraFrame) -> np.ndarray:
+        """(H, W) bool: pixels of the agent's own body in ``frame`` (its self-model)."""
+        return np.isin(frame.body_segmentation, self.arm_body_ids)
+
+    def table_from_camera(self, frame: CameraFrame) -> np.ndarray:
+        """(4, 4) pose of the OpenCV camera frame of ``frame`` in table coordinates."""
+        out = frame.world_from_camera.copy()
+        out[:3, 3] -= self.world_from_table[:3, 3]
+        return out
+
+    def render(self) -> np.ndarray | None:  # type: ignore[override]
+        """``render_mode="rgb_array"``: the camera's (H, W, 3) uint8 image; otherwise None."""
+        if self.render_mode != "rgb_array":
+            return None
+        return self.camera_frame().rgb
+
+    def close(self) -> None:
+        if self._camera is not None:
+            self._camera.close()
+            self._camera = None
+        super().close()
+
+
+if ENV_ID not in gymnasium.registry:
+    gymnasium.register(id=ENV_ID, entry_point="pal.sim.pushing:PushingEnv")
