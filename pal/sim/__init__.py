@@ -6,11 +6,24 @@
   or a ray-cast fallback).
 - :mod:`pal.sim.policies`, :mod:`pal.sim.babbling`: babbling policies and the data source
   that records :class:`pal.data.TransitionDataset` files.
+- :mod:`pal.sim.tabletop`, :mod:`pal.sim.motions`, :mod:`pal.sim.recording`: the tabletop
+  scene, scripted object motions (thesis Table 5.1) and recordings with ground truth.
+- :mod:`pal.sim.pushing`: :class:`PushingEnv`, the arm pushing a box and a ball on the table.
 
 This package imports neither :mod:`models` nor :mod:`inference`.
 """
 
 from pal.sim.bodies import BODIES, MJCFError, body_path, load_body, load_model
 from pal.sim.env import STATE_SPEC, BabblingEnv
+from pal.sim.pushing import PushingEnv
 
-__all__ = ["BODIES", "STATE_SPEC", "BabblingEnv", "MJCFError", "body_path", "load_body", "load_model"]
+__all__ = [
+    "BODIES",
+    "STATE_SPEC",
+    "BabblingEnv",
+    "MJCFError",
+    "PushingEnv",
+    "body_path",
+    "load_body",
+    "load_model",
+]
