@@ -29,22 +29,21 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import platform
-import tempfile
 import zipfile
 from collections.abc import Callable, Mapping, Sequence
-from importlib import metadata as importlib_metadata
 from pathlib import Path
 from typing import Any, BinaryIO
 
 import numpy as np
+
+from pal.files import atomic_write
+from pal.files import versions as _versions
 
 __all__ = [
     "FORMAT",
     "DatasetFileError",
     "DatasetWriter",
     "TransitionDataset",
-    "atomic_write",
     "column_names",
     "versions",
 ]
@@ -62,31 +61,7 @@ class DatasetFileError(ValueError):
 
 def versions() -> dict[str, str]:
     """Versions of Python and of the libraries a dataset depends on."""
-    out = {"python": platform.python_version()}
-    for dist in ("pal", "numpy", "mujoco", "gymnasium"):
-        try:
-            out[dist] = importlib_metadata.version(dist)
-        except importlib_metadata.PackageNotFoundError:
-            out[dist] = "not installed"
-    return out
-
-
-def atomic_write(path: str | os.PathLike[str], write: Callable[[BinaryIO], Any]) -> Path:
-    """Call ``write(fileobj)`` on a temp file next to ``path``, fsync, then rename over it."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return _versions(("pal", "numpy", "mujoco", "gymnasium"))
 
 
 def column_names(joints: Sequence[str], actuated: Sequence[str] | None = None) -> list[str]:
