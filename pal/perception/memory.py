@@ -191,14 +191,7 @@ class Gallery:
     def _make(
         self, frame: RGBDFrame, mask: Mask, sharp: float, features: Features | None, anchor: np.ndarray | None
     ) -> Snapshot:
-        m = self.config.margin
-        x0, y0, x1, y1 = mask.bbox
-        bx0, by0, bx1, by1 = (
-            max(0, x0 - m),
-            max(0, y0 - m),
-            min(frame.width, x1 + m),
-            min(frame.height, y1 + m),
-        )
+        bx0, by0, bx1, by1 = _padded_bbox(frame, mask, self.config.margin)
         rgb = np.array(frame.rgb[by0:by1, bx0:bx1])
         mcrop = mask.region(bx0, by0, bx1, by1)
         snap = Snapshot(
@@ -277,14 +270,7 @@ class Gallery:
             return AdmissionDecision(False, "rank")
         recent = self.snapshots[-cfg.redundancy_window :]
         if recent:
-            m = cfg.margin
-            x0, y0, x1, y1 = mask.bbox
-            bx0, by0, bx1, by1 = (
-                max(0, x0 - m),
-                max(0, y0 - m),
-                min(frame.width, x1 + m),
-                min(frame.height, y1 + m),
-            )
+            bx0, by0, bx1, by1 = _padded_bbox(frame, mask, cfg.margin)
             thumb = thumbnail(frame.rgb[by0:by1, bx0:bx1], mask.region(bx0, by0, bx1, by1), cfg.thumb_size)
             if min(_mse(thumb, s.thumb) for s in recent) < cfg.min_mse:
                 return AdmissionDecision(False, "mse")
@@ -335,3 +321,14 @@ class ObjectRecord:
     centroids: deque[tuple[float, np.ndarray]] = field(default_factory=lambda: deque(maxlen=64))
     last_pose_diagnostics: PoseDiagnostics | None = None
     last_decision: AdmissionDecision | None = None
+
+
+def _padded_bbox(frame: RGBDFrame, mask: Mask, margin: int) -> tuple[int, int, int, int]:
+    """The mask's bounding box ``(x0, y0, x1, y1)`` grown by ``margin`` pixels, clipped to the frame."""
+    x0, y0, x1, y1 = mask.bbox
+    return (
+        max(0, x0 - margin),
+        max(0, y0 - margin),
+        min(frame.width, x1 + margin),
+        min(frame.height, y1 + margin),
+    )

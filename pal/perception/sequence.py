@@ -61,6 +61,21 @@ class SequenceError(ValueError):
     """A sequence directory is missing, incomplete, unreadable or inconsistent."""
 
 
+def read_text_rows(path: Path) -> list[list[str]]:
+    """Whitespace-separated fields of every non-empty line of a text file, ``#`` comments skipped.
+
+    Raises:
+        SequenceError: the file does not exist.
+    """
+    if not path.is_file():
+        raise SequenceError(f"{path} does not exist")
+    return [
+        line.split()
+        for line in path.read_text(encoding="utf-8").splitlines()
+        if line.strip() and not line.startswith("#")
+    ]
+
+
 def encode_depth(depth: np.ndarray, scale: float) -> np.ndarray:
     """Metres -> uint16 units of ``scale`` metres; 0 stays 0 (invalid).
 
@@ -216,13 +231,7 @@ class RecordedSequence(FrameSequence):
 
     def _read_timestamps(self, n: int) -> np.ndarray:
         path = self.path / "timestamps.txt"
-        if not path.is_file():
-            raise SequenceError(f"{path} does not exist")
-        rows = [
-            line.split()
-            for line in path.read_text(encoding="utf-8").splitlines()
-            if line.strip() and not line.startswith("#")
-        ]
+        rows = read_text_rows(path)
         if len(rows) != n or any(len(r) != 2 for r in rows):
             raise SequenceError(f"{path} has {len(rows)} '<index> <time>' rows, expected {n}")
         ts = np.array([float(r[1]) for r in rows], dtype=np.float64)

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from pal.perception.frames import RGBDFrame, check_intrinsics
-from pal.perception.sequence import FrameSequence, SequenceError, decode_depth, read_image
+from pal.perception.sequence import FrameSequence, SequenceError, decode_depth, read_image, read_text_rows
 
 __all__ = ["FREIBURG_DEFAULT_K", "TUM_DEPTH_SCALE", "TUMSequence", "associate"]
 
@@ -133,13 +133,7 @@ class TUMSequence(FrameSequence):
             SequenceError: the file is missing or malformed.
         """
         path = self.path / "groundtruth.txt"
-        if not path.is_file():
-            raise SequenceError(f"{path} does not exist")
-        rows = [
-            line.split()
-            for line in path.read_text(encoding="utf-8").splitlines()
-            if line.strip() and not line.startswith("#")
-        ]
+        rows = read_text_rows(path)
         if not rows or any(len(r) != 8 for r in rows):
             raise SequenceError(f"{path}: expected rows 't tx ty tz qx qy qz qw'")
         data = np.array(rows, dtype=np.float64)
