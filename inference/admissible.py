@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from models.checks import as_float_array, check_edges, check_mapping, describe
 from models.graph import CausalGraph
 from models.variables import Role, Variable
 
@@ -32,6 +33,8 @@ def as_variables(variables: CausalGraph | Sequence[Variable]) -> list[Variable]:
     """The variables of a graph, or a checked list of :class:`Variable`."""
     if isinstance(variables, CausalGraph):
         return list(variables.variables.values())
+    if isinstance(variables, (str, bytes, Mapping)) or not isinstance(variables, Iterable):
+        raise ValueError(f"expected a CausalGraph or a sequence of Variable, got {describe(variables)}")
     out = list(variables)
     for v in out:
         if not isinstance(v, Variable):
@@ -42,12 +45,12 @@ def as_variables(variables: CausalGraph | Sequence[Variable]) -> list[Variable]:
 
 def _edges(edges: Iterable[Any], names: set[str], what: str) -> set[tuple[str, str]]:
     out = set()
-    for e in edges:
-        if len(e) != 2 or e[0] not in names or e[1] not in names:
+    for e in check_edges(what, edges):
+        if e[0] not in names or e[1] not in names:
             raise ValueError(
                 f"{what} edge {e!r} is not a (parent, child) pair of known variables {sorted(names)}"
             )
-        out.add((str(e[0]), str(e[1])))
+        out.add(e)
     return out
 
 
@@ -77,11 +80,15 @@ def admissible_parents(
     by_name = {v.name: v for v in vs}
     names = set(by_name)
     tier_of: dict[str, int] = {}
+    if tiers is not None and (isinstance(tiers, (str, bytes, Mapping)) or not isinstance(tiers, Iterable)):
+        raise ValueError(f"tiers must be a sequence of sequences of names, got {describe(tiers)}")
     for k, tier in enumerate(tiers or ()):
         if isinstance(tier, str):
             raise ValueError(f"tier {k} is the string {tier!r}; expected a sequence of names")
+        if isinstance(tier, Mapping) or not isinstance(tier, Iterable):
+            raise ValueError(f"tier {k} is {describe(tier)}; expected a sequence of names")
         for n in tier:
-            if n not in names:
+            if not isinstance(n, str) or n not in names:
                 raise ValueError(f"tier {k} names unknown variable {n!r}; known: {sorted(names)}")
             if n in tier_of:
                 raise ValueError(f"variable {n!r} is in tiers {tier_of[n]} and {k}; expected one tier")
@@ -143,7 +150,7 @@ class StructureData:
             raise ValueError(f"data columns must match the variables; missing {missing}, unknown {extra}")
         cols, n, slices, start = [], None, {}, 0
         for v in variables:
-            a = np.asarray(data[v.name], dtype=np.float64)
+            a = as_float_array(data[v.name], f"data[{v.name!r}]")
             if a.ndim != 2 or a.shape[1] != v.dim:
                 hint = " (reshape a 1-d column with x[:, None])" if a.ndim == 1 else ""
                 raise ValueError(f"data[{v.name!r}] has shape {a.shape}, expected (N, {v.dim}){hint}")
@@ -159,10 +166,10 @@ class StructureData:
         if n is None or n < 8:
             raise ValueError(f"structure learning needs at least 8 rows, got {n}")
         rows = {name: torch.ones(n, dtype=torch.bool) for name in names}
-        for name, mask in dict(intervened or {}).items():
-            if name not in rows:
+        for name, mask in check_mapping("intervened", intervened, allow_none=True).items():
+            if not isinstance(name, str) or name not in rows:
                 raise ValueError(f"intervened names unknown variable {name!r}; known: {list(names)}")
-            m = np.asarray(mask)
+            m = mask.detach().cpu().numpy() if isinstance(mask, Tensor) else np.asarray(mask)
             if m.shape != (n,) or m.dtype != bool:
                 raise ValueError(
                     f"intervened[{name!r}] has shape {m.shape} and dtype {m.dtype}, expected ({n},) bool"
@@ -183,6 +190,7 @@ class StructureData:
 
     @property
     def n(self) -> int:
+        """Number of rows N."""
         return self.x.shape[0]
 
     def columns(self, names: Sequence[str]) -> list[int]:

@@ -28,9 +28,10 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from models.checks import check_bool, check_float, check_names, describe
 from models.graph import CausalGraph
 from models.mechanisms import FunctionMechanism, Mechanism
-from models.world import WorldModel, as_values
+from models.world import WorldModel, as_values, require_world_model
 
 __all__ = [
     "ActiveSubgraph",
@@ -45,7 +46,8 @@ Edge = tuple[str, str]
 
 
 def _values(model: WorldModel, values: Mapping[str, Any]) -> dict[str, Tensor]:
-    vals, _ = as_values(model.graph, values, what="context")
+    require_world_model(model)
+    vals, _ = as_values(model.graph, values, what="context", dtype=model.dtype)
     missing = [v for v in model.graph.names if v not in vals]
     if missing:
         raise ValueError(
@@ -69,7 +71,7 @@ def local_sensitivity(model: WorldModel, values: Mapping[str, Any]) -> dict[Edge
         inputs = {p: vals[p].clone().requires_grad_(True) for p in parents}
         with torch.enable_grad():
             loc = model.loc(child, inputs)  # (N, d_i)
-            sq = {p: torch.zeros(loc.shape[0]) for p in parents}
+            sq = {p: torch.zeros(loc.shape[0], dtype=loc.dtype) for p in parents}
             for k in range(loc.shape[1]):
                 grads = torch.autograd.grad(loc[:, k].sum(), [inputs[p] for p in parents], retain_graph=True)
                 for p, gr in zip(parents, grads, strict=True):
@@ -93,6 +95,7 @@ def context_sensitivity(
             ``model.sample``) for every variable.
         standardise: multiply by sd(x_j) / sd(x_i) over the samples (unit-free).
     """
+    standardise = check_bool("standardise", standardise)
     vals = _values(model, samples)
     local = local_sensitivity(model, vals)
     sd = _scales(vals)
@@ -114,15 +117,17 @@ def target_relevance(
         targets: target variable names.
         standardise: multiply by sd(x_j) / sd(targets) over the N units.
     """
-    g = model.graph
+    g = require_world_model(model).graph
+    standardise = check_bool("standardise", standardise)
+    targets = check_names("targets", targets, allow_empty=False)
     for t in targets:
         g.check_name(t, what="target")
-    vals, n = as_values(g, values, what="context")
+    vals, n = as_values(g, values, what="context", dtype=model.dtype)
     missing = [r for r in g.roots if r not in vals]
     if missing:
         raise ValueError(f"target relevance needs values of every root; missing {missing}")
     leaves = {r: vals[r].detach().clone().requires_grad_(True) for r in g.roots}
-    shift = {v: torch.zeros(n, g[v].dim, requires_grad=True) for v in g.non_roots}
+    shift = {v: torch.zeros(n, g[v].dim, dtype=model.dtype, requires_grad=True) for v in g.non_roots}
     with torch.enable_grad():
         x: dict[str, Tensor] = dict(leaves)
         for v in g.non_roots:
@@ -130,7 +135,7 @@ def target_relevance(
         out_t = torch.cat([x[t] for t in targets], -1)  # (N, D_tar)
         wrt = {**leaves, **shift}
         names = list(wrt)
-        sq = {k: torch.zeros(n) for k in names}
+        sq = {k: torch.zeros(n, dtype=model.dtype) for k in names}
         for k in range(out_t.shape[1]):
             grads = torch.autograd.grad(
                 out_t[:, k].sum(), [wrt[m] for m in names], retain_graph=True, allow_unused=True
@@ -173,11 +178,11 @@ def active_subgraph(
         model: the world model.
         samples: name -> ``(N, dim)`` context samples of every variable.
         targets: the query's target variables.
-        threshold: smallest standardised R_{j->i} for an edge to stay active.
+        threshold: smallest standardised R_{j->i} for an edge to stay active, >= 0.
     """
-    if not threshold >= 0:
-        raise ValueError(f"threshold must be >= 0, got {threshold}")
-    g = model.graph
+    threshold = check_float("threshold", threshold, minimum=0.0)
+    g = require_world_model(model).graph
+    targets = check_names("targets", targets)
     if not targets:
         raise ValueError("targets is empty; name at least one target variable")
     for t in targets:
@@ -234,7 +239,13 @@ def subgraph_model(model: WorldModel, sub: ActiveSubgraph) -> WorldModel:
     pruned parents at the clamped context values. Variables that became roots get the
     Normal prior N(0, 1) (give them as state in queries).
     """
+    model = require_world_model(model)
+    if not isinstance(sub, ActiveSubgraph):
+        raise ValueError(f"sub must be an ActiveSubgraph from active_subgraph, got {describe(sub)}")
     g = sub.graph
+    foreign = [v for v in g.names if v not in model.graph or model.graph[v] != g[v]]
+    if foreign:
+        raise ValueError(f"sub names variables {foreign} that are not variables of the model")
     mechs: dict[str, Mechanism] = {}
     for c in g.non_roots:
         if c in sub.clamped:
@@ -242,10 +253,7 @@ def subgraph_model(model: WorldModel, sub: ActiveSubgraph) -> WorldModel:
         else:
             mechs[c] = model.mechanism(c)
     out = WorldModel(g, mechs)
-    for r in g.roots:
-        if r in model.graph and model.graph.is_root(r) and model.graph[r].role.value != "action":
-            loc, scale = model.root_priors.get(r)
-            out.set_root_prior(r, loc, scale)
+    out.copy_root_priors_from(model)
     out.provenance = {
         **model.provenance,
         "subgraph_of": model.graph.fingerprint(),

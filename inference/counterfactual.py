@@ -23,11 +23,26 @@ import torch
 from torch import Tensor
 
 from inference.handlers import AbductNoise, Intervene, ReplayNoise
-from inference.interventions import check_interventions
+from inference.interventions import action_bounds, check_interventions
 from inference.state import StateResult, infer_state, split_actions
-from models.world import WorldModel, as_values
+from models.checks import check_float, check_int, check_keywords, check_mapping, check_seed, describe
+from models.world import WorldModel, as_values, check_action_bounds, require_world_model
 
-__all__ = ["CounterfactualResult", "abduct", "counterfactual"]
+#: Keyword arguments of :func:`inference.infer_state` that ``state_kwargs`` may set.
+STATE_KWARGS = (
+    "measurement_scale",
+    "guide",
+    "num_steps",
+    "lr",
+    "lr_final",
+    "num_particles",
+    "num_samples",
+    "init_scale",
+    "seed",
+    "progress_bar",
+)
+
+__all__ = ["STATE_KWARGS", "CounterfactualResult", "abduct", "counterfactual"]
 
 
 @dataclass(frozen=True)
@@ -53,10 +68,9 @@ class CounterfactualResult:
 
     def interval(self, name: str, level: float = 0.9) -> tuple[Tensor, Tensor]:
         """Equal-tailed interval over posterior draws: two ``(K, N, dim)`` tensors."""
-        if name not in self.samples:
+        if not isinstance(name, str) or name not in self.samples:
             raise ValueError(f"unknown variable {name!r}; known: {list(self.samples)}")
-        if not 0 < level < 1:
-            raise ValueError(f"level must be in (0, 1), got {level}")
+        level = check_float("level", level, minimum=0.0, maximum=1.0, min_open=True, max_open=True)
         q = torch.tensor([(1 - level) / 2, (1 + level) / 2])
         lo, hi = torch.quantile(self.samples[name], q, dim=0)
         return lo, hi
@@ -76,6 +90,12 @@ def abduct(
     Returns:
         name -> ``(n, dim)``.
     """
+    model = require_world_model(model)
+    n = check_int("n", n, minimum=1)
+    values, _ = as_values(model.graph, values, n=n, what="values", dtype=model.dtype)
+    interventions = check_interventions(
+        model.graph, check_mapping("interventions", interventions, allow_none=True), model.dtype
+    )
     program = Intervene(interventions)(model) if interventions else model
     # Inputs were checked by ``as_values``; Pyro's per-site argument validation only adds cost.
     with AbductNoise() as abduction, torch.no_grad(), pyro.validation_enabled(False):
@@ -106,6 +126,8 @@ def _combine(scenarios: Sequence[Mapping[str, Any]], n: int) -> dict[str, Callab
                         raise ValueError(
                             f"shift intervention on {name!r} must return a tensor of shape {tuple(block.shape)}"
                         )
+                    if not bool(torch.isfinite(new).all()):
+                        raise ValueError(f"shift intervention on {name!r} produced NaN or inf")
                     out.append(new)
                 else:
                     out.append(spec.expand_as(block))
@@ -156,20 +178,41 @@ def counterfactual(
         interventions: one scenario (a mapping name -> value, ``(N, dim)`` tensor or
             shift callable) or a sequence of K scenarios evaluated in one batch.
         num_samples: posterior draws S when some variables are latent.
-        seed: seed for the state posterior (isolated RNG).
-        state_kwargs: extra arguments for :func:`inference.infer_state`.
+        seed: seed for the state posterior (forked RNG; the caller's RNG states are untouched).
+        state_kwargs: extra arguments for :func:`inference.infer_state` (keys in
+            :data:`STATE_KWARGS`).
 
     Returns:
         :class:`CounterfactualResult` with samples of shape ``(S, K, N, dim)``.
+
+    Raises:
+        ValueError: bad factual values (see :func:`models.world.as_values`), executed
+            actions outside their bounds, bad scenarios (see :func:`inference.do`), or bad
+            ``num_samples``, ``seed`` or ``state_kwargs``.
     """
+    model = require_world_model(model)
     graph = model.graph
-    scenarios = [interventions] if isinstance(interventions, Mapping) else list(interventions)
+    num_samples = check_int("num_samples", num_samples, minimum=1)
+    seed = check_seed("seed", seed)
+    state_kwargs = check_keywords("state_kwargs", state_kwargs, STATE_KWARGS)
+    if isinstance(interventions, Mapping):
+        scenarios = [interventions]
+    elif isinstance(interventions, (list, tuple)):
+        scenarios = list(interventions)
+    else:
+        raise ValueError(
+            f"interventions must be a mapping (one scenario) or a list of mappings, got {describe(interventions)}"
+        )
     if not scenarios:
         raise ValueError("interventions is an empty sequence; give at least one scenario")
-    scenarios = [check_interventions(graph, s) for s in scenarios]
-    obs, n = as_values(graph, factual, what="factual")
+    for k, sc in enumerate(scenarios):
+        if not isinstance(sc, Mapping):
+            raise ValueError(f"scenario {k} must be a mapping name -> value, got {describe(sc)}")
+    scenarios = [check_interventions(graph, s, model.dtype) for s in scenarios]
+    obs, n = as_values(graph, factual, what="factual", dtype=model.dtype)
     if n is None:
         raise ValueError("factual evidence is empty")
+    check_action_bounds(graph, obs, "factual")
     for sc in scenarios:
         for name, spec in sc.items():
             if isinstance(spec, Tensor) and spec.ndim == 2 and spec.shape[0] != n:
@@ -180,7 +223,7 @@ def counterfactual(
     latent = [v for v in graph.names if v not in obs]
     posterior = None
     if latent:
-        kwargs = {"num_samples": num_samples, "seed": seed, **dict(state_kwargs or {})}
+        kwargs = {"num_samples": num_samples, "seed": seed, **state_kwargs}
         posterior = infer_state(model, obs, **kwargs)
         s = next(iter(posterior.samples.values())).shape[0]
         world = {k: v.expand(s, *v.shape).reshape(s * n, -1) for k, v in evidence.items()}
@@ -207,7 +250,7 @@ def counterfactual(
     if affected & changed:
         # an intervened site downstream of another: its pre-intervention value must be
         # recomputed, so replay the whole intervened program
-        program = Intervene(assign)(ReplayNoise(tiled)(model))
+        program = Intervene(assign, bounds=action_bounds(graph, assign))(ReplayNoise(tiled)(model))
         with torch.no_grad(), pyro.validation_enabled(False):  # replayed values are ours
             values = program(None, k_total * s * n)
     else:

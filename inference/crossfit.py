@@ -34,8 +34,26 @@ import torch
 from torch import Tensor
 
 from inference.admissible import StructureData
+from models.checks import check_float, check_int, check_seed, describe
 
 __all__ = ["CrossFitScorer", "RepeatedScorer"]
+
+
+def _grid(name: str, value: float | Sequence[float]) -> tuple[float, ...]:
+    """A non-empty tuple of finite values > 0 from a number or a sequence of numbers."""
+    if (
+        isinstance(value, (str, bytes))
+        or not isinstance(value, (Sequence, int, float))
+        or isinstance(value, bool)
+    ):
+        raise ValueError(
+            f"{name} must be a number > 0 or a non-empty sequence of such, got {describe(value)}"
+        )
+    if not isinstance(value, Sequence):
+        return (check_float(name, value, minimum=0.0, min_open=True),)
+    if not value:
+        raise ValueError(f"{name} is an empty sequence; expected at least one value > 0")
+    return tuple(check_float(f"{name}[{k}]", v, minimum=0.0, min_open=True) for k, v in enumerate(value))
 
 
 class CrossFitScorer:
@@ -62,20 +80,12 @@ class CrossFitScorer:
         floor: float = 1e-6,
         seed: int = 0,
     ) -> None:
-        if isinstance(features, bool) or not isinstance(features, int) or features < 0:
-            raise ValueError(f"features must be a non-negative int, got {features!r}")
-        ridges = (float(ridge),) if isinstance(ridge, (int, float)) else tuple(float(r) for r in ridge)
-        if not ridges or not all(r > 0 for r in ridges):
-            raise ValueError(f"ridge must be > 0 (or a non-empty sequence of such), got {ridge!r}")
-        ridge = ridges
-        if isinstance(folds, bool) or not isinstance(folds, int) or folds < 2:
-            raise ValueError(f"folds must be an int >= 2, got {folds!r}")
-        lengths = (float(length),) if isinstance(length, (int, float)) else tuple(float(v) for v in length)
-        if not lengths or not all(v > 0 for v in lengths):
-            raise ValueError(f"length must be > 0 (or a non-empty sequence of such), got {length!r}")
-        length = lengths
-        if not floor > 0:
-            raise ValueError(f"floor must be > 0, got {floor}")
+        features = check_int("features", features, minimum=0)
+        ridge = _grid("ridge", ridge)
+        folds = check_int("folds", folds, minimum=2)
+        length = _grid("length", length)
+        floor = check_float("floor", floor, minimum=0.0, min_open=True)
+        seed = check_seed("seed", seed)
         self.data, self.features, self.ridge, self.folds, self.length = data, features, ridge, folds, length
         self.floor = float(floor)
         gen = torch.Generator().manual_seed(seed)
@@ -164,8 +174,7 @@ class RepeatedScorer:
     """
 
     def __init__(self, data: StructureData, *, repeats: int = 1, seed: int = 0, **kwargs: object) -> None:
-        if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
-            raise ValueError(f"repeats must be a positive int, got {repeats!r}")
+        repeats = check_int("repeats", repeats, minimum=1)
         self.data = data
         self.scorers = [CrossFitScorer(data, seed=seed + r, **kwargs) for r in range(repeats)]  # type: ignore[arg-type]
 

@@ -16,6 +16,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from models.checks import as_float_array, check_choice, check_float, check_int, describe
+
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
@@ -25,7 +27,7 @@ FORMS = ("count", "inverse")
 
 
 def _values(values: Any, what: str = "values") -> np.ndarray:
-    v = np.asarray(values, dtype=float)
+    v = as_float_array(values, what)
     if v.ndim == 2 and v.shape[1] == 1:
         v = v[:, 0]
     if v.ndim != 1:
@@ -35,16 +37,32 @@ def _values(values: Any, what: str = "values") -> np.ndarray:
     return v
 
 
+def _support(low: Any, high: Any, bins: Any) -> tuple[float, float, int]:
+    low = check_float("low", low)
+    high = check_float("high", high)
+    if not low < high:
+        raise ValueError(f"need finite low < high, got low={low}, high={high}")
+    return low, high, check_int("bins", bins, minimum=2)
+
+
 def histogram(values: Any, low: float, high: float, bins: int) -> np.ndarray:
-    """Counts of ``values`` in ``bins`` equal bins on [low, high]; outside values are clipped in."""
+    """Counts ``(bins,)`` of ``values`` (``(N,)`` or ``(N, 1)``) in equal bins on [low, high].
+
+    Values outside [low, high] are clipped into the end bins.
+    """
+    low, high, bins = _support(low, high, bins)
     v = np.clip(_values(values), low, high)
     counts, _ = np.histogram(v, bins=bins, range=(low, high))
     return counts
 
 
+def _occupancy(counts: np.ndarray) -> float:
+    return float((counts > 0).mean())
+
+
 def occupancy(values: Any, low: float, high: float, bins: int = 20) -> float:
-    """Fraction of bins visited at least once (thesis §5.2.4)."""
-    return float((histogram(values, low, high, bins) > 0).mean())
+    """Fraction of the ``bins`` equal bins on [low, high] visited at least once (thesis §5.2.4)."""
+    return _occupancy(histogram(values, low, high, bins))
 
 
 def _entropy(counts: np.ndarray) -> float:
@@ -66,8 +84,8 @@ class CuriositySampler:
     Args:
         low, high: modelled support X_X of the variable.
         bins: histogram bins B (thesis: 20).
-        alpha: locality amplification alpha >= 0 (thesis: 0.5).
-        sigma: locality width > 0; default (high - low) / 10 (thesis).
+        alpha: locality amplification alpha >= 0, finite (thesis: 0.5).
+        sigma: locality width > 0 in the variable's units; default (high - low) / 10 (thesis).
         form: ``"count"`` (Eq. 5.8) or ``"inverse"`` (Eq. 4.34).
         eps: epsilon of Eq. 4.34 / 5.8 (> 0). In the count form it is a count; in the
             inverse form it is added to the bin probability.
@@ -87,20 +105,14 @@ class CuriositySampler:
         form: str = "count",
         eps: float | None = None,
     ) -> None:
-        if not (np.isfinite(low) and np.isfinite(high) and low < high):
-            raise ValueError(f"need finite low < high, got low={low}, high={high}")
-        if isinstance(bins, bool) or not isinstance(bins, int) or bins < 2:
-            raise ValueError(f"bins must be an int >= 2, got {bins!r}")
-        if not alpha >= 0:
-            raise ValueError(f"alpha must be >= 0, got {alpha}")
-        sigma = (high - low) / 10 if sigma is None else sigma
-        if not sigma > 0:
-            raise ValueError(f"sigma must be > 0, got {sigma}")
-        if form not in FORMS:
-            raise ValueError(f"form {form!r} unknown; expected one of {FORMS}")
+        low, high, bins = _support(low, high, bins)
+        alpha = check_float("alpha", alpha, minimum=0.0)
+        sigma = (
+            (high - low) / 10 if sigma is None else check_float("sigma", sigma, minimum=0.0, min_open=True)
+        )
+        form = check_choice("form", form, FORMS)
         eps = (1.0 if form == "count" else 1e-3) if eps is None else eps
-        if not eps > 0:
-            raise ValueError(f"eps must be > 0, got {eps}")
+        eps = check_float("eps", eps, minimum=0.0, min_open=True)
         self.low, self.high, self.bins = float(low), float(high), bins
         self.alpha, self.sigma, self.form, self.eps = float(alpha), float(sigma), form, float(eps)
         self.edges_ = np.linspace(self.low, self.high, bins + 1)
@@ -158,10 +170,13 @@ class CuriositySampler:
             ``(N,)`` or ``(size,)`` target values in [low, high].
         """
         if not isinstance(rng, np.random.Generator):
-            raise ValueError("rng must be a numpy.random.Generator, e.g. np.random.default_rng(0)")
+            raise ValueError(
+                f"rng must be a numpy.random.Generator, e.g. np.random.default_rng(0), got {describe(rng)}"
+            )
         if current is None:
-            if size is None or size < 1:
+            if size is None:
                 raise ValueError("give current values or a positive size")
+            size = check_int("size", size, minimum=1)
             probs = np.broadcast_to(self.curiosity(), (size, self.bins))
         else:
             if size is not None:
@@ -174,8 +189,8 @@ class CuriositySampler:
 
     # ------------------------------------------------------------------ reporting
     def occupancy(self) -> float:
-        """Fraction of bins with at least one visit."""
-        return float((self.counts_ > 0).mean())
+        """Fraction of bins with at least one visit (as :func:`occupancy`)."""
+        return _occupancy(self.counts_)
 
     def normalized_entropy(self) -> float:
         """Entropy of the visit distribution / log(bins)."""
@@ -185,6 +200,8 @@ class CuriositySampler:
         """Bars of visit counts with the target density overlaid; returns the Figure."""
         import matplotlib.pyplot as plt
 
+        if current is not None:
+            current = check_float("current", current)
         if ax is None:
             fig, ax = plt.subplots(figsize=(5, 3))
         else:

@@ -31,7 +31,8 @@ import networkx as nx
 
 from inference.admissible import StructureData, as_variables
 from inference.crossfit import RepeatedScorer
-from inference.discovery import DiscoveryResult
+from inference.discovery import DiscoveryResult, sigmoid
+from models.checks import check_float, check_int, check_mapping, describe
 from models.variables import Role
 
 __all__ = ["choose_interventions", "orientation_margins", "structure_uncertainty"]
@@ -49,7 +50,7 @@ def orientation_margins(
         result: a :func:`inference.discovery.discover` result.
         data, intervened: the data it was learnt from (same layout as for ``discover``).
     """
-    graph = result.graph
+    graph = _check_result(result).graph
     vs = as_variables(graph)
     settings = result.settings
     sdata = StructureData.build(vs, data, intervened)
@@ -85,20 +86,27 @@ def orientation_margins(
     return out
 
 
-def _sigmoid(x: float) -> float:
-    if x == math.inf:
-        return 1.0
-    return 1.0 / (1.0 + math.exp(-x)) if x > -700 else 0.0
+def _check_result(result: object) -> DiscoveryResult:
+    if not isinstance(result, DiscoveryResult):
+        raise ValueError(f"result must be a DiscoveryResult from inference.discover, got {describe(result)}")
+    return result
 
 
 def structure_uncertainty(
     result: DiscoveryResult, margins: Mapping[tuple[str, str], float]
 ) -> dict[str, float]:
     """U_j for every variable (0 for variables without incident edges)."""
+    result = _check_result(result)
+    margins = check_mapping("margins", margins)
     out = dict.fromkeys(result.graph.names, 0.0)
+    edges = set(result.graph.edges)
+    for key, m in margins.items():
+        if key not in edges:
+            raise ValueError(f"margins names {key!r}, which is not an edge of the learnt graph")
+        check_float(f"margin of {key!r}", m, finite=False)
     for (p, c), m in margins.items():
         conf = result.graph.confidence.get((p, c), 1.0)
-        u = (1.0 - _sigmoid(m)) + (1.0 - conf)
+        u = (1.0 - sigmoid(m)) + (1.0 - conf)
         out[p] += u
         out[c] += u
     return out
@@ -113,9 +121,8 @@ def choose_interventions(
         ``budget`` target names (repeated), most uncertain variables first. With no
         uncertainty at all the budget goes round-robin over the non-action variables.
     """
-    if isinstance(budget, bool) or not isinstance(budget, int) or budget < 0:
-        raise ValueError(f"budget must be a non-negative int, got {budget!r}")
-    graph = result.graph
+    budget = check_int("budget", budget, minimum=0)
+    graph = _check_result(result).graph
     u = {k: v for k, v in structure_uncertainty(result, margins).items() if graph[k].role is not Role.ACTION}
     total = sum(u.values())
     if budget == 0:

@@ -39,9 +39,13 @@ from typing import Any
 from inference.admissible import StructureData, admissible_parents, as_variables
 from inference.crossfit import RepeatedScorer
 from inference.search import Dag, LocalScores, hill_climb
+from models.checks import check_choice, check_edges, check_float, check_int, check_keywords, check_seed
 from models.graph import CausalGraph
 
-__all__ = ["DiscoveryResult", "discover", "shd"]
+__all__ = ["DiscoveryResult", "discover", "shd", "sigmoid"]
+
+#: Keyword arguments of :func:`inference.gated.select_parents` that ``gated`` may set.
+GATED_KWARGS = ("penalties", "hidden", "steps", "lr", "val_fraction")
 
 log = logging.getLogger(__name__)
 
@@ -97,9 +101,13 @@ class DiscoveryResult:
 def shd(
     learnt: CausalGraph | Iterable[tuple[str, str]], truth: CausalGraph | Iterable[tuple[str, str]]
 ) -> int:
-    """Structural Hamming distance: missing + extra edges, a reversed edge counting once."""
-    a = set(learnt.edges if isinstance(learnt, CausalGraph) else map(tuple, learnt))
-    b = set(truth.edges if isinstance(truth, CausalGraph) else map(tuple, truth))
+    """Structural Hamming distance: missing + extra edges, a reversed edge counting once.
+
+    Args:
+        learnt, truth: graphs or sequences of ``(parent, child)`` name pairs.
+    """
+    a = set(learnt.edges if isinstance(learnt, CausalGraph) else check_edges("learnt", learnt))
+    b = set(truth.edges if isinstance(truth, CausalGraph) else check_edges("truth", truth))
     reversed_ = {(p, c) for p, c in a - b if (c, p) in b}
     return len(a - b) + len(b - a) - len(reversed_)
 
@@ -134,8 +142,12 @@ def _prune(
     return ratios, total
 
 
-def _sigmoid(x: float) -> float:
-    return 1.0 / (1.0 + math.exp(-x)) if x > -700 else 0.0
+def sigmoid(x: float) -> float:
+    """1 / (1 + exp(-x)) without overflow; sigmoid(inf) = 1 and sigmoid(-inf) = 0."""
+    if x >= 0:
+        return 1.0 / (1.0 + math.exp(-x))
+    e = math.exp(x)
+    return e / (1.0 + e)
 
 
 def discover(
@@ -186,18 +198,26 @@ def discover(
 
     Returns:
         :class:`DiscoveryResult` whose graph carries an edge confidence.
+
+    Raises:
+        ValueError: bad variables, data, masks or background knowledge (unknown names,
+            non-float columns, wrong shapes, NaN, fewer than 8 rows), or a setting of the
+            wrong type or range.
     """
     start = time.perf_counter()
-    if sparsify not in SPARSIFIERS:
-        raise ValueError(f"sparsify {sparsify!r} unknown; expected one of {SPARSIFIERS}")
+    sparsify = check_choice("sparsify", sparsify, SPARSIFIERS)
+    min_gain = check_float("min_gain", min_gain)
+    prune_nats = check_float("prune_nats", prune_nats)
+    min_reverse = check_float("min_reverse", min_reverse)
     if not prune_nats <= min_gain:
         raise ValueError(f"prune_nats ({prune_nats}) must be <= min_gain ({min_gain})")
-    if max_parents is not None and (
-        isinstance(max_parents, bool) or not isinstance(max_parents, int) or max_parents < 1
-    ):
-        raise ValueError(f"max_parents must be a positive int or None, got {max_parents!r}")
+    if max_parents is not None:
+        max_parents = check_int("max_parents", max_parents, minimum=1)
+    max_moves = check_int("max_moves", max_moves, minimum=1)
+    seed = check_seed("seed", seed)
+    gated = check_keywords("gated", gated, GATED_KWARGS)
     vs = as_variables(variables)
-    required = set(map(tuple, required))
+    required = set(check_edges("required", required))
     allowed = admissible_parents(vs, tiers=tiers, forbidden=forbidden, required=required)
     sdata = StructureData.build(vs, data, intervened)
     scorer = RepeatedScorer(
@@ -232,14 +252,14 @@ def discover(
 
         position = {n: k for k, n in enumerate(order)}
         candidates = {c: tuple(p for p in allowed[c] if position[p] < position[c]) for c in sdata.names}
-        chosen = select_parents(sdata, candidates, seed=seed, **dict(gated or {}))
+        chosen = select_parents(sdata, candidates, seed=seed, **gated)
         parents = {
             c: sorted({*chosen[c], *(p for p, cc in required if cc == c)}, key=dag.index.__getitem__)
             for c in sdata.names
         }
     ratios, total = _prune(scores, parents, dag.index, prune_nats, required)
     edges = [(p, c) for c in sdata.names for p in parents[c]]
-    confidence = {e: _sigmoid(ratios[e]) for e in edges}
+    confidence = {e: sigmoid(ratios[e]) for e in edges}
     graph = CausalGraph(vs, edges, confidence)
     seconds = time.perf_counter() - start
     log.info(

@@ -22,7 +22,16 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from inference.fit import fit
+from inference.fit import FIT_KWARGS, fit
+from models.checks import (
+    check_callable,
+    check_float,
+    check_int,
+    check_keywords,
+    check_names,
+    check_seed,
+    describe,
+)
 from models.world import WorldModel, as_values
 
 __all__ = ["Ensemble"]
@@ -36,7 +45,12 @@ class Ensemble:
     """
 
     def __init__(self, members: Sequence[WorldModel]) -> None:
+        if isinstance(members, (str, bytes)) or not isinstance(members, Sequence):
+            raise ValueError(f"members must be a sequence of WorldModel, got {describe(members)}")
         members = list(members)
+        for k, m in enumerate(members):
+            if not isinstance(m, WorldModel):
+                raise ValueError(f"ensemble member {k} must be a WorldModel, got {describe(m)}")
         if len(members) < 2:
             raise ValueError(f"an ensemble needs at least 2 members, got {len(members)}")
         fp = members[0].graph.fingerprint()
@@ -47,14 +61,24 @@ class Ensemble:
 
     @classmethod
     def create(cls, make: Callable[[int], WorldModel], k: int = 5, seed: int = 0) -> Ensemble:
-        """``k`` members ``make(seed + m)`` (the factory seeds each member's weights)."""
-        if isinstance(k, bool) or not isinstance(k, int) or k < 2:
-            raise ValueError(f"k must be an int >= 2, got {k!r}")
+        """``k`` members ``make(seed + m)``; the factory seeds each member's weights, e.g.
+        ``lambda s: WorldModel(graph, seed=s)``."""
+        check_callable("make", make)
+        k = check_int("k", k, minimum=2)
+        seed = check_seed("seed", seed)
         return cls([make(seed + m) for m in range(k)])
 
     def fit(self, data: Mapping[str, Any], *, seed: int = 0, **fit_kwargs: Any) -> None:
-        """Train every member (in place, warm) on its own bootstrap resample of ``data``."""
-        cols, n = as_values(self.graph, data)
+        """Train every member (in place, warm) on its own bootstrap resample of ``data``.
+
+        Args:
+            data: name -> ``(N, dim)`` columns (see :func:`inference.fit`).
+            seed: seeds the resamples (local generator) and member m's fit with ``seed + m``.
+            **fit_kwargs: passed to :func:`inference.fit` (not ``seed``).
+        """
+        seed = check_seed("seed", seed)
+        fit_kwargs = check_keywords("fit_kwargs", fit_kwargs, [k for k in FIT_KWARGS if k != "seed"])
+        cols, n = as_values(self.graph, data, dtype=self.members[0].dtype)
         if n is None or n < 2:
             raise ValueError(f"ensemble fit needs at least 2 rows, got {n}")
         gen = torch.Generator().manual_seed(seed)
@@ -68,7 +92,13 @@ class Ensemble:
         return {k: torch.stack([p[k] for p in preds]).mean(0) for k in preds[0]}
 
     def information(self, values: Mapping[str, Any], targets: Sequence[str]) -> Tensor:
-        """I(a; s) per unit, ``(N,)`` nats (see the module docstring)."""
+        """I(a; s) per unit, ``(N,)`` nats (see the module docstring).
+
+        Args:
+            values: name -> ``(N, dim)`` for every root (actions within bounds).
+            targets: non-root variables whose mechanisms the outcome should inform.
+        """
+        targets = check_names("targets", targets, allow_empty=False)
         for t in targets:
             self.graph.check_name(t, what="target")
             if self.graph.is_root(t):
@@ -102,8 +132,11 @@ class Ensemble:
         Returns:
             ``(chosen, info)``: action name -> ``(N, dim)``, and ``(N,)`` the chosen information.
         """
-        given, n = as_values(self.graph, state, what="state")
-        cands, n = as_values(self.graph, candidates, n=n, what="candidates", extra_dims=1)
+        if spread is not None:
+            spread = check_float("spread", spread, minimum=0.0, min_open=True)
+        dtype = self.members[0].dtype
+        given, n = as_values(self.graph, state, what="state", dtype=dtype)
+        cands, n = as_values(self.graph, candidates, n=n, what="candidates", extra_dims=1, dtype=dtype)
         if not cands:
             raise ValueError("candidates is empty; give (N, C, dim) values for at least one action")
         c = {v.shape[1] for v in cands.values()}
@@ -117,8 +150,6 @@ class Ensemble:
         if spread is None:
             best = info.argmax(1)
             return {k: v[rows, best] for k, v in cands.items()}, info[rows, best]
-        if not spread > 0:
-            raise ValueError(f"spread must be > 0 or None, got {spread}")
         # batch diversity: units choose in turn, and each choice damps the information of
         # nearby (state, action) points of later units by 1 - exp(-d^2 / (2 spread^2)),
         # d measured in standard deviations of the candidate points

@@ -22,17 +22,21 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
+from models.checks import check_bool, check_choice, check_float, check_int, check_names, check_seed
 from models.variables import Role
-from models.world import WorldModel, as_values
+from models.world import WorldModel, as_values, require_world_model
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["LOSSES", "FitResult", "fit"]
+__all__ = ["FIT_KWARGS", "LOSSES", "FitResult", "fit"]
 
 log = logging.getLogger(__name__)
 
 LOSSES = ("mse", "nll")
+
+#: The keyword arguments of :func:`fit`; wrappers that forward ``**fit_kwargs`` check against it.
+FIT_KWARGS = ("variables", "loss", "epochs", "batch_size", "lr", "val_fraction", "seed", "progress_bar")
 
 
 @dataclass(frozen=True)
@@ -105,25 +109,34 @@ def fit(
         loss: ``"mse"`` (thesis §5.2.1; sigma from residuals) or ``"nll"`` (Gaussian NLL).
         epochs, batch_size, lr: Adam schedule (thesis: 120, 2048, 0.01).
         val_fraction: share of rows held out for validation curves, in [0, 1).
-        seed: seeds the split and the minibatch order.
+        seed: seeds the split and the minibatch order (local generator).
         progress_bar: show a tqdm bar over epochs.
 
     Returns:
         :class:`FitResult`. Non-action roots present in ``data`` also get their Normal
         prior set to the data mean and sd.
+
+    Raises:
+        ValueError: a model that is not a :class:`WorldModel`, bad data (see
+            :func:`models.world.as_values`), fewer than 2 rows, unknown, root or repeated
+            ``variables``, or a bad schedule argument (type or range).
+        FloatingPointError: the training loss became NaN or inf.
     """
-    if loss not in LOSSES:
-        raise ValueError(f"loss {loss!r} unknown; expected one of {LOSSES}")
-    for name, value in (("epochs", epochs), ("batch_size", batch_size)):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be a positive int, got {value!r}")
-    if not lr > 0:
-        raise ValueError(f"lr must be > 0, got {lr}")
-    if not 0 <= val_fraction < 1:
-        raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
+    model = require_world_model(model)
+    loss = check_choice("loss", loss, LOSSES)
+    epochs = check_int("epochs", epochs, minimum=1)
+    batch_size = check_int("batch_size", batch_size, minimum=1)
+    lr = check_float("lr", lr, minimum=0.0, min_open=True)
+    val_fraction = check_float("val_fraction", val_fraction, minimum=0.0, maximum=1.0, max_open=True)
+    seed = check_seed("seed", seed)
+    progress_bar = check_bool("progress_bar", progress_bar)
+    if variables is not None:
+        variables = check_names("variables", variables, allow_empty=False)
     graph = model.graph
-    cols, n = as_values(graph, data)
-    if n is None or n < 2:
+    cols, n = as_values(graph, data, dtype=model.dtype)
+    if n is None:
+        raise ValueError("data is empty; fit needs name -> (N, dim) columns")
+    if n < 2:
         raise ValueError(f"fit needs at least 2 rows of data, got {n}")
     trainable = [v for v in graph.non_roots if v in cols and all(p in cols for p in graph.parents(v))]
     if variables is None:
@@ -131,7 +144,7 @@ def fit(
         if not targets:
             raise ValueError(f"no mechanism can be trained from columns {sorted(cols)}")
     else:
-        targets = list(variables)
+        targets = variables
         for v in targets:
             graph.check_name(v, what="variable to fit")
             if graph.is_root(v):

@@ -23,6 +23,7 @@ from collections.abc import Mapping, Sequence
 import torch
 
 from inference.admissible import StructureData
+from models.checks import check_float, check_int, check_mapping, check_seed, describe
 
 __all__ = ["select_parents"]
 
@@ -54,14 +55,21 @@ def select_parents(
     Returns:
         child -> selected parents (declaration order).
     """
-    if (
-        not penalties
-        or any(not p > 0 for p in penalties)
-        or list(penalties) != sorted(penalties, reverse=True)
-    ):
+    if isinstance(penalties, (str, bytes)) or not isinstance(penalties, Sequence) or not penalties:
+        raise ValueError(f"penalties must be a non-empty sequence of numbers > 0, got {describe(penalties)}")
+    penalties = [
+        check_float(f"penalties[{k}]", p, minimum=0.0, min_open=True) for k, p in enumerate(penalties)
+    ]
+    if penalties != sorted(penalties, reverse=True):
         raise ValueError(f"penalties must be positive and decreasing, got {list(penalties)}")
-    if not 0 < val_fraction < 1:
-        raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction}")
+    hidden = check_int("hidden", hidden, minimum=1)
+    steps = check_int("steps", steps, minimum=1)
+    lr = check_float("lr", lr, minimum=0.0, min_open=True)
+    val_fraction = check_float(
+        "val_fraction", val_fraction, minimum=0.0, maximum=1.0, min_open=True, max_open=True
+    )
+    seed = check_seed("seed", seed)
+    candidates = check_mapping("candidates", candidates)
     names = data.names
     children = [c for c in names if candidates.get(c)]
     if not children:

@@ -24,6 +24,8 @@ from pyro.poutine.runtime import Message
 from pyro.poutine.subsample_messenger import _Subsample
 from torch import Tensor
 
+from models.checks import as_float_tensor, check_choice, check_finite_tensor, check_mapping, describe
+
 __all__ = [
     "AbductNoise",
     "Intervene",
@@ -94,7 +96,7 @@ def broadcast_intervention(value: Any, shape: torch.Size, name: str) -> Tensor:
     Accepted: a scalar when dim is 1, a ``(dim,)`` vector (same for every unit), or
     exactly the trailing shape ``(N, dim)``. Anything else raises.
     """
-    v = torch.as_tensor(value, dtype=torch.get_default_dtype())
+    v = value if isinstance(value, Tensor) else as_float_tensor(value, f"intervention on {name!r}")
     dim = shape[-1]
     if v.ndim == 0:
         ok = dim == 1
@@ -122,11 +124,23 @@ class Intervene(Messenger):
 
     Args:
         interventions: site name -> value or callable.
+        bounds: optional site name -> ``(low, high)`` tensors; values a callable produces
+            for these sites must lie within them (:func:`inference.do` passes the action
+            bounds). Hard values are checked by :func:`inference.do` before the run.
     """
 
-    def __init__(self, interventions: Mapping[str, InterventionSpec]) -> None:
+    def __init__(
+        self,
+        interventions: Mapping[str, InterventionSpec],
+        bounds: Mapping[str, tuple[Tensor, Tensor]] | None = None,
+    ) -> None:
         super().__init__()
+        interventions = check_mapping("interventions", interventions)
+        for name in interventions:
+            if not isinstance(name, str):
+                raise ValueError(f"intervention targets must be site names (str), got {describe(name)}")
         self.interventions = dict(interventions)
+        self.bounds = dict(check_mapping("bounds", bounds, allow_none=True))
 
     def _pyro_sample(self, msg: Message) -> None:
         name = msg["name"]
@@ -145,6 +159,15 @@ class Intervene(Messenger):
                 )
             if not torch.isfinite(value).all():
                 raise ValueError(f"shift intervention on {name!r} produced NaN or inf")
+            if name in self.bounds:
+                low, high = self.bounds[name]
+                tol = 4 * torch.finfo(torch.float32).eps * torch.maximum(low.abs(), high.abs()).clamp_min(1.0)
+                v = value.detach()
+                if bool(((v < low - tol) | (v > high + tol)).any()):
+                    raise ValueError(
+                        f"shift intervention on {name!r} produced values outside its bounds "
+                        f"[{low.tolist()}, {high.tolist()}] (range {float(v.min()):g} .. {float(v.max()):g})"
+                    )
         else:
             value = broadcast_intervention(spec, shape, name)
         _fix(msg, value, "pal_intervened")
@@ -182,10 +205,14 @@ class ReplayNoise(Messenger):
 
     def __init__(self, noise: Mapping[str, Tensor] | None = None, default: str = "error") -> None:
         super().__init__()
-        if default not in ("expected", "error"):
-            raise ValueError(f"default {default!r} unknown; expected 'expected' or 'error'")
-        self.noise = dict(noise or {})
-        self.default = default
+        self.default = check_choice("default", default, ("expected", "error"))
+        self.noise = {}
+        for name, eps in check_mapping("noise", noise, allow_none=True).items():
+            if not isinstance(name, str):
+                raise ValueError(f"noise keys must be site names (str), got {describe(name)}")
+            keep = eps.dtype if isinstance(eps, Tensor) and eps.is_floating_point() else None
+            t = as_float_tensor(eps, f"noise[{name!r}]", keep)
+            self.noise[name] = check_finite_tensor(f"noise[{name!r}]", t)
 
     def _pyro_sample(self, msg: Message) -> None:
         if not is_variable_site(msg) or msg["is_observed"]:
@@ -193,7 +220,7 @@ class ReplayNoise(Messenger):
         name = msg["name"]
         loc, scale = location_scale(msg["fn"], name)
         if name in self.noise:
-            eps = self.noise[name]
+            eps = self.noise[name].to(loc.dtype)
             if eps.shape != loc.shape:
                 raise ValueError(
                     f"replayed noise for {name!r} has shape {tuple(eps.shape)}, expected {tuple(loc.shape)}"
@@ -213,17 +240,24 @@ class MeasurementScale(Messenger):
     diagnostics); the model's learned sigma of a measurement site is replaced by it.
 
     Args:
-        scales: site name -> sigma, ``(dim,)`` or ``(N, dim)``, finite and > 0.
+        scales: site name -> sigma, ``(dim,)`` or ``(N, dim)``, finite and > 0, in the
+            site's units (tensors or float arrays).
     """
 
     def __init__(self, scales: Mapping[str, Tensor]) -> None:
         super().__init__()
-        for name, s in scales.items():
-            if not isinstance(s, Tensor) or s.ndim not in (1, 2):
-                raise ValueError(f"measurement scale of {name!r} must be a (dim,) or (N, dim) tensor")
+        self.scales: dict[str, Tensor] = {}
+        for name, raw in check_mapping("scales", scales).items():
+            if not isinstance(name, str):
+                raise ValueError(f"measurement scale keys must be site names (str), got {describe(name)}")
+            s = as_float_tensor(raw, f"measurement scale of {name!r}")
+            if s.ndim not in (1, 2):
+                raise ValueError(
+                    f"measurement scale of {name!r} has shape {tuple(s.shape)}, expected (dim,) or (N, dim)"
+                )
             if not (torch.isfinite(s).all() and (s > 0).all()):
-                raise ValueError(f"measurement scale of {name!r} must be finite and > 0, got {s}")
-        self.scales = dict(scales)
+                raise ValueError(f"measurement scale of {name!r} must be finite and > 0, got {describe(s)}")
+            self.scales[name] = s
 
     def _pyro_sample(self, msg: Message) -> None:
         name = msg["name"]

@@ -4,7 +4,7 @@
 mechanism of ``x`` is replaced by the assignment ``x := 0``. Values may be scalars (for
 dim-1 variables), ``(dim,)`` vectors applied to every unit, ``(N, dim)`` batched tensors,
 or callables ``g(x) -> x'`` of the pre-intervention value (shift interventions such as
-``lambda x: x + 0.1``).
+``lambda x: x + 0.1``). Values on action sites must lie within the action bounds.
 """
 
 from __future__ import annotations
@@ -12,38 +12,48 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
-import pyro
 import torch
 from torch import Tensor
 
 from inference.handlers import Intervene, InterventionSpec
+from models.checks import as_float_tensor, check_callable, check_int, check_mapping, check_seed, describe
 from models.graph import CausalGraph
+from models.variables import Role
+from models.world import check_action_bounds, model_dtype
 
-__all__ = ["check_interventions", "do"]
+__all__ = ["action_bounds", "check_interventions", "do", "simulate"]
 
 
 def check_interventions(
-    graph: CausalGraph | None, interventions: Mapping[str, Any]
+    graph: CausalGraph | None, interventions: Mapping[str, Any], dtype: torch.dtype | None = None
 ) -> dict[str, InterventionSpec]:
-    """Validate intervention names against ``graph`` and values for NaN/inf.
+    """Validate intervention names against ``graph`` and values for dtype, shape, NaN/inf and bounds.
 
-    Returns a dict with array values converted to tensors; callables are kept.
+    Args:
+        graph: the program's graph, or None for a program without one (names unchecked).
+        interventions: name -> scalar, ``(dim,)``, ``(N, dim)`` or callable.
+        dtype: floating dtype of the values (default: torch's default dtype).
+
+    Returns:
+        A dict with array values converted to tensors of ``dtype``; callables are kept.
+
+    Raises:
+        ValueError: not a mapping, unknown names, non-numeric, integer or bool values,
+            wrong shapes, NaN or inf, or action values outside the bounds.
     """
-    if not isinstance(interventions, Mapping):
-        raise ValueError(f"interventions must be a mapping name -> value, got {type(interventions).__name__}")
+    interventions = check_mapping("interventions", interventions)
     out: dict[str, InterventionSpec] = {}
     for name, spec in interventions.items():
         if graph is not None:
             graph.check_name(name, what="intervention target")
-        if callable(spec) and not isinstance(spec, torch.Tensor):
+        elif not isinstance(name, str):
+            raise ValueError(f"intervention targets must be site names (str), got {describe(name)}")
+        if callable(spec) and not isinstance(spec, Tensor):
             out[name] = spec
             continue
-        try:
-            t = torch.as_tensor(spec, dtype=torch.get_default_dtype())
-        except (TypeError, ValueError, RuntimeError) as err:
-            raise ValueError(f"intervention on {name!r} is not numeric: {spec!r} ({err})") from None
+        t = as_float_tensor(spec, f"intervention on {name!r}", dtype)
         if not torch.isfinite(t).all():
-            raise ValueError(f"intervention on {name!r} contains NaN or inf")
+            raise ValueError(f"intervention on {name!r} contains NaN or inf: {describe(t)}")
         if graph is not None:
             dim = graph[name].dim
             if t.ndim > 2 or (t.ndim == 0 and dim != 1) or (t.ndim >= 1 and t.shape[-1] != dim):
@@ -51,23 +61,41 @@ def check_interventions(
                     f"intervention on {name!r} has shape {tuple(t.shape)}, expected a scalar (dim 1), "
                     f"({dim},) or (N, {dim})"
                 )
+            if t.ndim == 2 and t.shape[0] == 0:
+                raise ValueError(f"intervention on {name!r} has shape {tuple(t.shape)}: no rows")
+            check_action_bounds(graph, {name: t}, "interventions")
         out[name] = t
     return out
 
 
+def action_bounds(graph: CausalGraph | None, names: Any) -> dict[str, tuple[Tensor, Tensor]]:
+    """``(low, high)`` tensors of the action sites among ``names`` (for :class:`Intervene`)."""
+    if graph is None:
+        return {}
+    return {
+        k: (torch.tensor(graph[k].low), torch.tensor(graph[k].high))
+        for k in names
+        if graph[k].role is Role.ACTION
+    }
+
+
 def do(model: Callable[..., Any], interventions: Mapping[str, InterventionSpec]) -> Callable[..., Any]:
-    """Intervene on a Pyro program.
+    """Intervene on a Pyro program: ``do(X := v)`` or ``do(X := g(x))``.
 
     Args:
         model: a Pyro program, e.g. a :class:`models.WorldModel`.
-        interventions: site name -> hard value, batched tensor, or shift callable.
+        interventions: site name -> hard value (scalar, ``(dim,)`` or ``(N, dim)``) or
+            shift callable. Action values must lie within the action bounds.
 
     Returns:
         The intervened program (same call signature). If ``model`` has a ``graph``,
-        unknown names and wrong dims raise here rather than at run time.
+        unknown names, wrong dims and out-of-bounds actions raise here rather than at run
+        time (for callables, at run time).
     """
-    specs = check_interventions(getattr(model, "graph", None), interventions)
-    return Intervene(specs)(model)
+    check_callable("model", model)
+    graph = getattr(model, "graph", None)
+    specs = check_interventions(graph, interventions, model_dtype(model))
+    return Intervene(specs, bounds=action_bounds(graph, specs))(model)
 
 
 def simulate(
@@ -81,16 +109,19 @@ def simulate(
 
     Args:
         model: the program.
-        n: number of units.
+        n: number of units, >= 1.
         interventions: as for :func:`do`; None samples the observational distribution.
-        seed: seeds Pyro inside an isolated RNG context.
+        seed: seeds Pyro's sampling (torch's RNG) inside a forked RNG context; the
+            caller's torch, numpy and Python RNG states are left as they were.
 
     Returns:
         name -> ``(n, dim)`` tensors without autograd history.
     """
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-        raise ValueError(f"n must be a positive int, got {n!r}")
+    check_callable("model", model)
+    n = check_int("n", n, minimum=1)
+    seed = check_seed("seed", seed)
+    interventions = check_mapping("interventions", interventions, allow_none=True)
     program = do(model, interventions) if interventions else model
     with torch.random.fork_rng(), torch.no_grad():
-        pyro.set_rng_seed(seed)
+        torch.manual_seed(seed)
         return program(None, n)

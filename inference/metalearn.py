@@ -36,10 +36,24 @@ import torch
 from torch import Tensor, nn
 
 from inference.admissible import admissible_parents
-from inference.fit import fit
+from inference.fit import FIT_KWARGS, fit
+from models.checks import (
+    as_float_tensor,
+    check_float,
+    check_hidden,
+    check_int,
+    check_keywords,
+    check_mapping,
+    check_names,
+    check_seed,
+    describe,
+)
 from models.graph import CausalGraph
 from models.mechanisms import Mechanism, MLPMechanism
-from models.world import WorldModel, as_values
+from models.world import WorldModel, as_values, require_world_model
+
+#: The revision kinds :func:`revise` can try.
+KINDS = ("add_parent", "capacity", "split")
 
 __all__ = ["ResidualMonitor", "Revision", "SplitMechanism", "revise"]
 
@@ -52,8 +66,9 @@ class ResidualMonitor:
     Args:
         model: the world model whose non-roots are monitored.
         window: W, rows in the window.
-        tolerance: optional name -> reference sd s_i (the variable's units); default sigma_i.
-        threshold: a variable is high when m_i > threshold * dim_i.
+        tolerance: optional non-root name -> reference sd s_i > 0 (the variable's units;
+            a scalar or ``(dim,)``); default sigma_i.
+        threshold: a variable is high when m_i > threshold * dim_i (> 0).
         patience: consecutive high updates before it is flagged.
     """
 
@@ -65,21 +80,28 @@ class ResidualMonitor:
         threshold: float = 2.0,
         patience: int = 2,
     ) -> None:
-        if isinstance(window, bool) or not isinstance(window, int) or window < 1:
-            raise ValueError(f"window must be a positive int, got {window!r}")
-        if not threshold > 0:
-            raise ValueError(f"threshold must be > 0, got {threshold}")
-        if isinstance(patience, bool) or not isinstance(patience, int) or patience < 1:
-            raise ValueError(f"patience must be a positive int, got {patience!r}")
-        self.window, self.threshold, self.patience = window, float(threshold), patience
-        tol = dict(tolerance or {})
-        for name in tol:
+        model = require_world_model(model)
+        window = check_int("window", window, minimum=1)
+        threshold = check_float("threshold", threshold, minimum=0.0, min_open=True)
+        patience = check_int("patience", patience, minimum=1)
+        self.window, self.threshold, self.patience = window, threshold, patience
+        tol = dict(check_mapping("tolerance", tolerance, allow_none=True))
+        scales = {}
+        for name, value in tol.items():
             model.graph.check_name(name, what="tolerance variable")
+            if model.graph.is_root(name):
+                raise ValueError(f"tolerance names {name!r}, a root; only non-roots are monitored")
+            t = as_float_tensor(value, f"tolerance[{name!r}]", model.dtype).detach().reshape(-1)
+            dim = model.graph[name].dim
+            if t.numel() == 1:
+                t = t.expand(dim)
+            if t.numel() != dim or not bool((torch.isfinite(t) & (t > 0)).all()):
+                raise ValueError(
+                    f"tolerance[{name!r}] must be {dim} finite values > 0 (or one), got {describe(value)}"
+                )
+            scales[name] = t.clone()
         self.scale = {
-            n: torch.as_tensor(tol[n], dtype=torch.get_default_dtype()).expand(model.graph[n].dim).clone()
-            if n in tol
-            else model.sigma(n).detach().clone()
-            for n in model.graph.non_roots
+            n: scales[n] if n in scales else model.sigma(n).detach().clone() for n in model.graph.non_roots
         }
         self.dims = {n: model.graph[n].dim for n in model.graph.non_roots}
         self.history: dict[str, list[float]] = {n: [] for n in self.scale}
@@ -87,7 +109,11 @@ class ResidualMonitor:
 
     def update(self, model: WorldModel, values: Mapping[str, Any]) -> dict[str, float]:
         """Add rows (name -> ``(N, dim)`` for every variable) and return m_i per monitored variable."""
-        vals, _ = as_values(model.graph, values, what="values")
+        model = require_world_model(model)
+        vals, _ = as_values(model.graph, values, what="values", dtype=model.dtype)
+        missing = [v for v in model.graph.names if v not in vals]
+        if missing:
+            raise ValueError(f"values needs rows of every variable; missing {missing}")
         out = {}
         with torch.no_grad():
             for name in self.scale:
@@ -118,12 +144,17 @@ class SplitMechanism(Mechanism):
     kind = "split"
 
     def __init__(self, low: Mechanism, high: Mechanism, component: int, cut: float) -> None:
+        for what, mech in (("low", low), ("high", high)):
+            if not isinstance(mech, Mechanism):
+                raise ValueError(f"{what} regime must be a Mechanism, got {describe(mech)}")
         super().__init__(low.in_dim, low.out_dim)
         if (high.in_dim, high.out_dim) != (low.in_dim, low.out_dim):
             raise ValueError("both regimes of a split need the same input and output dims")
-        if not 0 <= component < low.in_dim:
+        component = check_int("component", component, minimum=0)
+        if not component < low.in_dim:
             raise ValueError(f"split component {component} out of range for in_dim {low.in_dim}")
-        self.low, self.high, self.component, self.cut = low, high, int(component), float(cut)
+        cut = check_float("cut", cut)
+        self.low, self.high, self.component, self.cut = low, high, component, cut
         self.log_sigma = nn.Parameter(torch.maximum(low.log_sigma, high.log_sigma).detach().clone())
 
     def forward(self, parents: Tensor) -> Tensor:
@@ -146,6 +177,7 @@ class Revision:
     n_val: int
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible fields."""
         return asdict(self)
 
 
@@ -170,9 +202,10 @@ def _trained(
     fit_kwargs: Mapping[str, Any],
 ) -> WorldModel:
     local = _local_graph(graph, child, parents)
-    with torch.random.fork_rng():  # new weights come from the fit seed, not the global RNG
-        torch.manual_seed(int(fit_kwargs.get("seed", 0)))
-        model = WorldModel(local, None if mech is None else {child: mech}, hidden=hidden)
+    # new weights come from the fit seed, not the global RNG
+    model = WorldModel(
+        local, None if mech is None else {child: mech}, seed=int(fit_kwargs.get("seed", 0)), hidden=hidden
+    )
     if mech is None or not isinstance(mech, SplitMechanism):
         fit(model, {k: v for k, v in train.items() if k in local}, variables=[child], **fit_kwargs)
     return model
@@ -215,7 +248,7 @@ def _split(
         parts.append(_trained(graph, child, parents, None, sub, hidden, fit_kwargs).mechanism(child))
     mech = SplitMechanism(parts[0], parts[1], k, cut)
     local = _local_graph(graph, child, parents)
-    model = WorldModel(local, {child: mech})
+    model = WorldModel(local, {child: mech}, seed=int(fit_kwargs.get("seed", 0)))
     with torch.no_grad():
         r = train[child] - model.loc(child, train)
         mech.set_sigma(r.pow(2).mean(0).sqrt().clamp_min(1e-6))
@@ -246,23 +279,43 @@ def revise(
         val_fraction: held-out share of the rows.
         min_gain: held-out log-likelihood gain (nats) a revision needs to be kept.
         hidden: hidden widths of new MLP mechanisms.
-        seed: seeds the split and the fits.
+        seed: seeds the split, the new weights and the fits (local generators).
         fit_kwargs: passed to :func:`inference.fit` (default: 60 epochs, batch 256).
 
     Returns:
         ``(revised model, log)``; the best accepted revision per variable is applied, and the
         revised mechanism is refitted on all rows.
+
+    Raises:
+        ValueError: bad data (see :func:`models.world.as_values`), missing columns, unknown
+            or root ``variables``, unknown kinds, or a bad setting.
     """
-    unknown = [k for k in kinds if k not in ("add_parent", "capacity", "split")]
+    model = require_world_model(model)
+    variables = check_names("variables", variables)
+    kinds = check_names("kinds", kinds, allow_empty=False)
+    unknown = [k for k in kinds if k not in KINDS]
     if unknown:
         raise ValueError(f"unknown revision kinds {unknown}; expected add_parent, capacity, split")
-    if not 0 < val_fraction < 1:
-        raise ValueError(f"val_fraction must be in (0, 1), got {val_fraction}")
-    vals, n = as_values(model.graph, data, what="data")
+    val_fraction = check_float(
+        "val_fraction", val_fraction, minimum=0.0, maximum=1.0, min_open=True, max_open=True
+    )
+    min_gain = check_float("min_gain", min_gain)
+    hidden = check_hidden(hidden)
+    seed = check_seed("seed", seed)
+    fit_kwargs = check_keywords("fit_kwargs", fit_kwargs, [k for k in FIT_KWARGS if k != "variables"])
+    for child in variables:
+        model.graph.check_name(child, what="variable to revise")
+        if model.graph.is_root(child):
+            raise ValueError(f"{child!r} is a root; only mechanisms can be revised")
+    vals, n = as_values(model.graph, data, what="data", dtype=model.dtype)
     missing = [v for v in model.graph.names if v not in vals]
     if missing:
         raise ValueError(f"revise needs rows of every variable; missing {missing}")
-    fkw = {"epochs": 60, "batch_size": 256, "seed": seed, **dict(fit_kwargs or {})}
+    if n < 4:
+        raise ValueError(
+            f"revise needs at least 4 rows of data to split into training and validation, got {n}"
+        )
+    fkw = {"epochs": 60, "batch_size": 256, "seed": seed, **fit_kwargs}
     perm = torch.randperm(n, generator=torch.Generator().manual_seed(seed))
     n_val = max(1, round(val_fraction * n))
     val = {k: v[perm[:n_val]] for k, v in vals.items()}
@@ -272,9 +325,6 @@ def revise(
     current = model
     log_: list[Revision] = []
     for child in variables:
-        graph.check_name(child, what="variable to revise")
-        if graph.is_root(child):
-            raise ValueError(f"{child!r} is a root; only mechanisms can be revised")
         parents = list(current.graph.parents(child))
         baseline = _trained(
             current.graph, child, parents, copy.deepcopy(current.mechanism(child)), train, hidden, fkw
@@ -293,9 +343,7 @@ def revise(
             mech = current.mechanism(child)
             width = max(getattr(mech, "hidden", hidden) or hidden)
             bigger = tuple([2 * width] * (len(getattr(mech, "hidden", hidden)) + 1))
-            with torch.random.fork_rng():
-                torch.manual_seed(seed)
-                cand_mech = MLPMechanism(mech.in_dim, mech.out_dim, hidden=bigger)
+            cand_mech = MLPMechanism(mech.in_dim, mech.out_dim, hidden=bigger, seed=seed)
             cand = _trained(current.graph, child, parents, cand_mech, train, hidden, fkw)
             candidates.append(("capacity", f"MLP hidden {list(bigger)}", cand, parents))
         if "split" in kinds and parents:
@@ -317,16 +365,11 @@ def revise(
         log_[log_.index(rev)] = Revision(**{**rev.to_dict(), "accepted": True})
         edited = current.graph.with_edges(add=[(p, child) for p in new_parents if p not in parents])
         mech = cand.mechanism(child)
-        with torch.random.fork_rng():
-            torch.manual_seed(seed)
-            fresh = current.with_graph(edited)
+        fresh = current.with_graph(edited, seed=seed)
         mechs = {v: fresh.mechanism(v) for v in edited.non_roots}
         mechs[child] = mech
-        current = WorldModel(edited, mechs, hidden=hidden)
-        for r in edited.roots:
-            if r in model.graph and edited[r].role.value != "action" and model.graph.is_root(r):
-                loc, scale = model.root_priors.get(r)
-                current.set_root_prior(r, loc, scale)
+        current = WorldModel(edited, mechs, seed=seed, hidden=hidden)
+        current.copy_root_priors_from(model)
         if not isinstance(mech, SplitMechanism):
             fit(current, {k: v for k, v in vals.items()}, variables=[child], **fkw)
         current.provenance = {

@@ -16,9 +16,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from inference.fit import FitResult, fit
+from inference.fit import FIT_KWARGS, FitResult, fit
+from models.checks import check_choice, check_int, check_keywords, check_mapping, check_names, check_seed
 from models.graph import CausalGraph
-from models.world import WorldModel
+from models.world import WorldModel, as_values, require_world_model
 
 __all__ = ["RewireResult", "evidence_groups", "fit_with_evidence", "rewire"]
 
@@ -49,11 +50,18 @@ def evidence_groups(
         ``[(names, rows)]`` with ``rows`` a ``(N,)`` bool mask; variables without a mask
         share the all-rows group.
     """
+    names = check_names("names", names)
+    n = check_int("n", n, minimum=1)
+    intervened = check_mapping("intervened", intervened, allow_none=True)
+    unknown = sorted(str(k) for k in intervened if k not in names)
+    if unknown:
+        raise ValueError(f"intervened names {unknown}, which are not among {names}")
     groups: dict[bytes, tuple[list[str], np.ndarray]] = {}
     for name in names:
         mask = np.ones(n, dtype=bool)
-        if intervened and name in intervened:
-            cut = np.asarray(intervened[name])
+        if name in intervened:
+            raw = intervened[name]
+            cut = raw.detach().cpu().numpy() if isinstance(raw, torch.Tensor) else np.asarray(raw)
             if cut.shape != (n,) or cut.dtype != bool:
                 raise ValueError(
                     f"intervened[{name!r}] has shape {cut.shape}, dtype {cut.dtype}; expected ({n},) bool"
@@ -72,13 +80,17 @@ def fit_with_evidence(
     **fit_kwargs: Any,
 ) -> tuple[FitResult, ...]:
     """:func:`inference.fit` of ``variables``, each on its own evidence rows."""
-    cols = {k: np.asarray(v) for k, v in data.items()}
-    n = len(next(iter(cols.values())))
+    model = require_world_model(model)
+    fit_kwargs = check_keywords("fit_kwargs", fit_kwargs, [k for k in FIT_KWARGS if k != "variables"])
+    cols, n = as_values(model.graph, data, what="data", dtype=model.dtype)
+    if n is None:
+        raise ValueError("data is empty; the refit needs name -> (N, dim) columns")
     out = []
     for names, rows in evidence_groups(variables, n, intervened):
         if int(rows.sum()) < 2:
             raise ValueError(f"{names} have {int(rows.sum())} evidence rows; need at least 2 to fit")
-        out.append(fit(model, {k: v[rows] for k, v in cols.items()}, variables=names, **fit_kwargs))
+        mask = torch.from_numpy(rows)
+        out.append(fit(model, {k: v[mask] for k, v in cols.items()}, variables=names, **fit_kwargs))
     return tuple(out)
 
 
@@ -100,19 +112,21 @@ def rewire(
         data: name -> ``(N, dim)`` columns for the refit; None only with ``refit="none"``.
         intervened: name -> ``(N,)`` bool, rows where the variable was set by ``do``.
         refit: ``"changed"`` (rewired and new mechanisms), ``"all"`` or ``"none"``.
-        seed: seeds the weights of new mechanisms and the refit.
+        seed: seeds the weights of new mechanisms and the refit (local generators).
         **fit_kwargs: passed to :func:`inference.fit` (epochs, lr, ...).
 
     Returns:
         :class:`RewireResult`.
     """
-    if refit not in REFIT:
-        raise ValueError(f"refit {refit!r} unknown; expected one of {REFIT}")
+    model = require_world_model(model)
+    refit = check_choice("refit", refit, REFIT)
+    seed = check_seed("seed", seed)
+    fit_kwargs = check_keywords(
+        "fit_kwargs", fit_kwargs, [k for k in FIT_KWARGS if k not in ("variables", "seed")]
+    )
     if refit != "none" and data is None:
         raise ValueError("data is needed to refit; pass refit='none' to only rewire")
-    with torch.random.fork_rng():  # new mechanisms draw from ``seed``, not the global RNG
-        torch.manual_seed(seed)
-        new = model.with_graph(graph)
+    new = model.with_graph(graph, seed=seed)  # new mechanisms draw from ``seed``, not the global RNG
     outcome = dict(new.provenance.get("warm_start", {}))
     targets = [v for v, how in outcome.items() if refit == "all" or how != "kept"]
     fits: tuple[FitResult, ...] = ()

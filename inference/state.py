@@ -27,8 +27,20 @@ from tqdm import tqdm
 from inference.frozen import frozen_parameters
 from inference.handlers import Intervene, MeasurementScale
 from inference.interventions import check_interventions
+from models.checks import (
+    as_float_tensor,
+    check_bool,
+    check_callable,
+    check_choice,
+    check_float,
+    check_int,
+    check_mapping,
+    check_seed,
+    describe,
+)
+from models.graph import CausalGraph
 from models.variables import Role
-from models.world import WorldModel, as_values
+from models.world import WorldModel, as_values, check_action_bounds, model_dtype
 
 __all__ = ["GUIDES", "StateResult", "infer_state"]
 
@@ -64,9 +76,8 @@ class StateResult:
 
     def interval(self, name: str, level: float = 0.9) -> tuple[Tensor, Tensor]:
         """Equal-tailed credible interval from the samples: two ``(N, dim)`` tensors."""
-        if not 0 < level < 1:
-            raise ValueError(f"level must be in (0, 1), got {level}")
-        if name not in self.samples:
+        level = check_float("level", level, minimum=0.0, maximum=1.0, min_open=True, max_open=True)
+        if not isinstance(name, str) or name not in self.samples:
             raise ValueError(f"{name!r} is not a latent site; latent: {list(self.latent)}")
         q = torch.tensor([(1 - level) / 2, (1 + level) / 2])
         lo, hi = torch.quantile(self.samples[name], q, dim=0)
@@ -76,7 +87,7 @@ class StateResult:
 def split_actions(
     model: WorldModel, observed: Mapping[str, Tensor]
 ) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
-    """Separate executed actions (applied as do, Eq. 4.30) from observed evidence."""
+    """Separate executed actions (applied as do, Eq. 4.30) from observed evidence: ``(evidence, actions)``."""
     acts = {k: v for k, v in observed.items() if model.graph[k].role is Role.ACTION}
     evidence = {k: v for k, v in observed.items() if k not in acts}
     return evidence, acts
@@ -113,30 +124,45 @@ def infer_state(
         num_steps, lr, lr_final: ClippedAdam with lr decaying geometrically to ``lr_final``.
         num_particles: vectorised ELBO particles per step.
         num_samples: posterior draws S returned in ``samples``.
-        init_scale: initial guide scale.
-        seed: seeds Pyro inside an isolated RNG context (the caller's RNG is untouched).
+        init_scale: initial guide scale, > 0.
+        seed: seeds Pyro's sampling (torch's RNG) inside a forked RNG context; the
+            caller's torch, numpy and Python RNG states are left as they were.
         progress_bar: show a tqdm bar.
 
     Returns:
         :class:`StateResult`.
+
+    Raises:
+        ValueError: bad evidence (see :func:`models.world.as_values`), executed actions
+            outside their bounds, bad interventions or measurement scales, or a bad
+            optimiser argument (type or range).
+        FloatingPointError: the ELBO became NaN or inf.
     """
-    if guide not in GUIDES:
-        raise ValueError(f"guide {guide!r} unknown; expected one of {sorted(GUIDES)}")
-    for name, value in (
-        ("num_steps", num_steps),
-        ("num_particles", num_particles),
-        ("num_samples", num_samples),
-    ):
-        if not isinstance(value, int) or value < 1:
-            raise ValueError(f"{name} must be a positive int, got {value!r}")
-    if not (lr > 0 and lr_final > 0):
-        raise ValueError(f"lr and lr_final must be > 0, got {lr}, {lr_final}")
-    graph = model.graph
-    obs, n = as_values(graph, observed, what="observed")
+    check_callable("model", model)
+    graph = getattr(model, "graph", None)
+    if not isinstance(graph, CausalGraph):
+        raise ValueError(
+            f"model must be a WorldModel (or a program with a CausalGraph `graph`), got {describe(model)}"
+        )
+    guide = check_choice("guide", guide, sorted(GUIDES))
+    num_steps = check_int("num_steps", num_steps, minimum=1)
+    num_particles = check_int("num_particles", num_particles, minimum=1)
+    num_samples = check_int("num_samples", num_samples, minimum=1)
+    lr = check_float("lr", lr, minimum=0.0, min_open=True)
+    lr_final = check_float("lr_final", lr_final, minimum=0.0, min_open=True)
+    init_scale = check_float("init_scale", init_scale, minimum=0.0, min_open=True)
+    seed = check_seed("seed", seed)
+    progress_bar = check_bool("progress_bar", progress_bar)
+    dtype = model_dtype(model)
+    obs, n = as_values(graph, observed, what="observed", dtype=dtype)
     if n is None:
         raise ValueError("observed is empty; state inference needs evidence")
+    check_action_bounds(graph, obs, "observed")
     evidence, acts = split_actions(model, obs)
-    ivs = {**acts, **check_interventions(graph, interventions or {})}
+    ivs = {
+        **acts,
+        **check_interventions(graph, check_mapping("interventions", interventions, allow_none=True), dtype),
+    }
     both = sorted(set(evidence) & set(ivs))
     if both:
         raise ValueError(f"variables {both} are both observed and intervened on; pick one")
@@ -144,18 +170,30 @@ def infer_state(
     if not latent:
         raise ValueError("every variable is observed or intervened on; there is no latent site to infer")
     program = Intervene(ivs)(model) if ivs else model
+    measurement_scale = check_mapping("measurement_scale", measurement_scale, allow_none=True)
     if measurement_scale:
-        unobserved = sorted(set(measurement_scale) - set(evidence))
-        if unobserved:
-            raise ValueError(f"measurement_scale names {unobserved}, which are not observed sites")
-        for name, scale in measurement_scale.items():
+        scales = {}
+        for name, raw in measurement_scale.items():
+            graph.check_name(name, what="measurement site")
+            scale = as_float_tensor(raw, f"measurement_scale[{name!r}]", dtype)
+            if scale.ndim not in (1, 2) or scale.shape[-1] != graph[name].dim:
+                raise ValueError(
+                    f"measurement_scale[{name!r}] has shape {tuple(scale.shape)}, expected (dim,) or "
+                    f"(N, dim), here ({graph[name].dim},) or ({n}, {graph[name].dim})"
+                )
             if scale.ndim == 2 and scale.shape[0] != n:
                 raise ValueError(f"measurement_scale[{name!r}] has {scale.shape[0]} rows, expected {n}")
-        program = MeasurementScale(measurement_scale)(program)
+            scales[name] = scale
+        unobserved = sorted(set(scales) - set(evidence))
+        if unobserved:
+            raise ValueError(f"measurement_scale names {unobserved}, which are not observed sites")
+        program = MeasurementScale(scales)(program)
 
     param_store = pyro.get_param_store()
+    # Pyro samples with torch's global RNG: fork it and seed inside, so the caller's
+    # state is restored afterwards (numpy's and Python's RNGs are never used).
     with param_store.scope() as param_state, torch.random.fork_rng(), frozen_parameters(model):
-        pyro.set_rng_seed(seed)
+        torch.manual_seed(seed)
         auto = GUIDES[guide](program, init_scale=init_scale)
         optim = ClippedAdam({"lr": lr, "lrd": (lr_final / lr) ** (1.0 / num_steps)})
         elbo = Trace_ELBO(

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import networkx as nx
 
+from models.checks import check_edges, check_float, check_mapping, describe
 from models.variables import Role, Variable
 
 if TYPE_CHECKING:
@@ -49,6 +50,8 @@ class CausalGraph:
         edges: Iterable[tuple[str, str]] = (),
         confidence: Mapping[tuple[str, str], float] | None = None,
     ) -> None:
+        if isinstance(variables, (str, bytes, Mapping)) or not isinstance(variables, Iterable):
+            raise ValueError(f"variables must be a sequence of Variable, got {describe(variables)}")
         variables = list(variables)
         for v in variables:
             if not isinstance(v, Variable):
@@ -63,11 +66,15 @@ class CausalGraph:
         self._index = {n: i for i, n in enumerate(names)}
         g = nx.DiGraph()
         g.add_nodes_from(names)
+        if isinstance(edges, (str, bytes, Mapping)) or not isinstance(edges, Iterable):
+            raise ValueError(f"edges must be a sequence of (parent, child) pairs, got {describe(edges)}")
         for edge in edges:
-            if len(edge) != 2:
+            if isinstance(edge, (str, bytes)) or not isinstance(edge, Sequence) or len(edge) != 2:
                 raise ValueError(f"edge {edge!r} is not a (parent, child) pair")
             parent, child = edge
             for end in (parent, child):
+                if not isinstance(end, str):
+                    raise ValueError(f"edge {edge!r} names {describe(end)}; expected variable names (str)")
                 if end not in self._variables:
                     raise ValueError(
                         f"edge {parent!r} -> {child!r} names unknown variable {end!r}; known: {names}"
@@ -96,11 +103,15 @@ class CausalGraph:
                     f"{v.dim}, got lag {src.lag}, dim {src.dim}"
                 )
         self._confidence: dict[tuple[str, str], float] = {}
-        for edge, value in dict(confidence or {}).items():
-            edge = tuple(edge)
-            if len(edge) != 2 or not g.has_edge(*edge):
+        for edge, value in dict(check_mapping("confidence", confidence, allow_none=True)).items():
+            if (
+                not isinstance(edge, tuple)
+                or len(edge) != 2
+                or not all(isinstance(e, str) for e in edge)
+                or not g.has_edge(*edge)
+            ):
                 raise ValueError(f"confidence given for {edge!r}, which is not an edge of the graph")
-            c = float(value)
+            c = check_float(f"confidence of edge {edge[0]!r} -> {edge[1]!r}", value)
             if not 0.0 <= c <= 1.0:
                 raise ValueError(
                     f"confidence of edge {edge[0]!r} -> {edge[1]!r} is {value!r}, expected [0, 1]"
@@ -143,7 +154,7 @@ class CausalGraph:
         Raises:
             ValueError: the edge is not in the graph.
         """
-        if not self._g.has_edge(parent, child):
+        if not (isinstance(parent, str) and isinstance(child, str) and self._g.has_edge(parent, child)):
             raise ValueError(f"{parent!r} -> {child!r} is not an edge of the graph")
         return self._confidence.get((parent, child))
 
@@ -162,6 +173,10 @@ class CausalGraph:
 
     def check_name(self, name: str, what: str = "variable") -> str:
         """Return ``name`` or raise a ValueError listing the known names."""
+        if not isinstance(name, str):
+            raise ValueError(
+                f"{what} name must be a str, got {describe(name)}; known variables: {list(self._variables)}"
+            )
         if name not in self._variables:
             raise ValueError(f"unknown {what} {name!r}; known variables: {list(self._variables)}")
         return name
@@ -175,9 +190,11 @@ class CausalGraph:
         return tuple(sorted(self._g.successors(self.check_name(name)), key=self._index.__getitem__))
 
     def ancestors(self, name: str) -> set[str]:
+        """Every variable with a directed path to ``name``."""
         return set(nx.ancestors(self._g, self.check_name(name)))
 
     def descendants(self, name: str) -> set[str]:
+        """Every variable with a directed path from ``name``."""
         return set(nx.descendants(self._g, self.check_name(name)))
 
     def topological_order(self) -> tuple[str, ...]:
@@ -185,10 +202,12 @@ class CausalGraph:
         return self._order
 
     def is_root(self, name: str) -> bool:
+        """True if ``name`` has no parents (an action or an exogenous/lag-1 input)."""
         return not self._parents[self.check_name(name)]
 
     @property
     def roots(self) -> tuple[str, ...]:
+        """Variables without parents, in topological order."""
         return tuple(n for n in self._order if not self._parents[n])
 
     @property
@@ -197,11 +216,15 @@ class CausalGraph:
         return tuple(n for n in self._order if self._parents[n])
 
     def by_role(self, role: Role | str) -> tuple[str, ...]:
+        """Names of the variables with this role, in declaration order."""
+        if not isinstance(role, str) or role not in [r.value for r in Role]:
+            raise ValueError(f"role {role!r} unknown; expected one of {[r.value for r in Role]}")
         role = Role(role)
         return tuple(n for n, v in self._variables.items() if v.role is role)
 
     @property
     def actions(self) -> tuple[str, ...]:
+        """Action variables V_act, in declaration order."""
         return self.by_role(Role.ACTION)
 
     @property
@@ -214,12 +237,13 @@ class CausalGraph:
         self, add: Iterable[tuple[str, str]] = (), remove: Iterable[tuple[str, str]] = ()
     ) -> CausalGraph:
         """A new graph with edges added and removed (validated as a whole)."""
-        remove = set(map(tuple, remove))
+        add = check_edges("add", add)
+        remove = set(check_edges("remove", remove))
         missing = remove - set(self.edges)
         if missing:
             raise ValueError(f"cannot remove edges {sorted(missing)}: not in the graph")
         edges = [e for e in self.edges if e not in remove]
-        edges += [tuple(e) for e in add if tuple(e) not in edges]
+        edges += [e for e in add if e not in edges]
         kept = {e: c for e, c in self._confidence.items() if e not in remove}
         return CausalGraph(list(self._variables.values()), edges, kept)
 
@@ -239,23 +263,45 @@ class CausalGraph:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> CausalGraph:
+        """Inverse of :meth:`to_dict`.
+
+        Raises:
+            ValueError: another format, missing or malformed ``variables``/``edges``/``confidence``.
+        """
         if not isinstance(data, Mapping) or data.get("format") != _FORMAT:
             got = data.get("format") if isinstance(data, Mapping) else type(data).__name__
             raise ValueError(f"not a causal graph description: format {got!r}, expected {_FORMAT!r}")
+        for key in ("variables", "edges"):
+            if key not in data:
+                raise ValueError(f"causal graph description has no {key!r} entry")
+            if isinstance(data[key], (str, Mapping)) or not isinstance(data[key], Sequence):
+                raise ValueError(f"causal graph {key!r} must be a list, got {describe(data[key])}")
         confidence = {}
-        for entry in data.get("confidence", []):
-            if not isinstance(entry, Sequence) or len(entry) != 3:
+        entries = data.get("confidence", [])
+        if isinstance(entries, (str, Mapping)) or not isinstance(entries, Sequence):
+            raise ValueError(f"causal graph 'confidence' must be a list, got {describe(entries)}")
+        for entry in entries:
+            if isinstance(entry, str) or not isinstance(entry, Sequence) or len(entry) != 3:
                 raise ValueError(f"confidence entry {entry!r} is not [parent, child, value]")
             confidence[entry[0], entry[1]] = entry[2]
+        for v in data["variables"]:
+            if not isinstance(v, Mapping):
+                raise ValueError(f"causal graph variable entry {v!r} is not a mapping")
         return cls(
-            [Variable.from_dict(v) for v in data["variables"]], [tuple(e) for e in data["edges"]], confidence
+            [Variable.from_dict(v) for v in data["variables"]],
+            [tuple(e) if isinstance(e, list) else e for e in data["edges"]],
+            confidence,
         )
 
     def to_json(self, indent: int | None = 2) -> str:
+        """:meth:`to_dict` as JSON text (keys sorted)."""
         return json.dumps(self.to_dict(), indent=indent, sort_keys=True)
 
     @classmethod
     def from_json(cls, text: str) -> CausalGraph:
+        """Parse :meth:`to_json` output."""
+        if not isinstance(text, (str, bytes)):
+            raise ValueError(f"causal graph JSON must be a str, got {describe(text)}")
         try:
             data = json.loads(text)
         except json.JSONDecodeError as err:

@@ -15,6 +15,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from models.checks import check_float, check_int, check_mapping, check_names, check_seed, describe
 from models.graph import CausalGraph
 from models.variables import Role, Variable
 
@@ -51,14 +52,17 @@ def joint_chain_graph(
         variant: ``"thesis"`` (Fig. 5.5) or ``"state"`` (adds ``q_prev.j -> dq.j``).
         q_ranges: optional joint -> (low, high) angle range, rad, stored as bounds of q and q_prev.
     """
-    if variant not in GRAPH_VARIANTS:
+    if not isinstance(variant, str) or variant not in GRAPH_VARIANTS:
         raise ValueError(f"graph variant {variant!r} unknown; expected one of {GRAPH_VARIANTS}")
-    if not joints:
-        raise ValueError("joints is empty; expected at least one joint name")
+    joints = check_names("joints", joints, allow_empty=False)
+    action_ranges = check_mapping("action_ranges", action_ranges)
     missing = [j for j in joints if j not in action_ranges]
     if missing:
         raise ValueError(f"no action range for joints {missing}")
-    q_ranges = dict(q_ranges or {})
+    q_ranges = dict(check_mapping("q_ranges", q_ranges, allow_none=True))
+    unknown = sorted(str(j) for j in q_ranges if j not in joints)
+    if unknown:
+        raise ValueError(f"q_ranges names unknown joints {unknown}; joints: {joints}")
     variables: list[Variable] = []
     edges: list[tuple[str, str]] = []
     for j in joints:
@@ -91,6 +95,8 @@ def joint_chain_graph(
 
 def finger_graph(variant: str = "thesis", joint: str = "finger") -> CausalGraph:
     """Thesis Fig. 5.5 for the left finger (``variant="thesis"``), or with q_prev -> dq (``"state"``)."""
+    if not isinstance(joint, str):
+        raise ValueError(f"joint must be a joint name (str), got {describe(joint)}")
     return joint_chain_graph(
         [joint], {joint: FINGER_ACTION_RANGE}, variant=variant, q_ranges={joint: FINGER_Q_RANGE}
     )
@@ -110,11 +116,18 @@ def random_graph(d: int, expected_parents: float = 2.0, seed: int = 0, prefix: s
     Each pair (i < j in a random causal order) is an edge with probability
     ``expected_parents * 2 / (d - 1)`` capped at 1, so a node has ``expected_parents`` parents
     on average. Roots are observed, the rest latent.
+
+    Args:
+        d: number of variables, >= 2.
+        expected_parents: mean number of parents, > 0.
+        seed: seeds the local numpy generator (the global RNG is not touched).
+        prefix: name prefix.
     """
-    if d < 2:
-        raise ValueError(f"d must be >= 2, got {d}")
-    if not expected_parents > 0:
-        raise ValueError(f"expected_parents must be > 0, got {expected_parents}")
+    d = check_int("d", d, minimum=2)
+    expected_parents = check_float("expected_parents", expected_parents, minimum=0.0, min_open=True)
+    seed = check_seed("seed", seed)
+    if not isinstance(prefix, str):
+        raise ValueError(f"prefix must be a str, got {describe(prefix)}")
     rng = np.random.default_rng(seed)
     order = rng.permutation(d)
     p = min(1.0, 2.0 * expected_parents / (d - 1))
@@ -153,10 +166,8 @@ def pushing_graph(
     ``meas.o`` is the measurement site through which perceived positions enter the model;
     ``pos.o`` is the true (latent) position. ``pos_prev.o`` is the previous step's estimate.
     """
-    if object_dim not in (2, 3):
-        raise ValueError(f"object_dim must be 2 (table plane) or 3, got {object_dim}")
-    if not objects:
-        raise ValueError("objects is empty; expected at least one object name")
+    object_dim = check_int("object_dim", object_dim, minimum=2, maximum=3)
+    objects = check_names("objects", objects, allow_empty=False)
     clash = sorted(set(objects) & {"hand", "hand_prev"})
     if clash:
         raise ValueError(f"object names {clash} clash with the hand variables")

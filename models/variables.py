@@ -8,11 +8,16 @@ lag. ``lag=1`` marks the value of ``lag_of`` at the previous interaction step t-
 from __future__ import annotations
 
 import math
+import numbers
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
+
+import numpy as np
+
+from models.checks import check_int, describe
 
 __all__ = ["Role", "Variable"]
 
@@ -27,16 +32,28 @@ class Role(StrEnum):
     LATENT = "latent"
 
 
+def _number(value: Any) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
 def _as_bounds(value: Any, dim: int, name: str) -> tuple[tuple[float, ...], tuple[float, ...]] | None:
     if value is None:
         return None
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
     if not isinstance(value, Sequence) or isinstance(value, str) or len(value) != 2:
         raise ValueError(f"variable {name!r}: bounds must be a pair (low, high), got {value!r}")
     sides = []
     for side in value:
-        if isinstance(side, (int, float)):
+        if isinstance(side, np.ndarray):
+            side = side.tolist()
+        if _number(side):
             side = (float(side),) * dim
         else:
+            if isinstance(side, str) or not isinstance(side, Sequence) or not all(_number(s) for s in side):
+                raise ValueError(
+                    f"variable {name!r}: bounds side {side!r} is not a number or a sequence of {dim} numbers"
+                )
             side = tuple(float(s) for s in side)
             if len(side) != dim:
                 raise ValueError(
@@ -86,16 +103,24 @@ class Variable:
                 f"variable name {self.name!r} is not valid; expected letters, digits and "
                 "underscores, optionally dotted (e.g. 'q' or 'q.finger')"
             )
-        try:
-            object.__setattr__(self, "role", Role(self.role))
-        except ValueError:
+        if not isinstance(self.role, str) or self.role not in [r.value for r in Role]:
             raise ValueError(
                 f"variable {self.name!r}: role {self.role!r} is not one of {[r.value for r in Role]}"
-            ) from None
-        if isinstance(self.dim, bool) or not isinstance(self.dim, int) or self.dim < 1:
-            raise ValueError(f"variable {self.name!r}: dim must be a positive int, got {self.dim!r}")
-        if self.lag not in (0, 1):
-            raise ValueError(f"variable {self.name!r}: lag must be 0 or 1, got {self.lag!r}")
+            )
+        object.__setattr__(self, "role", Role(self.role))
+        object.__setattr__(self, "dim", check_int(f"variable {self.name!r}: dim", self.dim, minimum=1))
+        object.__setattr__(
+            self, "lag", check_int(f"variable {self.name!r}: lag", self.lag, minimum=0, maximum=1)
+        )
+        for key in ("unit", "description"):
+            if not isinstance(getattr(self, key), str):
+                raise ValueError(
+                    f"variable {self.name!r}: {key} must be a str, got {describe(getattr(self, key))}"
+                )
+        if self.lag_of is not None and not isinstance(self.lag_of, str):
+            raise ValueError(
+                f"variable {self.name!r}: lag_of must be a variable name or None, got {describe(self.lag_of)}"
+            )
         object.__setattr__(self, "bounds", _as_bounds(self.bounds, self.dim, self.name))
         if self.role is Role.ACTION:
             if self.bounds is None:
@@ -134,8 +159,10 @@ class Variable:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Variable:
         """Inverse of :meth:`to_dict`."""
+        if not isinstance(data, Mapping):
+            raise ValueError(f"variable entry must be a mapping, got {describe(data)}")
         known = {"name", "role", "dim", "bounds", "unit", "lag", "lag_of", "description"}
-        unknown = set(data) - known
+        unknown = {str(k) for k in data if k not in known}
         if unknown:
             raise ValueError(f"unknown variable fields {sorted(unknown)}; expected {sorted(known)}")
         if "name" not in data or "role" not in data:

@@ -1,126 +1,51 @@
-"""``TransitionDataset``: motor-babbling transitions as columnar ``.npz`` chunks + JSON metadata.
+"""``TransitionDataset``: motor-babbling transitions as columnar ``.npz`` chunks + a JSON manifest.
 
-On disk a dataset is a directory::
-
-    metadata.json         body, MJCF hash, timestep, frame skip, joints, actuators, policy,
-                          seed, chunk size, library versions, and (when done) n_rows
-    chunk_000000.npz      rows [0, n0)
-    chunk_000001.npz      rows [n0, n0 + n1) ...
-
-Each chunk holds, for its rows (no pickled objects; read with ``allow_pickle=False``):
-
-- per joint j the columns ``act.<j>``, ``q_prev.<j>``, ``dq.<j>``, ``q.<j>``: float32
-  ``(n, 1)``; rad for hinges (m for slides); ``act.<j>`` is the command of the actuator
-  driving joint j (dimensionless ctrl), ``dq = q - q_prev`` computed in float64;
-- ``ctrl``: float32 ``(n, n_actuators)``, the full applied command (for replay);
-- ``state``: float64 ``(n, state_size)``, the MuJoCo state before each step
-  (``mjSTATE_FULLPHYSICS | mjSTATE_WARMSTART``);
-- ``step``, ``episode``: int64 ``(n,)``, global step index and episode index;
-- ``__chunk__``: UTF-8 JSON with the chunk index, first row, row count, a SHA-256
-  checksum of the arrays, and what a resumed run needs (RNG and simulator state).
-
-Every file is written to a temp file and renamed into place (``os.replace``), so an
-interrupted run leaves only complete chunks. This module imports neither ``models``,
-``inference`` nor MuJoCo.
+The directory layout, the chunk format and the manifest checks are in
+:mod:`pal.dataset_files`. :class:`DatasetWriter` writes a dataset chunk by chunk, atomically,
+and can continue an interrupted run; one writer at a time may write a directory (a lock file,
+:mod:`pal.locks`; a stale lock of a killed writer is taken over with a warning).
+:meth:`TransitionDataset.load` verifies every chunk against the manifest. This module
+imports neither ``models``, ``inference`` nor MuJoCo.
 """
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
-import zipfile
-from collections.abc import Callable, Mapping, Sequence
+import uuid
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
 import numpy as np
 
-from pal.files import atomic_write
-from pal.files import versions as _versions
+from pal.dataset_files import (
+    CHUNK_FORMAT,
+    FORMAT,
+    METADATA,
+    ROW_ARRAYS,
+    DatasetFileError,
+    chunk_files,
+    chunk_name,
+    column_names,
+    read_chunk,
+    read_metadata,
+    verify_chunks,
+)
+from pal.files import DEFAULT_LIMITS, ReadLimits, atomic_write_json, check_json, versions, write_npz
+from pal.locks import LOCK_NAME, DirectoryLock, DirectoryLockedError
 
 __all__ = [
+    "CHUNK_FORMAT",
     "FORMAT",
+    "METADATA",
     "DatasetFileError",
     "DatasetWriter",
+    "DirectoryLockedError",
     "TransitionDataset",
     "column_names",
-    "versions",
+    "read_chunk",
 ]
-
-FORMAT = "pal.transitions/1"
-METADATA = "metadata.json"
-_CHUNK_META = "__chunk__"
-_KINDS = ("act", "q_prev", "dq", "q")
-_ROW_ARRAYS = ("ctrl", "state", "step", "episode")
-
-
-class DatasetFileError(ValueError):
-    """A dataset file is missing, truncated, corrupted, or inconsistent with its metadata."""
-
-
-def versions() -> dict[str, str]:
-    """Versions of Python and of the libraries a dataset depends on."""
-    return _versions(("pal", "numpy", "mujoco", "gymnasium"))
-
-
-def column_names(joints: Sequence[str], actuated: Sequence[str] | None = None) -> list[str]:
-    """Column names per joint, in order: ``act.j`` (if j is actuated), ``q_prev.j``, ``dq.j``, ``q.j``."""
-    actuated = set(joints if actuated is None else actuated)
-    return [f"{k}.{j}" for j in joints for k in _KINDS if k != "act" or j in actuated]
-
-
-def _checksum(arrays: Mapping[str, np.ndarray]) -> str:
-    h = hashlib.sha256()
-    for key in sorted(arrays):
-        a = np.ascontiguousarray(arrays[key])
-        h.update(f"{key}|{a.dtype.str}|{a.shape}".encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
-
-
-def _read_json(path: Path) -> dict[str, Any]:
-    if not path.is_file():
-        raise DatasetFileError(f"{path} does not exist; is {path.parent} a dataset directory?")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise DatasetFileError(f"{path} is not readable JSON ({type(err).__name__}: {err})") from None
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise DatasetFileError(
-            f"{path}: format {data.get('format') if isinstance(data, dict) else None!r}, expected {FORMAT!r}"
-        )
-    return data
-
-
-def read_chunk(path: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """Read and verify one chunk file.
-
-    Returns:
-        ``(chunk_metadata, arrays)``.
-
-    Raises:
-        DatasetFileError: truncated, corrupted (checksum), or not a chunk; names the file.
-    """
-    path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            arrays = {k: npz[k] for k in npz.files}
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError, KeyError) as err:
-        raise DatasetFileError(f"{path} is truncated or corrupted ({type(err).__name__}: {err})") from None
-    if _CHUNK_META not in arrays:
-        raise DatasetFileError(f"{path} has no {_CHUNK_META} entry; it is not a transition chunk")
-    try:
-        meta = json.loads(arrays.pop(_CHUNK_META).tobytes().decode())
-    except (UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise DatasetFileError(f"{path}: chunk metadata is corrupted ({err})") from None
-    if _checksum(arrays) != meta.get("checksum"):
-        raise DatasetFileError(f"{path}: checksum mismatch; the arrays are corrupted")
-    return meta, arrays
-
-
-def _chunk_files(root: Path) -> list[Path]:
-    return sorted(root.glob("chunk_*.npz"))
 
 
 class TransitionDataset:
@@ -229,35 +154,30 @@ class TransitionDataset:
 
     # ------------------------------------------------------------------ loading
     @classmethod
-    def load(cls, root: str | os.PathLike[str]) -> TransitionDataset:
-        """Read a dataset directory written by :class:`DatasetWriter`.
+    def load(cls, root: str | os.PathLike[str], *, limits: ReadLimits = DEFAULT_LIMITS) -> TransitionDataset:
+        """Read a dataset directory written by :class:`DatasetWriter`, verifying the manifest.
+
+        Args:
+            root: the dataset directory.
+            limits: size limits per chunk file, checked before anything is inflated.
 
         Raises:
-            DatasetFileError: missing or corrupted metadata or chunk, or chunks that do not
-                follow each other; the message names the file.
+            DatasetFileError: missing or corrupted metadata or chunk, a chunk missing from
+                the manifest's row ranges, a chunk of another run, or a replaced chunk; the
+                message names the file.
         """
         root = Path(root)
-        meta = _read_json(root / METADATA)
-        parts: list[dict[str, np.ndarray]] = []
-        expected = 0
-        for i, path in enumerate(_chunk_files(root)):
-            cmeta, arrays = read_chunk(path)
-            if cmeta.get("index") != i or cmeta.get("start") != expected:
-                raise DatasetFileError(
-                    f"{path}: chunk {cmeta.get('index')} starts at row {cmeta.get('start')}, expected chunk {i} "
-                    f"at row {expected}; a chunk file is missing or foreign"
-                )
-            names = meta["columns"]
-            missing = [k for k in (*names, *_ROW_ARRAYS) if k not in arrays]
+        meta = read_metadata(root)
+        _, chunks = verify_chunks(root, meta, limits)
+        if not chunks:
+            raise DatasetFileError(f"{root} holds no complete chunk file (chunk_*.npz)")
+        for (_, arrays), path in zip(chunks, chunk_files(root), strict=True):
+            missing = [k for k in meta["columns"] if k not in arrays]
             if missing:
                 raise DatasetFileError(f"{path}: missing arrays {missing}")
-            parts.append(arrays)
-            expected += int(cmeta["rows"])
-        if not parts:
-            raise DatasetFileError(f"{root} holds no complete chunk file (chunk_*.npz)")
 
         def cat(key: str) -> np.ndarray:
-            return np.concatenate([p[key] for p in parts])
+            return np.concatenate([arrays[key] for _, arrays in chunks])
 
         return cls(
             {k: cat(k) for k in meta["columns"]}, cat("ctrl"), cat("state"), cat("step"), cat("episode"), meta
@@ -267,10 +187,15 @@ class TransitionDataset:
 class DatasetWriter:
     """Writes a dataset directory chunk by chunk, atomically; can continue an interrupted one.
 
+    The writer holds the directory's lock (:mod:`pal.locks`) from construction until
+    :meth:`finish` or :meth:`close`; use it as a context manager so that an exception
+    releases it too.
+
     Args:
         root: the dataset directory.
-        metadata: JSON-compatible description (``format``, ``columns`` and ``versions`` are
-            added). On resume, it must match the stored one except for ``steps``.
+        metadata: JSON-compatible description with ``columns``, the per-joint column names
+            (``format``, ``run_id``, the manifest and ``versions`` are added). On resume, it
+            must match the stored one except for ``steps``.
         resume: continue the dataset in ``root`` if there is one. Without it, a directory
             that already holds a dataset is an error.
 
@@ -278,38 +203,56 @@ class DatasetWriter:
         resume_info: what the last complete chunk recorded for resuming (``None`` when
             starting fresh).
         rows: number of rows already on disk.
+        run_id: the run's id (random for a fresh run, the stored one on resume).
+
+    Raises:
+        DirectoryLockedError: another writer holds ``root``.
+        ValueError: ``root`` holds a dataset and not ``resume``, the configuration differs,
+            or the metadata is not strict JSON.
+        DatasetFileError: a stored file is corrupted, missing or foreign.
     """
 
     def __init__(
         self, root: str | os.PathLike[str], metadata: Mapping[str, Any], *, resume: bool = False
     ) -> None:
         self.root = Path(root)
-        try:  # a JSON round trip, so that the stored and the current metadata compare equal
-            self.metadata = json.loads(
-                json.dumps({"format": FORMAT, **dict(metadata), "versions": versions()})
+        meta = {"format": FORMAT, **dict(metadata), "versions": versions()}
+        check_json(meta, "dataset metadata")
+        columns = meta.get("columns")
+        if not isinstance(columns, list) or not all(isinstance(c, str) for c in columns):
+            raise ValueError(
+                f"dataset metadata needs 'columns', the list of column names (see column_names), got {columns!r}"
             )
-        except TypeError as err:
-            raise ValueError(f"dataset metadata is not JSON-serialisable: {err}") from None
+        self.metadata: dict[str, Any] = json.loads(json.dumps(meta))  # compares equal to the stored one
+        for key in ("n_rows", "complete", "chunks", "run_id"):
+            self.metadata.pop(key, None)
         self.resume_info: dict[str, Any] | None = None
         self.rows = 0
-        self._index = 0
-        existing = (self.root / METADATA).exists() or bool(_chunk_files(self.root))
-        if existing and not resume:
-            raise ValueError(
-                f"{self.root} already holds a dataset; pass resume=True (pal babble --resume) to continue it, or use an empty directory"
-            )
-        if existing:
-            self._resume()
-        atomic_write(self.root / METADATA, self._json_writer(self.metadata))
+        self._chunks: list[dict[str, Any]] = []
+        self._lock = DirectoryLock(self.root, LOCK_NAME)
+        self._lock.acquire()
+        try:
+            existing = (self.root / METADATA).exists() or bool(chunk_files(self.root))
+            if existing and not resume:
+                raise ValueError(
+                    f"{self.root} already holds a dataset; pass resume=True (pal babble --resume) to continue it, or use an empty directory"
+                )
+            if existing:  # the stored metadata stays as it is until the next chunk
+                self.run_id = self._resume()
+            else:
+                self.run_id = uuid.uuid4().hex
+                self._write_metadata()
+        except BaseException:
+            self._lock.release()
+            raise
 
-    @staticmethod
-    def _json_writer(data: Mapping[str, Any]) -> Callable[[BinaryIO], Any]:
-        text = json.dumps(data, indent=2, sort_keys=True) + "\n"
-        return lambda fh: fh.write(text.encode())
+    def _write_metadata(self) -> None:
+        meta = {**self.metadata, "run_id": self.run_id, "chunks": self._chunks}
+        atomic_write_json(self.root / METADATA, meta, name="dataset metadata")
 
-    def _resume(self) -> None:
-        stored = _read_json(self.root / METADATA)
-        ignore = {"steps", "versions", "n_rows", "complete", "mjcf_path"}
+    def _resume(self) -> str:
+        stored = read_metadata(self.root)
+        ignore = {"steps", "versions", "n_rows", "complete", "mjcf_path", "chunks", "run_id"}
         keys = (set(stored) | set(self.metadata)) - ignore
         diff = sorted(k for k in keys if stored.get(k) != self.metadata.get(k))
         if diff:
@@ -317,21 +260,22 @@ class DatasetWriter:
             raise ValueError(f"cannot resume {self.root}: its configuration differs ({detail})")
         for tmp in self.root.glob(".chunk_*.tmp"):
             tmp.unlink()  # the chunk an interrupted run was writing
-        files = _chunk_files(self.root)
-        for i, path in enumerate(files):
-            cmeta, _ = read_chunk(path)
-            if cmeta.get("index") != i or cmeta.get("start") != self.rows:
-                raise DatasetFileError(
-                    f"{path}: chunk {cmeta.get('index')} at row {cmeta.get('start')} does not follow chunk {i - 1}"
-                )
-            self.rows += int(cmeta["rows"])
-            self.resume_info = cmeta.get("resume")
-        self._index = len(files)
+        stored.pop("n_rows", None)  # an extension may add chunks after the finished ones
+        self._chunks, chunks = verify_chunks(self.root, stored, DEFAULT_LIMITS)
+        for cmeta, _ in chunks:
+            self.rows += cmeta["rows"]
+            self.resume_info = cmeta["resume"]
+        return str(stored["run_id"])
+
+    @property
+    def closed(self) -> bool:
+        """True after :meth:`finish` or :meth:`close` (the lock is released)."""
+        return not self._lock.held
 
     def write_chunk(
         self, columns: Mapping[str, np.ndarray], rows: Mapping[str, np.ndarray], resume: Mapping[str, Any]
     ) -> Path:
-        """Write the next chunk.
+        """Write the next chunk, then record it in the manifest.
 
         Args:
             columns: name -> ``(n, 1)`` float32 for every name in ``metadata["columns"]``.
@@ -340,27 +284,58 @@ class DatasetWriter:
 
         Returns:
             The chunk's path.
+
+        Raises:
+            ValueError: the writer is closed, or arrays are missing or of unequal length.
         """
+        if self.closed:
+            raise ValueError(f"the writer of {self.root} is closed")
+        expected = list(self.metadata["columns"])
+        if sorted(columns) != sorted(expected):
+            raise ValueError(
+                f"columns {sorted(columns)} differ from the dataset's columns {sorted(expected)}"
+            )
+        missing = [k for k in ROW_ARRAYS if k not in rows]
+        if missing:
+            raise ValueError(f"rows lack the arrays {missing}; expected {list(ROW_ARRAYS)}")
         arrays = {
-            **{k: np.asarray(v) for k, v in columns.items()},
-            **{k: np.asarray(rows[k]) for k in _ROW_ARRAYS},
+            **{k: np.asarray(columns[k]) for k in expected},
+            **{k: np.asarray(rows[k]) for k in ROW_ARRAYS},
         }
         n = len(arrays["step"])
-        meta = {
-            "format": FORMAT,
-            "index": self._index,
+        bad = {k: a.shape for k, a in arrays.items() if a.ndim == 0 or a.shape[0] != n}
+        if bad or n == 0:
+            raise ValueError(f"chunk arrays {bad} do not all have the {n} rows of 'step' (n >= 1)")
+        index = len(self._chunks)
+        meta = {"run_id": self.run_id, "index": index, "start": self.rows, "rows": n, "resume": dict(resume)}
+        path = write_npz(self.root / chunk_name(index), arrays, meta, format=CHUNK_FORMAT)
+        cmeta, _ = read_chunk(path)  # read back: verifies the file and gives its checksum
+        entry = {
+            "file": path.name,
+            "index": index,
             "start": self.rows,
             "rows": n,
-            "checksum": _checksum(arrays),
-            "resume": dict(resume),
+            "checksum": cmeta["checksum"],
         }
-        arrays[_CHUNK_META] = np.frombuffer(json.dumps(meta, sort_keys=True).encode(), dtype=np.uint8)
-        path = atomic_write(self.root / f"chunk_{self._index:06d}.npz", lambda fh: np.savez(fh, **arrays))
-        self._index += 1
+        self._chunks.append(entry)
         self.rows += n
+        self._write_metadata()
         return path
 
     def finish(self, steps: int) -> None:
-        """Record the final row count in ``metadata.json``."""
+        """Record the final row count in ``metadata.json`` and release the lock."""
+        if self.closed:
+            raise ValueError(f"the writer of {self.root} is closed")
         self.metadata.update(n_rows=self.rows, complete=self.rows >= steps)
-        atomic_write(self.root / METADATA, self._json_writer(self.metadata))
+        self._write_metadata()
+        self.close()
+
+    def close(self) -> None:
+        """Release the lock without marking the dataset finished (idempotent)."""
+        self._lock.release()
+
+    def __enter__(self) -> DatasetWriter:
+        return self
+
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
+        self.close()

@@ -17,6 +17,18 @@ import pytest
 import torch
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _private_cache(tmp_path_factory):
+    """Experiments cache babbling data; tests keep theirs out of the user's cache directory."""
+    previous = os.environ.get("PAL_CACHE_DIR")
+    os.environ["PAL_CACHE_DIR"] = str(tmp_path_factory.mktemp("pal-cache"))
+    yield
+    if previous is None:
+        os.environ.pop("PAL_CACHE_DIR", None)
+    else:
+        os.environ["PAL_CACHE_DIR"] = previous
+
+
 @pytest.fixture(autouse=True)
 def _seed_everything():
     pyro.set_rng_seed(0)

@@ -95,3 +95,124 @@ def test_no_print_or_show_in_library_code(path):
                 else ""
             )
             assert name not in ("print", "show"), f"{path}:{node.lineno} calls {name}()"
+
+
+# ---------------------------------------------------------------------------- module import graph
+PACKAGES = ("pal", "models", "inference")
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+MODULES = {module_name(p): p for package in PACKAGES for p in sources(package)}
+
+
+def _resolve(name: str) -> str | None:
+    """The known module ``name`` refers to (itself, or its longest known parent)."""
+    while name and name not in MODULES:
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+def _type_checking_only(tree: ast.AST) -> set[int]:
+    """ids of import nodes inside ``if TYPE_CHECKING:`` blocks (never executed)."""
+    skip: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            skip |= {id(n) for stmt in node.body for n in ast.walk(stmt)}
+    return skip
+
+
+def module_imports(name: str, source: str | None = None, is_package: bool | None = None) -> set[str]:
+    """Modules of pal/models/inference that module ``name`` imports anywhere: top level, in
+    functions, absolute or relative (``if TYPE_CHECKING:`` blocks excluded)."""
+    path = MODULES.get(name)
+    if source is None or is_package is None:
+        assert path is not None, name
+        source, is_package = path.read_text(), path.name == "__init__.py"
+    tree = ast.parse(source)
+    skip = _type_checking_only(tree)
+    package = name if is_package else name.rpartition(".")[0]
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")
+                anchor = anchor[: len(anchor) - (node.level - 1)]
+                base = ".".join([*anchor, *([node.module] if node.module else [])])
+            targets = [
+                f"{base}.{alias.name}" if f"{base}.{alias.name}" in MODULES else base for alias in node.names
+            ]
+        else:
+            continue
+        out |= {t for t in map(_resolve, targets) if t is not None and t != name}
+    return out
+
+
+GRAPH = {name: module_imports(name) for name in MODULES}
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import cycle as ``[a, b, ..., a]``, or None (iterative DFS with colours)."""
+    state: dict[str, int] = {}
+    for start in sorted(graph):
+        if state.get(start):
+            continue
+        stack = [(start, iter(sorted(graph[start])))]
+        path, state[start] = [start], 1
+        while stack:
+            node, children = stack[-1]
+            child = next(children, None)
+            if child is None:
+                stack.pop()
+                path.pop()
+                state[node] = 2
+            elif state.get(child) == 1:
+                return [*path[path.index(child) :], child]
+            elif not state.get(child):
+                state[child] = 1
+                path.append(child)
+                stack.append((child, iter(sorted(graph.get(child, ())))))
+    return None
+
+
+def test_the_import_graph_sees_function_level_and_relative_imports():
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": set(), "c": {"a", "b"}}) is None
+    assert "pal.files" in GRAPH["pal.data"] | GRAPH["pal.dataset_files"]
+    snippet = (
+        "from typing import TYPE_CHECKING\n"
+        "from . import tum\n"
+        "from .. import files\n"
+        "from ..sim.env import BabblingEnv\n"
+        "if TYPE_CHECKING:\n"
+        "    import models.world\n"
+        "def f():\n"
+        "    import pal.frames\n"
+        "    from pal.perception import frames\n"
+    )
+    assert module_imports("pal.perception.sequence", snippet, False) == {
+        "pal.perception.tum",
+        "pal.files",
+        "pal.sim.env",
+        "pal.frames",
+        "pal.perception.frames",
+    }
+
+
+def test_there_are_no_import_cycles():
+    cycle = find_cycle(GRAPH)
+    assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
+
+
+@pytest.mark.parametrize("name", sorted(n for n in MODULES if n.startswith("pal.sim")))
+def test_the_body_does_not_import_the_senses(name):
+    senses = sorted(m for m in GRAPH[name] if m == "pal.perception" or m.startswith("pal.perception."))
+    assert not senses, f"{name} imports {senses}; share code through pal.frames / pal.sequence_files"

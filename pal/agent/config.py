@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
+from pal.checks import check_choice, check_float, check_int
 from pal.perception import PipelineConfig
 
 __all__ = ["AgentConfig"]
@@ -14,11 +15,10 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class AgentConfig:
-    """Settings of the loop.
+    """Settings of the loop (the seed is an argument of :class:`pal.agent.Agent`, not a setting).
 
     Attributes:
         objects: object slots, largest object first.
-        seed: master seed (actions, targets, inference seeds, episode resets).
         top_surface: object positions are the centres of their top surfaces, from Π's masks and
             the depth (:func:`pal.agent.perception.top_centre`); False: Π's positions as reported.
         perception: configuration of Π.
@@ -46,9 +46,8 @@ class AgentConfig:
     """
 
     objects: tuple[str, ...] = ("box", "ball")
-    seed: int = 0
     top_surface: bool = True
-    perception: PipelineConfig = field(default_factory=lambda: PipelineConfig(relations=None))
+    perception: PipelineConfig = PipelineConfig(relations=None)
     hidden: tuple[int, ...] = (64, 64)
     epochs: int = 150
     batch_size: int = 256
@@ -76,18 +75,30 @@ class AgentConfig:
     refit_every: int = 100
 
     def __post_init__(self) -> None:
+        objects = (self.objects,) if isinstance(self.objects, str) else tuple(self.objects)
+        if not objects or len(set(objects)) != len(objects):
+            raise ValueError(f"objects {list(objects)!r} must be distinct slot names, at least one")
+        object.__setattr__(self, "objects", objects)
+        object.__setattr__(self, "hidden", tuple(check_int("hidden", h) for h in self.hidden))
         for name in ("epochs", "batch_size", "state_steps", "action_steps", "action_starts", "refit_every"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive int, got {value!r}")
-        if self.state_guide not in ("mvn", "normal"):
-            raise ValueError(f"state_guide {self.state_guide!r} unknown; expected 'mvn' or 'normal'")
-        if self.reset_every is not None and self.reset_every < 1:
-            raise ValueError(f"reset_every must be None or >= 1, got {self.reset_every}")
-        if not (self.state_lr > 0 and self.state_lr_final > 0):
-            raise ValueError(
-                f"state_lr and state_lr_final must be > 0, got {self.state_lr}, {self.state_lr_final}"
-            )
+            check_int(name, getattr(self, name))
+        if self.reset_every is not None:
+            check_int("reset_every", self.reset_every)
+        object.__setattr__(self, "bins", tuple(check_int("bins", b, minimum=2) for b in self.bins))
+        check_choice("state_guide", self.state_guide, ("mvn", "normal"))
+        for name in (
+            "lr",
+            "state_lr",
+            "state_lr_final",
+            "state_init_scale",
+            "action_lr",
+            "target_scale",
+            "min_sigma",
+        ):
+            check_float(name, getattr(self, name), 0.0, open_low=True)
+        for name in ("min_progress", "lookahead_margin", "goal_tolerance", "alpha", "babble_reach"):
+            check_float(name, getattr(self, name), 0.0)
+        check_float("babble_local", self.babble_local, 0.0, 1.0)
         ratio = (self.state_lr_final / self.state_lr) ** (1.0 / self.state_steps)
         travel = self.state_lr * (1 - ratio**self.state_steps) / max(1 - ratio, 1e-12)
         if travel < 0.45:
@@ -99,5 +110,3 @@ class AgentConfig:
                 self.state_lr,
                 self.state_lr_final,
             )
-        if not (self.target_scale > 0 and self.min_sigma > 0 and self.goal_tolerance >= 0):
-            raise ValueError("target_scale and min_sigma must be > 0 and goal_tolerance >= 0 (metres)")

@@ -17,6 +17,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from pal.checks import check_int
+
 __all__ = ["GridCuriosity", "grid_occupancy"]
 
 
@@ -73,17 +75,13 @@ class GridCuriosity:
         self.low, self.high = np.asarray(low, float), np.asarray(high, float)
         if self.low.shape != (2,) or self.high.shape != (2,) or not np.all(self.low < self.high):
             raise ValueError(f"need (2,) low < high, got low={low}, high={high}")
-        if len(bins) != 2 or min(bins) < 2:
-            raise ValueError(f"bins must be two ints >= 2, got {bins}")
+        if len(bins) != 2:
+            raise ValueError(f"bins must be two ints >= 2 (cells per axis), got {bins!r}")
+        bins = (check_int("bins[0]", bins[0], minimum=2), check_int("bins[1]", bins[1], minimum=2))
         sigma = float(np.linalg.norm(self.high - self.low) / 10) if sigma is None else float(sigma)
         if not (alpha >= 0 and sigma > 0 and eps > 0):
             raise ValueError(f"need alpha >= 0, sigma > 0 and eps > 0, got {alpha}, {sigma}, {eps}")
-        self.bins, self.alpha, self.sigma, self.eps = (
-            (int(bins[0]), int(bins[1])),
-            float(alpha),
-            sigma,
-            float(eps),
-        )
+        self.bins, self.alpha, self.sigma, self.eps = bins, float(alpha), sigma, float(eps)
         ex, ey = (np.linspace(self.low[i], self.high[i], self.bins[i] + 1) for i in range(2))
         self.edges_ = (ex, ey)
         cx, cy = (ex[:-1] + ex[1:]) / 2, (ey[:-1] + ey[1:]) / 2

@@ -7,12 +7,15 @@ Hand: ``hand_prev``, ``hand`` (3,) m. Per object o: ``touch`` (fraction of the s
 :meth:`History.columns` drops those rows, so no NaN reaches the world model. ``truth_prev``/``truth``
 (2,) are ground-truth positions kept for evaluation (the agent never reads them), ``state`` is the
 simulator state before the step (for exact replay), ``episode`` the episode index.
+
+On disk a history is a checked, compressed ``.npz`` of :mod:`pal.files` (format
+:data:`FORMAT`): one array per field, and as metadata the joints, objects, provenance (seed
+and config when known) and the caller's metadata; library versions are added.
 """
 
 from __future__ import annotations
 
-import io
-import json
+import dataclasses
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -20,9 +23,12 @@ from typing import Any
 
 import numpy as np
 
-from pal.perception.atomic import atomic_write_bytes
+from pal.files import FileFormatError, check_json, read_npz, write_npz
 
-__all__ = ["FIELDS", "SOURCES", "History"]
+__all__ = ["FIELDS", "FORMAT", "SOURCES", "History"]
+
+#: Format tag of history files.
+FORMAT = "pal.history/1"
 
 #: Per-row fields and their trailing shapes (J joints, O objects, S state entries).
 FIELDS = (
@@ -52,10 +58,15 @@ class History:
     Args:
         joints: short joint names (``act.<j>``, ``q.<j>`` ...).
         objects: object slot names (``pos.<o>`` ...).
+        provenance: how the history was made, e.g. ``{"seed": 0, "config": {...}}``
+            (JSON-compatible); :meth:`save` records it.
     """
 
-    def __init__(self, joints: Sequence[str], objects: Sequence[str]) -> None:
+    def __init__(
+        self, joints: Sequence[str], objects: Sequence[str], provenance: Mapping[str, Any] | None = None
+    ) -> None:
         self.joints, self.objects = tuple(joints), tuple(objects)
+        self.provenance: dict[str, Any] = dict(provenance or {})
         self._rows: dict[str, list[np.ndarray]] = {f: [] for f in FIELDS}
 
     def __len__(self) -> int:
@@ -136,22 +147,68 @@ class History:
         return as32(arm), {o: as32(v) for o, v in objects.items()}
 
     # ------------------------------------------------------------------ persistence
-    def save(self, path: str | os.PathLike[str], metadata: Mapping[str, Any] | None = None) -> Path:
-        """Write ``.npz`` (no pickle) atomically, with joints, objects and ``metadata`` as JSON."""
-        meta = {"joints": list(self.joints), "objects": list(self.objects), **dict(metadata or {})}
+    def save(
+        self,
+        path: str | os.PathLike[str],
+        metadata: Mapping[str, Any] | None = None,
+        *,
+        seed: int | None = None,
+        config: Any = None,
+    ) -> Path:
+        """Write the history atomically (module docstring); NaN stays NaN in the arrays.
+
+        Args:
+            path: destination ``.npz``.
+            metadata: JSON-compatible extras, returned by :meth:`load` at the top level.
+            seed, config: provenance (a dataclass config is stored as a dict); they override
+                :attr:`provenance`'s entries.
+
+        Raises:
+            ValueError: metadata or provenance that is not strict JSON (names the key).
+        """
+        prov = dict(self.provenance)
+        if seed is not None:
+            prov["seed"] = int(seed)
+        if config is not None:
+            prov["config"] = (
+                dataclasses.asdict(config)
+                if dataclasses.is_dataclass(config) and not isinstance(config, type)
+                else config
+            )
+        extra = dict(metadata or {})
+        clash = sorted(set(extra) & {"joints", "objects", "provenance"})
+        if clash:
+            raise ValueError(f"metadata keys {clash} are reserved for the history's own fields")
+        meta = {"joints": list(self.joints), "objects": list(self.objects), "provenance": prov, **extra}
+        check_json(meta, "history metadata")
         arrays = {f: self.array(f) for f in FIELDS} if len(self) else {}
-        arrays["_meta"] = np.frombuffer(json.dumps(meta, sort_keys=True).encode(), dtype=np.uint8)
-        buf = io.BytesIO()
-        np.savez_compressed(buf, **arrays)
-        return atomic_write_bytes(path, buf.getvalue())
+        return write_npz(path, arrays, meta, format=FORMAT, compress=True)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> tuple[History, dict[str, Any]]:
-        """Inverse of :meth:`save`: ``(history, metadata)``."""
-        with np.load(path, allow_pickle=False) as z:
-            meta = json.loads(bytes(z["_meta"]).decode())
-            out = cls(meta["joints"], meta["objects"])
-            if "episode" in z.files:
-                for f in FIELDS:
-                    out._rows[f] = list(z[f])
-        return out, meta
+        """Inverse of :meth:`save`: ``(history, metadata)``; the metadata holds the caller's
+        keys, ``joints``, ``objects``, ``provenance``, ``versions`` and ``format``.
+
+        Raises:
+            FileFormatError: missing, corrupted or inconsistent file; names it.
+        """
+        f = read_npz(path, format=FORMAT)
+        meta, arrays = f.meta, f.arrays
+        joints, objects = meta.get("joints"), meta.get("objects")
+        if not (
+            isinstance(joints, list)
+            and isinstance(objects, list)
+            and isinstance(meta.get("provenance"), dict)
+        ):
+            raise FileFormatError(f"{path}: metadata lacks joints, objects or provenance")
+        out = cls(joints, objects, meta["provenance"])
+        if arrays:
+            if set(arrays) != set(FIELDS):
+                raise FileFormatError(f"{path}: fields {sorted(arrays)}, expected {sorted(FIELDS)}")
+            n = len(arrays["episode"])
+            bad = [k for k, a in arrays.items() if a.ndim == 0 or a.shape[0] != n]
+            if bad:
+                raise FileFormatError(f"{path}: fields {bad} do not have the {n} rows of 'episode'")
+            for key in FIELDS:
+                out._rows[key] = list(arrays[key])
+        return out, {**meta, "versions": f.versions, "format": f.format}

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -42,6 +42,7 @@ from pal.agent.curiosity import GridCuriosity
 from pal.agent.history import History
 from pal.agent.perception import Measurement, ObjectSlots, self_filtered_frame
 from pal.agent.world import build_world_model, candidate_actions, fit_world_model, submodel
+from pal.checks import check_int
 from pal.perception import PerceptionState, Pipeline
 from pal.sim.camera import CameraFrame
 from pal.sim.pushing import JOINTS, PushingEnv
@@ -92,6 +93,8 @@ class Agent:
 
     Args:
         env: the world. config: loop settings.
+        seed: master seed (actions, targets, inference seeds, episode resets, the model's
+            initial weights and its fits).
         model: a fitted world model to start from (default: a fresh one, fitted after babbling).
         goal: optional user goal, slot -> (x, y) table position, m (used in ``"goal"`` mode).
     """
@@ -101,19 +104,23 @@ class Agent:
         env: PushingEnv,
         config: AgentConfig | None = None,
         *,
+        seed: int = 0,
         model: WorldModel | None = None,
         goal: Mapping[str, Any] | None = None,
     ) -> None:
         self.env, self.config = env, config or AgentConfig()
+        self.seed = check_int("seed", seed, minimum=0)
         cfg = self.config
         unknown = [o for o in cfg.objects if o not in env.objects]
         if unknown:
             raise ValueError(f"objects {unknown} are not in the environment; it has {list(env.objects)}")
         self.joints = tuple(JOINTS)
-        self.rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 2]))
-        self.model = model if model is not None else build_world_model(env, cfg.objects, cfg.hidden, cfg.seed)
+        self.rng = np.random.default_rng(np.random.SeedSequence([seed, 2]))
+        self.model = model if model is not None else build_world_model(env, cfg.objects, cfg.hidden, seed)
         self.fitted = model is not None
-        self.history = History(self.joints, cfg.objects)
+        self.history = History(
+            self.joints, cfg.objects, provenance={"seed": self.seed, "config": asdict(cfg)}
+        )
         self.pipeline = Pipeline(cfg.perception)
         self.slots = ObjectSlots(cfg.objects, use_top=cfg.top_surface)
         (x0, y0), (x1, y1) = cfg.region
@@ -161,7 +168,7 @@ class Agent:
         self.episode += 1
         self.episode_steps = 0
         if seed is None:
-            seed = int(np.random.SeedSequence([self.config.seed, 3, self.episode]).generate_state(1)[0])
+            seed = int(np.random.SeedSequence([self.seed, 3, self.episode]).generate_state(1)[0])
         self.env.reset(seed=seed, options=options)
         self.pipeline.reset()
         self.slots.reset()
@@ -390,7 +397,7 @@ class Agent:
             batch_size=c.batch_size,
             lr=c.lr,
             min_sigma=c.min_sigma,
-            seed=c.seed + len(self.history),
+            seed=self.seed + len(self.history),
         )
         self.fitted = True
         self._blankets.clear()
@@ -408,8 +415,7 @@ class Agent:
     ) -> list[Decision]:
         """Run ``steps`` loop steps in ``mode``; a fitted model is refitted every ``refit_every``
         steps (default ``config.refit_every``; 0 disables). Episodes restart every ``reset_every``."""
-        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
-            raise ValueError(f"steps must be an int >= 0, got {steps!r}")
+        check_int("steps", steps, minimum=0)
         every = self.config.refit_every if refit_every is None else refit_every
         decisions = []
         for _ in tqdm(range(steps), desc=f"loop ({mode})", disable=not progress_bar, leave=False):

@@ -23,6 +23,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from pal.checks import check_float
 from pal.perception import PerceptionState, project
 
 __all__ = ["VideoRecorder", "overlay", "table_to_pixel"]
@@ -115,8 +116,7 @@ class VideoRecorder:
     """
 
     def __init__(self, path: str | os.PathLike[str], fps: float = 5.0) -> None:
-        if not fps > 0:
-            raise ValueError(f"fps must be > 0, got {fps}")
+        check_float("fps", fps, 0.0, open_low=True)
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".mp4", dir=self.path.parent)

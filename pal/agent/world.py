@@ -18,6 +18,7 @@ import torch
 from inference import fit
 from models import CausalGraph, LinearMechanism, Role, WorldModel, pushing_graph
 from pal.agent.history import History
+from pal.checks import check_float, check_int
 from pal.sim.pushing import JOINTS, PushingEnv
 
 __all__ = ["build_world_model", "candidate_actions", "fit_world_model", "submodel"]
@@ -36,8 +37,8 @@ def candidate_actions(
 ) -> np.ndarray:
     """(n, J) servo targets around joint angles q (rad): a share ``wide`` uniform over [low, high],
     the rest q + U(-s, s) for each scale s in turn (fine and coarse moves), clipped to the ranges."""
-    if not 0 <= wide <= 1:
-        raise ValueError(f"wide must be a share in [0, 1], got {wide}")
+    check_int("n", n)
+    check_float("wide", wide, 0.0, 1.0)
     k = round(wide * n)
     far = rng.uniform(low, high, size=(k, len(q)))
     s = np.resize(np.asarray(scales, float), n - k)[:, None]
@@ -55,13 +56,12 @@ def build_world_model(
     """
     ranges = {short: env.actuator_ranges[short] for short in JOINTS}
     graph = pushing_graph(tuple(JOINTS), ranges, objects, q_ranges=ranges, object_dim=2)
-    with torch.random.fork_rng():
-        torch.manual_seed(seed)
-        mechs = {}
-        for o in objects:
-            mechs[f"meas.{o}"] = LinearMechanism.from_coefficients(torch.eye(2), sigma=0.01)
-            mechs[f"pos.{o}"] = LinearMechanism(4, 2)
-        return WorldModel(graph, mechs, hidden=hidden)
+    generator = torch.Generator().manual_seed(seed)
+    mechs = {}
+    for o in objects:
+        mechs[f"meas.{o}"] = LinearMechanism.from_coefficients(torch.eye(2), sigma=0.01)
+        mechs[f"pos.{o}"] = LinearMechanism(4, 2, seed=generator)
+    return WorldModel(graph, mechs, hidden=hidden, seed=seed)
 
 
 def submodel(
@@ -113,39 +113,37 @@ def fit_world_model(
     arm, objects = history.columns(source, rows)
     trained: dict[str, Any] = {}
     arm_vars = [v for v in model.graph.non_roots if v.startswith(("dq.", "q.", "hand"))]
-    with torch.random.fork_rng():
-        torch.manual_seed(seed)
-        r = fit(model, arm, variables=arm_vars, epochs=epochs, batch_size=batch_size, lr=lr, seed=seed)
+    r = fit(model, arm, variables=arm_vars, epochs=epochs, batch_size=batch_size, lr=lr, seed=seed)
+    trained.update(r.sigma)
+    for o, cols in objects.items():
+        if len(cols[f"pos.{o}"]) < 2:
+            log.warning(
+                "object %r has %d usable transitions; its mechanisms stay unfitted",
+                o,
+                len(cols[f"pos.{o}"]),
+            )
+            continue
+        r = fit(
+            model,
+            cols,
+            variables=[f"contact.{o}", f"dpos.{o}"],
+            epochs=epochs,
+            batch_size=batch_size,
+            lr=lr,
+            seed=seed,
+        )
         trained.update(r.sigma)
-        for o, cols in objects.items():
-            if len(cols[f"pos.{o}"]) < 2:
-                log.warning(
-                    "object %r has %d usable transitions; its mechanisms stay unfitted",
-                    o,
-                    len(cols[f"pos.{o}"]),
-                )
-                continue
-            r = fit(
-                model,
-                cols,
-                variables=[f"contact.{o}", f"dpos.{o}"],
-                epochs=epochs,
-                batch_size=batch_size,
-                lr=lr,
-                seed=seed,
-            )
-            trained.update(r.sigma)
-            # the linear position update converges slowly at the MLPs' learning rate: its own schedule
-            r = fit(
-                model,
-                cols,
-                variables=[f"pos.{o}"],
-                epochs=max(epochs, 200),
-                batch_size=batch_size,
-                lr=0.05,
-                seed=seed,
-            )
-            trained.update(r.sigma)
+        # the linear position update converges slowly at the MLPs' learning rate: its own schedule
+        r = fit(
+            model,
+            cols,
+            variables=[f"pos.{o}"],
+            epochs=max(epochs, 200),
+            batch_size=batch_size,
+            lr=0.05,
+            seed=seed,
+        )
+        trained.update(r.sigma)
     for name in trained:
         mech = model.mechanism(name)
         mech.set_sigma(mech.sigma.detach().clamp_min(min_sigma))

@@ -9,25 +9,27 @@ and the errors against the recorded dq(t) and q(t) are reported as MSE [rad^2] a
 [rad], with the persistence baseline q_hat(t) = q(t-1). Both graph variants are fitted on
 the same data (:mod:`pal.experiments.wm_setup`).
 
-``pal experiment b1 [--quick] [--body arm] --json`` prints
-``{thesis|state: {dq_mse, dq_mae, q_mse, q_mae}, persistence: {q_mse, q_mae}}``.
+Metrics: ``error: {thesis|state: {dq_mse, dq_mae, q_mse, q_mae}, persistence: {q_mse,
+q_mae}}``, ``train_loss: {graph: {dq|q: [first, last]}}`` and ``info`` (body, sizes, ranges).
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 
-from pal.experiments.timing import markdown_table
-from pal.experiments.wm_setup import Prepared, ProtocolConfig, prepare, setup_line
+from pal.experiments.registry import register
+from pal.experiments.report import Report, Table, Target
+from pal.experiments.wm_data import DataConfig
+from pal.experiments.wm_setup import FitConfig, Prepared, ProtocolConfig, prepare, setup_note
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["THESIS", "Config", "Result", "evaluate", "run"]
+__all__ = ["THESIS", "Config", "evaluate", "run"]
 
 #: Thesis Table 5.7 (test set) and the training objectives of §5.2.2 (first -> last epoch).
 THESIS = {
@@ -35,113 +37,30 @@ THESIS = {
     "q": {"mse": 0.506, "mae": 0.554, "train": (0.380, 8.17e-5)},
     "persistence": {"mse": 0.976, "mae": 0.613},
 }
-#: Target (issue 3): the state graph's q MSE is at most this fraction of the thesis graph's.
+#: The state graph's q MSE should be at most this fraction of the thesis graph's.
 TARGET_RATIO = 0.1
 _SCATTER_POINTS = 3000
 
 
 @dataclass(frozen=True)
-class Config(ProtocolConfig):
-    """B1 uses the shared protocol unchanged (defaults: thesis §5.2.1)."""
-
-    @classmethod
-    def quick(cls) -> Config:
-        return cls(steps=20_000, epochs=40)
-
-
-@dataclass(frozen=True)
-class Result:
-    """B1 errors and what the report and figures need.
+class Config:
+    """B1: the shared protocol unchanged (defaults: thesis §5.2.1).
 
     Attributes:
-        metrics: ``{graph: {dq_mse, dq_mae, q_mse, q_mae}, "persistence": {q_mse, q_mae}}``.
-        train_loss: graph -> variable -> (first-epoch, last-epoch) training MSE, rad^2.
-        info: body, joint, sizes, ranges, seconds (see :meth:`Prepared.info`).
-        config: the run's configuration.
-        curves: graph -> variable -> per-epoch training MSE.
-        scatter: ``dq``, ``q`` true values and ``<graph>.dq``, ``<graph>.q`` predictions on a
-            subsample of the test set, rad.
+        seed: seeds babbling, the split, the initial weights and the minibatches.
+        protocol: data, graphs and fitting schedule.
     """
 
-    metrics: dict[str, dict[str, float]]
-    train_loss: dict[str, dict[str, tuple[float, float]]]
-    info: dict[str, Any]
-    config: Config
-    curves: dict[str, dict[str, tuple[float, ...]]] = field(default_factory=dict)
-    scatter: dict[str, np.ndarray] = field(default_factory=dict)
+    seed: int = 0
+    protocol: ProtocolConfig = ProtocolConfig()
 
-    def to_dict(self) -> dict[str, Any]:
-        return {k: dict(v) for k, v in self.metrics.items()}
 
-    def targets(self) -> dict[str, bool | None]:
-        """Issue-3 targets: ratio of q MSEs <= 0.1, and both graphs beat persistence."""
-        m = self.metrics
-        if not {"thesis", "state"} <= set(m):
-            return {"ratio": None, "below_persistence": None}
-        persist = m["persistence"]["q_mse"]
-        return {
-            "ratio": m["state"]["q_mse"] <= TARGET_RATIO * m["thesis"]["q_mse"],
-            "below_persistence": max(m["thesis"]["q_mse"], m["state"]["q_mse"]) < persist,
-        }
-
-    def to_markdown(self) -> str:
-        m, info, graphs = self.metrics, self.info, [g for g in self.metrics if g != "persistence"]
-        header = ["Prediction target", "thesis MSE [rad²]", "thesis MAE [rad]"]
-        for g in graphs:
-            header += [f"`{g}` graph MSE", f"`{g}` graph MAE"]
-        rows = []
-        for label, key, ref in (
-            ("Action-induced displacement", "dq", THESIS["dq"]),
-            ("Post-action position", "q", THESIS["q"]),
-        ):
-            row: list[Any] = [label, ref["mse"], ref["mae"]]
-            for g in graphs:
-                row += [m[g][f"{key}_mse"], m[g][f"{key}_mae"]]
-            rows.append(row)
-        p = m["persistence"]
-        rows.append(["Persistence baseline", THESIS["persistence"]["mse"], THESIS["persistence"]["mae"]])
-        rows[-1] += [p["q_mse"], p["q_mae"]] * len(graphs)
-        train_rows = []
-        for var in ("dq", "q"):
-            row = [f"MSE[{var}] training objective", "{:.3g} -> {:.3g}".format(*THESIS[var]["train"])]
-            row += ["{:.3g} -> {:.3g}".format(*self.train_loss[g][var]) for g in graphs]
-            train_rows.append(row)
-        lines = [
-            "## B1: sensorimotor transition prediction (thesis Table 5.7)",
-            "",
-            setup_line(info),
-            "",
-            markdown_table(header, rows),
-            "",
-            "Training objective, first -> last epoch (rad²):",
-            "",
-            markdown_table(["", "thesis"] + [f"`{g}` graph" for g in graphs], train_rows),
-            "",
-        ]
-        t = self.targets()
-        if t["ratio"] is not None:
-            ratio = m["state"]["q_mse"] / m["thesis"]["q_mse"]
-            lines += [
-                f"Target: `state` q MSE <= {TARGET_RATIO} x `thesis` q MSE: ratio {ratio:.3g} "
-                f"({'met' if t['ratio'] else 'NOT met'}); both below persistence "
-                f"({'met' if t['below_persistence'] else 'NOT met'}).",
-                "",
-            ]
-        return "\n".join(lines)
-
-    def figures(self) -> dict[str, Figure]:
-        figs: dict[str, Figure] = {}
-        if self.curves:
-            figs["training"] = _curves_figure(self.curves)
-        if self.scatter:
-            figs["prediction"] = _scatter_figure(
-                self.scatter, [g for g in self.metrics if g != "persistence"]
-            )
-        return figs
+QUICK_PROTOCOL = ProtocolConfig(DataConfig(steps=20_000), fit=FitConfig(epochs=40))
+TINY_PROTOCOL = ProtocolConfig(DataConfig(steps=600), fit=FitConfig(epochs=3, batch_size=256))
 
 
 def evaluate(prep: Prepared) -> dict[str, dict[str, float]]:
-    """B1 metrics on the test set (see :attr:`Result.metrics`)."""
+    """Test-set errors: ``{graph: {dq_mse, dq_mae, q_mse, q_mae}, "persistence": {q_mse, q_mae}}``, rad² and rad."""
     act, q_prev, dq, q = prep.joint.names
     cols = prep.test_columns
     inputs = {act: torch.as_tensor(cols[act]), q_prev: torch.as_tensor(cols[q_prev])}
@@ -161,10 +80,60 @@ def evaluate(prep: Prepared) -> dict[str, dict[str, float]]:
     return metrics
 
 
-def run(config: Config, progress_bar: bool = False) -> Result:
-    """Fit both graphs on the babbling data and evaluate one-step prediction on the test set."""
-    prep = prepare(config, progress_bar=progress_bar)
-    metrics = evaluate(prep)
+def tables(error: dict[str, Any], train_loss: dict[str, Any]) -> list[Table]:
+    """Table 5.7 beside ours, and the training objective first -> last epoch."""
+    graphs = [g for g in error if g != "persistence"]
+    columns = ["Prediction target", "thesis MSE [rad²]", "thesis MAE [rad]"]
+    for g in graphs:
+        columns += [f"{g} graph MSE", f"{g} graph MAE"]
+    rows = []
+    for label, key in (("Action-induced displacement", "dq"), ("Post-action position", "q")):
+        row: list[Any] = [label, THESIS[key]["mse"], THESIS[key]["mae"]]
+        for g in graphs:
+            row += [error[g][f"{key}_mse"], error[g][f"{key}_mae"]]
+        rows.append(row)
+    p = error["persistence"]
+    rows.append(["Persistence baseline", THESIS["persistence"]["mse"], THESIS["persistence"]["mae"]])
+    rows[-1] += [p["q_mse"], p["q_mae"]] * len(graphs)
+    train_rows = []
+    for var in ("dq", "q"):
+        row = [f"MSE[{var}] training objective", "{:.3g} -> {:.3g}".format(*THESIS[var]["train"])]
+        row += ["{:.3g} -> {:.3g}".format(*train_loss[g][var]) for g in graphs]
+        train_rows.append(row)
+    return [
+        Table("Test-set prediction error (thesis Table 5.7)", columns, rows),
+        Table(
+            "Training objective, first -> last epoch [rad²]",
+            ["", "thesis", *[f"{g} graph" for g in graphs]],
+            train_rows,
+        ),
+    ]
+
+
+def targets(error: dict[str, Any]) -> list[Target]:
+    """The state graph's q MSE <= 0.1 x the thesis graph's; both graphs below persistence."""
+    have = {"thesis", "state"} <= set(error)
+    ratio = error["state"]["q_mse"] / error["thesis"]["q_mse"] if have else None
+    worst = max(error[g]["q_mse"] for g in error if g != "persistence")
+    return [
+        Target(
+            "q_mse_ratio", ratio, TARGET_RATIO, "<=", "q MSE of the state graph / q MSE of the thesis graph"
+        ),
+        Target(
+            "q_mse_over_persistence",
+            worst / error["persistence"]["q_mse"],
+            1.0,
+            "<",
+            "largest q MSE of the fitted graphs / q MSE of persistence",
+        ),
+    ]
+
+
+@register("b1", config=Config, quick=Config(protocol=QUICK_PROTOCOL), tiny=Config(protocol=TINY_PROTOCOL))
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """B1: one-step prediction error of both graphs against the recorded transitions (Table 5.7)."""
+    prep = prepare(config.protocol, config.seed, progress_bar=progress_bar)
+    error = evaluate(prep)
     act, q_prev, dq, q = prep.joint.names
     cols = prep.test_columns
     rows = np.random.default_rng(config.seed).permutation(len(prep.test))[:_SCATTER_POINTS]
@@ -174,15 +143,17 @@ def run(config: Config, progress_bar: bool = False) -> Result:
         pred = model.predict(sub)
         scatter[f"{graph}.dq"], scatter[f"{graph}.q"] = pred[dq].numpy()[:, 0], pred[q].numpy()[:, 0]
     short = {dq: "dq", q: "q"}
-    return Result(
-        metrics=metrics,
-        train_loss={
-            g: {short[v]: (c[0], c[-1]) for v, c in f.train_loss.items()} for g, f in prep.fits.items()
-        },
-        info={**prep.info(), "config": asdict(config)},
-        config=config,
-        curves={g: {short[v]: c for v, c in f.train_loss.items()} for g, f in prep.fits.items()},
-        scatter=scatter,
+    graphs = list(prep.models)
+    curves = {g: {short[v]: c for v, c in f.train_loss.items()} for g, f in prep.fits.items()}
+    train_loss = {g: {v: [c[0], c[-1]] for v, c in cv.items()} for g, cv in curves.items()}
+    info = prep.info()
+    return Report(
+        title="B1: sensorimotor transition prediction (thesis Table 5.7)",
+        metrics={"error": error, "train_loss": train_loss, "info": info},
+        tables=tables(error, train_loss),
+        targets=targets(error),
+        notes=[setup_note(info)],
+        figures={"training": _curves_figure(curves), "prediction": _scatter_figure(scatter, graphs)},
     )
 
 

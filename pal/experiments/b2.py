@@ -12,33 +12,38 @@ Phi(q(t-1), a) (Eq. 5.7, what the thesis reported), and **realized**, by restori
 recorded simulator state before the transition, executing a for one step (the other
 actuators keep their recorded commands) and measuring the angle reached.
 
-``pal experiment b2 --json`` prints ``{graph: {random: {mae_model, mae_real},
-inferred: {mae_model, mae_real, within_005_real, within_010_real}}}``.
+Metrics: ``error: {graph: {random: {mae_model, mae_real}, inferred: {mae_model, mae_real,
+within_005_real, within_010_real}}}``, ``model_internal: {graph: {within_005_model,
+within_010_model, objective_first, objective_last}}`` and ``info``.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pal.experiments.timing import markdown_table
+from pal.checks import check_int
+from pal.experiments.b1 import QUICK_PROTOCOL, TINY_PROTOCOL
+from pal.experiments.registry import register
+from pal.experiments.report import Report, Table, Target
 from pal.experiments.wm_data import pick_rows
 from pal.experiments.wm_setup import (
+    ActionConfig,
     Prepared,
     ProtocolConfig,
     abs_errors,
     infer_actions,
     predict_q,
     prepare,
-    setup_line,
+    setup_note,
 )
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["THESIS", "Config", "Result", "evaluate", "run"]
+__all__ = ["THESIS", "Config", "evaluate", "run"]
 
 #: Thesis §5.2.3 (model-internal): MAE random 0.851, inferred 0.195 rad; MSE objective
 #: 1.113 -> 0.286 rad^2; 79.7 % / 82.8 % of inferred actions within 0.05 / 0.10 rad.
@@ -49,131 +54,114 @@ THESIS = {
     "within_005": 0.797,
     "within_010": 0.828,
 }
-#: Targets (issue 3), realized, state graph.
+#: Targets, realized, state graph.
 TARGET_MAE = 0.05
 TARGET_WITHIN = 0.9
 
 
 @dataclass(frozen=True)
-class Config(ProtocolConfig):
+class Config:
     """B2 protocol (thesis §5.2.3).
 
     Attributes:
+        seed: seeds the protocol, the test rows and the random actions.
+        protocol: data, graphs and fitting schedule (shared with B1 and B3).
         targets: number of test targets.
-        action_steps, action_lr: Adam iterations and learning rate of Alg. 4.2.
-        action_starts: 1 starts Adam at the midpoint of X_a (the thesis protocol); k > 1
-            restarts it from k points across X_a and keeps the best under the model.
+        action: Alg. 4.2 settings.
     """
 
+    seed: int = 0
+    protocol: ProtocolConfig = ProtocolConfig()
     targets: int = 128
-    action_steps: int = 200
-    action_lr: float = 0.05
-    action_starts: int = 1
+    action: ActionConfig = ActionConfig()
 
-    @classmethod
-    def quick(cls) -> Config:
-        return cls(steps=20_000, epochs=40, targets=32)
+    def __post_init__(self) -> None:
+        check_int("targets", self.targets)
 
 
-@dataclass(frozen=True)
-class Result:
-    """B2 errors per graph and condition, in rad.
-
-    Attributes:
-        metrics: see the module docstring.
-        extra: graph -> model-internal ``within_005_model``, ``within_010_model``,
-            ``objective_first``, ``objective_last`` (mean squared target error, rad^2).
-        info: body, joint, sizes, ranges, seconds.
-        points: ``target``, ``random.model``, ``random.real`` and, per graph,
-            ``<graph>.model``, ``<graph>.real`` outcomes (rad) for the figures.
-    """
-
-    metrics: dict[str, dict[str, dict[str, float]]]
-    extra: dict[str, dict[str, float]]
-    info: dict[str, Any]
-    config: Config
-    points: dict[str, np.ndarray] = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {g: {c: dict(v) for c, v in conds.items()} for g, conds in self.metrics.items()}
-
-    def target_met(self) -> bool | None:
-        """Realized state-graph MAE <= 0.05 rad and >= 90 % within 0.05 rad."""
-        s = self.metrics.get("state")
-        if s is None:
-            return None
-        return s["inferred"]["mae_real"] <= TARGET_MAE and s["inferred"]["within_005_real"] >= TARGET_WITHIN
-
-    def to_markdown(self) -> str:
-        graphs = list(self.metrics)
-        header = ["Quantity", "thesis (model-internal)"]
+def tables(error: dict[str, Any], internal: dict[str, Any]) -> list[Table]:
+    """Thesis §5.2.3 beside the model-internal and realized errors of each graph."""
+    graphs = list(error)
+    columns = ["Quantity", "thesis (model-internal)"]
+    for g in graphs:
+        columns += [f"{g} model-internal", f"{g} realized"]
+    rows: list[list[Any]] = []
+    for label, ref, cond, key in (
+        ("MAE, random actions [rad]", THESIS["random_mae"], "random", "mae"),
+        ("MAE, inferred actions [rad]", THESIS["inferred_mae"], "inferred", "mae"),
+        ("share of inferred within 0.05 rad", THESIS["within_005"], "inferred", "within_005"),
+        ("share of inferred within 0.10 rad", THESIS["within_010"], "inferred", "within_010"),
+    ):
+        row: list[Any] = [label, ref]
         for g in graphs:
-            header += [f"`{g}` model-internal", f"`{g}` realized"]
-        rows: list[list[Any]] = []
-
-        def add(label: str, ref: Any, cond: str, key: str, pct: bool = False) -> None:
-            row = [label, ref]
-            for g in graphs:
-                m = self.metrics[g][cond]
-                model = m.get(f"{key}_model", self.extra[g].get(f"{key}_model"))
-                row += [model, m.get(f"{key}_real")]
-            if pct:
-                row = [row[0], *[None if v is None else f"{100 * v:.1f} %" for v in row[1:]]]
-            rows.append(row)
-
-        add("MAE, random actions [rad]", THESIS["random_mae"], "random", "mae")
-        add("MAE, inferred actions [rad]", THESIS["inferred_mae"], "inferred", "mae")
-        add("inferred within 0.05 rad", THESIS["within_005"], "inferred", "within_005", pct=True)
-        add("inferred within 0.10 rad", THESIS["within_010"], "inferred", "within_010", pct=True)
-        obj = [
-            "MSE objective, first -> last Adam step [rad²]",
-            "{:.3f} -> {:.3f}".format(*THESIS["objective"]),
-        ]
-        for g in graphs:
-            obj += [f"{self.extra[g]['objective_first']:.3f} -> {self.extra[g]['objective_last']:.3f}", None]
-        rows.append(obj)
-        lines = [
-            "## B2: action inference (thesis §5.2.3, Fig. 5.6)",
-            "",
-            setup_line(self.info),
-            f"{len(self.points.get('target', []))} test targets; inferred: Adam {self.config.action_steps} steps, "
-            f"lr {self.config.action_lr}, from the midpoint of X_a, clipped. Realized: the recorded simulator "
-            "state is restored and the action executed for one step.",
-            "",
-            markdown_table(header, rows),
-            "",
-        ]
-        met = self.target_met()
-        if met is not None:
-            s = self.metrics["state"]["inferred"]
-            lines += [
-                f"Target (realized, `state` graph): MAE {s['mae_real']:.3f} rad <= {TARGET_MAE} and "
-                f"{100 * s['within_005_real']:.1f} % >= {100 * TARGET_WITHIN:.0f} % within 0.05 rad: "
-                f"{'met' if met else 'NOT met'}.",
-                "",
-            ]
-        return "\n".join(lines)
-
-    def figures(self) -> dict[str, Figure]:
-        if not self.points:
-            return {}
-        return {"fig5_6": _figure(self.points, list(self.metrics))}
+            m = error[g][cond]
+            row += [m.get(f"{key}_model", internal[g].get(f"{key}_model")), m.get(f"{key}_real")]
+        rows.append(row)
+    obj: list[Any] = [
+        "MSE objective, first -> last Adam step [rad²]",
+        "{:.3f} -> {:.3f}".format(*THESIS["objective"]),
+    ]
+    for g in graphs:
+        obj += [f"{internal[g]['objective_first']:.3f} -> {internal[g]['objective_last']:.3f}", None]
+    rows.append(obj)
+    return [Table("Action inference for proprioceptive targets (thesis §5.2.3)", columns, rows)]
 
 
-def run(config: Config, progress_bar: bool = False) -> Result:
-    """Fit both graphs, infer actions for the test targets, and execute them in the simulator."""
-    prep = prepare(config, progress_bar=progress_bar)
-    metrics, extra, points = evaluate(prep, config)
-    return Result(metrics, extra, {**prep.info(), "config": asdict(config)}, config, points)
+def targets(error: dict[str, Any]) -> list[Target]:
+    """Realized state-graph MAE <= 0.05 rad and >= 90 % of targets within 0.05 rad."""
+    inferred = error.get("state", {}).get("inferred", {})
+    return [
+        Target(
+            "realized_mae.state",
+            inferred.get("mae_real"),
+            TARGET_MAE,
+            "<=",
+            "realized MAE of the inferred actions, state graph, rad",
+        ),
+        Target(
+            "realized_within_005.state",
+            inferred.get("within_005_real"),
+            TARGET_WITHIN,
+            ">=",
+            "share of targets reached within 0.05 rad, realized, state graph",
+        ),
+    ]
+
+
+@register(
+    "b2",
+    config=Config,
+    quick=Config(protocol=QUICK_PROTOCOL, targets=32),
+    tiny=Config(protocol=TINY_PROTOCOL, targets=4, action=ActionConfig(steps=20)),
+)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """B2: actions inferred for test targets, executed in the simulator from the recorded states (Fig. 5.6)."""
+    prep = prepare(config.protocol, config.seed, progress_bar=progress_bar)
+    error, internal, points = evaluate(prep, config)
+    info = prep.info()
+    a = config.action
+    start = "the midpoint of X_a" if a.starts == 1 else f"{a.starts} points across X_a"
+    return Report(
+        title="B2: action inference (thesis §5.2.3, Fig. 5.6)",
+        metrics={"error": error, "model_internal": internal, "info": info},
+        tables=tables(error, internal),
+        targets=targets(error),
+        notes=[
+            setup_note(info),
+            f"{len(points['target'])} test targets; inferred: Adam {a.steps} steps, lr {a.lr}, from {start}, "
+            "clipped to X_a. Realized: the recorded simulator state is restored and the action executed for one step.",
+        ],
+        figures={"fig5_6": _figure(points, list(error))},
+    )
 
 
 def evaluate(
     prep: Prepared, config: Config
 ) -> tuple[dict[str, dict[str, dict[str, float]]], dict[str, dict[str, float]], dict[str, np.ndarray]]:
-    """B2 on fitted models: ``(metrics, extra, points)`` as in :class:`Result`.
+    """B2 on fitted models: ``(error, model_internal, points)`` (see the module docstring).
 
-    ``config`` supplies ``graphs`` (a subset of the fitted ones), ``targets``, ``action_steps``,
-    ``action_lr``, ``action_starts`` and ``seed``.
+    ``points`` holds ``target``, ``random.real`` and per graph ``<graph>.model``,
+    ``<graph>.real``, ``<graph>.random_model`` outcomes, rad, for the figure.
     """
     _, qp, _, q = prep.joint.names
     rows = pick_rows(len(prep.test), config.targets, config.seed)
@@ -186,11 +174,10 @@ def evaluate(
     points = {"target": target, "random.real": random_real}
     metrics: dict[str, dict[str, dict[str, float]]] = {}
     extra: dict[str, dict[str, float]] = {}
-    for graph in config.graphs:
-        model = prep.models[graph]
+    for graph, model in prep.models.items():
         random_model = predict_q(model, prep.joint, q_prev, random_a)
         actions, predicted, loss = infer_actions(
-            model, prep.joint, q_prev, target, config.action_steps, config.action_lr, config.action_starts
+            model, prep.joint, q_prev, target, config.action.steps, config.action.lr, config.action.starts
         )
         real = prep.realizer.outcomes(rows, actions)
         err_model, err_real = abs_errors(predicted, target), abs_errors(real, target)

@@ -13,33 +13,37 @@ normalised entropy over the 20 bins and the mean absolute target error; model-in
 (the model's predicted q(t), as the thesis did) and **realized** (the recorded simulator
 state restored and the action executed for one step).
 
-``pal experiment b3 --json`` prints ``{graph: {random|inferred: {occupancy_real,
-entropy_real, target_mae_real}}, target_entropy}``.
+Metrics: ``realized`` and ``model_internal``: ``{graph: {random|inferred: {occupancy,
+entropy, target_mae}}}``; ``target_entropy``; ``training: {occupancy, entropy}``; ``info``.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from inference import CuriositySampler, normalized_entropy, occupancy
-from pal.experiments.timing import markdown_table
+from pal.checks import check_float, check_int
+from pal.experiments.b1 import QUICK_PROTOCOL, TINY_PROTOCOL
+from pal.experiments.registry import register
+from pal.experiments.report import Report, Table, Target
 from pal.experiments.wm_data import pick_rows
 from pal.experiments.wm_setup import (
+    ActionConfig,
     ProtocolConfig,
     abs_errors,
     infer_actions,
     predict_q,
     prepare,
-    setup_line,
+    setup_note,
 )
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["THESIS", "Config", "Result", "run"]
+__all__ = ["THESIS", "Config", "run"]
 
 #: Thesis §5.2.4 (model-internal outcomes; the training data: 20/20 bins, H = 0.840).
 THESIS = {
@@ -48,118 +52,78 @@ THESIS = {
     "inferred": {"occupancy": 0.95, "entropy": 0.900, "target_mae": 0.203},
 }
 CONDITIONS = ("random", "inferred")
+_QUANTITIES = (("occupancy", "occupancy"), ("entropy", "entropy H"), ("target_mae", "target MAE [rad]"))
 
 
 @dataclass(frozen=True)
-class Config(ProtocolConfig):
+class Config:
     """B3 protocol (thesis §5.2.4).
 
     Attributes:
+        seed: seeds the protocol, the test rows, the targets and the random actions.
+        protocol: data, graphs and fitting schedule (shared with B1 and B2).
         targets: number of test pre-action states (one curiosity target each).
         bins: histogram bins over X_q.
         alpha: locality amplification of Eq. 5.8.
         sigma_fraction: locality width sigma as a fraction of |X_q|.
-        action_steps, action_lr: Adam iterations and learning rate of Alg. 4.2.
-        action_starts: 1 starts Adam at the midpoint of X_a (the thesis protocol); k > 1
-            restarts it from k points across X_a and keeps the best under the model.
+        action: Alg. 4.2 settings.
     """
 
+    seed: int = 0
+    protocol: ProtocolConfig = ProtocolConfig()
     targets: int = 128
     bins: int = 20
     alpha: float = 0.5
     sigma_fraction: float = 0.1
-    action_steps: int = 200
-    action_lr: float = 0.05
-    action_starts: int = 1
+    action: ActionConfig = ActionConfig()
 
-    @classmethod
-    def quick(cls) -> Config:
-        return cls(steps=20_000, epochs=40, targets=64)
+    def __post_init__(self) -> None:
+        check_int("targets", self.targets)
+        check_int("bins", self.bins)
+        check_float("alpha", self.alpha, 0.0)
+        check_float("sigma_fraction", self.sigma_fraction, 0.0, open_low=True)
 
 
-@dataclass(frozen=True)
-class Result:
-    """B3 coverage per graph and condition.
+def tables(metrics: dict[str, Any]) -> list[Table]:
+    """The training data and targets, then the outcomes per condition, thesis beside ours."""
+    real, model = metrics["realized"], metrics["model_internal"]
+    graphs = list(real)
+    data_rows = [
+        ("training outcomes", "occupancy", THESIS["training"]["occupancy"], metrics["training"]["occupancy"]),
+        ("training outcomes", "entropy H", THESIS["training"]["entropy"], metrics["training"]["entropy"]),
+        ("curiosity targets", "entropy H", None, metrics["target_entropy"]),
+    ]
+    columns = ["Condition", "Quantity", "thesis (model-internal)"]
+    for g in graphs:
+        columns += [f"{g} model-internal", f"{g} realized"]
+    rows = []
+    for cond in CONDITIONS:
+        for key, label in _QUANTITIES:
+            row: list[Any] = [f"{cond} actions", label, THESIS[cond][key]]
+            for g in graphs:
+                row += [model[g][cond][key], real[g][cond][key]]
+            rows.append(row)
+    return [
+        Table("Training data and curiosity targets", ("", "Quantity", "thesis", "ours"), data_rows),
+        Table("Outcomes of the actions for the sampled targets (thesis §5.2.4)", columns, rows),
+    ]
 
-    Attributes:
-        metrics: graph -> condition -> ``occupancy_real``, ``entropy_real``,
-            ``target_mae_real`` (and the model-internal ``*_model`` in :attr:`model`).
-        model: graph -> condition -> ``occupancy_model``, ``entropy_model``, ``target_mae_model``.
-        target_entropy: normalised entropy of the sampled targets over the bins.
-        training: ``occupancy`` and ``entropy`` of the training outcomes.
-        info: body, joint, sizes, ranges, seconds.
-        points: ``targets``, ``random.real``, ``<graph>.<condition>.model``,
-            ``<graph>.inferred.real`` outcomes (rad), and ``edges`` of the bins.
-    """
 
-    metrics: dict[str, dict[str, dict[str, float]]]
-    model: dict[str, dict[str, dict[str, float]]]
-    target_entropy: float
-    training: dict[str, float]
-    info: dict[str, Any]
-    config: Config
-    points: dict[str, np.ndarray] = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {g: {c: dict(v) for c, v in conds.items()} for g, conds in self.metrics.items()}
-        out["target_entropy"] = self.target_entropy
-        return out
-
-    def target_met(self, graph: str = "state") -> bool | None:
-        """Realized occupancy and entropy under inferred actions >= under random actions."""
-        m = self.metrics.get(graph)
-        if m is None:
-            return None
-        return all(m["inferred"][f"{k}_real"] >= m["random"][f"{k}_real"] for k in ("occupancy", "entropy"))
-
-    def to_markdown(self) -> str:
-        graphs = list(self.metrics)
-        header = ["Condition", "Quantity", "thesis (model-internal)"]
-        for g in graphs:
-            header += [f"`{g}` model-internal", f"`{g}` realized"]
-        data_rows: list[list[Any]] = [
-            ["training outcomes", "occupancy", THESIS["training"]["occupancy"], self.training["occupancy"]],
-            ["training outcomes", "entropy H", THESIS["training"]["entropy"], self.training["entropy"]],
-            ["curiosity targets", "entropy H", None, self.target_entropy],
-        ]
-        rows: list[list[Any]] = []
-        for cond in CONDITIONS:
-            for key, label in (
-                ("occupancy", "occupancy"),
-                ("entropy", "entropy H"),
-                ("target_mae", "target MAE [rad]"),
-            ):
-                row = [f"{cond} actions", label, THESIS[cond][key]]
-                for g in graphs:
-                    row += [self.model[g][cond][f"{key}_model"], self.metrics[g][cond][f"{key}_real"]]
-                rows.append(row)
-        c = self.config
-        lines = [
-            "## B3: curiosity-conditioned target selection (thesis §5.2.4, Fig. 5.7)",
-            "",
-            setup_line(self.info),
-            f"{len(self.points.get('targets', []))} test pre-action states, {c.bins} bins over X_q, "
-            f"alpha {c.alpha}, sigma {c.sigma_fraction} x |X_q| (Eq. 5.8-5.9).",
-            "",
-            markdown_table(["", "Quantity", "thesis", "ours"], data_rows),
-            "",
-            "Outcomes of the actions for the sampled targets:",
-            "",
-            markdown_table(header, rows),
-            "",
-        ]
-        for g in graphs:
-            met = self.target_met(g)
-            lines.append(
-                f"Target (`{g}` graph): realized occupancy and entropy with inferred actions >= random: "
-                f"{'met' if met else 'NOT met'}."
+def targets(realized: dict[str, Any]) -> list[Target]:
+    """Per graph: realized occupancy and entropy with inferred actions >= with random actions."""
+    out = []
+    for graph, m in realized.items():
+        for key in ("occupancy", "entropy"):
+            out.append(
+                Target(
+                    f"{key}_gain.{graph}",
+                    m["inferred"][key] - m["random"][key],
+                    0.0,
+                    ">=",
+                    f"realized {key} with inferred minus with random actions, {graph} graph",
+                )
             )
-        return "\n".join([*lines, ""])
-
-    def figures(self) -> dict[str, Figure]:
-        if not self.points:
-            return {}
-        return {"fig5_7": _figure(self.points, list(self.metrics))}
+    return out
 
 
 def _coverage(
@@ -172,9 +136,15 @@ def _coverage(
     }
 
 
-def run(config: Config, progress_bar: bool = False) -> Result:
-    """Sample curiosity targets, reach them with inferred or random actions, replay both."""
-    prep = prepare(config, progress_bar=progress_bar)
+@register(
+    "b3",
+    config=Config,
+    quick=Config(protocol=QUICK_PROTOCOL, targets=64),
+    tiny=Config(protocol=TINY_PROTOCOL, targets=6, bins=5, action=ActionConfig(steps=20)),
+)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """B3: curiosity targets reached with inferred or random actions, replayed in the simulator (Fig. 5.7)."""
+    prep = prepare(config.protocol, config.seed, progress_bar=progress_bar)
     _, qp, _, q = prep.joint.names
     low_q, high_q = prep.q_range
     sampler = CuriositySampler(
@@ -183,39 +153,45 @@ def run(config: Config, progress_bar: bool = False) -> Result:
     sampler.fit(prep.joint.columns(prep.train)[q])
     rows = pick_rows(len(prep.test), config.targets, config.seed)
     q_prev = prep.test_columns[qp][rows, 0].astype(np.float64)
-    targets = sampler.sample(np.random.default_rng([config.seed, 3]), current=q_prev)
+    goals = sampler.sample(np.random.default_rng([config.seed, 3]), current=q_prev)
     low, high = prep.joint.action_range
     random_a = np.random.default_rng([config.seed, 2]).uniform(low, high, size=len(rows))
     random_real = prep.realizer.outcomes(rows, random_a)
-    points = {"targets": targets, "random.real": random_real, "edges": sampler.edges_}
-    metrics: dict[str, dict[str, dict[str, float]]] = {}
-    model_metrics: dict[str, dict[str, dict[str, float]]] = {}
+    points = {"targets": goals, "random.real": random_real, "edges": sampler.edges_}
+    realized: dict[str, dict[str, dict[str, float]]] = {}
+    internal: dict[str, dict[str, dict[str, float]]] = {}
+    a = config.action
     for graph, model in prep.models.items():
-        actions, predicted, _ = infer_actions(
-            model, prep.joint, q_prev, targets, config.action_steps, config.action_lr, config.action_starts
-        )
+        actions, predicted, _ = infer_actions(model, prep.joint, q_prev, goals, a.steps, a.lr, a.starts)
         outcomes = {
             "random": (predict_q(model, prep.joint, q_prev, random_a), random_real),
             "inferred": (predicted, prep.realizer.outcomes(rows, actions)),
         }
-        metrics[graph], model_metrics[graph] = {}, {}
+        realized[graph], internal[graph] = {}, {}
         for cond, (pred, real) in outcomes.items():
-            cm, cr = (
-                _coverage(pred, targets, prep.q_range, config.bins),
-                _coverage(real, targets, prep.q_range, config.bins),
-            )
-            model_metrics[graph][cond] = {f"{k}_model": v for k, v in cm.items()}
-            metrics[graph][cond] = {f"{k}_real": v for k, v in cr.items()}
+            internal[graph][cond] = _coverage(pred, goals, prep.q_range, config.bins)
+            realized[graph][cond] = _coverage(real, goals, prep.q_range, config.bins)
             points[f"{graph}.{cond}.model"] = pred
         points[f"{graph}.inferred.real"] = outcomes["inferred"][1]
-    return Result(
-        metrics,
-        model_metrics,
-        normalized_entropy(targets, low_q, high_q, config.bins),
-        {"occupancy": sampler.occupancy(), "entropy": sampler.normalized_entropy()},
-        {**prep.info(), "config": asdict(config)},
-        config,
-        points,
+    info = prep.info()
+    metrics = {
+        "realized": realized,
+        "model_internal": internal,
+        "target_entropy": normalized_entropy(goals, low_q, high_q, config.bins),
+        "training": {"occupancy": sampler.occupancy(), "entropy": sampler.normalized_entropy()},
+        "info": info,
+    }
+    return Report(
+        title="B3: curiosity-conditioned target selection (thesis §5.2.4, Fig. 5.7)",
+        metrics=metrics,
+        tables=tables(metrics),
+        targets=targets(realized),
+        notes=[
+            setup_note(info),
+            f"{len(rows)} test pre-action states, {config.bins} bins over X_q, alpha {config.alpha}, "
+            f"sigma {config.sigma_fraction} x |X_q| (Eq. 5.8-5.9).",
+        ],
+        figures={"fig5_7": _figure(points, list(realized))},
     )
 
 

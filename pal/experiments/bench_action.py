@@ -17,8 +17,7 @@ infer_action call, ``baseline_seconds`` per loop, ``ratio`` = seconds / baseline
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
@@ -27,9 +26,12 @@ from tqdm.auto import tqdm
 from inference.action import infer_action
 from models.presets import FINGER_Q_RANGE, finger_graph
 from models.world import WorldModel
-from pal.experiments.timing import markdown_table, measure_interleaved, torch_threads
+from pal.checks import check_float, check_int
+from pal.experiments.registry import register
+from pal.experiments.report import Report, Table, Target
+from pal.experiments.timing import measure_interleaved, torch_threads
 
-__all__ = ["Config", "Result", "baseline", "finger_model", "run"]
+__all__ = ["Config", "baseline", "finger_model", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -55,56 +57,16 @@ class Config:
     repeats: int = 5
     threads: int | None = 1
 
-    @classmethod
-    def quick(cls) -> Config:
-        return cls(targets=16, steps=20, repeats=1)
-
-
-@dataclass(frozen=True)
-class Result:
-    """Seconds per call of infer_action and of the baseline loop."""
-
-    seconds: float
-    baseline_seconds: float
-    ratio: float
-    max_action_diff: float = 0.0
-    config: Config = field(default_factory=Config)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"seconds": self.seconds, "baseline_seconds": self.baseline_seconds, "ratio": self.ratio}
-
-    def to_markdown(self) -> str:
-        c = self.config
-        rows = [
-            ["infer_action", self.seconds, 1e3 * self.seconds / c.steps],
-            ["plain torch loop", self.baseline_seconds, 1e3 * self.baseline_seconds / c.steps],
-        ]
-        return (
-            "\n".join(
-                [
-                    "## Action inference benchmark",
-                    "",
-                    f"finger_graph('thesis'), MLP 2x32 tanh, {c.targets} targets x {c.steps} steps, lr {c.lr}, midpoint "
-                    f"init; torch threads: {c.threads}.",
-                    "",
-                    markdown_table(["", "seconds per call", "ms per step"], rows),
-                    "",
-                    f"ratio infer_action / baseline: **{self.ratio:.3g}** (> 1: infer_action is slower); "
-                    f"target: <= 1 s per call. Max |action difference|: {self.max_action_diff:.2g}.",
-                ]
-            )
-            + "\n"
-        )
-
-    def figures(self) -> dict[str, Any]:
-        return {}
+    def __post_init__(self) -> None:
+        check_int("targets", self.targets)
+        check_int("steps", self.steps)
+        check_float("lr", self.lr, 0.0, open_low=True)
+        check_int("repeats", self.repeats)
 
 
 def finger_model(seed: int) -> WorldModel:
     """A default (untrained) world model of thesis Fig. 5.5, weights seeded by ``seed``."""
-    with torch.random.fork_rng():
-        torch.manual_seed(seed)
-        return WorldModel(finger_graph("thesis"))
+    return WorldModel(finger_graph("thesis"), seed=seed)
 
 
 def baseline(model: WorldModel, q_prev: Tensor, target: Tensor, steps: int, lr: float) -> Tensor:
@@ -131,12 +93,15 @@ def baseline(model: WorldModel, q_prev: Tensor, target: Tensor, steps: int, lr: 
     return action.detach()
 
 
-def run(config: Config, progress_bar: bool = False) -> Result:
-    """Time infer_action and the baseline alternately; see the module docstring."""
-    if config.targets < 1 or config.steps < 1 or not config.lr > 0:
-        raise ValueError(
-            f"need targets >= 1, steps >= 1, lr > 0; got {config.targets}, {config.steps}, {config.lr}"
-        )
+@register(
+    "action",
+    kind="bench",
+    config=Config,
+    quick=Config(targets=16, steps=20, repeats=1),
+    tiny=Config(targets=4, steps=5, repeats=1),
+)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """Action inference: infer_action against the same projected Adam loop written in bare torch."""
     with torch_threads(config.threads):
         model = finger_model(config.seed)
         gen = torch.Generator().manual_seed(config.seed)
@@ -165,4 +130,35 @@ def run(config: Config, progress_bar: bool = False) -> Result:
     diff = float((ours.result.actions[ACTION] - base.result).abs().max())
     if not diff <= 1e-4:
         log.warning("infer_action and the baseline found different actions: max |diff| = %.3g", diff)
-    return Result(ours.median, base.median, ours.median / base.median, diff, config)
+    c = config
+    rows = [
+        ("infer_action", ours.median, 1e3 * ours.median / c.steps),
+        ("plain torch loop", base.median, 1e3 * base.median / c.steps),
+    ]
+    return Report(
+        title="Action inference benchmark",
+        metrics={
+            "seconds": ours.median,
+            "baseline_seconds": base.median,
+            "ratio": ours.median / base.median,
+            "max_action_diff": diff,
+        },
+        tables=[
+            Table(
+                "infer_action against a bare torch loop",
+                ("", "seconds per call", "ms per step"),
+                rows,
+                caption="ratio > 1: infer_action is slower.",
+            )
+        ],
+        targets=[
+            Target(
+                "seconds", ours.median, 1.0, "<=", f"seconds per call, {c.targets} targets x {c.steps} steps"
+            ),
+            Target("max_action_diff", diff, 1e-4, "<=", "largest |action difference| to the bare loop"),
+        ],
+        notes=[
+            f"finger_graph('thesis'), MLP 2x32 tanh, {c.targets} targets x {c.steps} steps, lr {c.lr}, midpoint "
+            f"init; torch threads: {c.threads}."
+        ],
+    )

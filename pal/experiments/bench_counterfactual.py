@@ -19,10 +19,11 @@ logged as a warning.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor
@@ -32,17 +33,23 @@ from inference.counterfactual import counterfactual
 from models.mechanisms import LinearMechanism
 from models.presets import chain_graph, random_graph
 from models.world import WorldModel
+from pal.checks import check_float, check_int
 from pal.experiments.counterfactual_peers import available, make_peer
-from pal.experiments.timing import Timing, markdown_table, measure, ratio, torch_threads
+from pal.experiments.registry import register
+from pal.experiments.report import Report, Table, Target
+from pal.experiments.timing import Timing, measure, ratio, torch_threads
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = [
     "CHAIN_WEIGHTS",
     "Config",
     "PeerFigures",
-    "Result",
     "chain_model",
     "intervention_node",
     "mlp_model",
+    "ratios",
     "run",
 ]
 
@@ -90,18 +97,19 @@ class Config:
     peer_budget_s: float = 60.0
     threads: int | None = 1
 
-    @classmethod
-    def quick(cls) -> Config:
-        """A few seconds: a 10-node MLP SCM, small batches, single repeats."""
-        return cls(
-            mlp_nodes=10,
-            chain_units=500,
-            scenario_units=50,
-            repeats=3,
-            batch_repeats=2,
-            peer_repeats=1,
-            peer_budget_s=5.0,
-        )
+    def __post_init__(self) -> None:
+        check_int("mlp_nodes", self.mlp_nodes, minimum=2)
+        check_int("chain_units", self.chain_units)
+        check_int("scenario_units", self.scenario_units)
+        if not self.scenarios:
+            raise ValueError("scenarios is empty; give the numbers of scenarios K, e.g. (1, 8)")
+        for k in self.scenarios:
+            check_int("scenarios", k)
+        for name in ("repeats", "batch_repeats", "peer_repeats"):
+            check_int(name, getattr(self, name))
+        check_float("peer_budget_s", self.peer_budget_s, 0.0, open_low=True)
+        for name in self.peers:
+            available(name)  # raises on unknown names
 
 
 @dataclass(frozen=True)
@@ -114,141 +122,74 @@ class PeerFigures:
     scenarios_ms: dict[str, float]
     notes: tuple[str, ...] = ()
 
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "chain_unit_ms": self.chain_unit_ms,
-            "mlp50_unit_ms": self.mlp50_unit_ms,
-            "units_per_s": self.units_per_s,
-            "scenarios_ms": dict(self.scenarios_ms),
-            "notes": list(self.notes),
-        }
+
+def ratios(ours: PeerFigures, peer: PeerFigures) -> dict[str, Any]:
+    """figure -> ours / peer (peer / ours for ``units_per_s``); < 1: pal is faster."""
+    return {
+        "chain_unit_ms": ratio(ours.chain_unit_ms, peer.chain_unit_ms),
+        "mlp50_unit_ms": ratio(ours.mlp50_unit_ms, peer.mlp50_unit_ms),
+        "units_per_s": ratio(peer.units_per_s, ours.units_per_s),
+        "scenarios_ms": {k: ratio(v, peer.scenarios_ms.get(k)) for k, v in ours.scenarios_ms.items()},
+    }
 
 
-@dataclass(frozen=True)
-class Result:
-    """Our figures, the peers' figures (None when not importable) and ours/peer ratios.
+def _table(config: Config, libs: dict[str, PeerFigures | None], rel: dict[str, Any]) -> Table:
+    peers = [n for n in libs if n != "pal"]
 
-    ``agreement`` (peer -> max |peer - ours| over the checked counterfactuals) and the
-    sizes are kept for the markdown report only.
-    """
+    def row(
+        label: str, get: Callable[[PeerFigures], Any], rget: Callable[[dict[str, Any]], Any]
+    ) -> list[Any]:
+        values = [None if fig is None else get(fig) for fig in libs.values()]
+        return [label, *values, *(None if rel[n] is None else rget(rel[n]) for n in peers)]
 
-    chain_unit_ms: float
-    mlp50_unit_ms: float
-    units_per_s: float
-    scenarios_ms: dict[str, float]
-    chirho: PeerFigures | None
-    dowhy: PeerFigures | None
-    agreement: dict[str, float] = field(default_factory=dict)
-    config: Config = field(default_factory=Config)
-    intervened: str = ""
-
-    @property
-    def ours(self) -> PeerFigures:
-        return PeerFigures(self.chain_unit_ms, self.mlp50_unit_ms, self.units_per_s, self.scenarios_ms)
-
-    @property
-    def ratios(self) -> dict[str, dict[str, Any] | None]:
-        """peer -> figure -> ours / peer (peer / ours for ``units_per_s``); < 1: pal is faster."""
-        out: dict[str, dict[str, Any] | None] = {}
-        for name in ("chirho", "dowhy"):
-            peer: PeerFigures | None = getattr(self, name)
-            if peer is None:
-                out[name] = None
-                continue
-            out[name] = {
-                "chain_unit_ms": ratio(self.chain_unit_ms, peer.chain_unit_ms),
-                "mlp50_unit_ms": ratio(self.mlp50_unit_ms, peer.mlp50_unit_ms),
-                "units_per_s": ratio(peer.units_per_s, self.units_per_s),
-                "scenarios_ms": {k: ratio(v, peer.scenarios_ms.get(k)) for k, v in self.scenarios_ms.items()},
-            }
-        return out
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "chain_unit_ms": self.chain_unit_ms,
-            "mlp50_unit_ms": self.mlp50_unit_ms,
-            "units_per_s": self.units_per_s,
-            "scenarios_ms": dict(self.scenarios_ms),
-            "chirho": None if self.chirho is None else self.chirho.to_dict(),
-            "dowhy": None if self.dowhy is None else self.dowhy.to_dict(),
-            "ratios": self.ratios,
-        }
-
-    def to_markdown(self) -> str:
-        c = self.config
-        libs: list[tuple[str, PeerFigures | None]] = [
-            ("pal", self.ours),
-            ("chirho", self.chirho),
-            ("dowhy", self.dowhy),
-        ]
-        ratios = self.ratios
-        header = ["figure", *(name for name, _ in libs), *(f"pal/{n}" for n, _ in libs[1:])]
-
-        def row(
-            label: str, get: Callable[[PeerFigures], float | None], rget: Callable[[dict[str, Any]], Any]
-        ) -> list[Any]:
-            values = [None if fig is None else get(fig) for _, fig in libs]
-            rs = [None if ratios[n] is None else rget(ratios[n]) for n, _ in libs[1:]]
-            return [label, *values, *rs]
-
-        rows = [
-            row("chain, 1 unit (ms)", lambda f: f.chain_unit_ms, lambda r: r["chain_unit_ms"]),
+    rows = [
+        row("chain, 1 unit (ms)", lambda f: f.chain_unit_ms, lambda r: r["chain_unit_ms"]),
+        row(
+            f"MLP {config.mlp_nodes} nodes, 1 unit (ms)",
+            lambda f: f.mlp50_unit_ms,
+            lambda r: r["mlp50_unit_ms"],
+        ),
+        row(
+            f"chain, {config.chain_units} units (units/s)",
+            lambda f: f.units_per_s,
+            lambda r: r["units_per_s"],
+        ),
+    ]
+    for k in (str(k) for k in config.scenarios):
+        rows.append(
             row(
-                f"MLP {c.mlp_nodes} nodes, 1 unit (ms)",
-                lambda f: f.mlp50_unit_ms,
-                lambda r: r["mlp50_unit_ms"],
-            ),
-            row(
-                f"chain, {c.chain_units} units (units/s)", lambda f: f.units_per_s, lambda r: r["units_per_s"]
-            ),
-        ]
-        for k in self.scenarios_ms:
-            rows.append(
-                row(
-                    f"MLP, {c.scenario_units} units, {k} scenarios (ms)",
-                    lambda f, k=k: f.scenarios_ms.get(k),
-                    lambda r, k=k: r["scenarios_ms"][k],
-                )
+                f"MLP, {config.scenario_units} units, {k} scenarios (ms)",
+                lambda f, k=k: f.scenarios_ms.get(k),
+                lambda r, k=k: r["scenarios_ms"][k],
             )
-        lines = [
-            "## Counterfactual benchmark",
-            "",
-            markdown_table(header, rows),
-            "",
-            "Ratios pal/peer are ours/peer for times and peer/ours for units/s: **< 1 means pal is faster**.",
-            f"do() on `{self.intervened}` in the MLP SCM; medians after a warm-up call; torch threads: {c.threads}.",
-        ]
-        if len(self.scenarios_ms) > 1:
-            keys = list(self.scenarios_ms)
-            growth = ratio(self.scenarios_ms[keys[-1]], self.scenarios_ms[keys[0]])
-            lines.append(
-                f"pal: {keys[-1]} scenarios take {growth:.3g}x the time of {keys[0]} (target <= 2x)."
+        )
+    return Table(
+        "Counterfactual queries: pal against its peers on the same SCMs",
+        ["figure", *libs, *(f"pal/{n}" for n in peers)],
+        rows,
+        caption="Ratios pal/peer are ours/peer for times and peer/ours for units/s: < 1 means pal is faster.",
+    )
+
+
+def _figure(config: Config, libs: dict[str, PeerFigures | None]) -> Figure:
+    """Time against the number of scenarios K, one line per library."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    for name, figs in libs.items():
+        if figs is not None:
+            ax.plot(
+                [int(k) for k in figs.scenarios_ms], list(figs.scenarios_ms.values()), marker="o", label=name
             )
-        for name, fig in libs[1:]:
-            if fig is None:
-                lines.append(f"- {name}: not installed, skipped.")
-                continue
-            for note in fig.notes:
-                lines.append(f"- {name}: {note}")
-        return "\n".join(lines) + "\n"
-
-    def figures(self) -> dict[str, Any]:
-        """``scenarios``: time against the number of scenarios K, one line per library."""
-        import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(5, 3.5))
-        for name, figs in (("pal", self.ours), ("chirho", self.chirho), ("dowhy", self.dowhy)):
-            if figs is None:
-                continue
-            ks = [int(k) for k in figs.scenarios_ms]
-            ax.plot(ks, list(figs.scenarios_ms.values()), marker="o", label=name)
-        ax.set_xlabel("scenarios K")
-        ax.set_ylabel("ms per call")
-        ax.set_yscale("log")
-        ax.set_title(f"{self.config.scenario_units} units, {self.config.mlp_nodes}-node MLP SCM")
-        ax.legend()
-        fig.tight_layout()
-        return {"scenarios": fig}
+    ax.set(
+        xlabel="scenarios K",
+        ylabel="ms per call",
+        yscale="log",
+        title=f"{config.scenario_units} units, {config.mlp_nodes}-node MLP SCM",
+    )
+    ax.legend()
+    fig.tight_layout()
+    return fig
 
 
 # ---------------------------------------------------------------------------- models
@@ -260,10 +201,7 @@ def chain_model() -> WorldModel:
 
 def mlp_model(nodes: int, seed: int) -> WorldModel:
     """``random_graph(nodes, seed)`` with default MLP mechanisms, weights seeded by ``seed``."""
-    graph = random_graph(nodes, seed=seed)
-    with torch.random.fork_rng():
-        torch.manual_seed(seed)
-        return WorldModel(graph)
+    return WorldModel(random_graph(nodes, seed=seed), seed=seed)
 
 
 def intervention_node(model: WorldModel) -> str:
@@ -400,17 +338,32 @@ def _peer(
     return figs, max(chain_diff, mlp_diff)
 
 
-def run(config: Config, progress_bar: bool = False) -> Result:
-    """Measure pal and the importable peers; see the module docstring."""
-    for name in config.peers:
-        available(name)  # raises on unknown names
-    if config.mlp_nodes < 2 or config.chain_units < 1 or config.scenario_units < 1:
-        raise ValueError(
-            f"need mlp_nodes >= 2, chain_units >= 1, scenario_units >= 1; got {config.mlp_nodes}, "
-            f"{config.chain_units}, {config.scenario_units}"
-        )
-    if not config.scenarios or any(k < 1 for k in config.scenarios):
-        raise ValueError(f"scenarios must be positive numbers of scenarios, got {config.scenarios}")
+@register(
+    "counterfactual",
+    kind="bench",
+    config=Config,
+    quick=Config(
+        mlp_nodes=10,
+        chain_units=500,
+        scenario_units=50,
+        repeats=3,
+        batch_repeats=2,
+        peer_repeats=1,
+        peer_budget_s=5.0,
+    ),
+    tiny=Config(
+        mlp_nodes=4,
+        chain_units=50,
+        scenario_units=10,
+        scenarios=(1, 2),
+        repeats=1,
+        batch_repeats=1,
+        peers=(),
+        peer_repeats=1,
+    ),
+)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """Exact counterfactuals: time per unit, units/s and K-scenario scaling against ChiRho and DoWhy-GCM."""
     with torch_threads(config.threads):
         chain, mlp = chain_model(), mlp_model(config.mlp_nodes, config.seed)
         node = intervention_node(mlp)
@@ -436,26 +389,57 @@ def run(config: Config, progress_bar: bool = False) -> Result:
             key: {v: t[0] for v, t in timings[t_key].result.samples.items()} for key, t_key in keys.items()
         }
         bar.update()
-        results: dict[str, PeerFigures | None] = {"chirho": None, "dowhy": None}
+        pal = PeerFigures(
+            timings["chain_unit"].ms,
+            timings["mlp_unit"].ms,
+            config.chain_units / timings["batch"].median,
+            {str(k): timings[f"k{k}"].ms for k in config.scenarios},
+        )
+        libs: dict[str, PeerFigures | None] = {"pal": pal, "chirho": None, "dowhy": None}
         agreement: dict[str, float] = {}
-        for name in config.peers:
-            if name not in peers:
-                log.info("%s is not importable; skipping it", name)
-                continue
+        for name in peers:
             log.info("timing %s", name)
-            results[name], agreement[name] = _peer(name, config, chain, mlp, data, ours)
+            libs[name], agreement[name] = _peer(name, config, chain, mlp, data, ours)
             bar.update()
         bar.close()
-    scen = {str(k): timings[f"k{k}"].ms for k in config.scenarios}
-    units_per_s = config.chain_units / timings["batch"].median
-    return Result(
-        timings["chain_unit"].ms,
-        timings["mlp_unit"].ms,
-        units_per_s,
-        scen,
-        results["chirho"],
-        results["dowhy"],
-        agreement,
-        config,
-        node,
+    rel = {n: None if f is None else ratios(pal, f) for n, f in libs.items() if n != "pal"}
+    first, last = (str(k) for k in (config.scenarios[0], config.scenarios[-1]))
+    growth = ratio(pal.scenarios_ms[last], pal.scenarios_ms[first])
+    notes = [f"do() on {node} in the MLP SCM; medians after a warm-up call; torch threads: {config.threads}."]
+    for name in ("chirho", "dowhy"):
+        fig = libs[name]
+        notes += (
+            [f"{name}: not installed or not asked for, skipped."]
+            if fig is None
+            else [f"{name}: {n}." for n in fig.notes]
+        )
+    return Report(
+        title="Counterfactual benchmark",
+        metrics={
+            **{n: None if f is None else dataclasses.asdict(f) for n, f in libs.items()},
+            "ratios": rel,
+            "agreement": agreement,
+            "scenario_growth": growth,
+            "intervened": node,
+        },
+        tables=[_table(config, libs, rel)],
+        targets=[
+            Target("chain_unit_ms", pal.chain_unit_ms, 2.0, "<=", "one chain unit, ms"),
+            Target(
+                "units_per_s",
+                pal.units_per_s,
+                3e5,
+                ">=",
+                f"chain units per second in a batch of {config.chain_units}",
+            ),
+            Target(
+                f"scenarios_{last}_vs_{first}",
+                growth,
+                2.0,
+                "<=",
+                f"time of {last} scenarios / time of {first}",
+            ),
+        ],
+        notes=notes,
+        figures={"scenarios": _figure(config, libs)},
     )

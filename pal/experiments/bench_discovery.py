@@ -1,22 +1,23 @@
-"""``pal bench discovery``: wall time of structure learning and of contextualised action inference.
+"""Benchmark ``discovery``: wall time of structure learning and of contextualised action inference.
 
 1. :func:`inference.discover` on standardised data of the synthetic SCMs of
-   :mod:`pal.experiments.discovery_scm` (d in ``dims``, ``n`` rows), against causal-learn's
-   GRaSP and PC on the same data when causal-learn is importable (``null`` otherwise).
-   Figures: seconds per call and ``ratio_grasp`` = ours / GRaSP (> 1: ours is slower); SHD
-   is reported beside them.
-2. Action inference (Alg. 4.2) for one joint of a ``joints``-joint world model
+   :mod:`pal.experiments.discovery_scm` (d in ``scm.dims``, ``n`` rows), against
+   causal-learn's GRaSP and PC on the same data when causal-learn is importable (None
+   otherwise). Figures: median seconds per call over ``repeats`` interleaved calls, and
+   ``ratio_grasp`` = ours / GRaSP (> 1: ours is slower); SHD is reported beside them.
+2. Action inference (Alg. 4.2) for one joint of a ``context.joints``-joint world model
    (:func:`models.joint_chain_graph`, state variant): on the whole graph, and on the active
    subgraph of the query (:func:`inference.context.active_subgraph`). Figures: seconds of
    each, ``ratio`` = subgraph / whole (< 1: the subgraph is faster), extraction seconds,
-   and the largest action difference.
+   and the largest action difference (the subgraph must give the whole graph's actions).
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from dataclasses import asdict, dataclass
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -25,114 +26,107 @@ import torch
 from inference import infer_action
 from inference.context import active_subgraph, subgraph_model
 from inference.discovery import discover, shd
-from models import WorldModel, joint_chain_graph
+from models import CausalGraph, WorldModel, joint_chain_graph
+from pal.checks import check_int
 from pal.experiments import discovery_peers as peers
-from pal.experiments.discovery_scm import random_scm
-from pal.experiments.timing import markdown_table, measure_interleaved, ratio, torch_threads
+from pal.experiments.discovery_scm import SCMConfig, standardised
+from pal.experiments.registry import register
+from pal.experiments.report import Report, Table, Target
+from pal.experiments.timing import measure_interleaved, ratio, torch_threads
 
-__all__ = ["Config", "Result", "run"]
+__all__ = ["Config", "ContextConfig", "run"]
 
 log = logging.getLogger(__name__)
+
+#: Largest |action on the subgraph - action on the whole graph| counted as the same action.
+SAME_ACTION = 1e-5
+
+
+@dataclass(frozen=True)
+class ContextConfig:
+    """Action inference for the angle of one joint of a many-joint world model.
+
+    Attributes:
+        joints: joints of the model (4 variables each, 2 x 32 MLP mechanisms).
+        targets: target angles inferred in one batch.
+        steps: Adam iterations of Alg. 4.2.
+    """
+
+    joints: int = 50
+    targets: int = 64
+    steps: int = 100
+
+    def __post_init__(self) -> None:
+        check_int("joints", self.joints)
+        check_int("targets", self.targets)
+        check_int("steps", self.steps)
 
 
 @dataclass(frozen=True)
 class Config:
-    dims: tuple[int, ...] = (10, 20)
-    n: int = 1000
+    """Benchmark sizes.
+
+    Attributes:
+        seed: seeds the SCMs, their data, the learners and the world model's weights.
+        scm: sizes of the synthetic SCMs.
+        context: the contextualisation query.
+        repeats: timed calls per figure (median).
+        threads: torch intra-op threads during the timings (None: leave as is).
+    """
+
     seed: int = 0
-    joints: int = 50
-    targets: int = 64
-    steps: int = 100
+    scm: SCMConfig = SCMConfig(dims=(10, 20))
+    context: ContextConfig = ContextConfig()
     repeats: int = 3
     threads: int | None = 1
 
-    @classmethod
-    def quick(cls) -> Config:
-        return cls(dims=(8,), n=300, joints=10, targets=8, steps=20, repeats=1)
+    def __post_init__(self) -> None:
+        check_int("repeats", self.repeats)
+        if self.threads is not None:
+            check_int("threads", self.threads)
 
 
-@dataclass(frozen=True)
-class Result:
-    discovery: dict[str, dict[str, Any]]
-    context: dict[str, Any]
-    config: dict[str, Any]
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"discovery": self.discovery, "context": self.context, "causal_learn": peers.available()}
-
-    def to_markdown(self) -> str:
-        rows = []
-        for d, r in self.discovery.items():
-            rows.append(
-                [
-                    d,
-                    r["seconds"],
-                    r["shd"],
-                    r["grasp_seconds"],
-                    r["grasp_shd"],
-                    r["pc_seconds"],
-                    r["pc_shd"],
-                    r["ratio_grasp"],
-                ]
-            )
-        c = self.context
-        return (
-            "## Structure-learning and contextualisation benchmark\n\n"
-            + markdown_table(
-                ["d", "discover s", "SHD", "GRaSP s", "GRaSP SHD", "PC s", "PC SHD", "ours / GRaSP"], rows
-            )
-            + "\n\n"
-            + f"Action inference for one joint of a {c['joints']}-joint model ({c['variables']} variables), "
-            f"{c['targets']} targets x {c['steps']} steps: whole graph {c['whole_seconds']:.3g} s, active subgraph "
-            f"({c['subgraph_variables']} variables) {c['subgraph_seconds']:.3g} s, ratio **{c['ratio']:.3g}**; "
-            f"extraction {c['extract_seconds']:.3g} s; max |action difference| {c['max_action_diff']:.2g}.\n"
-        )
-
-    def figures(self) -> dict[str, Any]:
-        return {}
+def _calls(
+    graph: CausalGraph, std: dict[str, np.ndarray], seed: int, use_peers: bool
+) -> dict[str, Callable[[], Any]]:
+    """The timed calls on one SCM's standardised data: pal, and the peers when they run."""
+    calls: dict[str, Callable[[], Any]] = {"pal": lambda: discover(graph, std, seed=seed)}
+    if use_peers:
+        calls |= {m: lambda m=m: peers.compare(m, std, graph, seed=seed) for m in peers.PEERS}
+    return calls
 
 
-def _discovery(config: Config) -> dict[str, dict[str, Any]]:
+def _discovery(config: Config, use_peers: bool) -> dict[str, dict[str, Any]]:
+    """Per d: seconds and SHD of pal, GRaSP and PC, and the ratio to GRaSP."""
     out = {}
-    if peers.available():  # warm up: imports and first-call costs stay out of the timings
-        warm = np.random.default_rng(0).normal(size=(50, 3))
+    for d in config.scm.dims:
+        scm, data = config.scm.draw(d, config.seed)
+        calls = _calls(scm.graph, standardised(data), config.seed, use_peers)
+        timings = measure_interleaved(calls, repeats=config.repeats, warmup=0)
+        row: dict[str, Any] = {
+            "seconds": timings["pal"].median,
+            "shd": shd(timings["pal"].result.graph, scm.graph),
+        }
         for method in peers.PEERS:
-            peers.run_peer(method, warm, ["a", "b", "c"], seed=0)
-    for d in config.dims:
-        scm = random_scm(d, seed=1000 * d + config.seed)
-        data = scm.sample(config.n, seed=config.seed)
-        std = {k: (v - v.mean(0)) / v.std(0) for k, v in data.items()}
-        start = time.perf_counter()
-        res = discover(scm.graph, std, seed=config.seed)
-        row: dict[str, Any] = {"seconds": time.perf_counter() - start, "shd": shd(res.graph, scm.graph)}
-        names = scm.graph.names
-        x = np.concatenate([std[k] for k in names], 1)
-        for method in peers.PEERS:
-            if peers.available():
-                g = peers.run_peer(method, x, names, seed=config.seed)
-                row[f"{method}_seconds"] = g.seconds
-                row[f"{method}_shd"] = peers.cpdag_shd(g.directed, g.undirected, scm.graph.edges)
-            else:
-                row[f"{method}_seconds"] = row[f"{method}_shd"] = None
+            t = timings.get(method)
+            row[f"{method}_seconds"] = None if t is None else t.median
+            row[f"{method}_shd"] = None if t is None else t.result["shd"]
         row["ratio_grasp"] = ratio(row["seconds"], row["grasp_seconds"])
+        log.info("d=%d: discover %.2f s (GRaSP %s s)", d, row["seconds"], row["grasp_seconds"])
         out[str(d)] = row
     return out
 
 
-def _context(config: Config) -> dict[str, Any]:
+def _context(config: ContextConfig, seed: int, repeats: int) -> dict[str, Any]:
+    """Seconds of Alg. 4.2 on the whole graph and on the query's active subgraph."""
     joints = [f"j{i}" for i in range(config.joints)]
-    with torch.random.fork_rng():
-        torch.manual_seed(config.seed)
-        model = WorldModel(
-            joint_chain_graph(joints, dict.fromkeys(joints, (-1.0, 1.0)), "state"), hidden=(32, 32)
-        )
-    gen = torch.Generator().manual_seed(config.seed)
-    samples = model.sample(256, gen)
+    graph = joint_chain_graph(joints, dict.fromkeys(joints, (-1.0, 1.0)), "state")
+    model = WorldModel(graph, hidden=(32, 32), seed=seed)
+    samples = model.sample(256, torch.Generator().manual_seed(seed))
     target_joint = joints[len(joints) // 2]
     act, tgt = f"act.{target_joint}", f"q.{target_joint}"
     start = time.perf_counter()
-    sub = active_subgraph(model, samples, [tgt])
-    small = subgraph_model(model, sub)
+    small = subgraph_model(model, active_subgraph(model, samples, [tgt]))
     extract = time.perf_counter() - start
     k = config.targets
     state = {n: samples[n][:k] for n in model.graph.roots if n != act}
@@ -143,9 +137,9 @@ def _context(config: Config) -> dict[str, Any]:
             "whole": lambda: infer_action(model, state, target, actions=[act], steps=config.steps),
             "subgraph": lambda: infer_action(small, small_state, target, actions=[act], steps=config.steps),
         },
-        repeats=config.repeats,
+        repeats=repeats,
     )
-    diff = float((timings["whole"].result.actions[act] - timings["subgraph"].result.actions[act]).abs().max())
+    diff = (timings["whole"].result.actions[act] - timings["subgraph"].result.actions[act]).abs().max()
     return {
         "joints": config.joints,
         "variables": len(model.graph),
@@ -156,12 +150,93 @@ def _context(config: Config) -> dict[str, Any]:
         "subgraph_seconds": timings["subgraph"].median,
         "ratio": ratio(timings["subgraph"].median, timings["whole"].median),
         "extract_seconds": extract,
-        "max_action_diff": diff,
+        "max_action_diff": float(diff),
     }
 
 
-def run(config: Config, progress_bar: bool = False) -> Result:
+def _tables(disc: dict[str, dict[str, Any]], ctx: dict[str, Any]) -> list[Table]:
+    rows = [
+        (
+            int(d),
+            r["seconds"],
+            r["shd"],
+            r["grasp_seconds"],
+            r["grasp_shd"],
+            r["pc_seconds"],
+            r["pc_shd"],
+            r["ratio_grasp"],
+        )
+        for d, r in disc.items()
+    ]
+    keys = (
+        "variables",
+        "subgraph_variables",
+        "whole_seconds",
+        "subgraph_seconds",
+        "ratio",
+        "extract_seconds",
+    )
+    return [
+        Table(
+            "Structure learning: seconds per call and SHD",
+            ("d", "discover s", "SHD", "GRaSP s", "GRaSP SHD", "PC s", "PC SHD", "ours / GRaSP"),
+            rows,
+            "Median over interleaved calls; n/a where causal-learn is not installed.",
+        ),
+        Table(
+            f"Action inference for one joint of a {ctx['joints']}-joint model, "
+            f"{ctx['targets']} targets x {ctx['steps']} Adam steps",
+            (
+                "variables",
+                "active subgraph variables",
+                "whole graph s",
+                "subgraph s",
+                "subgraph / whole",
+                "extraction s",
+                "max |action difference|",
+            ),
+            [(*(ctx[k] for k in keys), ctx["max_action_diff"])],
+        ),
+    ]
+
+
+@register(
+    "discovery",
+    kind="bench",
+    config=Config,
+    quick=Config(scm=SCMConfig(dims=(8,), n=300), context=ContextConfig(10, 8, 20), repeats=1),
+    tiny=Config(scm=SCMConfig(dims=(5,), n=120), context=ContextConfig(3, 4, 5), repeats=1),
+)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """Seconds of structure learning against GRaSP and PC, and of action inference on the active subgraph."""
+    use_peers = peers.available()
     with torch_threads(config.threads):
-        disc = _discovery(config)
-        ctx = _context(config)
-    return Result(disc, ctx, asdict(config))
+        if use_peers:
+            peers.warm_up()
+        disc = _discovery(config, use_peers)
+        ctx = _context(config.context, config.seed, config.repeats)
+    notes = [f"Synthetic SCMs with n = {config.scm.n} standardised rows; {config.threads} torch thread(s)."]
+    if not use_peers:
+        notes.append("causal-learn is not installed, so the GRaSP and PC columns are n/a.")
+    return Report(
+        title="Structure-learning and contextualisation benchmark",
+        metrics={"discovery": disc, "context": ctx, "causal_learn": use_peers},
+        tables=_tables(disc, ctx),
+        targets=[
+            Target(
+                "context.max_action_diff",
+                ctx["max_action_diff"],
+                SAME_ACTION,
+                "<=",
+                "largest |action inferred on the active subgraph - on the whole graph| (ctrl units)",
+            ),
+            Target(
+                "context.ratio",
+                ctx["ratio"],
+                1.0,
+                "<",
+                "seconds of action inference on the active subgraph / on the whole graph",
+            ),
+        ],
+        notes=notes,
+    )

@@ -9,14 +9,15 @@ sensor noise on) rendered once into memory. Then, alternating inside each repeat
 - ``no_pose``: Π without pose estimation (segmentation, tracking, EEMS, relations, scene);
 - ``with_pose``: Π with pose estimation (the default pipeline).
 
-Each contender processes all frames from a fresh state. Figures: ``fps_no_pose``,
-``fps_with_pose``, ``render_fps`` (frames / median seconds), their ratios to ``render_fps``,
-and the median per-stage milliseconds Π reports in ``PerceptionState.timings``.
+Each contender processes all frames from a fresh state. Metrics: ``fps_no_pose``,
+``fps_with_pose``, ``render_fps`` (frames / median seconds), their ratios to ``render_fps``
+(``ratio_no_pose``, ``ratio_with_pose``), the median seconds per call, and the median
+per-stage milliseconds Π reports in ``PerceptionState.timings``.
 
 **One core**: while timing, the process is pinned to one CPU (``os.sched_setaffinity``),
 OpenCV runs one thread and the BLAS thread pool is limited to one thread (threadpoolctl, when
-installed); the numbers are reported with how many of these limits were in force. Targets
-(issue 4): ≥ 30 frames/s without pose, ≥ 10 with pose.
+installed); the numbers are reported with how many of these limits were in force. Targets:
+≥ 30 frames/s without pose, ≥ 10 with pose.
 """
 
 from __future__ import annotations
@@ -26,23 +27,28 @@ import logging
 import os
 import statistics
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
 
-from pal.experiments.timing import markdown_table, measure_interleaved, ratio
-from pal.perception import Pipeline, PipelineConfig, RGBDFrame
-from pal.sim.motions import script
+from pal.checks import check_choice, check_int
+from pal.experiments.registry import register
+from pal.experiments.report import Report, Table, Target
+from pal.experiments.timing import Timing, measure_interleaved, ratio
+from pal.frames import RGBDFrame
+from pal.perception import Pipeline, PipelineConfig
+from pal.sim.camera import BACKENDS
+from pal.sim.motions import MOTIONS, script
 from pal.sim.recording import RecordConfig, render_run
 from pal.sim.tabletop import load_tabletop
 
-__all__ = ["TARGET_FPS_NO_POSE", "TARGET_FPS_WITH_POSE", "Config", "Result", "one_core", "run"]
+__all__ = ["TARGET_FPS", "Config", "one_core", "run"]
 
 log = logging.getLogger(__name__)
 
-TARGET_FPS_NO_POSE = 30.0
-TARGET_FPS_WITH_POSE = 10.0
+#: Frames/s that Π should reach on one core, without and with pose estimation.
+TARGET_FPS = {"no_pose": 30.0, "with_pose": 10.0}
 
 
 @dataclass(frozen=True)
@@ -50,17 +56,17 @@ class Config:
     """Benchmark settings.
 
     Attributes:
-        motion: the scripted run whose frames are timed.
-        seed: its seed.
+        seed: seed of the scripted run.
+        motion: the scripted run whose frames are timed (a key of :data:`pal.sim.motions.MOTIONS`).
         frames: how many of its frames (from the start; the run is at least 3 s at 15 frames/s).
         width, height: image size, pixels.
         repeats: timed repeats (median reported) after one warm-up.
         one_core: pin to one CPU and one thread while timing.
-        backend: camera backend.
+        backend: camera backend (:data:`pal.sim.camera.BACKENDS`).
     """
 
-    motion: str = "box-rotation"
     seed: int = 0
+    motion: str = "box-rotation"
     frames: int = 45
     width: int = 640
     height: int = 480
@@ -68,9 +74,13 @@ class Config:
     one_core: bool = True
     backend: str = "auto"
 
-    @classmethod
-    def quick(cls) -> Config:
-        return cls(frames=10, repeats=1)
+    def __post_init__(self) -> None:
+        check_choice("motion", self.motion, tuple(MOTIONS))
+        check_int("frames", self.frames, minimum=2)
+        check_int("width", self.width, minimum=16)
+        check_int("height", self.height, minimum=16)
+        check_int("repeats", self.repeats)
+        check_choice("backend", self.backend, BACKENDS)
 
 
 @contextlib.contextmanager
@@ -108,98 +118,17 @@ def one_core(enabled: bool = True) -> Iterator[dict[str, Any]]:
             os.sched_setaffinity(0, before)
 
 
-@dataclass(frozen=True)
-class Result:
-    """Frames per second of each contender (module docstring)."""
-
-    fps_no_pose: float
-    fps_with_pose: float
-    render_fps: float
-    seconds: dict[str, float]
-    stage_ms: dict[str, dict[str, float]]
-    limits: dict[str, Any]
-    backend: str
-    frames: int
-    config: Config = field(default_factory=Config)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "fps_no_pose": self.fps_no_pose,
-            "fps_with_pose": self.fps_with_pose,
-            "render_fps": self.render_fps,
-            "ratio_no_pose": ratio(self.fps_no_pose, self.render_fps),
-            "ratio_with_pose": ratio(self.fps_with_pose, self.render_fps),
-            "targets": {"fps_no_pose": TARGET_FPS_NO_POSE, "fps_with_pose": TARGET_FPS_WITH_POSE},
-            "met": {
-                "fps_no_pose": self.fps_no_pose >= TARGET_FPS_NO_POSE,
-                "fps_with_pose": self.fps_with_pose >= TARGET_FPS_WITH_POSE,
-            },
-            "seconds_per_call": dict(self.seconds),
-            "stage_ms": {k: dict(v) for k, v in self.stage_ms.items()},
-            "limits": dict(self.limits),
-            "backend": self.backend,
-            "frames": self.frames,
-            "width": self.config.width,
-            "height": self.config.height,
-            "motion": self.config.motion,
-        }
-
-    def to_markdown(self) -> str:
-        rows = [
-            ["render (baseline)", self.seconds["render"], self.render_fps, 1.0, "-"],
-            [
-                "Π without pose",
-                self.seconds["no_pose"],
-                self.fps_no_pose,
-                ratio(self.fps_no_pose, self.render_fps),
-                f">= {TARGET_FPS_NO_POSE:g}: {'met' if self.fps_no_pose >= TARGET_FPS_NO_POSE else 'NOT met'}",
-            ],
-            [
-                "Π with pose",
-                self.seconds["with_pose"],
-                self.fps_with_pose,
-                ratio(self.fps_with_pose, self.render_fps),
-                f">= {TARGET_FPS_WITH_POSE:g}: {'met' if self.fps_with_pose >= TARGET_FPS_WITH_POSE else 'NOT met'}",
-            ],
-        ]
-        stages = sorted({s for v in self.stage_ms.values() for s in v})
-        c = self.config
-        return (
-            "\n".join(
-                [
-                    "## Perception throughput",
-                    "",
-                    f"{self.frames} frames of `{c.motion}` (seed {c.seed}) at {c.width}x{c.height}, camera backend `{self.backend}`, "
-                    f"median of {c.repeats} repeats; limits: {self.limits}.",
-                    "",
-                    markdown_table(["", "seconds per call", "frames/s", "/ render", "target"], rows),
-                    "",
-                    "Median milliseconds per frame by stage:",
-                    "",
-                    markdown_table(
-                        ["stage", *self.stage_ms],
-                        [[s, *[self.stage_ms[k].get(s) for k in self.stage_ms]] for s in stages],
-                    ),
-                ]
-            )
-            + "\n"
-        )
-
-    def figures(self) -> dict[str, Any]:
-        return {}
-
-
 def _stage_ms(states: list[Any]) -> dict[str, float]:
     keys = sorted({k for s in states for k in s.timings})
     return {k: 1000.0 * statistics.median(s.timings.get(k, 0.0) for s in states) for k in keys}
 
 
-def run(config: Config, progress_bar: bool = False) -> Result:
-    """Render the frames once, then time rendering and Π with and without pose estimation."""
-    if config.frames < 2 or config.repeats < 1:
-        raise ValueError(
-            f"frames must be >= 2 and repeats >= 1, got frames={config.frames}, repeats={config.repeats}"
-        )
+def _time(config: Config) -> tuple[dict[str, Timing], dict[str, Any], str]:
+    """Render the frames once, then time rendering and Π without and with pose estimation.
+
+    Returns:
+        (contender -> timing, the one-core limits in force, the camera backend used).
+    """
     rc = RecordConfig(
         config.motion, seed=config.seed, width=config.width, height=config.height, backend=config.backend
     )
@@ -245,26 +174,75 @@ def run(config: Config, progress_bar: bool = False) -> Result:
             )
     finally:
         cam.close()
+    return timings, limits, backend
+
+
+@register(
+    "perception",
+    kind="bench",
+    config=Config,
+    quick=Config(frames=10, repeats=1),
+    tiny=Config(frames=3, width=160, height=120, repeats=1),
+)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """Frames per second of the perception pipeline with and without pose, against rendering the same frames."""
+    timings, limits, backend = _time(config)
     seconds = {k: t.median for k, t in timings.items()}
-    fps = {k: config.frames / s for k, s in seconds.items()}
-    result = Result(
-        fps_no_pose=fps["no_pose"],
-        fps_with_pose=fps["with_pose"],
-        render_fps=fps["render"],
-        seconds=seconds,
-        stage_ms={
-            "no_pose": _stage_ms(timings["no_pose"].result),
-            "with_pose": _stage_ms(timings["with_pose"].result),
-        },
-        limits=limits,
-        backend=backend,
-        frames=config.frames,
-        config=config,
+    fps = {k: config.frames / s if s > 0 else None for k, s in seconds.items()}
+    stage_ms = {k: _stage_ms(timings[k].result) for k in ("no_pose", "with_pose")}
+    ratios = {k: ratio(fps[k], fps["render"]) for k in ("no_pose", "with_pose")}
+    m = {
+        "fps_no_pose": fps["no_pose"],
+        "fps_with_pose": fps["with_pose"],
+        "render_fps": fps["render"],
+        "ratio_no_pose": ratios["no_pose"],
+        "ratio_with_pose": ratios["with_pose"],
+        "seconds_per_call": seconds,
+        "stage_ms": stage_ms,
+        "limits": dict(limits),
+        "backend": backend,
+        "frames": config.frames,
+        "width": config.width,
+        "height": config.height,
+        "motion": config.motion,
+    }
+    size = f"{config.width}x{config.height}"
+    stages = sorted({s for v in stage_ms.values() for s in v})
+    return Report(
+        title="Perception throughput (frames/s of Pi against rendering the same frames)",
+        metrics=m,
+        tables=[
+            Table(
+                "Perception throughput",
+                ["contender", "seconds per call", "frames/s", "/ render"],
+                [
+                    ["render (baseline)", seconds["render"], fps["render"], 1.0],
+                    ["Pi without pose", seconds["no_pose"], fps["no_pose"], ratios["no_pose"]],
+                    ["Pi with pose", seconds["with_pose"], fps["with_pose"], ratios["with_pose"]],
+                ],
+                f"One call processes all {config.frames} frames from a fresh state; median of {config.repeats} repeats.",
+            ),
+            Table(
+                "Median milliseconds per frame by stage",
+                ["stage", "without pose", "with pose"],
+                [[s, stage_ms["no_pose"].get(s), stage_ms["with_pose"].get(s)] for s in stages],
+            ),
+        ],
+        targets=[
+            Target(
+                f"fps_{k}",
+                fps[k],
+                TARGET_FPS[k],
+                ">=",
+                f"frames/s of Pi {how} pose estimation at {size} on one core",
+            )
+            for k, how in (("no_pose", "without"), ("with_pose", "with"))
+        ],
+        notes=[
+            f"{config.frames} frames of {config.motion} (seed {config.seed}) at {size}, camera backend {backend}, "
+            f"median of {config.repeats} repeats after one warm-up.",
+            "Limits in force while timing: "
+            + ", ".join(f"{k} {'not limited' if v is None else v}" for k, v in limits.items())
+            + ".",
+        ],
     )
-    for name, value, target in (
-        ("no pose", result.fps_no_pose, TARGET_FPS_NO_POSE),
-        ("with pose", result.fps_with_pose, TARGET_FPS_WITH_POSE),
-    ):
-        if value < target:
-            log.warning("perception %s runs at %.1f frames/s, below the target %g", name, value, target)
-    return result

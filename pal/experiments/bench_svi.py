@@ -24,8 +24,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
 import pyro
 import pyro.distributions as dist
@@ -41,9 +40,12 @@ from models.graph import CausalGraph
 from models.mechanisms import LinearMechanism
 from models.variables import Role, Variable
 from models.world import WorldModel
-from pal.experiments.timing import markdown_table, measure_interleaved, ratio, torch_threads
+from pal.checks import check_float, check_int
+from pal.experiments.registry import register
+from pal.experiments.report import Report, Table, Target
+from pal.experiments.timing import measure_interleaved, ratio, torch_threads
 
-__all__ = ["SIGMAS", "WEIGHTS", "Config", "Result", "chain4_model", "plain_program", "run"]
+__all__ = ["SIGMAS", "WEIGHTS", "Config", "chain4_model", "plain_program", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -77,64 +79,14 @@ class Config:
     repeats: int = 5
     threads: int | None = 1
 
-    @classmethod
-    def quick(cls) -> Config:
-        return cls(units=100, num_steps=30, short_steps=2, num_particles=4, repeats=1)
-
-
-@dataclass(frozen=True)
-class Result:
-    """Step rates of infer_state and plain Pyro (see the module docstring)."""
-
-    steps_per_s: dict[str, float]
-    steps_per_s_loop: dict[str, float | None]
-    ratio: float
-    seconds: dict[str, float] = field(default_factory=dict)
-    final_loss: dict[str, float] = field(default_factory=dict)
-    config: Config = field(default_factory=Config)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "steps_per_s": dict(self.steps_per_s),
-            "steps_per_s_loop": dict(self.steps_per_s_loop),
-            "ratio": self.ratio,
-        }
-
-    def to_markdown(self) -> str:
-        c = self.config
-        rows = [
-            [
-                name,
-                self.seconds.get(name),
-                self.steps_per_s[name],
-                self.steps_per_s_loop[name],
-                self.final_loss.get(name),
-            ]
-            for name in self.steps_per_s
-        ]
-        loop_ratio = ratio(self.steps_per_s_loop["infer_state"], self.steps_per_s_loop["plain_pyro"])
-        return (
-            "\n".join(
-                [
-                    "## SVI benchmark",
-                    "",
-                    f"A -> B -> C -> D, B latent, {c.units} units, {c.num_steps} steps, {c.num_particles} particles, "
-                    f"AutoNormal + ClippedAdam; torch threads: {c.threads}.",
-                    "",
-                    markdown_table(
-                        ["", "seconds per call", "steps/s", "steps/s (loop only)", "final loss / unit"], rows
-                    ),
-                    "",
-                    f"ratio infer_state / plain Pyro (steps/s): **{self.ratio:.3g}** (loop only: "
-                    f"{'n/a' if loop_ratio is None else f'{loop_ratio:.3g}'}); target >= {1 / 1.3:.3g}. "
-                    "> 1 means infer_state is faster.",
-                ]
-            )
-            + "\n"
-        )
-
-    def figures(self) -> dict[str, Any]:
-        return {}
+    def __post_init__(self) -> None:
+        check_int("units", self.units)
+        check_int("num_steps", self.num_steps, minimum=2)
+        check_int("short_steps", self.short_steps, maximum=self.num_steps - 1)
+        check_int("num_particles", self.num_particles)
+        check_int("repeats", self.repeats)
+        for name in ("lr", "lr_final", "init_scale"):
+            check_float(name, getattr(self, name), 0.0, open_low=True)
 
 
 def chain4_model() -> WorldModel:
@@ -166,7 +118,7 @@ def _plain_svi(config: Config, data: dict[str, Tensor], num_steps: int) -> float
     """What a user writes by hand: returns the final loss per unit."""
     n = data["a"].shape[0]
     with pyro.get_param_store().scope(), torch.random.fork_rng():
-        pyro.set_rng_seed(config.seed)
+        torch.manual_seed(config.seed)  # Pyro samples with torch's RNG; numpy's and Python's stay untouched
         guide = AutoNormal(plain_program, init_scale=config.init_scale)
         optim = ClippedAdam({"lr": config.lr, "lrd": (config.lr_final / config.lr) ** (1.0 / num_steps)})
         elbo = Trace_ELBO(
@@ -195,13 +147,15 @@ def _ours(config: Config, model: WorldModel, data: dict[str, Tensor], num_steps:
     return result.loss[-1]
 
 
-def run(config: Config, progress_bar: bool = False) -> Result:
-    """Time infer_state and plain Pyro SVI alternately; see the module docstring."""
-    if config.units < 1 or config.num_steps < 2 or not 1 <= config.short_steps < config.num_steps:
-        raise ValueError(
-            f"need units >= 1 and 1 <= short_steps < num_steps, got units={config.units}, "
-            f"short_steps={config.short_steps}, num_steps={config.num_steps}"
-        )
+@register(
+    "svi",
+    kind="bench",
+    config=Config,
+    quick=Config(units=100, num_steps=30, short_steps=2, num_particles=4, repeats=1),
+    tiny=Config(units=20, num_steps=6, short_steps=2, num_particles=2, repeats=1),
+)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """State inference: infer_state's SVI steps/s against the same SVI written in plain Pyro."""
     with torch_threads(config.threads):
         model = chain4_model()
         sample = model.sample(config.units, torch.Generator().manual_seed(config.seed))
@@ -237,11 +191,32 @@ def run(config: Config, progress_bar: bool = False) -> Result:
         if loop[name] is None:
             log.warning("%s: the full run was not slower than the short one (noise); no loop rate", name)
     rate = {k: config.num_steps / t.median for k, t in full.items()}
-    return Result(
-        rate,
-        loop,
-        rate["infer_state"] / rate["plain_pyro"],
-        {k: t.median for k, t in full.items()},
-        loss,
-        config,
+    seconds = {k: t.median for k, t in full.items()}
+    rel = rate["infer_state"] / rate["plain_pyro"]
+    loop_ratio = ratio(loop["infer_state"], loop["plain_pyro"])
+    rows = [(name, seconds[name], rate[name], loop[name], loss[name]) for name in rate]
+    c = config
+    return Report(
+        title="SVI benchmark",
+        metrics={
+            "steps_per_s": rate,
+            "steps_per_s_loop": loop,
+            "ratio": rel,
+            "loop_ratio": loop_ratio,
+            "seconds": seconds,
+            "final_loss": loss,
+        },
+        tables=[
+            Table(
+                "infer_state against plain Pyro SVI",
+                ("", "seconds per call", "steps/s", "steps/s (loop only)", "final loss / unit"),
+                rows,
+                caption="ratio > 1 means infer_state is faster.",
+            )
+        ],
+        targets=[Target("ratio", rel, 1 / 1.3, ">=", "steps/s of infer_state / steps/s of plain Pyro")],
+        notes=[
+            f"A -> B -> C -> D, B latent, {c.units} units, {c.num_steps} steps, {c.num_particles} particles, "
+            f"AutoNormal + ClippedAdam; torch threads: {c.threads}."
+        ],
     )

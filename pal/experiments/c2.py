@@ -5,8 +5,8 @@ the box at a seeded start (``start_radius`` m from the shoulder, within ``bearin
 workspace's central bearing, random yaw), the ball out of reach, the arm at rest, and draws a goal
 ``distance`` m away in a direction ``cone_deg`` from the arm's sweep direction (the
 counter-clockwise tangent about the shoulder; negative angles turn it outwards, away from the body;
-pushing the box towards the body needs the hand beyond it, which this arm rarely manages). Three controllers get ``episode_steps`` steps from
-the same start:
+pushing the box towards the body needs the hand beyond it, which this arm rarely manages). Three
+controllers get ``episode_steps`` steps from the same start:
 
 - ``inferred``: the agent in goal mode (:meth:`pal.agent.Agent.decide`): per step Π, the state
   posterior through the measurement sites, and the action from Alg. 4.2 (plus a two-step lookahead
@@ -21,43 +21,67 @@ the same start:
 ``model_err_cm``: the distance to its goal that the world model predicted for its last executed
 action, and ``belief_err_cm``: the distance of its final state estimate (posterior mean) from it.
 
-``pal experiment c2 --json``: ``{inferred|random|scripted: {final_err_cm_median, ...},
-model_err_cm_median, ...}``.
+Metrics: ``{inferred|random|scripted: {final_err_cm_median, _mean, _p25, _p75, within_2cm}}``,
+``model_err_cm_median``, ``belief_err_cm_median``, ``initial_err_cm_median``,
+``random_over_inferred``, ``scripted_over_inferred``, ``episodes`` (one record per target) and
+``info``.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import time
-from dataclasses import asdict, dataclass, field
+from collections import Counter
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from pal.agent import Agent
+from pal.checks import check_float, check_int
 from pal.experiments.pushing_control import ScriptedPusher
-from pal.experiments.pushing_setup import SetupConfig, babbled_agent, summary
-from pal.experiments.timing import markdown_table
+from pal.experiments.pushing_setup import QUICK_SETUP, TINY_SETUP, SetupConfig, babbled_agent, summary
+from pal.experiments.registry import register
+from pal.experiments.report import Report, Table, Target
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["CONDITIONS", "TARGET_ERR_CM", "TARGET_VS_RANDOM", "Config", "Result", "goals", "run"]
+__all__ = ["CONDITIONS", "TARGET_ERR_CM", "TARGET_VS_RANDOM", "Config", "goals", "run"]
 
 log = logging.getLogger(__name__)
 
 CONDITIONS = ("inferred", "random", "scripted")
-#: Issue 6 targets: median realized final error <= 2 cm and >= 5x better than random.
+#: The agent's median final error should be at most this, cm ...
 TARGET_ERR_CM = 2.0
+#: ... and at least this many times smaller than random babbling's.
 TARGET_VS_RANDOM = 5.0
 #: Where the ball waits during C2 (out of the arm's reach, in view), table frame, m.
 BALL_PARK = (-0.22, 0.0, 0.0)
 
 
-@dataclass(frozen=True)
-class Config(SetupConfig):
-    """C2 protocol (module docstring); sizes in metres and degrees."""
+def _interval(name: str, value: tuple[float, float], low: float | None = None) -> tuple[float, float]:
+    a, b = (check_float(name, v, low) for v in value)
+    if not a <= b:
+        raise ValueError(f"{name} must be (low, high) with low <= high, got {value!r}")
+    return a, b
 
+
+@dataclass(frozen=True)
+class Config:
+    """C2 protocol (module docstring); sizes in metres and degrees.
+
+    Attributes:
+        seed: master seed (babbling, fits, episodes, inference).
+        setup: babbling and fitting.
+        targets: goal episodes.
+        episode_steps: steps per episode and controller.
+        start_radius, bearing_deg: where the box starts about the shoulder (m, deg).
+        distance, cone_deg: how far the goal is (m) and its direction from the sweep direction (deg).
+    """
+
+    seed: int = 0
+    setup: SetupConfig = SetupConfig()
     targets: int = 20
     episode_steps: int = 15
     start_radius: tuple[float, float] = (0.16, 0.20)
@@ -65,84 +89,22 @@ class Config(SetupConfig):
     distance: tuple[float, float] = (0.04, 0.08)
     cone_deg: tuple[float, float] = (-60.0, 15.0)
 
-    @classmethod
-    def quick(cls) -> Config:
-        return cls(babble_steps=240, epochs=40, targets=2, episode_steps=3)
+    def __post_init__(self) -> None:
+        check_int("seed", self.seed, minimum=0)
+        check_int("targets", self.targets)
+        check_int("episode_steps", self.episode_steps)
+        check_float("bearing_deg", self.bearing_deg, 0.0, 180.0)
+        object.__setattr__(self, "start_radius", _interval("start_radius", self.start_radius, 0.0))
+        object.__setattr__(self, "distance", _interval("distance", self.distance, 0.0))
+        object.__setattr__(self, "cone_deg", _interval("cone_deg", self.cone_deg))
 
 
-@dataclass(frozen=True)
-class Result:
-    """C2 errors in cm (module docstring); ``episodes`` holds one record per target."""
-
-    metrics: dict[str, Any]
-    episodes: list[dict[str, Any]]
-    info: dict[str, Any]
-    config: Config
-    traces: dict[str, list[np.ndarray]] = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {**self.metrics, "episodes": self.episodes, "info": self.info}
-
-    def to_markdown(self) -> str:
-        m = self.metrics
-        rows = [
-            [
-                c,
-                m[c]["final_err_cm_median"],
-                m[c]["final_err_cm_p25"],
-                m[c]["final_err_cm_p75"],
-                m[c]["within_2cm"],
-            ]
-            for c in CONDITIONS
-        ]
-        better = m["random_over_inferred"]
-        met = m["inferred"]["final_err_cm_median"] <= TARGET_ERR_CM and better >= TARGET_VS_RANDOM
-        return (
-            "\n".join(
-                [
-                    "## C2: pushing the box to targets (realized in the simulator)",
-                    "",
-                    f"{self.config.targets} targets, {self.config.episode_steps} steps each; start-to-goal distance median "
-                    f"{m['initial_err_cm_median']:.2f} cm. Final distance of the true box centre from the goal, cm. "
-                    "The thesis has no number for this.",
-                    "",
-                    markdown_table(
-                        ["controller", "median", "25th pct", "75th pct", "share within 2 cm"], rows
-                    ),
-                    "",
-                    f"agent's model-internal predicted error (last action): median {m['model_err_cm_median']:.2f} cm; "
-                    f"its final belief (posterior mean vs goal): median {m['belief_err_cm_median']:.2f} cm.",
-                    f"random / inferred = {better:.2f}; scripted / inferred = {m['scripted_over_inferred']:.2f}. "
-                    f"Target (median <= {TARGET_ERR_CM:g} cm and >= {TARGET_VS_RANDOM:g}x better than random): "
-                    f"{'met' if met else 'NOT met'}.",
-                ]
-            )
-            + "\n"
-        )
-
-    def figures(self) -> dict[str, Figure]:
-        import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(5.5, 3.6))
-        for c, colour in zip(CONDITIONS, ("C0", "C3", "C2"), strict=True):
-            for k, trace in enumerate(self.traces.get(c, [])):
-                ax.plot(
-                    np.arange(len(trace)),
-                    trace * 100,
-                    color=colour,
-                    alpha=0.35,
-                    lw=1,
-                    label=c if k == 0 else None,
-                )
-        ax.axhline(TARGET_ERR_CM, color="k", ls=":", lw=1)
-        ax.set(xlabel="step", ylabel="box distance to goal, cm", title="C2 episodes")
-        ax.legend(fontsize=7)
-        fig.tight_layout()
-        return {"episodes": fig}
+QUICK = Config(setup=QUICK_SETUP, targets=2, episode_steps=3)
+TINY = Config(setup=TINY_SETUP, targets=1, episode_steps=2)
 
 
 def goals(config: Config, heading: float, shoulder: np.ndarray) -> list[dict[str, Any]]:
-    """The seeded episodes: box start (x, y, yaw deg) and goal (x, y), table frame."""
+    """The seeded episodes: box start (x, y, yaw deg), goal (2,) and reset seed, table frame, m."""
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 62]))
     out = []
     for k in range(config.targets):
@@ -161,53 +123,71 @@ def goals(config: Config, heading: float, shoulder: np.ndarray) -> list[dict[str
     return out
 
 
-def _episode(agent: Any, spec: dict[str, Any], condition: str, steps: int) -> dict[str, Any]:
-    env = agent.env
-    options = {"objects": {"box": spec["box"], "ball": BALL_PARK}}
-    goal = np.asarray(spec["goal"], float)
-    trace = []
-    record: dict[str, Any] = {}
-    if condition == "inferred":
-        agent.reset(seed=spec["seed"], options=options)
-        est = agent.estimate.get("box")
-        if est is None:
-            log.warning("the box was not perceived at the start of an episode; the agent cannot act on it")
-            agent.goal = {}
-        else:
-            agent.goal = {"box": est + (goal - np.asarray(spec["box"][:2]))}
-        last = None
-        for _ in range(steps):
-            trace.append(float(np.linalg.norm(env.object_positions()["box"][:2] - goal)))
-            decision = agent.decide("goal")
-            if decision.mode in ("goal", "setup"):
-                last = decision
-            agent.step(decision.action)
-        end = agent.estimate.get("box")
-        record["model_err_cm"] = None if last is None else 100 * float(last.objective)
-        record["belief_err_cm"] = (
-            None if end is None or not agent.goal else 100 * float(np.linalg.norm(end - agent.goal["box"]))
-        )
-        record["modes"] = None
+def _box_error(agent: Agent, goal: np.ndarray) -> float:
+    return float(np.linalg.norm(agent.env.object_positions()["box"][:2] - goal))
+
+
+def _inferred(
+    agent: Agent, spec: dict[str, Any], goal: np.ndarray, steps: int
+) -> tuple[dict[str, Any], list[float]]:
+    """The agent in goal mode for ``steps`` steps; its record (model and belief errors, modes) and trace."""
+    agent.reset(seed=spec["seed"], options={"objects": {"box": spec["box"], "ball": BALL_PARK}})
+    est = agent.estimate.get("box")
+    if est is None:
+        log.warning("the box was not perceived at the start of an episode; the agent cannot act on it")
+        agent.goal = {}
     else:
-        env.reset(seed=spec["seed"], options=options)
+        agent.goal = {"box": est + (goal - np.asarray(spec["box"][:2]))}
+    last, trace = None, []
+    modes: Counter[str] = Counter()
+    for _ in range(steps):
+        trace.append(_box_error(agent, goal))
+        decision = agent.decide("goal")
+        modes[decision.mode] += 1
+        if decision.mode in ("goal", "setup"):
+            last = decision
+        agent.step(decision.action)
+    end = agent.estimate.get("box")
+    record = {
+        "model_err_cm": None if last is None else 100 * float(last.objective),
+        "belief_err_cm": None
+        if end is None or not agent.goal
+        else 100 * float(np.linalg.norm(end - agent.goal["box"])),
+        "modes": dict(modes),
+    }
+    return record, trace
+
+
+def _episode(
+    agent: Agent, spec: dict[str, Any], condition: str, steps: int
+) -> tuple[dict[str, Any], np.ndarray]:
+    """One episode of ``condition``: its record (``final_err_cm``, cm) and the distance trace, m."""
+    goal = np.asarray(spec["goal"], float)
+    if condition == "inferred":
+        record, trace = _inferred(agent, spec, goal, steps)
+    else:
+        env, record, trace = agent.env, {}, []
+        env.reset(seed=spec["seed"], options={"objects": {"box": spec["box"], "ball": BALL_PARK}})
         rng = np.random.default_rng(spec["seed"])
         pusher = ScriptedPusher(env)
         for _ in range(steps):
-            trace.append(float(np.linalg.norm(env.object_positions()["box"][:2] - goal)))
-            action = (
+            trace.append(_box_error(agent, goal))
+            env.step(
                 rng.uniform(env.ctrl_low, env.ctrl_high) if condition == "random" else pusher.act(goal)[0]
             )
-            env.step(action)
-    final = float(np.linalg.norm(env.object_positions()["box"][:2] - goal))
-    trace.append(final)
-    record["final_err_cm"] = 100 * final
-    return {**record, "trace": np.array(trace)}
+    trace.append(_box_error(agent, goal))
+    record["final_err_cm"] = 100 * trace[-1]
+    return record, np.array(trace)
 
 
-def run(config: Config, progress_bar: bool = False) -> Result:
-    """Babble, fit, then run the three controllers on every target."""
-    start = time.perf_counter()
-    agent = babbled_agent(config, progress_bar=progress_bar)
+def _ratio(num: float | None, den: float | None) -> float | None:
+    return None if num is None or not den else num / den
+
+
+@register("c2", config=Config, quick=QUICK, tiny=TINY)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """C2: pushing the box to goals, inferred actions vs random and scripted, in the simulator."""
+    agent = babbled_agent(config.setup, config.seed, progress_bar=progress_bar)
     fitted = agent.refit()["rows"]
     env = agent.env
     specs = goals(config, env.workspace_bearing, np.asarray(env.layout.shoulder[:2]))
@@ -221,38 +201,121 @@ def run(config: Config, progress_bar: bool = False) -> Result:
             "initial_err_cm": 100 * float(np.linalg.norm(spec["goal"] - np.asarray(spec["box"][:2]))),
         }
         for c in CONDITIONS:
-            out = _episode(agent, spec, c, config.episode_steps)
-            traces[c].append(out.pop("trace"))
-            row[c] = out
+            row[c], trace = _episode(agent, spec, c, config.episode_steps)
+            traces[c].append(trace)
         log.info(
-            "C2 target %d: inferred %.2f, random %.2f, scripted %.2f cm",
+            "C2 target %d: %s",
             k,
-            row["inferred"]["final_err_cm"],
-            row["random"]["final_err_cm"],
-            row["scripted"]["final_err_cm"],
+            ", ".join(f"{c} {row[c]['final_err_cm']:.2f} cm" for c in CONDITIONS),
         )
         episodes.append(row)
+    env.close()
     metrics: dict[str, Any] = {}
     for c in CONDITIONS:
-        s = summary(np.array([e[c]["final_err_cm"] for e in episodes]))
-        within = float(np.mean([e[c]["final_err_cm"] <= TARGET_ERR_CM for e in episodes]))
+        errors = [e[c]["final_err_cm"] for e in episodes]
+        s = summary(errors)
         metrics[c] = {
             "final_err_cm_median": s["median"],
             "final_err_cm_mean": s["mean"],
             "final_err_cm_p25": s["p25"],
             "final_err_cm_p75": s["p75"],
-            "within_2cm": within,
+            "within_2cm": float(np.mean(np.array(errors) <= TARGET_ERR_CM)),
         }
-    model = [e["inferred"]["model_err_cm"] for e in episodes if e["inferred"]["model_err_cm"] is not None]
-    belief = [e["inferred"]["belief_err_cm"] for e in episodes if e["inferred"]["belief_err_cm"] is not None]
-    metrics["model_err_cm_median"] = summary(np.array(model))["median"]
+    inferred = [e["inferred"] for e in episodes]
+    metrics["model_err_cm_median"] = summary(
+        [r["model_err_cm"] for r in inferred if r["model_err_cm"] is not None]
+    )["median"]
     metrics["inferred"]["model_err_cm_median"] = metrics["model_err_cm_median"]
-    metrics["belief_err_cm_median"] = summary(np.array(belief))["median"]
-    metrics["initial_err_cm_median"] = summary(np.array([e["initial_err_cm"] for e in episodes]))["median"]
-    inferred = metrics["inferred"]["final_err_cm_median"]
-    metrics["random_over_inferred"] = metrics["random"]["final_err_cm_median"] / max(inferred, 1e-9)
-    metrics["scripted_over_inferred"] = metrics["scripted"]["final_err_cm_median"] / max(inferred, 1e-9)
-    metrics["target_err_cm"], metrics["target_vs_random"] = TARGET_ERR_CM, TARGET_VS_RANDOM
-    info = {"fitted_rows": fitted, "seconds": time.perf_counter() - start, "config": asdict(config)}
-    env.close()
-    return Result(metrics, episodes, info, config, traces)
+    metrics["belief_err_cm_median"] = summary(
+        [r["belief_err_cm"] for r in inferred if r["belief_err_cm"] is not None]
+    )["median"]
+    metrics["initial_err_cm_median"] = summary([e["initial_err_cm"] for e in episodes])["median"]
+    med = {c: metrics[c]["final_err_cm_median"] for c in CONDITIONS}
+    metrics["random_over_inferred"] = _ratio(med["random"], med["inferred"])
+    metrics["scripted_over_inferred"] = _ratio(med["scripted"], med["inferred"])
+    metrics["inferred_modes"] = dict(sum((Counter(r["modes"]) for r in inferred), Counter()))
+    metrics["episodes"] = episodes
+    metrics["info"] = {"fitted_rows": fitted}
+    return Report(
+        title="C2: pushing the box to targets (realized in the simulator)",
+        metrics=metrics,
+        tables=_tables(metrics),
+        targets=[
+            Target(
+                "inferred_final_err_cm",
+                med["inferred"],
+                TARGET_ERR_CM,
+                "<=",
+                "median over goals of the true box centre's final distance from the goal, inferred actions, cm",
+            ),
+            Target(
+                "random_over_inferred",
+                metrics["random_over_inferred"],
+                TARGET_VS_RANDOM,
+                ">=",
+                "median final distance from the goal of random babbling / of inferred actions",
+            ),
+        ],
+        notes=[
+            f"{config.targets} goal{'s' * (config.targets != 1)}, {config.episode_steps} steps each, after {config.setup.babble_steps} "
+            f"babbling steps (seed {config.seed}).",
+            "Errors are the true box centre's distance from the goal at the end of the episode, cm.",
+        ],
+        figures={"episodes": _episodes_figure(traces)},
+    )
+
+
+def _tables(m: dict[str, Any]) -> list[Table]:
+    controllers = [
+        [
+            c,
+            m[c]["final_err_cm_median"],
+            m[c]["final_err_cm_p25"],
+            m[c]["final_err_cm_p75"],
+            m[c]["final_err_cm_mean"],
+            m[c]["within_2cm"],
+        ]
+        for c in CONDITIONS
+    ]
+    agent = [
+        ["start-to-goal distance, median [cm]", m["initial_err_cm_median"]],
+        ["model-internal predicted error of the last action, median [cm]", m["model_err_cm_median"]],
+        ["final belief (posterior mean) to goal, median [cm]", m["belief_err_cm_median"]],
+        ["random / inferred", m["random_over_inferred"]],
+        ["scripted / inferred", m["scripted_over_inferred"]],
+    ]
+    agent += [[f"agent decisions: {mode}", n] for mode, n in sorted(m["inferred_modes"].items())]
+    episodes = [
+        [e["target"], e["initial_err_cm"], *[e[c]["final_err_cm"] for c in CONDITIONS]] for e in m["episodes"]
+    ]
+    return [
+        Table(
+            "Final distance of the box from the goal [cm]",
+            ["controller", "median", "25th pct", "75th pct", "mean", "share within 2 cm"],
+            controllers,
+            caption="The thesis has no number for this.",
+        ),
+        Table("The agent's own view", ["quantity", "value"], agent),
+        Table("Episodes [cm]", ["goal", "start", *CONDITIONS], episodes),
+    ]
+
+
+def _episodes_figure(traces: dict[str, list[np.ndarray]]) -> Figure:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 3.6))
+    for c, colour in zip(CONDITIONS, ("C0", "C3", "C2"), strict=True):
+        for k, trace in enumerate(traces[c]):
+            ax.plot(
+                np.arange(len(trace)),
+                trace * 100,
+                color=colour,
+                alpha=0.35,
+                lw=1,
+                label=c if k == 0 else None,
+            )
+    ax.axhline(TARGET_ERR_CM, color="k", ls=":", lw=1)
+    ax.set(xlabel="step", ylabel="box distance to goal, cm", title="C2 episodes")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig

@@ -3,7 +3,7 @@
 The agent babbles; the pushing world model is fitted on the first ``1 - test_fraction`` of the
 transitions (perceived object positions, Eq. 4.33). For held-out recorded steps t-1 -> t it asks
 "where would the box be had the action been a' ?", with a' the executed servo targets moved by
-U(-delta, delta) rad per joint:
+U(-delta, delta) rad per joint (``query``):
 
 - ``counterfactual``: :func:`inference.counterfactual` on the fully observed transition (actions,
   joint angles, sensed hand, touch, perceived box before and after): abduction of every residual
@@ -18,16 +18,15 @@ with a'; MuJoCo is deterministic, so this is exact. Steps count when the box mov
 before it, against the true counterfactual position minus the true one before it), so the
 constant offset between the perceived point and the box centre cancels.
 
-``pal experiment c3 --json``: ``cf_err_cm_median``, ``interventional_err_cm_median``,
-``factual_err_cm_median`` (target: counterfactual <= 1/4 of interventional), and the same with a
-model fitted on the true positions (``ground_truth_model``).
+Metrics (cm): ``n`` queries and, per model (``perceived``: the agent's, fitted on perceived
+positions; ``ground_truth_model``: fitted on the true positions), the median and mean error of
+each answer and ``cf_over_interventional`` (target for the agent's model: <= 1/4).
 """
 
 from __future__ import annotations
 
 import logging
-import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -35,118 +34,92 @@ import torch
 
 from inference import counterfactual
 from models import WorldModel
-from pal.agent import build_world_model, fit_world_model, submodel
+from pal.agent import Agent, submodel
 from pal.agent.history import History
-from pal.experiments.pushing_setup import SetupConfig, babbled_agent, summary
-from pal.experiments.timing import markdown_table
+from pal.checks import check_float, check_int
+from pal.experiments.pushing_setup import (
+    QUICK_SETUP,
+    TINY_SETUP,
+    SetupConfig,
+    babbled_agent,
+    fitted_model,
+    split_rows,
+    summary,
+)
+from pal.experiments.registry import register
+from pal.experiments.report import Report, Table, Target
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["ANSWERS", "TARGET_RATIO", "Config", "Result", "run"]
+__all__ = ["ANSWERS", "TARGET_RATIO", "Config", "QueryConfig", "run"]
 
 log = logging.getLogger(__name__)
 
 ANSWERS = ("cf", "interventional", "factual")
-#: Issue 6: counterfactual error <= 1/4 of the interventional baseline's.
+#: The counterfactual error should be at most this fraction of the interventional baseline's.
 TARGET_RATIO = 0.25
+_MODELS = (
+    ("perceived", "perceived", "perceived positions (the agent)"),
+    ("ground_truth_model", "truth", "true positions"),
+)
 
 
 @dataclass(frozen=True)
-class Config(SetupConfig):
-    """C3 protocol: ``queries`` steps, perturbation ``delta`` rad, ``min_motion`` m, held-out share."""
+class QueryConfig:
+    """Which counterfactuals are asked.
 
-    queries: int = 60
+    Attributes:
+        count: held-out steps to ask about.
+        delta: a' moves each executed servo target by U(-delta, delta), rad.
+        min_motion: a step counts when the box moves more than this in either world, m.
+    """
+
+    count: int = 60
     delta: float = 0.3
     min_motion: float = 0.005
+
+    def __post_init__(self) -> None:
+        check_float("delta", self.delta, 0.0, open_low=True)
+        check_float("min_motion", self.min_motion, 0.0)
+        check_int("count", self.count)
+
+
+@dataclass(frozen=True)
+class Config:
+    """C3 protocol.
+
+    Attributes:
+        seed: master seed (babbling, fits, the perturbations).
+        setup: babbling and fitting.
+        query: the counterfactual questions.
+        test_fraction: share of the transitions (the last ones) held out.
+    """
+
+    seed: int = 0
+    setup: SetupConfig = SetupConfig()
+    query: QueryConfig = QueryConfig()
     test_fraction: float = 0.3
 
     def __post_init__(self) -> None:
-        super().__post_init__()
-        if not (self.queries >= 1 and self.delta > 0 and self.min_motion >= 0 and 0 < self.test_fraction < 1):
-            raise ValueError(
-                f"need queries >= 1, delta > 0, min_motion >= 0 and test_fraction in (0, 1); got {self}"
-            )
-
-    @classmethod
-    def quick(cls) -> Config:
-        return cls(babble_steps=240, epochs=40, queries=5, min_motion=0.0)
+        check_int("seed", self.seed, minimum=0)
+        check_float("test_fraction", self.test_fraction, 0.0, 1.0, open_low=True, open_high=True)
 
 
-@dataclass(frozen=True)
-class Result:
-    """C3 errors in cm per model (``perceived``, ``ground_truth_model``) and answer."""
-
-    metrics: dict[str, Any]
-    info: dict[str, Any]
-    config: Config
-    points: dict[str, np.ndarray] = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {**self.metrics, "info": self.info}
-
-    def to_markdown(self) -> str:
-        m = self.metrics
-        rows = []
-        for name, key in (
-            ("perceived positions (the agent)", "perceived"),
-            ("true positions", "ground_truth_model"),
-        ):
-            v = m[key]
-            rows.append(
-                [
-                    name,
-                    v["cf_err_cm_median"],
-                    v["interventional_err_cm_median"],
-                    v["factual_err_cm_median"],
-                    v["cf_over_interventional"],
-                ]
-            )
-        met = m["cf_over_interventional"] <= TARGET_RATIO
-        return (
-            "\n".join(
-                [
-                    "## C3: counterfactual answers against the replayed simulator",
-                    "",
-                    f"{m['n']} held-out steps where the box moves (a' = a + U(-{self.config.delta}, {self.config.delta}) rad); "
-                    "median error of the predicted box displacement against the simulator replayed from the saved state "
-                    "with a', cm. The thesis has no number for this.",
-                    "",
-                    markdown_table(
-                        [
-                            "model fitted on",
-                            "counterfactual",
-                            "interventional",
-                            "factual",
-                            "cf / interventional",
-                        ],
-                        rows,
-                    ),
-                    "",
-                    f"target (counterfactual <= {TARGET_RATIO:g} x interventional, agent's model): "
-                    f"{m['cf_over_interventional']:.3g}: {'met' if met else 'NOT met'}.",
-                ]
-            )
-            + "\n"
-        )
-
-    def figures(self) -> dict[str, Figure]:
-        import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(5, 3.4))
-        data = [self.points[f"perceived.{a}"] for a in ANSWERS]
-        ax.boxplot(data, tick_labels=list(ANSWERS), showfliers=False)
-        ax.set(ylabel="displacement error, cm", title="C3 (agent's model)")
-        fig.tight_layout()
-        return {"errors": fig}
+QUICK = Config(setup=QUICK_SETUP, query=QueryConfig(count=5, min_motion=0.0))
+TINY = Config(
+    setup=TINY_SETUP,
+    query=QueryConfig(count=2, min_motion=0.0),
+    test_fraction=0.5,
+)
 
 
 def _queries(
-    agent: Any, history: History, rows: np.ndarray, config: Config
+    agent: Agent, rows: np.ndarray, config: QueryConfig, seed: int
 ) -> list[tuple[int, np.ndarray, np.ndarray]]:
     """(row, a', true counterfactual box position) for informative held-out steps (module docstring)."""
-    env = agent.env
-    rng = np.random.default_rng(np.random.SeedSequence([config.seed, 73]))
+    env, history = agent.env, agent.history
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 73]))
     k = history.objects.index("box")
     act, states = history.array("act"), history.array("state")
     meas_prev, meas, truth_prev, truth = (
@@ -169,7 +142,7 @@ def _queries(
         )
         if moved > config.min_motion:
             out.append((int(row), alt, true_cf))
-        if len(out) == config.queries:
+        if len(out) == config.count:
             break
     return out
 
@@ -181,56 +154,93 @@ def _answers(model: WorldModel, history: History, queries: list, source: str) ->
     true_cf = np.stack([t for _, _, t in queries])
     box = submodel(model, ("box",))
     arm, objects = history.columns(source, rows)
-    cols = {**arm, **{k: v for k, v in objects["box"].items()}}
-    if len(cols["pos.box"]) != len(rows):
-        raise ValueError("every query row needs the box position before and after the step")
+    cols = {**arm, **objects["box"]}
     cols["meas.box"] = cols["pos.box"]
-    factual = {n: torch.as_tensor(v, dtype=torch.get_default_dtype()) for n, v in cols.items()}
-    joints = history.joints
-    do = {
-        f"act.{j}": torch.as_tensor(alt[:, c : c + 1], dtype=torch.get_default_dtype())
-        for c, j in enumerate(joints)
-    }
+    dtype = torch.get_default_dtype()
+    factual = {n: torch.as_tensor(v, dtype=dtype) for n, v in cols.items()}
+    do = {f"act.{j}": torch.as_tensor(alt[:, c : c + 1], dtype=dtype) for c, j in enumerate(history.joints)}
     cf = counterfactual(box, factual, do)
-    cf_pos = cf.mean["pos.box"][0].numpy()
     roots = {n: factual[n] for n in box.graph.roots if not n.startswith("act.")}
-    interventional = box.predict({**roots, **do})["pos.box"].numpy()
-    k = history.objects.index("box")
+    answers = {
+        "cf": cf.mean["pos.box"][0].numpy(),
+        "interventional": box.predict({**roots, **do})["pos.box"].numpy(),
+        "factual": cols["pos.box"],
+    }
     prev = cols["pos_prev.box"].astype(np.float64)
-    true_disp = true_cf - history.array("truth_prev")[rows, k]
-    answers = {"cf": cf_pos, "interventional": interventional, "factual": cols["pos.box"]}
+    true_disp = true_cf - history.array("truth_prev")[rows, history.objects.index("box")]
     return {a: 100 * np.linalg.norm((answers[a] - prev) - true_disp, axis=1) for a in ANSWERS}
 
 
-def run(config: Config, progress_bar: bool = False) -> Result:
-    """Babble, fit on the training rows, ask and check counterfactuals on held-out steps."""
-    start = time.perf_counter()
-    agent = babbled_agent(config, progress_bar=progress_bar)
+@register("c3", config=Config, quick=QUICK, tiny=TINY)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """C3: counterfactual answers about held-out pushes against the simulator replayed with a'."""
+    agent = babbled_agent(config.setup, config.seed, progress_bar=progress_bar)
     history = agent.history
-    n = len(history)
-    n_train = round((1 - config.test_fraction) * n)
-    queries = _queries(agent, history, np.arange(n_train, n), config)
+    train, test = split_rows(len(history), config.test_fraction)
+    queries = _queries(agent, test, config.query, config.seed)
     if not queries:
-        raise ValueError("no held-out step moved the box; babble longer or lower min_motion")
-    metrics: dict[str, Any] = {"n": len(queries), "unit": "cm"}
-    points: dict[str, np.ndarray] = {}
-    for key, source in (("perceived", "perceived"), ("ground_truth_model", "truth")):
-        model = build_world_model(agent.env, history.objects, tuple(config.hidden), config.seed)
-        fit_world_model(
-            model, history, source=source, rows=np.arange(n_train), epochs=config.epochs, seed=config.seed
+        agent.env.close()
+        raise ValueError(
+            "no held-out step moved the box; babble longer (setup.babble_steps) or lower query.min_motion"
         )
-        errors = _answers(model, history, queries, source)
-        block = {f"{'cf' if a == 'cf' else a}_err_cm_median": summary(errors[a])["median"] for a in ANSWERS}
-        block.update({f"{a}_err_cm_mean": summary(errors[a])["mean"] for a in ANSWERS})
-        block["cf_over_interventional"] = block["cf_err_cm_median"] / max(
-            block["interventional_err_cm_median"], 1e-12
+    metrics: dict[str, Any] = {"n": len(queries), "unit": "cm", "info": {"train_rows": int(train.size)}}
+    errors: dict[str, dict[str, np.ndarray]] = {}
+    for key, source, _ in _MODELS:
+        model, _ = fitted_model(agent, config.setup, config.seed, source, train)
+        errors[key] = _answers(model, history, queries, source)
+        block: dict[str, Any] = {}
+        for a in ANSWERS:
+            s = summary(errors[key][a])
+            block[f"{a}_err_cm_median"], block[f"{a}_err_cm_mean"] = s["median"], s["mean"]
+        interventional = block["interventional_err_cm_median"]
+        block["cf_over_interventional"] = (
+            block["cf_err_cm_median"] / interventional if interventional else None
         )
         metrics[key] = block
-        points.update({f"{key}.{a}": errors[a] for a in ANSWERS})
-    for a in ANSWERS:
-        metrics[f"{a}_err_cm_median"] = metrics["perceived"][f"{a}_err_cm_median"]
-    metrics["cf_over_interventional"] = metrics["perceived"]["cf_over_interventional"]
-    metrics["target_ratio"] = TARGET_RATIO
-    info = {"train_rows": n_train, "seconds": time.perf_counter() - start, "config": asdict(config)}
     agent.env.close()
-    return Result(metrics, info, config, points)
+    rows = [
+        [
+            label,
+            *[metrics[key][f"{a}_err_cm_median"] for a in ANSWERS],
+            metrics[key]["cf_over_interventional"],
+        ]
+        for key, _, label in _MODELS
+    ]
+    return Report(
+        title="C3: counterfactual answers against the replayed simulator",
+        metrics=metrics,
+        tables=[
+            Table(
+                "Median error of the predicted box displacement [cm]",
+                ["model fitted on", "counterfactual", "interventional", "factual", "cf / interventional"],
+                rows,
+                caption="The thesis has no number for this.",
+            )
+        ],
+        targets=[
+            Target(
+                "cf_over_interventional",
+                metrics["perceived"]["cf_over_interventional"],
+                TARGET_RATIO,
+                "<=",
+                "median counterfactual error / median interventional error, the agent's model (perceived positions)",
+            )
+        ],
+        notes=[
+            f"{len(queries)} held-out steps where the box moves more than {config.query.min_motion} m, with "
+            f"a' = a + U(-{config.query.delta}, {config.query.delta}) rad per joint.",
+            "Errors compare the predicted box displacement with the simulator replayed from the saved state "
+            "with a', cm.",
+        ],
+        figures={"errors": _errors_figure(errors["perceived"])},
+    )
+
+
+def _errors_figure(errors: dict[str, np.ndarray]) -> Figure:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.4))
+    ax.boxplot([errors[a] for a in ANSWERS], tick_labels=list(ANSWERS), showfliers=False)
+    ax.set(ylabel="displacement error, cm", title="C3 (agent's model)")
+    fig.tight_layout()
+    return fig

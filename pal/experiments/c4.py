@@ -1,116 +1,97 @@
 """Experiment C4: curiosity-driven exploration of the object variables against random babbling.
 
-For each seed, two agents start from the same ``babble_steps`` steps of random babbling (same
-seed, so the same actions and the same world), then spend ``budget`` more steps:
+For each of ``runs`` seeds (``seed``, ``seed + 1``, ...), two agents start from the same
+``setup.babble_steps`` steps of random babbling (same seed, so the same actions and the same
+world), then spend ``budget`` more steps:
 
 - ``curiosity``: the world model is fitted on the warm-up, then every step the agent takes a
   curiosity target for one object (alternating; Eq. 4.34-4.38 on a grid over the table, with
-  locality), infers the action (Alg. 4.2) and refits every ``refit_every`` steps; when the model
+  locality), infers the action (Alg. 4.2) and refits every ``setup.agent.refit_every`` steps; when the model
   predicts no progress towards the target it babbles;
 - ``random``: random babbling goes on.
 
-Objects are put back at the same seeded places every ``reset_every`` steps in both runs. Coverage
-is the share of cells of a ``bins`` grid over the table region that an object entered during the
-budget *by being moved* (true position after a step in which it moved more than ``min_motion``
-m; positions where objects were put back do not count), averaged over the objects.
+Objects are put back at the same seeded places every ``setup.agent.reset_every`` steps in both runs.
+Coverage is the share of cells of the agent's grid over the table region that an object entered
+during the budget *by being moved* (true position after a step in which it moved more than
+``min_motion`` m; positions where objects were put back do not count), averaged over the objects.
 
-``pal experiment c4 --json``: ``coverage_at_budget`` ``{curiosity, random}`` (mean over seeds),
-per-seed values and the coverage curves.
+Metrics: ``coverage_at_budget`` ``{curiosity, random}`` (mean over seeds), ``per_seed`` values,
+``coverage_gain`` (curiosity minus random, target > 0), ``curiosity_over_random``, the coverage
+``curves`` and the curious agent's ``curious_decisions``.
 """
 
 from __future__ import annotations
 
 import logging
-import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from pal.agent import AgentConfig
 from pal.agent.curiosity import grid_occupancy
 from pal.agent.history import History
-from pal.experiments.pushing_setup import SetupConfig, babbled_agent
-from pal.experiments.timing import markdown_table
+from pal.checks import check_float, check_int
+from pal.experiments.pushing_setup import TINY_AGENT, TINY_SETUP, SetupConfig, babbled_agent
+from pal.experiments.registry import register
+from pal.experiments.report import Report, Table, Target
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["CONDITIONS", "Config", "Result", "coverage_curve", "run"]
+__all__ = ["Config", "coverage_curve", "run"]
 
 log = logging.getLogger(__name__)
 
-CONDITIONS = ("curiosity", "random")
+#: The two explorers: curiosity targets (Eq. 4.38) and random babbling.
+_CONDITIONS = ("curiosity", "random")
 
 
 @dataclass(frozen=True)
-class Config(SetupConfig):
-    """C4 protocol (module docstring)."""
+class Config:
+    """C4 protocol (module docstring).
 
-    babble_steps: int = 400
+    Attributes:
+        seed: seed of the first run (the k-th run uses ``seed + k``).
+        runs: repetitions of both conditions.
+        setup: the warm-up babbling, the fits and the agent (its ``refit_every`` is the curious
+            agent's online refit period, steps).
+        budget: steps after the warm-up.
+        checkpoint_every: coverage is read every this many steps of the budget.
+        min_motion: an object counts as moved when it moves more than this in one step, m.
+    """
+
+    seed: int = 0
+    runs: int = 3
+    setup: SetupConfig = SetupConfig(babble_steps=400, agent=AgentConfig(refit_every=50))
     budget: int = 200
-    seeds: tuple[int, ...] = (0, 1, 2)
-    refit_every: int = 50
     checkpoint_every: int = 20
     min_motion: float = 0.005
 
     def __post_init__(self) -> None:
-        super().__post_init__()
-        if not (self.budget >= 1 and self.seeds and self.refit_every >= 1 and self.checkpoint_every >= 1):
-            raise ValueError(
-                f"need budget >= 1, some seeds, refit_every >= 1, checkpoint_every >= 1; got {self}"
-            )
+        for name in ("runs", "budget", "checkpoint_every"):
+            check_int(name, getattr(self, name))
+        check_int("seed", self.seed, minimum=0)
+        check_float("min_motion", self.min_motion, 0.0)
 
-    @classmethod
-    def quick(cls) -> Config:
-        return cls(babble_steps=120, epochs=30, budget=6, seeds=(0,), checkpoint_every=3, refit_every=1000)
+    @property
+    def seeds(self) -> tuple[int, ...]:
+        """The seeds of the runs."""
+        return tuple(range(self.seed, self.seed + self.runs))
 
 
-@dataclass(frozen=True)
-class Result:
-    """C4 coverage (fractions of grid cells) per condition and seed."""
-
-    metrics: dict[str, Any]
-    info: dict[str, Any]
-    config: Config
-    curves: dict[str, np.ndarray] = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        return {**self.metrics, "info": self.info}
-
-    def to_markdown(self) -> str:
-        m = self.metrics
-        rows = [[c, m["coverage_at_budget"][c], *m["per_seed"][c]] for c in CONDITIONS]
-        c = self.config
-        return (
-            "\n".join(
-                [
-                    "## C4: exploration of the object positions, curiosity vs random babbling",
-                    "",
-                    f"after {c.babble_steps} warm-up babbling steps, {c.budget} more steps per seed; share of the "
-                    f"{self.info['bins'][0]} x {self.info['bins'][1]} table cells that a pushed object entered. The thesis reports occupancy only for "
-                    "a finger joint (§5.2.4), not for object variables.",
-                    "",
-                    markdown_table(["condition", "mean", *[f"seed {s}" for s in c.seeds]], rows),
-                    "",
-                    f"curiosity / random = {m['curiosity_over_random']:.3g}.",
-                ]
-            )
-            + "\n"
-        )
-
-    def figures(self) -> dict[str, Figure]:
-        import matplotlib.pyplot as plt
-
-        fig, ax = plt.subplots(figsize=(5, 3.4))
-        steps = self.curves["steps"]
-        for c, colour in zip(CONDITIONS, ("C0", "C3"), strict=True):
-            curves = self.curves[c]
-            ax.plot(steps, curves.mean(0), color=colour, label=c)
-            ax.fill_between(steps, curves.min(0), curves.max(0), color=colour, alpha=0.2)
-        ax.set(xlabel="steps after warm-up", ylabel="coverage", title="C4 coverage of pushed positions")
-        ax.legend(fontsize=7)
-        fig.tight_layout()
-        return {"coverage": fig}
+QUICK = Config(
+    runs=1,
+    setup=SetupConfig(babble_steps=120, agent=AgentConfig(epochs=30, refit_every=1000)),
+    budget=6,
+    checkpoint_every=3,
+)
+TINY = Config(
+    runs=1,
+    setup=replace(TINY_SETUP, babble_steps=12, agent=replace(TINY_AGENT, refit_every=2)),
+    budget=2,
+    checkpoint_every=1,
+)
 
 
 def coverage_curve(
@@ -121,7 +102,18 @@ def coverage_curve(
     bins: tuple[int, int],
     min_motion: float,
 ) -> np.ndarray:
-    """Coverage (mean over objects) of moved-object positions in rows [start, start + s) for each s."""
+    """Coverage (mean over objects) of moved-object positions in rows [start, start + s) for each s.
+
+    Args:
+        history: the agent's history (true positions are read).
+        start: first row of the budget.
+        checkpoints: (K,) step counts s.
+        region: ((x0, y0), (x1, y1)) table region, m. bins: grid cells per axis.
+        min_motion: an object counts as moved when it moved more than this in the step, m.
+
+    Returns:
+        (K,) shares of grid cells.
+    """
     truth, truth_prev = history.array("truth"), history.array("truth_prev")
     (x0, y0), (x1, y1) = region
     out = []
@@ -136,32 +128,27 @@ def coverage_curve(
     return np.array(out)
 
 
-def run(config: Config, progress_bar: bool = False) -> Result:
-    """Warm-up, then the budget with and without curiosity, for every seed."""
-    start = time.perf_counter()
+@register("c4", config=Config, quick=QUICK, tiny=TINY)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """C4: coverage of pushed object positions, curiosity-driven vs random babbling."""
+    warmup, budget = config.setup.babble_steps, config.budget
     checkpoints = np.unique(
-        np.append(
-            np.arange(config.checkpoint_every, config.budget + 1, config.checkpoint_every), config.budget
-        )
+        np.append(np.arange(config.checkpoint_every, budget + 1, config.checkpoint_every), budget)
     )
-    curves: dict[str, list[np.ndarray]] = {c: [] for c in CONDITIONS}
+    curves: dict[str, list[np.ndarray]] = {c: [] for c in _CONDITIONS}
     modes: list[dict[str, int]] = []
-    region = bins = None
+    region, bins = config.setup.agent.region, config.setup.agent.bins
     for seed in config.seeds:
-        cfg = replace(config, seed=seed)
-        curious = babbled_agent(cfg, progress_bar=progress_bar, refit_every=config.refit_every)
+        curious = babbled_agent(config.setup, seed, progress_bar=progress_bar)
         curious.refit()
-        decisions = curious.run(config.budget, "curious", progress_bar=progress_bar)
+        decisions = curious.run(budget, "curious", progress_bar=progress_bar)
         modes.append({m: sum(d.mode == m for d in decisions) for m in ("curious", "babble")})
         randomly = babbled_agent(
-            replace(cfg, babble_steps=config.babble_steps + config.budget), progress_bar=progress_bar
+            replace(config.setup, babble_steps=warmup + budget), seed, progress_bar=progress_bar
         )
-        region, bins = curious.config.region, curious.config.bins
         for c, agent in (("curiosity", curious), ("random", randomly)):
             curves[c].append(
-                coverage_curve(
-                    agent.history, config.babble_steps, checkpoints, region, bins, config.min_motion
-                )
+                coverage_curve(agent.history, warmup, checkpoints, region, bins, config.min_motion)
             )
             agent.env.close()
         log.info(
@@ -170,14 +157,60 @@ def run(config: Config, progress_bar: bool = False) -> Result:
             curves["curiosity"][-1][-1],
             curves["random"][-1][-1],
         )
-    at_budget = {c: float(np.mean([v[-1] for v in curves[c]])) for c in CONDITIONS}
+    at_budget = {c: float(np.mean([v[-1] for v in curves[c]])) for c in _CONDITIONS}
+    per_seed = {c: [float(v[-1]) for v in curves[c]] for c in _CONDITIONS}
+    gain = at_budget["curiosity"] - at_budget["random"]
     metrics = {
+        "seeds": list(config.seeds),
         "coverage_at_budget": at_budget,
-        "per_seed": {c: [float(v[-1]) for v in curves[c]] for c in CONDITIONS},
-        "curiosity_over_random": at_budget["curiosity"] / max(at_budget["random"], 1e-12),
-        "curves": {"steps": checkpoints.tolist(), **{c: [v.tolist() for v in curves[c]] for c in CONDITIONS}},
+        "per_seed": per_seed,
+        "coverage_gain": gain,
+        "curiosity_over_random": at_budget["curiosity"] / at_budget["random"]
+        if at_budget["random"]
+        else None,
+        "curves": {
+            "steps": checkpoints.tolist(),
+            **{c: [v.tolist() for v in curves[c]] for c in _CONDITIONS},
+        },
         "curious_decisions": modes,
+        "info": {"region": [list(p) for p in region], "bins": list(bins)},
     }
-    info = {"region": region, "bins": bins, "seconds": time.perf_counter() - start, "config": asdict(config)}
-    arrays = {"steps": checkpoints, **{c: np.stack(curves[c]) for c in CONDITIONS}}
-    return Result(metrics, info, config, arrays)
+    table = Table(
+        "Coverage of pushed object positions at the budget [share of table cells]",
+        ["condition", "mean", *[f"seed {s}" for s in config.seeds]],
+        [[c, at_budget[c], *per_seed[c]] for c in _CONDITIONS],
+        caption="The thesis reports occupancy only for a finger joint (§5.2.4), not for object variables.",
+    )
+    return Report(
+        title="C4: exploration of the object positions, curiosity vs random babbling",
+        metrics=metrics,
+        tables=[table],
+        targets=[
+            Target(
+                "coverage_gain",
+                gain,
+                0.0,
+                ">",
+                f"coverage at the budget, curiosity minus random babbling (share of the {bins[0]} x {bins[1]} "
+                "table cells an object was pushed into, mean over seeds)",
+            )
+        ],
+        notes=[
+            f"After {warmup} warm-up babbling steps, {budget} more steps per seed "
+            f"(seeds {', '.join(str(s) for s in config.seeds)}).",
+        ],
+        figures={"coverage": _coverage_figure(checkpoints, {c: np.stack(v) for c, v in curves.items()})},
+    )
+
+
+def _coverage_figure(steps: np.ndarray, curves: dict[str, np.ndarray]) -> Figure:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.4))
+    for c, colour in zip(_CONDITIONS, ("C0", "C3"), strict=True):
+        ax.plot(steps, curves[c].mean(0), color=colour, label=c)
+        ax.fill_between(steps, curves[c].min(0), curves[c].max(0), color=colour, alpha=0.2)
+    ax.set(xlabel="steps after warm-up", ylabel="coverage", title="C4 coverage of pushed positions")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig

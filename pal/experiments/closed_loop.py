@@ -1,65 +1,115 @@
-"""``pal loop``: run the closed perception-action loop and film it; plus the short loop of ``pal demo``.
+"""``pal loop`` (= ``pal experiment loop``): run the closed perception-action loop and film it.
 
-:func:`run_loop` builds the pushing world (:class:`pal.sim.pushing.PushingEnv`) and an
+The run builds the pushing world (:class:`pal.sim.pushing.PushingEnv`) and an
 :class:`pal.agent.Agent`, babbles for ``babble`` steps, fits the world model, then runs the rest of
-the steps curiosity-driven (or towards a user goal for the box), refitting every ``refit_every``
-steps. With ``video`` set, every step's camera frame is written with Π's detections and ids, the
-slots, the state estimates, the targets and the model's predicted outcomes overlaid
-(:mod:`pal.agent.video`).
+the steps curiosity-driven (or towards a user goal for the box), refitting every
+``agent.refit_every`` steps. With ``video`` set, every step's camera frame is written there with
+Π's detections and ids, the slots, the state estimates, the targets and the model's predicted
+outcomes overlaid (:mod:`pal.agent.video`). Its quick configuration is the loop of ``pal demo``.
+
+Metrics: ``steps``, ``babble_steps``, ``episodes``, ``modes`` (decisions after babbling: curious /
+goal / setup / hold, or babble where the model saw nothing to gain), ``fit_rows`` (arm, and per
+object the rows where it was seen twice), ``lost_fraction`` and ``coverage`` per object (share
+of frames perception lost it; share of the curiosity grid its estimates visited), ``video`` and
+``video_frames``.
 """
 
 from __future__ import annotations
 
-import logging
-import os
-import time
 from collections import Counter
-from dataclasses import asdict, dataclass, field, replace
-from pathlib import Path
-from typing import Any
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from pal.agent import Agent, AgentConfig, Decision, Percept
 from pal.agent.curiosity import grid_occupancy
 from pal.agent.video import VideoRecorder, overlay
-from pal.experiments.output import write_json
+from pal.checks import check_float, check_int
+from pal.experiments.registry import register
+from pal.experiments.report import Report, Table, Target
 from pal.sim.pushing import PushingEnv
 
-__all__ = ["LoopConfig", "loop_demo_lines", "run_loop"]
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
-log = logging.getLogger(__name__)
+__all__ = ["MAX_LOST_FRACTION", "Config", "run"]
+
+#: Perception should keep track of each object in at least this share of the frames (1 - lost).
+MAX_LOST_FRACTION = 0.25
 
 
 @dataclass(frozen=True)
-class LoopConfig:
+class Config:
     """A filmed run of the loop.
 
     Attributes:
+        seed: master seed of the agent (world resets, actions, fits, inference).
         steps: total loop steps (babbling included).
-        babble: babbling steps before the first fit (default: half of ``steps``).
+        babble: babbling steps before the first fit, in [1, steps] (default: half of ``steps``).
         goal: optional (x, y) goal for the box, table frame, m; default curiosity-driven.
-        seed: master seed.
+        video: optional mp4 path; the annotated video is written there.
         fps: video frame rate.
         camera_size: (width, height) of the camera, pixels.
         agent: the agent's settings.
     """
 
+    seed: int = 0
     steps: int = 60
     babble: int | None = None
     goal: tuple[float, float] | None = None
-    seed: int = 0
+    video: str | None = None
     fps: float = 4.0
     camera_size: tuple[int, int] = (320, 240)
-    agent: AgentConfig = field(default_factory=AgentConfig)
+    agent: AgentConfig = AgentConfig()
 
     def __post_init__(self) -> None:
-        if isinstance(self.steps, bool) or not isinstance(self.steps, int) or self.steps < 1:
-            raise ValueError(f"steps must be a positive int, got {self.steps!r}")
-        if self.babble is not None and not 1 <= self.babble <= self.steps:
-            raise ValueError(f"babble must be in [1, steps={self.steps}], got {self.babble}")
-        if self.goal is not None and (len(self.goal) != 2 or not np.all(np.isfinite(self.goal))):
-            raise ValueError(f"goal must be a finite (x, y) in metres, got {self.goal!r}")
+        check_int("seed", self.seed, minimum=0)
+        check_int("steps", self.steps)
+        if self.babble is not None:
+            check_int("babble", self.babble)
+            if self.babble > self.steps:
+                raise ValueError(
+                    f"babble must be in [1, steps={self.steps}], got {self.babble}; lower babble or raise steps"
+                )
+        if self.goal is not None:
+            if len(self.goal) != 2:
+                raise ValueError(f"goal must be a finite (x, y) in metres, got {self.goal!r}")
+            object.__setattr__(self, "goal", tuple(check_float("goal", v) for v in self.goal))
+        if self.video is not None and not str(self.video).endswith(".mp4"):
+            raise ValueError(f"video {self.video!r}: expected a path ending in .mp4")
+        check_float("fps", self.fps, 0.0, open_low=True)
+        if len(self.camera_size) != 2:
+            raise ValueError(f"camera_size must be (width, height) in pixels, got {self.camera_size!r}")
+        object.__setattr__(
+            self, "camera_size", tuple(check_int("camera_size", v, 16) for v in self.camera_size)
+        )
+
+    @property
+    def babble_steps(self) -> int:
+        """Babbling steps of the run: ``babble``, or half of ``steps`` (at least 1)."""
+        return self.babble if self.babble is not None else max(1, self.steps // 2)
+
+
+#: The agent of the demo's loop: a short fit, light inference, one episode, no refit.
+QUICK_AGENT = AgentConfig(
+    epochs=40,
+    reset_every=None,
+    action_starts=8,
+    action_steps=30,
+    state_steps=30,
+    state_lr=0.05,
+    refit_every=1000,
+)
+QUICK = Config(steps=50, babble=36, agent=QUICK_AGENT)
+TINY = Config(
+    steps=12,
+    babble=8,
+    camera_size=(240, 180),
+    agent=replace(
+        QUICK_AGENT, epochs=10, hidden=(16,), action_starts=4, action_steps=10, reset_every=6, refit_every=10
+    ),
+)
 
 
 def _frame(agent: Agent, decision: Decision | None, percept: Percept, step: int) -> np.ndarray:
@@ -77,17 +127,15 @@ def _frame(agent: Agent, decision: Decision | None, percept: Percept, step: int)
     )
 
 
-def run_loop(
-    config: LoopConfig, video: str | os.PathLike[str] | None = None, *, progress_bar: bool = False
-) -> dict[str, Any]:
-    """Run the loop (module docstring); returns a JSON-compatible summary."""
-    start = time.perf_counter()
-    babble = config.babble if config.babble is not None else max(1, config.steps // 2)
+@register("loop", config=Config, quick=QUICK, tiny=TINY)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """The closed loop: babble, fit, then curiosity-driven (or goal-directed) pushing, filmed."""
+    babble = config.babble_steps
+    cfg = config.agent
     env = PushingEnv(camera_size=config.camera_size)
-    agent_cfg = replace(config.agent, seed=config.seed)
-    goal = None if config.goal is None else {agent_cfg.objects[0]: np.asarray(config.goal, float)}
-    agent = Agent(env, agent_cfg, goal=goal)
-    recorder = VideoRecorder(video, config.fps) if video is not None else None
+    goal = None if config.goal is None else {cfg.objects[0]: np.asarray(config.goal, float)}
+    agent = Agent(env, cfg, seed=config.seed, goal=goal)
+    recorder = VideoRecorder(config.video, config.fps) if config.video is not None else None
     modes: Counter[str] = Counter()
     step = 0
 
@@ -105,60 +153,85 @@ def run_loop(
             recorder.write(_frame(agent, None, agent.percept, 0))
         agent.run(babble, "babble", callback=film, progress_bar=progress_bar)
         fit_rows = agent.refit()["rows"]
-        rest = config.steps - babble
-        agent.run(rest, "curious" if goal is None else "goal", callback=film, progress_bar=progress_bar)
+        mode = "curious" if goal is None else "goal"
+        agent.run(config.steps - babble, mode, callback=film, progress_bar=progress_bar)
     finally:
         path = recorder.close() if recorder is not None else None
         env.close()
-    est = agent.history.array("est")
-    low, high = agent_cfg.region
-    coverage = {}
-    for k, o in enumerate(agent_cfg.objects):
+    history = agent.history
+    est, meas, truth = (history.array(f) for f in ("est", "meas", "truth"))
+    low, high = cfg.region
+    lost, coverage = {}, {}
+    for k, o in enumerate(cfg.objects):
         ok = np.isfinite(est[:, k, 0])
-        coverage[o] = grid_occupancy(est[ok, k], low, high, agent_cfg.bins) if ok.any() else 0.0
-    meas = agent.history.array("meas")
-    return {
-        "steps": len(agent.history),
+        coverage[o] = grid_occupancy(est[ok, k], low, high, cfg.bins) if ok.any() else 0.0
+        lost[o] = float(np.isnan(meas[:, k, 0]).mean())
+    metrics = {
+        "steps": len(history),
         "babble_steps": babble,
         "episodes": agent.episode + 1,
-        "modes": dict(modes),  # after babbling: curious / goal / setup / hold, or babble when nothing to gain
+        "modes": dict(modes),
         "fit_rows": fit_rows,
-        "lost_fraction": {o: float(np.isnan(meas[:, k, 0]).mean()) for k, o in enumerate(agent_cfg.objects)},
+        "lost_fraction": lost,
         "coverage": coverage,
         "video": None if path is None else str(path),
         "video_frames": None if recorder is None else recorder.frames,
-        "seconds": time.perf_counter() - start,
-        "config": {k: v for k, v in asdict(config).items() if k != "agent"},
     }
-
-
-def loop_demo_lines(out_dir: str | os.PathLike[str], quick: bool = False) -> list[str]:
-    """The short closed loop of ``pal demo``: babble, fit, a few curiosity-driven steps, filmed.
-
-    Writes ``loop.mp4`` and ``loop.json`` to ``out_dir``; returns the report lines. About 10 s
-    with ``quick``, 25 s without, on 2 cores.
-    """
-    agent = AgentConfig(
-        epochs=20 if quick else 40,
-        action_starts=8,
-        action_steps=30,
-        state_steps=30,
-        state_lr=0.05,
-        reset_every=None,
-        refit_every=1000,
-    )
-    config = LoopConfig(steps=24 if quick else 50, babble=18 if quick else 36, agent=agent)
-    out = Path(out_dir)
-    summary = run_loop(config, out / "loop.mp4")
-    write_json(out / "loop.json", summary)
-    return [
-        "Closed loop (issue 6): the arm pushes a box and a ball; Π -> measurement sites -> world model -> action",
-        f"   {summary['steps']} steps: {summary['babble_steps']} babbling, then curiosity-driven "
-        f"({', '.join(f'{k} {v}' for k, v in sorted(summary['modes'].items()))}; 'babble' where the model "
-        "saw nothing to gain)",
-        f"   world model fitted on {summary['fit_rows']} transitions (arm, and per object the rows where it was seen twice)",
-        "   objects lost by perception: "
-        + ", ".join(f"{o} {100 * f:.0f} %" for o, f in summary["lost_fraction"].items()),
-        f"   video with detections, ids, estimates and targets: {summary['video']} ({summary['video_frames']} frames, "
-        f"{summary['seconds']:.1f} s)",
+    summary = [
+        ["loop steps", metrics["steps"]],
+        ["babbling steps", babble],
+        ["episodes", metrics["episodes"]],
+        ["arm transitions fitted", fit_rows["arm"]],
+        *[[f"decisions after babbling: {m}", n] for m, n in sorted(modes.items())],
+        ["video", metrics["video"]],
+        ["video frames", metrics["video_frames"]],
     ]
+    objects = [[o, lost[o], coverage[o], fit_rows.get(o)] for o in cfg.objects]
+    return Report(
+        title="The closed perception-action loop: Π -> measurement sites -> world model -> action",
+        metrics=metrics,
+        tables=[
+            Table("Run", ["quantity", "value"], summary),
+            Table(
+                "Objects",
+                ["object", "frames lost [share]", "estimate coverage [share of cells]", "transitions fitted"],
+                objects,
+                caption="Transitions fitted: the babbling steps in which the object was perceived before and after.",
+            ),
+        ],
+        targets=[
+            Target(
+                f"lost_fraction.{o}",
+                lost[o],
+                MAX_LOST_FRACTION,
+                "<=",
+                f"share of the frames in which perception lost the {o}",
+            )
+            for o in cfg.objects
+        ],
+        notes=[
+            f"The arm pushes {' and '.join(cfg.objects)} for {metrics['steps']} steps (seed {config.seed}): "
+            f"{babble} babbling steps, then {'curiosity-driven' if goal is None else 'goal-directed'} steps.",
+        ],
+        figures={"paths": _paths_figure(history.objects, history.array("episode"), est, truth)},
+    )
+
+
+def _paths_figure(
+    objects: tuple[str, ...], episode: np.ndarray, est: np.ndarray, truth: np.ndarray
+) -> Figure:
+    """True paths (a line per episode) and state estimates (dots) of every object, table plane."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(4.8, 3.8))
+    for k, o in enumerate(objects):
+        colour = f"C{k}"
+        for i, e in enumerate(np.unique(episode)):
+            rows = episode == e
+            label = f"{o}, true" if i == 0 else None
+            ax.plot(truth[rows, k, 0], truth[rows, k, 1], color=colour, lw=1, label=label)
+        ax.plot(est[:, k, 0], est[:, k, 1], color=colour, ls="none", marker=".", ms=4, label=f"{o}, estimate")
+    ax.set(xlabel="x, m", ylabel="y, m", title="object positions on the table", aspect="equal")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig

@@ -10,6 +10,8 @@ output scaled to unit variance and sigma_i ~ U(noise). Roots are N(0, 1). The gr
 :func:`models.random_graph` (Erdos-Renyi in a random order).
 
 Interventions ``do(X_j = v)`` draw v uniformly on the pilot mean +- 2 sd of X_j.
+:class:`SCMConfig` holds the sizes that the experiment ``discovery`` and the benchmark
+``discovery`` share, and draws the SCM of every (d, seed).
 """
 
 from __future__ import annotations
@@ -21,8 +23,9 @@ import numpy as np
 import torch
 
 from models import CausalGraph, MLPMechanism, WorldModel, random_graph
+from pal.checks import check_float, check_int
 
-__all__ = ["SyntheticSCM", "random_scm"]
+__all__ = ["SCMConfig", "SyntheticSCM", "random_scm", "standardised"]
 
 
 @dataclass
@@ -68,6 +71,40 @@ class SyntheticSCM:
         return out, masks
 
 
+@dataclass(frozen=True)
+class SCMConfig:
+    """Synthetic SCMs, one per size d and seed.
+
+    Attributes:
+        dims: numbers of variables d.
+        n: observational rows of each SCM.
+        expected_parents: mean in-degree of the random DAG.
+    """
+
+    dims: tuple[int, ...] = (10, 20, 50)
+    n: int = 1000
+    expected_parents: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not self.dims:
+            raise ValueError("dims is empty; give at least one number of variables, e.g. [10]")
+        object.__setattr__(self, "dims", tuple(check_int("dims", d, minimum=2) for d in self.dims))
+        check_int("n", self.n, minimum=10)
+        check_float("expected_parents", self.expected_parents, 0.0, open_low=True)
+
+    def draw(self, d: int, seed: int) -> tuple[SyntheticSCM, dict[str, np.ndarray]]:
+        """The SCM of size ``d`` for ``seed`` (graph and mechanisms from ``1000 d + seed``) and its
+        ``n`` observational rows (from ``seed``): name -> ``(n, 1)`` float64."""
+        scm = random_scm(d, self.expected_parents, seed=1000 * d + seed)
+        return scm, scm.sample(self.n, seed=seed)
+
+
+def standardised(data: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Every column to zero mean and unit sd over all its rows (no method may read the causal
+    order off the variances of simulated data)."""
+    return {k: (v - v.mean(0)) / v.std(0) for k, v in data.items()}
+
+
 def random_scm(
     d: int,
     expected_parents: float = 2.0,
@@ -77,12 +114,14 @@ def random_scm(
     seed: int = 0,
 ) -> SyntheticSCM:
     """A random nonlinear additive-noise SCM over ``x0 .. x{d-1}`` (see the module docstring)."""
+    check_int("d", d)
+    check_int("hidden", hidden)
     graph = random_graph(d, expected_parents, seed=seed)
     gen = torch.Generator().manual_seed(seed + 1)
     mechs = {}
     for name in graph.non_roots:
         k = len(graph.parents(name))
-        mech = MLPMechanism(k, 1, hidden=(hidden,), activation="tanh")
+        mech = MLPMechanism(k, 1, hidden=(hidden,), activation="tanh", seed=seed)  # weights set below
         with torch.no_grad():
             for layer in (mech.net[0], mech.net[2]):
                 mag = 0.5 + 1.5 * torch.rand(layer.weight.shape, generator=gen)

@@ -14,26 +14,28 @@ uniform steps from the body's rest pose) and then take ``budget`` more steps:
 Coverage of q over the steps is the occupancy and normalised entropy of all visited
 angles (initial set included) over ``bins`` bins of the joint's range.
 
-``pal experiment explore --json`` prints ``steps_to_full_occupancy`` and
-``entropy_at_budget``, each with ``curiosity`` and ``random``: the median over seeds of
-the exploration steps until every bin was visited (None when the median run never got
-there) and the mean over seeds of the entropy after ``budget`` steps.
+Metrics: ``steps_to_full_occupancy`` (median over seeds of the exploration steps until
+every bin was visited; None when the median run never got there), ``entropy_at_budget`` and
+``occupancy_at_budget`` (means over seeds), each per condition, and per seed
+``steps_per_seed`` and ``entropy_per_seed``.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from dataclasses import asdict, dataclass, field
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
 
 from inference import CuriositySampler, fit
-from pal.experiments.timing import markdown_table
+from pal.checks import check_choice, check_float, check_int
+from pal.experiments.registry import register
+from pal.experiments.report import Report, Table, Target
 from pal.experiments.wm_data import BodyChoice, JointData
-from pal.experiments.wm_setup import build_model, infer_actions
+from pal.experiments.wm_setup import ActionConfig, FitConfig, build_model, infer_actions
 from pal.sim.babbling import BabbleConfig, BabblingSource, make_source
 
 if TYPE_CHECKING:
@@ -41,7 +43,7 @@ if TYPE_CHECKING:
 
     from models import WorldModel
 
-__all__ = ["CONDITIONS", "Config", "Result", "coverage_curve", "run"]
+__all__ = ["CONDITIONS", "Config", "coverage_curve", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -49,151 +51,61 @@ CONDITIONS = ("curiosity", "random")
 
 
 @dataclass(frozen=True)
-class Config(BodyChoice):
+class Config:
     """Exploration protocol.
 
     Attributes:
-        seeds: one run of both conditions per seed.
+        seed: the first seed; run k uses ``seed + k``.
+        runs: one run of both conditions per seed.
+        body: the body, the analysed joint and the babbling actuators.
         initial: uniform babbling steps before exploring (shared by both conditions).
         budget: exploration steps per condition.
         refit_every: refit period of the world model, steps.
-        epochs, batch_size, lr: :func:`inference.fit` schedule of each refit (MSE).
+        fit: :func:`inference.fit` schedule of each refit (MSE).
         graph: graph variant of the world model.
         bins, alpha, sigma_fraction: curiosity density (Eq. 5.8-5.9) and coverage bins.
-        action_steps, action_lr, action_starts: Alg. 4.2 (projected Adam, clipped to X_a)
-            from ``action_starts`` random points of X_a, keeping the best under the model. A
-            fixed start would make an agent whose model sees no effect of the action (a flat
-            prediction, e.g. after an initial set spent at a joint limit) repeat one action
-            forever; random starts leave its action random where the model is flat.
+        action: Alg. 4.2 (projected Adam, clipped to X_a) from ``action.starts`` random points
+            of X_a, keeping the best under the model. A fixed start would make an agent whose
+            model sees no effect of the action (a flat prediction, e.g. after an initial set
+            spent at a joint limit) repeat one action forever; random starts leave its action
+            random where the model is flat.
         q_range: ``(low, high)`` support of the bins, rad; default the joint's range.
     """
 
-    seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
+    seed: int = 0
+    runs: int = 5
+    body: BodyChoice = BodyChoice()
     initial: int = 20
     budget: int = 300
     refit_every: int = 25
-    epochs: int = 200
-    batch_size: int = 256
-    lr: float = 0.01
+    fit: FitConfig = FitConfig(epochs=200, batch_size=256)
     graph: str = "state"
     bins: int = 20
     alpha: float = 0.5
     sigma_fraction: float = 0.1
-    action_steps: int = 100
-    action_lr: float = 0.05
-    action_starts: int = 3
+    action: ActionConfig = ActionConfig(steps=100, starts=3)
     q_range: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
-        super().__post_init__()
-        object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
-        if not self.seeds:
-            raise ValueError("seeds is empty; give at least one seed")
-        for key in ("initial", "budget", "refit_every", "epochs", "batch_size", "action_steps"):
-            value = getattr(self, key)
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, int)
-                or value < (2 if key == "initial" else 1)
-            ):
-                raise ValueError(f"{key} must be an int >= {2 if key == 'initial' else 1}, got {value!r}")
-        if self.graph not in ("thesis", "state"):
-            raise ValueError(f"graph {self.graph!r} unknown; expected 'thesis' or 'state'")
+        check_int("seed", self.seed, minimum=0)
+        check_int("runs", self.runs)
+        check_int("initial", self.initial, minimum=2)
+        check_int("budget", self.budget)
+        check_int("refit_every", self.refit_every)
+        check_int("bins", self.bins, minimum=2)
+        check_choice("graph", self.graph, ("thesis", "state"))
+        check_float("alpha", self.alpha, 0.0)
+        check_float("sigma_fraction", self.sigma_fraction, 0.0, open_low=True)
         if self.q_range is not None:
-            lo, hi = (float(v) for v in self.q_range)
+            lo, hi = (check_float("q_range", v) for v in self.q_range)
             if not lo < hi:
                 raise ValueError(f"q_range must be (low, high) with low < high, got {self.q_range!r}")
             object.__setattr__(self, "q_range", (lo, hi))
 
-    @classmethod
-    def quick(cls) -> Config:
-        return cls(seeds=(0, 1), initial=10, budget=40, refit_every=20, epochs=100, action_steps=50)
-
-
-@dataclass(frozen=True)
-class Result:
-    """Coverage of both conditions.
-
-    Attributes:
-        steps_to_full: condition -> per seed, exploration steps until all bins were
-            visited (None: not within the budget).
-        entropy_at_budget: condition -> per seed, normalised entropy after the budget.
-        occupancy, entropy: condition -> ``(n_seeds, budget + 1)`` curves (step 0: the
-            initial set only).
-        visited: condition -> all visited angles of all seeds, rad (for the histogram).
-        q_range: support of the bins, rad.
-        info: joint, actuator, seconds per condition.
-    """
-
-    steps_to_full: dict[str, list[int | None]]
-    entropy_at_budget: dict[str, list[float]]
-    occupancy: dict[str, np.ndarray]
-    entropy: dict[str, np.ndarray]
-    visited: dict[str, np.ndarray]
-    q_range: tuple[float, float]
-    info: dict[str, Any]
-    config: Config = field(default_factory=Config)
-
-    def median_steps(self, cond: str) -> float | None:
-        """Median over seeds of the steps to full occupancy; None if that run never got there."""
-        steps = [np.inf if s is None else s for s in self.steps_to_full[cond]]
-        med = float(np.median(steps))
-        return med if np.isfinite(med) else None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "steps_to_full_occupancy": {c: self.median_steps(c) for c in CONDITIONS},
-            "entropy_at_budget": {c: float(np.mean(self.entropy_at_budget[c])) for c in CONDITIONS},
-        }
-
-    def target_met(self) -> bool:
-        """Curiosity reaches all bins (median run) in fewer steps than random babbling."""
-        cur, rnd = self.median_steps("curiosity"), self.median_steps("random")
-        return cur is not None and (rnd is None or cur < rnd)
-
-    def to_markdown(self) -> str:
-        c, d = self.config, self.to_dict()
-        rows = []
-        for cond in CONDITIONS:
-            reached = [s for s in self.steps_to_full[cond] if s is not None]
-            rows.append(
-                [
-                    cond,
-                    d["steps_to_full_occupancy"][cond],
-                    f"{len(reached)}/{len(c.seeds)}",
-                    ", ".join("never" if s is None else str(s) for s in self.steps_to_full[cond]),
-                    d["entropy_at_budget"][cond],
-                    float(self.occupancy[cond][:, -1].mean()),
-                ]
-            )
-        header = [
-            "condition",
-            "median steps to 20/20 bins" if c.bins == 20 else f"median steps to {c.bins}/{c.bins} bins",
-            "seeds reaching all bins",
-            "steps per seed",
-            "entropy at budget (mean)",
-            "occupancy at budget (mean)",
-        ]
-        return "\n".join(
-            [
-                "## Online exploration: curiosity loop vs random babbling",
-                "",
-                f"Joint `{self.info['joint']}` (actuator `{self.info['actuator']}`, {self.info['n_actuators']} "
-                f"actuator(s)), {len(c.seeds)} seeds, {c.initial} initial random steps, budget {c.budget} steps, "
-                f"`{c.graph}` graph refitted every {c.refit_every} steps, {c.bins} bins over "
-                f"[{self.q_range[0]:.3f}, {self.q_range[1]:.3f}] rad, alpha {c.alpha}, Alg. 4.2 with "
-                f"{c.action_steps} Adam steps.",
-                "",
-                markdown_table(header, rows),
-                "",
-                f"Target: all bins reached in fewer steps than random babbling: "
-                f"{'met' if self.target_met() else 'NOT met'}.",
-                "",
-            ]
-        )
-
-    def figures(self) -> dict[str, Figure]:
-        return {"coverage": _figure(self)}
+    @property
+    def seeds(self) -> tuple[int, ...]:
+        """The seeds of the runs."""
+        return tuple(range(self.seed, self.seed + self.runs))
 
 
 def coverage_curve(
@@ -222,7 +134,11 @@ def _source(config: Config, seed: int) -> BabblingSource:
     total = config.initial + config.budget
     return make_source(
         BabbleConfig(
-            body=config.source, actuators=config.actuator, steps=total, seed=seed, reset_every=total + 1
+            body=config.body.source,
+            actuators=config.body.actuator,
+            steps=total,
+            seed=seed,
+            reset_every=total + 1,
         )
     )
 
@@ -230,9 +146,10 @@ def _source(config: Config, seed: int) -> BabblingSource:
 def _refit(
     config: Config, joint: JointData, data: dict[str, list[float]], q_range: tuple[float, float], seed: int
 ) -> WorldModel:
-    model = build_model(joint, config.graph, q_range, seed)
+    f = config.fit
+    model = build_model(joint, config.graph, q_range, seed, f.hidden)
     cols = {k: np.asarray(v, np.float32)[:, None] for k, v in data.items()}
-    fit(model, cols, loss="mse", epochs=config.epochs, batch_size=config.batch_size, lr=config.lr, seed=seed)
+    fit(model, cols, loss="mse", epochs=f.epochs, batch_size=f.batch_size, lr=f.lr, seed=seed)
     return model
 
 
@@ -266,9 +183,9 @@ def _curiosity_run(
             joint,
             np.array([q_now]),
             target,
-            config.action_steps,
-            config.action_lr,
-            config.action_starts,
+            config.action.steps,
+            config.action.lr,
+            config.action.starts,
             rng=start_rng,
         )
         ctrl = source.policy.sample(1)[0].astype(np.float64)
@@ -289,17 +206,43 @@ def _random_run(config: Config, joint: JointData, seed: int) -> np.ndarray:
     return block.q[:, joint.joint_index]
 
 
-def run(config: Config, progress_bar: bool = False) -> Result:
-    """Run both conditions for every seed and compare their coverage of q."""
-    probe = _source(config, config.seeds[0])
-    joint = JointData.from_env(probe.env, config.joint)
+def _median_steps(steps: list[int | None]) -> float | None:
+    """Median over seeds of the steps to full occupancy; None if the median run never got there."""
+    med = float(np.median([np.inf if v is None else v for v in steps]))
+    return med if np.isfinite(med) else None
+
+
+@register(
+    "explore",
+    config=Config,
+    quick=Config(
+        runs=2,
+        initial=10,
+        budget=40,
+        refit_every=20,
+        fit=FitConfig(epochs=100, batch_size=256),
+        action=ActionConfig(steps=50, starts=3),
+    ),
+    tiny=Config(
+        runs=1,
+        initial=5,
+        budget=6,
+        refit_every=3,
+        bins=5,
+        fit=FitConfig(epochs=5, batch_size=64),
+        action=ActionConfig(steps=5, starts=2),
+    ),
+)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """Online exploration: steps until the curiosity loop and random babbling have visited every bin of q."""
+    probe = _source(config, config.seed)
+    joint = JointData.from_env(probe.env, config.body.joint)
     q_range = config.q_range or probe.env.joint_ranges[joint.joint]
     if q_range is None:
         raise ValueError(f"joint {joint.joint!r} is unlimited; give the bins' support as q_range=(low, high)")
     steps: dict[str, list[int | None]] = {c: [] for c in CONDITIONS}
     ent_final: dict[str, list[float]] = {c: [] for c in CONDITIONS}
-    occ_curves: dict[str, list[np.ndarray]] = {c: [] for c in CONDITIONS}
-    ent_curves: dict[str, list[np.ndarray]] = {c: [] for c in CONDITIONS}
+    curves: dict[str, dict[str, list[np.ndarray]]] = {c: {"occupancy": [], "entropy": []} for c in CONDITIONS}
     visited: dict[str, list[np.ndarray]] = {c: [] for c in CONDITIONS}
     seconds = dict.fromkeys(CONDITIONS, 0.0)
     for seed in config.seeds:
@@ -314,44 +257,103 @@ def run(config: Config, progress_bar: bool = False) -> Result:
             full = np.flatnonzero(occ >= 1.0)
             steps[cond].append(int(full[0]) if full.size else None)
             ent_final[cond].append(float(ent[-1]))
-            occ_curves[cond].append(occ)
-            ent_curves[cond].append(ent)
+            curves[cond]["occupancy"].append(occ)
+            curves[cond]["entropy"].append(ent)
             visited[cond].append(values)
         log.info("seed %d: steps to full occupancy %s", seed, {c: steps[c][-1] for c in CONDITIONS})
-    info = {
-        "joint": joint.joint,
-        "actuator": joint.actuator,
-        "n_actuators": len(probe.env.actuator_names),
-        "seconds": seconds,
-        "config": asdict(config),
+    q_range = (float(q_range[0]), float(q_range[1]))
+    metrics = {
+        "steps_to_full_occupancy": {c: _median_steps(steps[c]) for c in CONDITIONS},
+        "entropy_at_budget": {c: float(np.mean(ent_final[c])) for c in CONDITIONS},
+        "occupancy_at_budget": {
+            c: float(np.mean([o[-1] for o in curves[c]["occupancy"]])) for c in CONDITIONS
+        },
+        "steps_per_seed": steps,
+        "entropy_per_seed": ent_final,
+        "info": {
+            "joint": joint.joint,
+            "actuator": joint.actuator,
+            "n_actuators": len(probe.env.actuator_names),
+            "q_range": list(q_range),
+            "seconds": seconds,
+        },
     }
-    return Result(
-        steps,
-        ent_final,
-        {c: np.stack(v) for c, v in occ_curves.items()},
-        {c: np.stack(v) for c, v in ent_curves.items()},
-        {c: np.concatenate(v) for c, v in visited.items()},
-        (float(q_range[0]), float(q_range[1])),
-        info,
-        config,
+    rows = [
+        (
+            cond,
+            metrics["steps_to_full_occupancy"][cond],
+            f"{sum(s is not None for s in steps[cond])}/{config.runs}",
+            ", ".join("never" if s is None else str(s) for s in steps[cond]),
+            metrics["entropy_at_budget"][cond],
+            metrics["occupancy_at_budget"][cond],
+        )
+        for cond in CONDITIONS
+    ]
+    cur, rnd = (metrics["steps_to_full_occupancy"][c] for c in CONDITIONS)
+    advantage = None if cur is None else (config.budget if rnd is None else rnd) - cur
+    b = config.bins
+    stacked = {c: {k: np.stack(v) for k, v in curves[c].items()} for c in CONDITIONS}
+    return Report(
+        title="Online exploration: curiosity loop vs random babbling",
+        metrics=metrics,
+        tables=[
+            Table(
+                "Coverage of q",
+                (
+                    "condition",
+                    f"median steps to {b}/{b} bins",
+                    "seeds reaching all bins",
+                    "steps per seed",
+                    "entropy at budget (mean)",
+                    "occupancy at budget (mean)",
+                ),
+                rows,
+            )
+        ],
+        targets=[
+            Target(
+                "steps_saved",
+                advantage,
+                0.0,
+                ">",
+                "median steps to all bins, random (budget if never) minus curiosity",
+            )
+        ],
+        notes=[
+            f"Joint {joint.joint} (actuator {joint.actuator}, {len(probe.env.actuator_names)} actuator(s)), "
+            f"{config.runs} seeds, {config.initial} initial random steps, budget {config.budget} steps, "
+            f"{config.graph} graph refitted every {config.refit_every} steps, {b} bins over "
+            f"[{q_range[0]:.3f}, {q_range[1]:.3f}] rad, alpha {config.alpha}, Alg. 4.2 with "
+            f"{config.action.steps} Adam steps."
+        ],
+        figures={
+            "coverage": _figure(stacked, {c: np.concatenate(v) for c, v in visited.items()}, q_range, b)
+        },
     )
 
 
-def _figure(result: Result) -> Figure:
+def _figure(
+    curves: dict[str, dict[str, np.ndarray]],
+    visited: dict[str, np.ndarray],
+    q_range: tuple[float, float],
+    bins: int,
+) -> Figure:
+    """Occupancy and entropy curves (mean, min-max over seeds) and the histogram of visited angles."""
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.4))
     for cond, color in zip(CONDITIONS, ("C3", "0.45"), strict=True):
-        for ax, curves in zip(axes[:2], (result.occupancy[cond], result.entropy[cond]), strict=True):
-            x = np.arange(curves.shape[1])
-            ax.plot(x, curves.mean(0), color=color, label=f"{cond} (mean)")
-            ax.fill_between(x, curves.min(0), curves.max(0), color=color, alpha=0.2, lw=0)
+        for ax, key in zip(axes[:2], ("occupancy", "entropy"), strict=True):
+            c = curves[cond][key]
+            x = np.arange(c.shape[1])
+            ax.plot(x, c.mean(0), color=color, label=f"{cond} (mean)")
+            ax.fill_between(x, c.min(0), c.max(0), color=color, alpha=0.2, lw=0)
     axes[0].set(xlabel="exploration step", ylabel="occupancy", title="bins visited (min-max over seeds)")
     axes[1].set(xlabel="exploration step", ylabel="normalised entropy", title="entropy of visited q")
-    lo, hi = result.q_range
-    edges = np.linspace(lo, hi, result.config.bins + 1)
+    lo, hi = q_range
+    edges = np.linspace(lo, hi, bins + 1)
     for cond, color in zip(CONDITIONS, ("C3", "0.45"), strict=True):
-        axes[2].hist(np.clip(result.visited[cond], lo, hi), bins=edges, alpha=0.5, color=color, label=cond)
+        axes[2].hist(np.clip(visited[cond], lo, hi), bins=edges, alpha=0.5, color=color, label=cond)
     axes[2].set(xlabel="q [rad]", ylabel="visits (all seeds)", title="visited angles at budget")
     for ax in axes:
         ax.legend(fontsize=7)

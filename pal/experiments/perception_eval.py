@@ -74,7 +74,8 @@ class RunResult:
         kinematic: (90,) motion descriptor of the main record, or None (< 2 estimated poses).
         kinematic_reliable: the descriptor's own reliability flag (no long gaps).
         visual: (54,) gallery-mean appearance descriptor, or None.
-        fps: pipeline frames per second on this run (wall clock, includes reading the frames).
+        fps: pipeline frames per second on this run (wall clock, includes reading the frames);
+            None when the clock did not advance.
         failures: most common reasons of non-estimated poses, with counts.
         t_est, p_est: (M,) s and (M, 3) camera-frame positions of the estimated poses, metres.
         t_gt, p_gt: (N,) s and (N, 3) true positions of the canonical origin (after alignment),
@@ -106,7 +107,7 @@ class RunResult:
     kinematic: np.ndarray | None
     kinematic_reliable: bool
     visual: np.ndarray | None
-    fps: float
+    fps: float | None
     failures: dict[str, int] = field(default_factory=dict)
     t_est: np.ndarray = field(default_factory=lambda: np.zeros(0))
     p_est: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
@@ -127,7 +128,7 @@ class RunResult:
         )
 
     def summary(self) -> dict[str, Any]:
-        """JSON-compatible per-run figures (the keys of ``pal experiment a1 --json``)."""
+        """JSON-compatible per-run figures (``metrics.runs`` of ``pal experiment a1 --json``)."""
         return {
             "motion": self.motion,
             "object": self.object,
@@ -325,6 +326,6 @@ def evaluate_sequence(
         seg_iou_all=seg_all,
         tracks=sum(n >= long for n, _, _ in mine),
         fragments=sum(n < long for n, _, _ in mine),
-        fps=len(seq) / seconds if seconds > 0 else float("inf"),
+        fps=len(seq) / seconds if seconds > 0 else None,
         **result,
     )

@@ -7,6 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pal.experiments.concept_eval import pca_2d
 from pal.experiments.perception_eval import RunResult
 
 if TYPE_CHECKING:
@@ -53,32 +54,26 @@ def trajectory_figure(results: Sequence[RunResult]) -> Figure:
 
 
 def pca_figure(
-    Z: np.ndarray,
-    explained: np.ndarray,
+    X: np.ndarray,
     groups: Sequence[str],
     filled: Sequence[bool],
     names: Sequence[str],
     title: str,
 ) -> Figure:
-    """A 2-D PCA scatter: one colour per group; hollow markers where ``filled`` is False."""
+    """A 2-D PCA scatter of the (n, d) points ``X``: one colour per group, hollow where ``filled`` is False."""
     import matplotlib.pyplot as plt
 
+    Z, explained = pca_2d(X)
     fig, ax = plt.subplots(figsize=(5.6, 4.4))
-    order = list(dict.fromkeys(groups))
-    colours = {g: f"C{k % 10}" for k, g in enumerate(order)}
-    for k, (z, g, f) in enumerate(zip(Z, groups, filled, strict=True)):
+    colours = {g: f"C{k % 10}" for k, g in enumerate(dict.fromkeys(groups))}
+    labelled: set[str] = set()
+    for z, g, f, name in zip(Z, groups, filled, names, strict=True):
         c = colours[g]
-        ax.scatter(
-            [z[0]],
-            [z[1]],
-            s=46,
-            color=c if f else "none",
-            edgecolors=c,
-            linewidths=1.5,
-            label=g if g not in [groups[j] for j in range(k)] else None,
-        )
+        label = None if g in labelled else g
+        ax.scatter([z[0]], [z[1]], s=46, color=c if f else "none", edgecolors=c, linewidths=1.5, label=label)
+        labelled.add(g)
         if len(Z) <= 40:
-            ax.annotate(names[k], (z[0], z[1]), fontsize=6, xytext=(3, 3), textcoords="offset points")
+            ax.annotate(name, (z[0], z[1]), fontsize=6, xytext=(3, 3), textcoords="offset points")
     ax.set(
         xlabel=f"PC1 ({100 * explained[0]:.1f} %)", ylabel=f"PC2 ({100 * explained[1]:.1f} %)", title=title
     )
@@ -88,8 +83,13 @@ def pca_figure(
     return fig
 
 
-def pose_error_figure(results: Sequence[RunResult]) -> Figure:
-    """Median translation (cm) and rotation (deg) error of the estimated poses, per run."""
+def pose_error_figure(results: Sequence[RunResult], targets: tuple[float, float]) -> Figure:
+    """Median and 90th-percentile translation (cm) and rotation (deg) error of the estimated poses, per run.
+
+    Args:
+        results: the scored runs.
+        targets: the (cm, deg) bounds drawn as dashed lines.
+    """
     import matplotlib.pyplot as plt
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.4))
@@ -99,7 +99,10 @@ def pose_error_figure(results: Sequence[RunResult]) -> Figure:
     p90_t = [np.percentile(r.trans_err_cm, 90) if r.trans_err_cm else np.nan for r in results]
     med_r = [np.median(r.rot_err_deg) if r.rot_err_deg else np.nan for r in results]
     p90_r = [np.percentile(r.rot_err_deg, 90) if r.rot_err_deg else np.nan for r in results]
-    for ax, med, p90, target, unit in ((a, med_t, p90_t, 1.0, "cm"), (b, med_r, p90_r, 5.0, "deg")):
+    for ax, med, p90, target, unit in (
+        (a, med_t, p90_t, targets[0], "cm"),
+        (b, med_r, p90_r, targets[1], "deg"),
+    ):
         ax.bar(x, p90, color="0.8", label="90th percentile")
         ax.bar(x, med, color="tab:blue", width=0.5, label="median")
         ax.axhline(target, color="tab:red", lw=1, ls="--", label=f"target {target:g} {unit}")

@@ -1,13 +1,14 @@
 """The set of recorded tabletop runs that experiments A1-A3 share, and its evaluation.
 
-:class:`RunSet` (the base of the experiments' ``Config``) names the motions of Table 5.1, the
-number of runs per motion and the recording and pipeline settings. :func:`collect` records
-every run with :func:`pal.sim.recording.record` (run ``r`` of a motion uses seed
-``seed + r``) and scores it with :func:`pal.experiments.perception_eval.evaluate_sequence`.
+:class:`RunSet` (the ``runs`` sub-config of the experiments' :class:`Config`) names the motions of
+Table 5.1, the number of runs per motion and the recording and pipeline settings.
+:func:`collect` records every run with :func:`pal.sim.recording.record` (run ``r`` of a
+motion uses seed ``seed + r``) and scores it with
+:func:`pal.experiments.perception_eval.evaluate_sequence`.
 
 Recordings go to ``data_dir/<motion>/seed-<s>``. A recording already there is reused when its
-recording settings match (so ``pal experiment a1 --set data_dir=DIR`` followed by ``a2`` and
-``a3`` with the same ``DIR`` renders each run once). Without ``data_dir`` they go to a
+recording settings match (so ``pal experiment a1 --set runs.data_dir=DIR`` followed by ``a2``
+and ``a3`` with the same ``DIR`` renders each run once). Without ``data_dir`` they go to a
 temporary directory, each one deleted as soon as it has been scored.
 """
 
@@ -21,16 +22,19 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Literal
 
+from pal.checks import check_choice, check_float, check_int
 from pal.experiments.perception_eval import RunResult, evaluate_sequence
 from pal.perception import PipelineConfig, RecordedSequence, SequenceError
 from pal.perception.features import FeatureConfig
 from pal.perception.pose import PoseConfig
+from pal.sim.camera import BACKENDS
 from pal.sim.motions import MOTIONS
 from pal.sim.recording import RecordConfig, record
 from pal.sim.tabletop import scene_digest
 
-__all__ = ["RunSet", "collect", "ensure_recording"]
+__all__ = ["QUICK_RUNS", "TINY_RUNS", "Config", "RunSet", "collect", "ensure_recording"]
 
 log = logging.getLogger(__name__)
 
@@ -41,29 +45,27 @@ class RunSet:
 
     Attributes:
         motions: motions of Table 5.1 (keys of :data:`pal.sim.motions.MOTIONS`).
-        runs: runs per motion (seeds ``seed``, ``seed + 1``, ...).
-        seed: first run seed.
+        per_motion: runs per motion (seeds ``seed``, ``seed + 1``, ...).
         fps: recording frame rate, frames/s.
         width, height: image size, pixels.
+        segmenter: ``"geometric"`` (default) or ``"oracle"`` (ground-truth masks, an ablation).
+        features: ``"orb"`` (default) or ``"sift"``.
         depth_noise: depth noise std at 1 m, metres (see :mod:`pal.sim.recording`).
         rgb_noise: colour noise std, grey levels.
         data_dir: where recordings are kept and reused; None: a temporary directory.
-        segmenter: ``"geometric"`` (default) or ``"oracle"`` (ground-truth masks, an ablation).
-        features: ``"orb"`` (default) or ``"sift"``.
-        backend: camera backend.
+        backend: camera backend (:data:`pal.sim.camera.BACKENDS`).
     """
 
     motions: tuple[str, ...] = tuple(MOTIONS)
-    runs: int = 4
-    seed: int = 0
+    per_motion: int = 4
     fps: float = 15.0
     width: int = 640
     height: int = 480
+    segmenter: Literal["geometric", "oracle"] = "geometric"
+    features: Literal["orb", "sift"] = "orb"
     depth_noise: float = 0.002
     rgb_noise: float = 2.0
     data_dir: str | None = None
-    segmenter: str = "geometric"
-    features: str = "orb"
     backend: str = "auto"
 
     def __post_init__(self) -> None:
@@ -72,15 +74,21 @@ class RunSet:
         if not motions or unknown:
             raise ValueError(f"motions {list(motions)} must be a non-empty list of {sorted(MOTIONS)}")
         object.__setattr__(self, "motions", motions)
-        if isinstance(self.runs, bool) or int(self.runs) < 1:
-            raise ValueError(f"runs is {self.runs!r}, expected an int >= 1 (runs per motion)")
-        if self.segmenter not in ("geometric", "oracle"):
-            raise ValueError(f"segmenter {self.segmenter!r} unknown; expected 'geometric' or 'oracle'")
+        check_int("per_motion", self.per_motion)
+        check_float("fps", self.fps, 0.0, open_low=True)
+        check_int("width", self.width, minimum=16)
+        check_int("height", self.height, minimum=16)
+        check_float("depth_noise", self.depth_noise, 0.0)
+        check_float("rgb_noise", self.rgb_noise, 0.0)
+        check_choice("segmenter", self.segmenter, ("geometric", "oracle"))
+        check_choice("features", self.features, ("orb", "sift"))
+        check_choice("backend", self.backend, BACKENDS)
 
-    def record_config(self, motion: str, run: int) -> RecordConfig:
+    def record_config(self, motion: str, run: int, seed: int) -> RecordConfig:
+        """The recording of run ``run`` (0-based) of ``motion``: seed ``seed + run``."""
         return RecordConfig(
             motion,
-            seed=self.seed + run,
+            seed=seed + run,
             fps=self.fps,
             width=self.width,
             height=self.height,
@@ -93,12 +101,41 @@ class RunSet:
         """Π as the experiments run it: defaults, plus the chosen segmenter and features."""
         return PipelineConfig(
             segmenter=self.segmenter, pose=PoseConfig(features=FeatureConfig(kind=self.features))
-        )  # type: ignore[arg-type]
+        )
 
     @property
     def min_area(self) -> int:
         """Pixels of true mask for an object to count as in view (150 at 640x480, scaled)."""
         return max(20, round(150 * self.width * self.height / (640 * 480)))
+
+    def note(self, seed: int) -> str:
+        """One sentence describing the run set, for a report's notes."""
+        return (
+            f"{len(self.motions) * self.per_motion} simulated runs ({self.per_motion} per motion, seeds from {seed}) "
+            f"at {self.width}x{self.height} and {self.fps:g} frames/s, depth noise {self.depth_noise * 1000:g} mm at 1 m, "
+            f"segmenter {self.segmenter}, features {self.features}."
+        )
+
+
+#: The run set of A2 and A3 under ``--quick``: every motion twice, 320x240 at 10 frames/s.
+QUICK_RUNS = RunSet(per_motion=2, fps=10.0, width=320, height=240)
+#: The smallest run set that reaches every code path: a translation, a rotation and the ball.
+TINY_RUNS = RunSet(
+    motions=("box-translation", "box-rotation", "ball-roll"), per_motion=1, fps=3.0, width=160, height=120
+)
+
+
+@dataclass(frozen=True)
+class Config:
+    """Experiments A1-A3: which runs to record and perceive (defaults: every motion 4 times at 640x480).
+
+    Attributes:
+        seed: seed of each motion's first run (run ``r`` uses ``seed + r``).
+        runs: the run set.
+    """
+
+    seed: int = 0
+    runs: RunSet = RunSet()
 
 
 def ensure_recording(config: RecordConfig, path: Path) -> RecordedSequence:
@@ -127,23 +164,35 @@ def _workdir(data_dir: str | None) -> Iterator[tuple[Path, bool]]:
         yield Path(tmp), False
 
 
-def collect(config: RunSet, progress_bar: bool = False) -> list[RunResult]:
-    """Record (or reuse) and evaluate every run of ``config``, in motion order then run order."""
-    jobs = [(m, r) for m in config.motions for r in range(config.runs)]
-    pipe = config.pipeline_config()
+def collect(runs: RunSet, seed: int, progress_bar: bool = False) -> list[RunResult]:
+    """Record (or reuse) and evaluate every run of ``runs``, in motion order then run order.
+
+    Args:
+        runs: the run set.
+        seed: seed of each motion's first run (run ``r`` uses ``seed + r``).
+        progress_bar: show a progress bar over the runs.
+    """
+    jobs = [(m, r) for m in runs.motions for r in range(runs.per_motion)]
+    pipe = runs.pipeline_config()
     results = []
-    with _workdir(config.data_dir) as (root, keep):
+    with _workdir(runs.data_dir) as (root, keep):
         it = jobs
         if progress_bar:
             from tqdm import tqdm
 
             it = tqdm(jobs, desc="runs", unit="run")
         for motion, run in it:
-            rc = config.record_config(motion, run)
+            rc = runs.record_config(motion, run, seed)
             path = root / motion / f"seed-{rc.seed}"
             seq = ensure_recording(rc, path)
-            res = evaluate_sequence(seq, pipe, run=run, min_area=config.min_area)
-            log.info("%s: %d/%d estimated, %.1f frames/s", res.name, res.valid, res.in_view, res.fps)
+            res = evaluate_sequence(seq, pipe, run=run, min_area=runs.min_area)
+            log.info(
+                "%s: %d/%d estimated, %s frames/s",
+                res.name,
+                res.valid,
+                res.in_view,
+                res.fps and round(res.fps, 1),
+            )
             results.append(res)
             if not keep:
                 shutil.rmtree(path)

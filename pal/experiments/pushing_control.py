@@ -1,9 +1,10 @@
-"""Shared pieces of experiments C1-C4: the arm's geometry, a scripted pushing controller that knows the
-ground truth, the approach point of a push, and the goal episodes of C2.
+"""The scripted reference of experiment C2: the arm's planar kinematics, the approach point of a push,
+and a pushing controller that knows the ground truth.
 
 **Kinematics.** The arm moves in the table plane: with shoulder S, heading h = yaw + 90 deg + q1,
-the palm centre is ``S + L1 u(h) + L2 u(h + q2)`` (L1 = 0.12 m upper arm, L2 = 0.13 m forearm to the
-palm centre). :func:`inverse_kinematics` inverts it on the elbow-flexed branch (q2 <= 0).
+the palm centre is ``S + L1 u(h) + L2 u(h + q2)``, with L1 (shoulder to elbow) and L2 (elbow to the
+palm centre) read from the compiled model (:attr:`pal.sim.pushing.PushingEnv.link_lengths`; 0.12 and
+0.13 m for the shipped arm). :func:`inverse_kinematics` inverts it on the elbow-flexed branch (q2 <= 0).
 
 **Scripted reference (C2).** Each step it reads the box's true pose and the hand's position, and
 
@@ -33,8 +34,6 @@ __all__ = [
     "inverse_kinematics",
 ]
 
-#: Arm segment lengths in the table plane, m: shoulder -> elbow, elbow -> palm centre.
-L1, L2 = 0.12, 0.13
 #: Half extents of the box's footprint, m.
 BOX_HALF = PUSH_BOX_HALF[:2]
 #: Radius used for the hand when it pushes, m.
@@ -44,21 +43,23 @@ HAND_RADIUS = 0.02
 def forward_kinematics(env: PushingEnv, q: np.ndarray) -> np.ndarray:
     """Palm centre (2,) in the table plane for joint angles q = (shoulder, elbow), rad."""
     sx, sy, _ = env.layout.shoulder
+    l1, l2 = env.link_lengths
     h = math.radians(env.layout.yaw_deg) + math.pi / 2 + float(q[0])
     return np.array(
-        [sx + L1 * math.cos(h) + L2 * math.cos(h + q[1]), sy + L1 * math.sin(h) + L2 * math.sin(h + q[1])]
+        [sx + l1 * math.cos(h) + l2 * math.cos(h + q[1]), sy + l1 * math.sin(h) + l2 * math.sin(h + q[1])]
     )
 
 
 def inverse_kinematics(env: PushingEnv, point: np.ndarray) -> np.ndarray:
     """Joint angles (2,) that put the palm centre nearest to ``point`` (2,), within the joint ranges."""
     sx, sy, _ = env.layout.shoulder
+    l1, l2 = env.link_lengths
     d = np.asarray(point, float) - (sx, sy)
-    r = float(np.clip(np.linalg.norm(d), abs(L1 - L2) + 1e-6, L1 + L2 - 1e-6))
-    c2 = (r * r - L1 * L1 - L2 * L2) / (2 * L1 * L2)
+    r = float(np.clip(np.linalg.norm(d), abs(l1 - l2) + 1e-6, l1 + l2 - 1e-6))
+    c2 = (r * r - l1 * l1 - l2 * l2) / (2 * l1 * l2)
     q2 = -math.acos(float(np.clip(c2, -1.0, 1.0)))
     bearing = math.atan2(d[1], d[0])
-    h = bearing - math.atan2(L2 * math.sin(q2), L1 + L2 * math.cos(q2))
+    h = bearing - math.atan2(l2 * math.sin(q2), l1 + l2 * math.cos(q2))
     q1 = (h - math.radians(env.layout.yaw_deg) - math.pi / 2 + math.pi) % (2 * math.pi) - math.pi
     return np.clip(np.array([q1, q2]), env.ctrl_low, env.ctrl_high)
 

@@ -4,72 +4,141 @@ Every experiment starts the same way: an :class:`pal.agent.Agent` in the pushing
 (:class:`pal.sim.pushing.PushingEnv`) babbles for ``babble_steps`` steps while it perceives (Π on
 the self-filtered RGB-D frames), so its history holds for every step the executed servo targets,
 the joint angles, the sensed hand and touch, the perceived object positions and, for evaluation
-only, the true ones and the simulator state. Objects are put back every ``reset_every`` steps.
+only, the true ones and the simulator state. Objects are put back every ``agent.reset_every`` steps.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch
 
 from models import WorldModel
-from pal.agent import Agent, AgentConfig
+from pal.agent import Agent, AgentConfig, build_world_model, fit_world_model
 from pal.agent.history import History
+from pal.checks import check_float, check_int
 from pal.sim.pushing import PushingEnv
 
-__all__ = ["SetupConfig", "babbled_agent", "predict_displacements", "summary"]
+__all__ = [
+    "QUICK_SETUP",
+    "TINY_AGENT",
+    "TINY_SETUP",
+    "SetupConfig",
+    "babbled_agent",
+    "fitted_model",
+    "predict_displacements",
+    "split_rows",
+    "summary",
+]
 
 log = logging.getLogger(__name__)
 
 
+def summary(values: Any) -> dict[str, float | int | None]:
+    """Median, mean, 25th and 75th percentile and count of a 1-d array; None statistics when empty."""
+    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    if v.size == 0:
+        return {"median": None, "mean": None, "p25": None, "p75": None, "n": 0}
+    return {
+        "median": float(np.median(v)),
+        "mean": float(v.mean()),
+        "p25": float(np.percentile(v, 25)),
+        "p75": float(np.percentile(v, 75)),
+        "n": int(v.size),
+    }
+
+
 @dataclass(frozen=True)
 class SetupConfig:
-    """Settings every pushing experiment shares.
+    """Settings every pushing experiment shares (the seed is the experiment's).
 
     Attributes:
-        seed: master seed (world resets, babbling, fits, inference).
         babble_steps: babbling steps that make the training history.
-        epochs: fitting epochs (Eq. 4.33), batch 256, lr 0.005.
-        hidden: MLP widths of the learned mechanisms.
-        reset_every: steps per episode (objects put back at seeded random places).
         camera_size: (width, height) of the RGB-D camera, pixels.
+        agent: the agent's settings: its fits (Eq. 4.33), inference, episodes (objects are put
+            back at seeded random places every ``agent.reset_every`` steps).
     """
 
-    seed: int = 0
     babble_steps: int = 3000
-    epochs: int = 150
-    hidden: tuple[int, ...] = (64, 64)
-    reset_every: int = 40
     camera_size: tuple[int, int] = (320, 240)
+    agent: AgentConfig = AgentConfig()
 
     def __post_init__(self) -> None:
-        for name in ("babble_steps", "epochs", "reset_every"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive int, got {value!r}")
-
-    def agent(self, **overrides: Any) -> AgentConfig:
-        """The agent's settings for this protocol (``overrides`` replace fields)."""
-        base = AgentConfig(
-            seed=self.seed, epochs=self.epochs, hidden=tuple(self.hidden), reset_every=self.reset_every
+        check_int("babble_steps", self.babble_steps)
+        if len(self.camera_size) != 2:
+            raise ValueError(f"camera_size must be (width, height) in pixels, got {self.camera_size!r}")
+        object.__setattr__(
+            self, "camera_size", tuple(check_int("camera_size", v, 16) for v in self.camera_size)
         )
-        return replace(base, **overrides)
 
 
-def babbled_agent(config: SetupConfig, *, progress_bar: bool = False, **overrides: Any) -> Agent:
-    """A new agent in a new world that has babbled ``config.babble_steps`` steps (not fitted yet)."""
-    torch.set_num_threads(1)
-    env = PushingEnv(camera_size=tuple(config.camera_size))
-    agent = Agent(env, config.agent(**overrides))
+#: The agent of the tiny runs: a small network fitted for a few epochs, light inference, short episodes.
+TINY_AGENT = AgentConfig(
+    epochs=3,
+    hidden=(8,),
+    reset_every=12,
+    state_steps=30,
+    state_lr=0.05,
+    action_steps=10,
+    action_starts=4,
+)
+#: Babbling of the tiny runs (a few seconds) and of the quick ones (``--quick``).
+TINY_SETUP = SetupConfig(babble_steps=24, agent=TINY_AGENT)
+QUICK_SETUP = SetupConfig(babble_steps=240, agent=AgentConfig(epochs=40))
+
+
+def babbled_agent(config: SetupConfig, seed: int, *, progress_bar: bool = False) -> Agent:
+    """A new agent in a new world that has babbled ``config.babble_steps`` steps (not fitted yet).
+
+    Args:
+        config: the protocol. seed: the agent's master seed.
+    """
+    env = PushingEnv(camera_size=config.camera_size)
+    agent = Agent(env, config.agent, seed=seed)
     start = time.perf_counter()
     agent.run(config.babble_steps, "babble", progress_bar=progress_bar)
     log.info("babbled %d steps in %.1f s", config.babble_steps, time.perf_counter() - start)
     return agent
+
+
+def split_rows(n: int, test_fraction: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(train, test)`` row indices: the first ``1 - test_fraction`` of ``n`` rows, then the rest."""
+    check_float("test_fraction", test_fraction, 0.0, 1.0, open_low=True, open_high=True)
+    n_train = round((1 - test_fraction) * n)
+    if not 0 < n_train < n:
+        raise ValueError(f"{n} rows with test_fraction {test_fraction} leave no training or no test rows")
+    return np.arange(n_train), np.arange(n_train, n)
+
+
+def fitted_model(
+    agent: Agent, config: SetupConfig, seed: int, source: str, rows: np.ndarray
+) -> tuple[WorldModel, dict[str, int]]:
+    """A new pushing world model fitted on ``rows`` of the agent's history (Eq. 4.33, ``config.agent``'s schedule).
+
+    Args:
+        source: object positions from ``"perceived"`` (Π) or ``"truth"`` (the simulator).
+
+    Returns:
+        ``(model, rows)``: ``rows`` counts the fitted transitions (``arm`` and per object).
+    """
+    a = config.agent
+    model = build_world_model(agent.env, agent.history.objects, a.hidden, seed)
+    fitted = fit_world_model(
+        model,
+        agent.history,
+        source=source,
+        rows=rows,
+        epochs=a.epochs,
+        batch_size=a.batch_size,
+        lr=a.lr,
+        min_sigma=a.min_sigma,
+        seed=seed,
+    )
+    return model, fitted["rows"]
 
 
 def predict_displacements(
@@ -109,23 +178,3 @@ def predict_displacements(
             "touch": touch[ok, k],
         }
     return out
-
-
-def summary(values: np.ndarray) -> dict[str, float]:
-    """Median, mean, 25th and 75th percentile of a 1-d array (NaN-free), as floats."""
-    v = np.asarray(values, dtype=np.float64)
-    if v.size == 0:
-        return {
-            "median": float("nan"),
-            "mean": float("nan"),
-            "p25": float("nan"),
-            "p75": float("nan"),
-            "n": 0,
-        }
-    return {
-        "median": float(np.median(v)),
-        "mean": float(v.mean()),
-        "p25": float(np.percentile(v, 25)),
-        "p75": float(np.percentile(v, 75)),
-        "n": int(v.size),
-    }

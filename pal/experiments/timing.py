@@ -11,13 +11,15 @@ from __future__ import annotations
 import contextlib
 import statistics
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import torch
 
-__all__ = ["Timing", "markdown_table", "measure", "measure_interleaved", "ratio", "torch_threads"]
+from pal.checks import check_int
+
+__all__ = ["Timing", "measure", "measure_interleaved", "ratio", "torch_threads"]
 
 
 @dataclass(frozen=True)
@@ -44,10 +46,8 @@ class Timing:
 
 
 def _check(repeats: int, warmup: int) -> None:
-    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
-        raise ValueError(f"repeats must be a positive int, got {repeats!r}")
-    if isinstance(warmup, bool) or not isinstance(warmup, int) or warmup < 0:
-        raise ValueError(f"warmup must be a non-negative int, got {warmup!r}")
+    check_int("repeats", repeats)
+    check_int("warmup", warmup, minimum=0)
 
 
 def measure(fn: Callable[[], Any], repeats: int = 5, warmup: int = 1, no_grad: bool = False) -> Timing:
@@ -104,26 +104,10 @@ def torch_threads(threads: int | None) -> Iterator[None]:
     if threads is None:
         yield
         return
-    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
-        raise ValueError(f"threads must be a positive int or None, got {threads!r}")
+    check_int("threads", threads)
     before = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
         yield
     finally:
         torch.set_num_threads(before)
-
-
-def markdown_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
-    """A GitHub markdown table; floats get 4 significant digits, None shows as ``n/a``."""
-
-    def cell(v: Any) -> str:
-        if v is None:
-            return "n/a"
-        if isinstance(v, float):
-            return f"{v:.4g}"
-        return str(v)
-
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in rows]
-    return "\n".join(lines)

@@ -17,6 +17,7 @@ import hashlib
 import json
 import logging
 import os
+import shutil
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from pal.data import METADATA, TransitionDataset
+from pal.checks import check_int
+from pal.data import FORMAT, METADATA, DatasetFileError, TransitionDataset
 from pal.sim.babbling import BabbleConfig, babble, collect, replay
 from pal.sim.bodies import BODIES, load_model
 from pal.sim.env import BabblingEnv
@@ -90,27 +92,23 @@ class BodyChoice:
 
 
 @dataclass(frozen=True)
-class DataConfig(BodyChoice):
-    """A babbling dataset.
+class DataConfig:
+    """A uniform-babbling dataset (thesis §5.2.1); its seed is the experiment's.
 
     Attributes:
+        body: the body, analysed joint and babbling actuators.
         steps: transitions (thesis: 100 000).
-        seed: babbling seed, also the seed of splits, initialisations and test rows.
         cache: keep the dataset on disk and reuse it.
         cache_dir: cache root; default ``$PAL_CACHE_DIR`` or ``~/.cache/pal``.
     """
 
+    body: BodyChoice = BodyChoice()
     steps: int = 100_000
-    seed: int = 0
     cache: bool = True
     cache_dir: str | None = None
 
     def __post_init__(self) -> None:
-        super().__post_init__()
-        if isinstance(self.steps, bool) or not isinstance(self.steps, int) or self.steps < 10:
-            raise ValueError(f"steps must be an int >= 10, got {self.steps!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise ValueError(f"seed must be a non-negative int, got {self.seed!r}")
+        check_int("steps", self.steps, minimum=10)
 
 
 def default_cache_dir() -> Path:
@@ -121,17 +119,17 @@ def default_cache_dir() -> Path:
     return Path(base) / "pal"
 
 
-def _babble_config(config: DataConfig) -> BabbleConfig:
+def _babble_config(config: DataConfig, seed: int) -> BabbleConfig:
     return BabbleConfig(
-        body=config.source,
-        actuators=config.actuator,
+        body=config.body.source,
+        actuators=config.body.actuator,
         steps=config.steps,
-        seed=config.seed,
+        seed=seed,
         chunk_size=min(10_000, config.steps),
     )
 
 
-def babble_or_load(config: DataConfig, progress_bar: bool = False) -> TransitionDataset:
+def babble_or_load(config: DataConfig, seed: int, progress_bar: bool = False) -> TransitionDataset:
     """The uniform-babbling dataset of ``config``: from the cache, else babbled (and cached).
 
     The cache directory is ``<cache_dir>/babble/<body>-n<steps>-s<seed>-<hash>``; the hash
@@ -141,13 +139,13 @@ def babble_or_load(config: DataConfig, progress_bar: bool = False) -> Transition
     Returns:
         All recorded joints; ``(steps, 1)`` float32 columns and the state before every step.
     """
-    bcfg = _babble_config(config)
+    bcfg = _babble_config(config, seed)
     if not config.cache:
         return collect(bcfg, progress_bar=progress_bar)
-    loaded = load_model(config.source)
+    loaded = load_model(config.body.source)
     spec = {
         "mjcf_sha256": loaded.sha256,
-        "actuators": list(config.actuator) if config.actuator else None,
+        "actuators": list(config.body.actuator) if config.body.actuator else None,
         "steps": bcfg.steps,
         "seed": bcfg.seed,
         "policy": bcfg.policy,
@@ -157,14 +155,20 @@ def babble_or_load(config: DataConfig, progress_bar: bool = False) -> Transition
     }
     digest = hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:12]
     root = Path(config.cache_dir) if config.cache_dir else default_cache_dir()
-    path = root / "babble" / f"{loaded.name}-n{config.steps}-s{config.seed}-{digest}"
+    path = root / "babble" / f"{loaded.name}-n{config.steps}-s{seed}-{digest}"
     meta_path = path / METADATA
     if meta_path.is_file():
-        meta = json.loads(meta_path.read_text(encoding="utf-8"))
-        if meta.get("complete") and meta.get("n_rows") == config.steps:
-            log.info("loading cached babbling data %s", path)
-            return TransitionDataset.load(path)
-    log.info("babbling %d steps of %r into %s", config.steps, loaded.name, path)
+        try:
+            meta = json.loads(meta_path.read_text(encoding="utf-8"))
+            if meta.get("complete") and meta.get("n_rows") == config.steps:
+                log.info("loading cached babbling data %s", path)
+                return TransitionDataset.load(path)
+            if meta.get("format") != FORMAT:
+                raise DatasetFileError(f"{meta_path}: format {meta.get('format')!r}, expected {FORMAT!r}")
+        except (json.JSONDecodeError, UnicodeDecodeError, DatasetFileError) as err:
+            # the cache is ours: a stale or damaged entry is babbled again, not repaired
+            log.warning("discarding the cached dataset %s (%s)", path, err)
+            shutil.rmtree(path)
     return babble(bcfg, path, resume=meta_path.is_file(), progress_bar=progress_bar)
 
 

@@ -20,10 +20,13 @@ import torch
 from inference import FitResult, fit, infer_action
 from models import WorldModel
 from models.presets import GRAPH_VARIANTS, joint_chain_graph
+from pal.checks import check_float, check_int
 from pal.data import TransitionDataset
 from pal.experiments.wm_data import DataConfig, JointData, Realizer, babble_or_load
 
 __all__ = [
+    "ActionConfig",
+    "FitConfig",
     "Prepared",
     "ProtocolConfig",
     "abs_errors",
@@ -31,37 +34,70 @@ __all__ = [
     "infer_actions",
     "predict_q",
     "prepare",
-    "setup_line",
+    "setup_note",
 ]
 
 log = logging.getLogger(__name__)
 
 
-def _positive_int(name: str, value: object) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{name} must be a positive int, got {value!r}")
-
-
 @dataclass(frozen=True)
-class ProtocolConfig(DataConfig):
-    """Data and training protocol shared by B1-B3 (defaults: thesis §5.2.1).
+class FitConfig:
+    """Adam schedule of :func:`inference.fit` (MSE loss, Eq. 4.33) and the MLP mechanisms.
 
     Attributes:
-        graphs: graph variants to fit, from ``("thesis", "state")``.
-        split: training share of the random split.
-        epochs, batch_size, lr: Adam schedule of :func:`inference.fit` (MSE loss).
+        epochs, batch_size, lr: the schedule (thesis: 120, 2048, 0.01).
         hidden: MLP hidden widths (tanh).
     """
 
-    graphs: tuple[str, ...] = GRAPH_VARIANTS
-    split: float = 0.8
     epochs: int = 120
     batch_size: int = 2048
     lr: float = 0.01
     hidden: tuple[int, ...] = (32, 32)
 
     def __post_init__(self) -> None:
-        super().__post_init__()
+        check_int("epochs", self.epochs)
+        check_int("batch_size", self.batch_size)
+        check_float("lr", self.lr, 0.0, open_low=True)
+        object.__setattr__(self, "hidden", tuple(check_int("hidden", h) for h in self.hidden))
+
+
+@dataclass(frozen=True)
+class ActionConfig:
+    """Alg. 4.2: projected Adam on the action, clipped to X_a (thesis §5.2.3: 200 steps, lr 0.05).
+
+    Attributes:
+        steps, lr: Adam iterations and learning rate.
+        starts: 1 starts at the midpoint of X_a (the thesis protocol); k > 1 restarts from
+            k points across X_a and keeps the best under the model.
+    """
+
+    steps: int = 200
+    lr: float = 0.05
+    starts: int = 1
+
+    def __post_init__(self) -> None:
+        check_int("steps", self.steps)
+        check_float("lr", self.lr, 0.0, open_low=True)
+        check_int("starts", self.starts)
+
+
+@dataclass(frozen=True)
+class ProtocolConfig:
+    """Data and training protocol shared by B1-B3 (defaults: thesis §5.2.1).
+
+    Attributes:
+        data: the babbling dataset.
+        graphs: graph variants to fit, from ``("thesis", "state")``.
+        split: training share of the random split.
+        fit: the fitting schedule.
+    """
+
+    data: DataConfig = DataConfig()
+    graphs: tuple[str, ...] = GRAPH_VARIANTS
+    split: float = 0.8
+    fit: FitConfig = FitConfig()
+
+    def __post_init__(self) -> None:
         graphs = (self.graphs,) if isinstance(self.graphs, str) else tuple(self.graphs)
         unknown = [g for g in graphs if g not in GRAPH_VARIANTS]
         if unknown or not graphs or len(set(graphs)) != len(graphs):
@@ -69,13 +105,7 @@ class ProtocolConfig(DataConfig):
                 f"graphs {list(graphs)!r} invalid; expected distinct names from {list(GRAPH_VARIANTS)}"
             )
         object.__setattr__(self, "graphs", graphs)
-        object.__setattr__(self, "hidden", tuple(self.hidden))
-        if not 0 < self.split < 1:
-            raise ValueError(f"split must be in (0, 1), got {self.split}")
-        for name in ("epochs", "batch_size"):
-            _positive_int(name, getattr(self, name))
-        if not self.lr > 0:
-            raise ValueError(f"lr must be > 0, got {self.lr}")
+        check_float("split", self.split, 0.0, 1.0, open_low=True, open_high=True)
 
 
 @dataclass
@@ -93,6 +123,7 @@ class Prepared:
     """
 
     config: ProtocolConfig
+    seed: int
     dataset: TransitionDataset
     train: TransitionDataset
     test: TransitionDataset
@@ -110,7 +141,7 @@ class Prepared:
     @cached_property
     def realizer(self) -> Realizer:
         """Replays test transitions in the simulator (rows index :attr:`test`)."""
-        return Realizer(self.test, self.joint, self.config.source)
+        return Realizer(self.test, self.joint, self.config.data.body.source)
 
     def info(self) -> dict[str, object]:
         """Facts for reports: body, joint, actuator, sizes, ranges, seconds."""
@@ -138,36 +169,47 @@ def build_model(
     graph = joint_chain_graph(
         [joint.joint], {joint.joint: joint.action_range}, variant=variant, q_ranges={joint.joint: q_range}
     )
-    with torch.random.fork_rng():
-        torch.manual_seed(seed)
-        return WorldModel(graph, hidden=hidden, activation="tanh")
+    return WorldModel(graph, hidden=hidden, activation="tanh", seed=seed)
 
 
-def prepare(config: ProtocolConfig, progress_bar: bool = False) -> Prepared:
-    """Babble (or load) the data, split it and fit one world model per graph variant."""
+_LAST: dict[tuple[ProtocolConfig, int], Prepared] = {}
+
+
+def prepare(config: ProtocolConfig, seed: int, progress_bar: bool = False) -> Prepared:
+    """Babble (or load) the data, split it and fit one world model per graph variant.
+
+    The last result is kept in memory, so that B1, B2 and B3 run one after another on the
+    same protocol and seed (``pal demo``) share one dataset and one fit. B1-B3 only read
+    the models (state and action inference hold their parameters fixed).
+    """
+    key = (config, seed)
+    if key in _LAST:
+        return _LAST[key]
     start = time.perf_counter()
-    dataset = babble_or_load(config, progress_bar=progress_bar)
-    joint = JointData.select(dataset, config.joint)
-    train, test = dataset.split(config.split, seed=config.seed)
-    prep = Prepared(config, dataset, train, test, joint, joint.q_range(train))
+    dataset = babble_or_load(config.data, seed, progress_bar=progress_bar)
+    joint = JointData.select(dataset, config.data.body.joint)
+    train, test = dataset.split(config.split, seed=seed)
+    prep = Prepared(config, seed, dataset, train, test, joint, joint.q_range(train))
     prep.seconds["data"] = time.perf_counter() - start
     data = joint.columns(train)
     for variant in config.graphs:
         start = time.perf_counter()
-        model = build_model(joint, variant, prep.q_range, config.seed, config.hidden)
+        model = build_model(joint, variant, prep.q_range, seed, config.fit.hidden)
         prep.fits[variant] = fit(
             model,
             data,
             loss="mse",
-            epochs=config.epochs,
-            batch_size=config.batch_size,
-            lr=config.lr,
-            seed=config.seed,
+            epochs=config.fit.epochs,
+            batch_size=config.fit.batch_size,
+            lr=config.fit.lr,
+            seed=seed,
             progress_bar=progress_bar,
         )
         prep.models[variant] = model
         prep.seconds[f"fit_{variant}"] = time.perf_counter() - start
         log.info("fitted the %s graph in %.1f s", variant, prep.seconds[f"fit_{variant}"])
+    _LAST.clear()
+    _LAST[key] = prep
     return prep
 
 
@@ -222,8 +264,7 @@ def infer_actions(
         ``(actions (n,), predicted q (n,), mean loss per Adam step)``; the loss curve is
         averaged over all pairs and starts.
     """
-    if isinstance(starts, bool) or not isinstance(starts, int) or starts < 1:
-        raise ValueError(f"starts must be a positive int, got {starts!r}")
+    check_int("starts", starts)
     act, qp, _, q = joint.names
     qp_arr = np.asarray(q_prev, np.float32).reshape(-1, 1)
     tg_arr = np.asarray(targets, np.float32).reshape(-1, 1)
@@ -254,10 +295,10 @@ def infer_actions(
     )
 
 
-def setup_line(info: dict[str, Any]) -> str:
-    """One markdown sentence describing the run from :meth:`Prepared.info`."""
+def setup_note(info: dict[str, Any]) -> str:
+    """One sentence describing the run from :meth:`Prepared.info`."""
     return (
-        f"Body `{info['body']}`, joint `{info['joint']}` (action: actuator `{info['actuator']}`, "
+        f"Body {info['body']}, joint {info['joint']} (action: actuator {info['actuator']}, "
         f"{info['babbling_actuators']} actuator(s) babbling), {info['n_train']} training / {info['n_test']} "
         f"test transitions, X_a = [{info['action_range'][0]:.3f}, {info['action_range'][1]:.3f}], "
         f"X_q = [{info['q_range'][0]:.3f}, {info['q_range'][1]:.3f}] rad."

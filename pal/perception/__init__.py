@@ -1,6 +1,7 @@
 """pal.perception: the perceptual subsystem Π of thesis §4.2, from RGB-D frames to ŝ_vis(t).
 
-Stages (one module each): :mod:`~pal.perception.frames` (``RGBDFrame``),
+Stages (one module each): :mod:`~pal.perception.frames` (re-exports the frame contract
+``RGBDFrame`` of :mod:`pal.frames`),
 :mod:`~pal.perception.sequence` / :mod:`~pal.perception.tum` (recordings),
 :mod:`~pal.perception.segmentation` (Σ, Eq. 4.8), :mod:`~pal.perception.tracking`
 (Eq. 4.9-4.11), :mod:`~pal.perception.memory` (EEMS, Eq. 4.12-4.13),

@@ -15,9 +15,7 @@ rotation matrix / rotation vector (rad).
 
 from __future__ import annotations
 
-import json
 import os
-import zipfile
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -26,14 +24,14 @@ from typing import Any, Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pal.perception.atomic import atomic_write_npz, versions
+from pal.files import FileFormatError, check_json, read_npz, write_npz
 
 __all__ = ["SOURCES", "Pose", "PoseDiagnostics", "PoseSource", "Trajectory"]
 
 PoseSource = Literal["estimated", "propagated", "lost"]
 #: Pose sources in the order of their integer codes on disk.
 SOURCES: tuple[str, ...] = ("lost", "estimated", "propagated")
-_FORMAT = "pal.trajectory/1"
+_FORMAT = "pal.trajectory/2"
 
 
 @dataclass(frozen=True)
@@ -170,39 +168,48 @@ class Trajectory:
         }
 
     def save(self, path: str | os.PathLike[str], metadata: Mapping[str, Any] | None = None) -> Path:
-        """Write an ``.npz`` (no pickle) with the arrays, the diagnostics and provenance as JSON."""
+        """Write a checked ``.npz`` (:mod:`pal.files`: no pickle, atomic, checksummed) with the
+        arrays, the diagnostics and ``metadata`` (provenance) as JSON; versions are added."""
         meta = {
-            "format": _FORMAT,
-            "versions": versions(),
             "metadata": dict(metadata or {}),
             "diagnostics": [p.diagnostics.to_dict() for p in self.poses],
         }
-        blob = np.frombuffer(json.dumps(meta, allow_nan=False).encode(), dtype=np.uint8)
-        return atomic_write_npz(path, {**self.arrays(), "__meta__": blob})
+        check_json(meta, "trajectory metadata")
+        return write_npz(path, self.arrays(), meta, format=_FORMAT)
 
     @staticmethod
     def load(path: str | os.PathLike[str]) -> tuple[Trajectory, dict[str, Any]]:
-        """Read a file written by :meth:`save`; returns the trajectory and its metadata.
+        """Read a file written by :meth:`save`; returns the trajectory and its metadata
+        (``metadata``, ``diagnostics``, ``versions``, ``format``).
 
         Raises:
-            ValueError: the file is missing, corrupted or not a trajectory.
+            FileFormatError: the file is missing, corrupted, not a trajectory, or inconsistent.
         """
         try:
-            with np.load(path, allow_pickle=False) as npz:
-                arrays = {k: npz[k] for k in npz.files}
-        except (OSError, zipfile.BadZipFile, EOFError) as err:
-            raise ValueError(
-                f"{path} is not a readable trajectory file ({type(err).__name__}: {err})"
-            ) from None
-        if "__meta__" not in arrays:
-            raise ValueError(f"{path} has no __meta__ entry; it is not a trajectory file")
-        meta = json.loads(arrays["__meta__"].tobytes().decode())
-        if meta.get("format") != _FORMAT:
-            raise ValueError(f"{path}: format {meta.get('format')!r}, expected {_FORMAT!r}")
+            f = read_npz(path, format=_FORMAT)
+        except FileFormatError as err:
+            raise FileFormatError(f"not a readable trajectory: {err}") from err
+        arrays, diags = f.arrays, f.meta.get("diagnostics")
+        n = len(arrays.get("timestamps", ()))
+        ok = (
+            {"timestamps", "source", "poses"} <= set(arrays)
+            and arrays["poses"].shape == (n, 4, 4)
+            and arrays["source"].shape == (n,)
+            and isinstance(diags, list)
+            and len(diags) == n
+            and all(isinstance(d, dict) for d in diags)
+            and all(0 <= int(c) < len(SOURCES) for c in arrays["source"])
+        )
+        if not ok:
+            raise FileFormatError(f"{path}: the trajectory arrays and diagnostics are inconsistent")
         traj = Trajectory()
-        for t, code, T, diag in zip(
-            arrays["timestamps"], arrays["source"], arrays["poses"], meta["diagnostics"], strict=True
-        ):
-            src = SOURCES[int(code)]
-            traj.append(Pose(float(t), src, None if src == "lost" else T, PoseDiagnostics(**diag)))  # type: ignore[arg-type]
-        return traj, meta
+        try:
+            for t, code, T, diag in zip(
+                arrays["timestamps"], arrays["source"], arrays["poses"], diags, strict=True
+            ):
+                src = SOURCES[int(code)]
+                pose = Pose(float(t), src, None if src == "lost" else T, PoseDiagnostics(**diag))  # type: ignore[arg-type]
+                traj.append(pose)
+        except (TypeError, ValueError) as err:
+            raise FileFormatError(f"{path}: invalid pose sample ({err})") from err
+        return traj, {**f.meta, "versions": f.versions, "format": f.format}

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pal.perception.frames import RGBDFrame, check_intrinsics
-from pal.perception.sequence import FrameSequence, SequenceError, decode_depth, read_image, read_text_rows
+from pal.frames import RGBDFrame, check_intrinsics
+from pal.sequence_files import FrameSequence, SequenceError, decode_depth, read_image, read_text_rows
 
 __all__ = ["FREIBURG_DEFAULT_K", "TUM_DEPTH_SCALE", "TUMSequence", "associate"]
 

@@ -10,7 +10,8 @@
   scene, scripted object motions (thesis Table 5.1) and recordings with ground truth.
 - :mod:`pal.sim.pushing`: :class:`PushingEnv`, the arm pushing a box and a ball on the table.
 
-This package imports neither :mod:`models` nor :mod:`inference`.
+This package imports neither :mod:`models`, :mod:`inference` nor :mod:`pal.perception`: frames
+follow the contract of :mod:`pal.frames` and recordings the format of :mod:`pal.sequence_files`.
 """
 
 from pal.sim.bodies import BODIES, MJCFError, body_path, load_body, load_model

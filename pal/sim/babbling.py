@@ -23,7 +23,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from pal.data import DatasetWriter, TransitionDataset, column_names
+from pal.data import FORMAT, DatasetFileError, DatasetWriter, TransitionDataset, column_names
 from pal.sim.env import STATE_SPEC, BabblingEnv
 from pal.sim.policies import POLICIES, make_policy
 
@@ -258,7 +258,7 @@ def _bar(total: int, initial: int, enabled: bool) -> Any:
 def collect(config: BabbleConfig, *, progress_bar: bool = False) -> TransitionDataset:
     """Run ``config`` in memory and return the transitions (nothing is written)."""
     source = make_source(config)
-    meta = {"format": "pal.transitions/1", **source.metadata(config)}
+    meta = {"format": FORMAT, **source.metadata(config)}
     parts = []
     with _bar(config.steps, 0, progress_bar) as bar:
         for block in source.blocks(config.steps, config.chunk_size):
@@ -300,30 +300,32 @@ def babble(
     Raises:
         ValueError: ``out_dir`` holds a dataset and ``resume`` is False, or the stored
             configuration differs from ``config``.
-        DatasetFileError: a stored chunk is corrupted.
+        DirectoryLockedError: another writer is writing ``out_dir`` (the lock is released
+            when this call returns or raises).
+        DatasetFileError: a stored chunk is corrupted, missing or of another run.
     """
     if config.steps < 1:
         raise ValueError("steps must be >= 1 to write a dataset")
     source = make_source(config)
-    writer = DatasetWriter(out_dir, source.metadata(config), resume=resume)
-    if writer.resume_info is not None:
-        source.restore(writer.resume_info)
-        logger.info("resuming %s at step %d", out_dir, source.step_index)
-    if writer.rows != source.step_index:
-        raise ValueError(
-            f"{out_dir}: {writer.rows} rows on disk but the last chunk resumes at step {source.step_index}"
-        )
-    remaining = max(0, config.steps - source.step_index)
-    with _bar(config.steps, source.step_index, progress_bar) as bar:
-        for block in source.blocks(remaining, config.chunk_size):
-            path = writer.write_chunk(
-                source.columns(block),
-                {"ctrl": block.ctrl, "state": block.states, "step": block.step, "episode": block.episode},
-                source.resume_state(),
+    with DatasetWriter(out_dir, source.metadata(config), resume=resume) as writer:
+        if writer.resume_info is not None:
+            source.restore(writer.resume_info)
+            logger.info("resuming %s at step %d", out_dir, source.step_index)
+        if writer.rows != source.step_index:
+            raise DatasetFileError(
+                f"{out_dir}: {writer.rows} rows on disk but the last chunk resumes at step {source.step_index}"
             )
-            logger.debug("wrote %s (%d rows)", path, len(block.step))
-            bar.update(len(block.step))
-    writer.finish(config.steps)
+        remaining = max(0, config.steps - source.step_index)
+        with _bar(config.steps, source.step_index, progress_bar) as bar:
+            for block in source.blocks(remaining, config.chunk_size):
+                path = writer.write_chunk(
+                    source.columns(block),
+                    {"ctrl": block.ctrl, "state": block.states, "step": block.step, "episode": block.episode},
+                    source.resume_state(),
+                )
+                logger.debug("wrote %s (%d rows)", path, len(block.step))
+                bar.update(len(block.step))
+        writer.finish(config.steps)
     return TransitionDataset.load(Path(out_dir))
 
 

@@ -40,6 +40,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from pal.checks import check_int
 from pal.sim.bodies import LoadedModel, load_model
 
 __all__ = ["ENV_ID", "STATE_SPEC", "BabblingEnv"]
@@ -111,8 +112,7 @@ class BabblingEnv(gymnasium.Env[np.ndarray, np.ndarray]):
         frame_skip: int = 50,
         reset_noise: float = 0.0,
     ) -> None:
-        if isinstance(frame_skip, bool) or not isinstance(frame_skip, (int, np.integer)) or frame_skip < 1:
-            raise ValueError(f"frame_skip must be an int >= 1, got {frame_skip!r}")
+        frame_skip = check_int("frame_skip", frame_skip)
         if not (np.isfinite(reset_noise) and reset_noise >= 0):
             raise ValueError(f"reset_noise must be a finite number >= 0, got {reset_noise!r}")
         self.loaded = model if isinstance(model, LoadedModel) else load_model(model)

@@ -1,4 +1,4 @@
-"""The pushing world: the arm at the tabletop, pushing a box and a ball (issue 6).
+"""The pushing world: the arm at the tabletop, pushing a box and a ball.
 
 The scene is composed with ``mujoco.MjSpec`` from the shipped tabletop (:func:`pal.sim.tabletop.tabletop_spec`)
 and the shipped arm (``assets/arm.xml``); neither file is changed:
@@ -39,6 +39,7 @@ import gymnasium
 import mujoco
 import numpy as np
 
+from pal.checks import check_int
 from pal.sim.bodies import LoadedModel, body_path
 from pal.sim.camera import Camera, CameraFrame
 from pal.sim.env import BabblingEnv
@@ -244,8 +245,7 @@ class PushingEnv(BabblingEnv):
             raise ValueError("objects is empty; expected a subset of " + str(list(OBJECTS)))
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode {render_mode!r} unknown; expected None or 'rgb_array'")
-        if isinstance(touch_every, bool) or not isinstance(touch_every, int) or touch_every < 1:
-            raise ValueError(f"touch_every must be an int >= 1, got {touch_every!r}")
+        check_int("touch_every", touch_every)
         self.layout = layout or PushingLayout()
         spec = pushing_spec(objects, self.layout, texture_seed)
         model = spec.compile()
@@ -289,12 +289,28 @@ class PushingEnv(BabblingEnv):
             d = self.hand_position()[:2] - self._shoulder
             best = min(best, (abs(float(np.linalg.norm(d)) - r_mid), math.atan2(d[1], d[0])))
         self._heading = best[1]
+        self._links = self._link_lengths()
         self.reset(seed=0)
 
     @property
     def workspace_bearing(self) -> float:
         """Central bearing of the workspace about the shoulder, rad (where objects are placed)."""
         return float(self._heading)
+
+    @property
+    def link_lengths(self) -> tuple[float, float]:
+        """(shoulder -> elbow, elbow -> palm centre) in the table plane, m, read from the compiled model."""
+        return self._links
+
+    def _link_lengths(self) -> tuple[float, float]:
+        # joint anchors and the palm centre of the compiled model, on a scratch MjData (the
+        # joints hinge about the vertical, so the planar distances do not depend on q)
+        m = self.model
+        data = mujoco.MjData(m)
+        mujoco.mj_kinematics(m, data)
+        shoulder, elbow = (data.xanchor[j, :2] for j in self.joint_ids)
+        palm = data.geom_xpos[int(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "arm/palm")), :2]
+        return float(np.linalg.norm(elbow - shoulder)), float(np.linalg.norm(palm - elbow))
 
     # ------------------------------------------------------------------ senses
     def hand_position(self) -> np.ndarray:

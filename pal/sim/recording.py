@@ -1,11 +1,13 @@
 """Recording scripted tabletop runs as RGB-D sequences with ground truth (``pal record``).
 
 :func:`render_run` plays a :class:`~pal.sim.motions.Script` in the tabletop scene and yields
-one :class:`~pal.perception.frames.RGBDFrame` per scripted instant, with the ground-truth
+one :class:`~pal.frames.RGBDFrame` per scripted instant, with the ground-truth
 instance labels (:data:`~pal.sim.tabletop.OBJECT_LABELS`) and every object's
 ``camera_from_object``. :func:`record` writes them in the ``pal`` sequence layout
-(:mod:`pal.perception.sequence`): rgb, 16-bit depth (1 mm units), ``gt/masks``,
-``gt/poses.npz`` and provenance (motion, seed, drawn parameters, camera, backend, noise).
+(:mod:`pal.sequence_files`, read by :mod:`pal.perception.sequence`): rgb, 16-bit depth
+(1 mm units), ``gt/masks``, ``gt/poses.npz`` and provenance (motion, seed, drawn parameters,
+camera, backend, noise). Like all of :mod:`pal.sim`, this module does not import
+:mod:`pal.perception`.
 
 Sensor model: rendered depth is exact, so by default a little noise is added, drawn from the
 run's seed: depth ``z + N(0, (depth_noise · z²)²)`` (``depth_noise`` metres at 1 m, the
@@ -24,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pal.perception.frames import RGBDFrame
-from pal.perception.sequence import SequenceWriter
+from pal.frames import RGBDFrame
+from pal.sequence_files import SequenceWriter
 from pal.sim.motions import MOTIONS, Script, script
 from pal.sim.tabletop import CAMERA, OBJECT_LABELS, load_tabletop, scene_digest
 
@@ -64,7 +66,8 @@ class RecordConfig:
             raise ValueError(f"unknown motion {self.motion!r}; expected one of {sorted(MOTIONS)}")
         if self.width < 16 or self.height < 16:
             raise ValueError(
-                f"image size {self.width}x{self.height} is too small; expected at least 16x16 pixels"
+                f"image size width={self.width} x height={self.height} pixels is too small; "
+                "expected width and height >= 16"
             )
         if not (self.depth_noise >= 0 and self.rgb_noise >= 0):
             raise ValueError(
@@ -119,7 +122,7 @@ def record(
     """Record one run to the sequence directory ``out`` (module docstring); returns its path.
 
     Raises:
-        pal.perception.sequence.SequenceError: ``out`` already holds a sequence and not ``overwrite``.
+        pal.sequence_files.SequenceError: ``out`` already holds a sequence and not ``overwrite``.
     """
     run = script(config.motion, config.seed, config.fps)
     metadata = {

@@ -67,7 +67,14 @@ def test_metrics():
     assert 0 < s.normalized_entropy() < 1
     s.partial_fit([0.95])
     assert s.occupancy() == pytest.approx(1.0)
-    assert s.plot(current=0.5) is not None
+    fig = s.plot(current=0.5)
+    bars, density = fig.axes[0], fig.axes[1]
+    heights = [p.get_height() for p in bars.patches]
+    np.testing.assert_array_equal(heights, s.counts_)  # one bar per bin, the visit counts
+    assert bars.get_xlabel() == "value" and bars.get_ylabel() == "visits" and density.get_ylabel() == "p_tar"
+    step = density.get_lines()[0].get_ydata()
+    np.testing.assert_allclose(step, s.density([0.5]).reshape(-1))
+    assert bars.get_lines()[0].get_xdata()[0] == 0.5  # the current value is marked
 
 
 @pytest.mark.parametrize(

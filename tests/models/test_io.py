@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from models import ModelFileError, WorldModel, finger_graph, load, save
-from models.io import read_metadata
+from models import io as model_io
+from models.io import FORMAT, ReadLimits, read_metadata
 
 
 @pytest.fixture
@@ -93,6 +94,10 @@ def test_refuses_corrupted_and_truncated_files(model, tmp_path):
     np.savez(tmp_path / "other.npz", a=np.zeros(3))
     with pytest.raises(ModelFileError, match="no __meta__ entry"):
         load(tmp_path / "other.npz")
+    # a pickled object array is refused before anything is unpickled
+    np.savez(tmp_path / "pickled.npz", __meta__=np.array([{"a": 1}], dtype=object))
+    with pytest.raises(ModelFileError, match="dtype object"):
+        load(tmp_path / "pickled.npz")
     assert zipfile.is_zipfile(path)
 
 
@@ -111,3 +116,95 @@ def test_save_rejects_unserialisable_mechanisms_and_provenance(tmp_path):
     with pytest.raises(ValueError, match="not JSON-serialisable"):
         save(WorldModel(chain_graph()), tmp_path / "y.npz", provenance={"bad": object()})
     assert not (tmp_path / "y.npz").exists()
+
+
+def _edit(path, edit, *, fix_checksum=False):
+    """Rewrite the JSON metadata of a saved model with ``edit(doc)`` (keeping the old checksum)."""
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    doc = json.loads(arrays.pop("__meta__").tobytes())
+    edit(doc)
+    if fix_checksum:  # a deliberate edit that also recomputes the checksum
+        doc["checksum"] = model_io._checksum(doc["format"], doc["versions"], doc["meta"], arrays)
+    arrays["__meta__"] = np.frombuffer(json.dumps(doc).encode(), dtype=np.uint8)
+    np.savez(path, **arrays)
+
+
+def _variable(doc, name):
+    return next(v for v in doc["meta"]["graph"]["variables"] if v["name"] == name)
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda d: d["meta"]["mechanisms"]["dq.finger"].update(activation="relu"),
+        lambda d: _variable(d, "act.finger").update(bounds=[[-2.0], [2.0]]),
+        lambda d: _variable(d, "dq.finger").update(role="observed"),
+        lambda d: d["meta"]["provenance"].update(seed=4),
+        lambda d: d["versions"].update(torch="0.0"),
+    ],
+    ids=["activation", "action-bounds", "role", "provenance", "versions"],
+)
+def test_edited_metadata_is_refused(model, tmp_path, edit):
+    path = save(model, tmp_path / "wm.npz", provenance={"seed": 3})
+    _edit(path, edit)
+    with pytest.raises(ModelFileError, match="checksum mismatch"):
+        load(path)
+
+
+@pytest.mark.parametrize(
+    "name, change", [("act.finger", {"bounds": [[-2.0], [2.0]]}), ("dq.finger", {"role": "observed"})]
+)
+def test_an_edited_graph_fails_its_fingerprint_even_with_a_fixed_checksum(model, tmp_path, name, change):
+    path = save(model, tmp_path / "wm.npz")
+    _edit(path, lambda d: _variable(d, name).update(change), fix_checksum=True)
+    with pytest.raises(ModelFileError, match="does not match its fingerprint"):
+        load(path)
+
+
+def test_the_checksum_covers_dtype_and_shape(model, tmp_path):
+    path = save(model, tmp_path / "wm.npz")
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    key = next(k for k in arrays if k.startswith("state/") and arrays[k].ndim == 2)
+    for changed in (arrays[key].T.copy(), arrays[key].view(np.int32)):  # same bytes, other shape / dtype
+        np.savez(tmp_path / "x.npz", **{**arrays, key: changed})
+        with pytest.raises(ModelFileError, match="checksum mismatch"):
+            load(tmp_path / "x.npz")
+
+
+def test_save_refuses_nan_parameters_and_provenance_naming_them(model, tmp_path):
+    with pytest.raises(ValueError, match=r"provenance\['loss'\]\[1\] is nan"):
+        save(model, tmp_path / "wm.npz", provenance={"loss": [0.1, float("nan")]})
+    with torch.no_grad():
+        next(iter(model.mechanism("dq.finger").parameters())).view(-1)[0] = float("inf")
+    name = next(k for k, v in model.state_dict().items() if not torch.isfinite(v).all())
+    with pytest.raises(ValueError, match=rf"parameter '{name}' has 1 NaN/inf entries"):
+        save(model, tmp_path / "wm.npz")
+    assert not (tmp_path / "wm.npz").exists()
+
+
+def test_an_older_format_gets_a_clear_error(model, tmp_path):
+    path = save(model, tmp_path / "wm.npz")
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    old = {"format": "pal.world_model/1", "graph": {}, "checksum": "0"}
+    arrays["__meta__"] = np.frombuffer(json.dumps(old).encode(), dtype=np.uint8)
+    np.savez(path, **arrays)
+    with pytest.raises(ModelFileError, match=rf"pal.world_model/1 file, an older format.*reads {FORMAT}"):
+        load(path)
+
+
+def test_float64_models_keep_their_precision(tmp_path):
+    torch.manual_seed(0)
+    m = WorldModel(finger_graph("state")).double()
+    loaded = load(save(m, tmp_path / "wm.npz"))
+    for (k, a), b in zip(m.state_dict().items(), loaded.state_dict().values(), strict=True):
+        assert b.dtype == torch.float64 and torch.equal(a, b), k
+
+
+def test_size_limits_are_checked_before_reading(model, tmp_path):
+    path = save(model, tmp_path / "wm.npz")
+    with pytest.raises(model_io.ModelFileTooLargeError, match="more than the 1000 allowed"):
+        load(path, limits=ReadLimits(max_bytes=1000))
+    assert load(path, limits=ReadLimits(max_bytes=10**6)) is not None

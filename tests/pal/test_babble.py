@@ -1,6 +1,7 @@
 """Babbling policies, the data source, ``pal babble`` and ``pal bench babble``."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -107,8 +108,8 @@ def test_pal_babble_cli_smoke(tmp_path, capsys):
     ds = TransitionDataset.load(out)
     assert len(ds) == 300 and ds.metadata["policy"]["name"] == "uniform"
     assert -3.3 < summary["q"]["finger"]["min"] < summary["q"]["finger"]["max"] < 0.6
-    with pytest.raises(SystemExit, match="already holds a dataset"):
-        main(["babble", "--steps", "10", "--out", str(out)])
+    assert main(["babble", "--steps", "10", "--out", str(out)]) == 2
+    assert "already holds a dataset" in capsys.readouterr().err
     assert main(["babble", "--steps", "400", "--out", str(out), "--chunk-size", "128", "--resume"]) == 0
     assert len(TransitionDataset.load(out)) == 400
 
@@ -142,20 +143,29 @@ def test_pal_babble_cli_any_mjcf_and_names(tmp_path, capsys):
     ds = TransitionDataset.load(out)
     assert ds.column_names == ["act.elbow", "q_prev.elbow", "dq.elbow", "q.elbow"]
     assert ds.ctrl.shape == (20, 2) and ds.metadata["policy"]["name"] == "ou"
-    with pytest.raises(SystemExit, match=r"unknown joint name\(s\) \['knee'\]"):
+    capsys.readouterr()
+    assert (
         main(["babble", "--body", "arm", "--joint", "knee", "--steps", "5", "--out", str(tmp_path / "x")])
-    with pytest.raises(SystemExit, match="missing.xml.*does not exist"):
+        == 2
+    )
+    assert re.search(r"unknown joint name\(s\) \['knee'\]", capsys.readouterr().err)
+    assert (
         main(
             ["babble", "--mjcf", str(tmp_path / "missing.xml"), "--steps", "5", "--out", str(tmp_path / "y")]
         )
-    with pytest.raises(SystemExit, match="either --body or --mjcf"):
-        main(["babble", "--body", "arm", "--mjcf", "a.xml", "--out", str(tmp_path / "z")])
+        == 2
+    )
+    assert re.search("missing.xml.*does not exist", capsys.readouterr().err)
+    assert main(["babble", "--body", "arm", "--mjcf", "a.xml", "--out", str(tmp_path / "z")]) == 2
+    assert "either --body or --mjcf" in capsys.readouterr().err
 
 
 def test_bench_babble_contract(capsys):
     assert main(["bench", "babble", "--json", "--set", "steps=20", "--set", "repeats=1"]) == 0
-    data = json.loads(capsys.readouterr().out)
+    doc = json.loads(capsys.readouterr().out)
+    data = doc["metrics"]
     assert {"transitions_per_s", "raw_steps_per_s", "ratio"} <= set(data)
+    assert doc["targets"][0]["name"] == "ratio" and doc["targets"][0]["met"] in (True, False)
     assert data["transitions_per_s"] > 0 and data["ratio"] == pytest.approx(
         data["transitions_per_s"] / data["raw_steps_per_s"]
     )

@@ -1,21 +1,19 @@
 """Smoke tests of ``pal bench``: quick configurations run and report sane figures.
 
-Speed is never asserted here (see DESIGN.md); only keys, finiteness and positivity, and
-that the peer libraries compute the same counterfactuals as pal.
+Speed is never asserted here (see DESIGN.md); only keys, finiteness and positivity, the
+ratios' definitions, and that the peer libraries compute the same counterfactuals as pal.
 """
 
 from __future__ import annotations
 
-import json
 import math
 
 import pytest
 import torch
 
 from inference import counterfactual
-from pal.experiments import BENCHMARKS, bench_action, bench_counterfactual, bench_svi, load_module
+from pal.experiments import bench_action, bench_babble, bench_counterfactual, bench_svi, registry
 from pal.experiments.counterfactual_peers import available
-from pal.experiments.output import jsonable
 
 FIGURES = {"chain_unit_ms", "mlp50_unit_ms", "units_per_s", "scenarios_ms"}
 
@@ -24,40 +22,40 @@ def _positive(value: object) -> bool:
     return isinstance(value, float) and math.isfinite(value) and value > 0
 
 
-def _check_figures(figs: dict, extra: set[str] = frozenset()) -> None:
-    assert set(figs) == FIGURES | extra
+def _check_figures(figs: dict, ks: set[str]) -> None:
     for key in FIGURES - {"scenarios_ms"}:
         assert _positive(figs[key]), (key, figs[key])
-    assert set(figs["scenarios_ms"]) == {"1", "2", "4", "8"}
+    assert set(figs["scenarios_ms"]) == ks
     assert all(_positive(v) for v in figs["scenarios_ms"].values())
 
 
-def test_registry_modules_follow_the_contract():
-    for name in ("counterfactual", "svi", "action"):
-        module = load_module("bench", name)
-        assert module.__name__ == BENCHMARKS[name]
-        assert isinstance(module.Config.quick(), module.Config)
-        assert callable(module.run)
+def test_benchmarks_are_registered():
+    names = {e.name for e in registry.entries("bench")}
+    assert {"counterfactual", "svi", "action", "babble", "discovery", "perception"} <= names
 
 
 def test_counterfactual_quick():
-    result = bench_counterfactual.run(bench_counterfactual.Config.quick())
-    data = result.to_dict()
-    assert set(data) == FIGURES | {"chirho", "dowhy", "ratios"}
-    _check_figures({k: data[k] for k in FIGURES})
+    config = registry.get("bench", "counterfactual").quick
+    rep = bench_counterfactual.run(config)
+    m = rep.metrics
+    assert {"pal", "chirho", "dowhy", "ratios", "agreement", "scenario_growth", "intervened"} == set(m)
+    _check_figures(m["pal"], {"1", "2", "4", "8"})
+    assert m["scenario_growth"] == pytest.approx(
+        m["pal"]["scenarios_ms"]["8"] / m["pal"]["scenarios_ms"]["1"]
+    )
     for peer in ("chirho", "dowhy"):
         if not available(peer):
-            assert data[peer] is None and data["ratios"][peer] is None
+            assert m[peer] is None and m["ratios"][peer] is None
             continue
-        _check_figures(data[peer], extra={"notes"})
-        assert all(isinstance(n, str) for n in data[peer]["notes"])
-        ratios = data["ratios"][peer]
+        _check_figures(m[peer], {"1", "2", "4", "8"})
+        ratios = m["ratios"][peer]
         assert _positive(ratios["chain_unit_ms"]) and _positive(ratios["units_per_s"])
-        assert all(_positive(v) for v in ratios["scenarios_ms"].values())
-        assert result.agreement[peer] <= bench_counterfactual.TOLERANCE
-    json.dumps(jsonable(data))
-    assert "< 1 means pal is faster" in result.to_markdown()
-    assert set(result.figures()) == {"scenarios"}
+        assert m["agreement"][peer] <= bench_counterfactual.TOLERANCE
+    table = rep.tables[0]
+    assert table.columns[:4] == ("figure", "pal", "chirho", "dowhy") and len(table.rows) == 3 + 4
+    assert {t.name for t in rep.targets} == {"chain_unit_ms", "units_per_s", "scenarios_8_vs_1"}
+    ax = rep.figures["scenarios"].axes[0]
+    assert ax.get_xlabel() == "scenarios K" and list(ax.get_lines()[0].get_xdata()) == [1, 2, 4, 8]
 
 
 def _chain_factual(n: int) -> dict[str, torch.Tensor]:
@@ -89,22 +87,41 @@ def test_peer_chain_counterfactual_agrees_with_pal(peer_name):
 
 
 def test_svi_quick():
-    result = bench_svi.run(bench_svi.Config.quick())
-    data = result.to_dict()
-    assert set(data) == {"steps_per_s", "steps_per_s_loop", "ratio"}
+    rep = bench_svi.run(registry.get("bench", "svi").quick)
+    m = rep.metrics
     for key in ("steps_per_s", "steps_per_s_loop"):
-        assert set(data[key]) == {"infer_state", "plain_pyro"}
-        assert all(_positive(v) for v in data[key].values()), data[key]
-    assert _positive(data["ratio"])
+        assert set(m[key]) == {"infer_state", "plain_pyro"}
+    assert all(_positive(v) for v in m["steps_per_s"].values())
+    assert m["ratio"] == pytest.approx(m["steps_per_s"]["infer_state"] / m["steps_per_s"]["plain_pyro"])
     # same seed and settings: the same optimisation trajectory
-    assert result.final_loss["infer_state"] == pytest.approx(result.final_loss["plain_pyro"], rel=1e-3)
-    assert "plain" in result.to_markdown() and result.figures() == {}
+    assert m["final_loss"]["infer_state"] == pytest.approx(m["final_loss"]["plain_pyro"], rel=1e-3)
+    assert rep.target("ratio").threshold == pytest.approx(1 / 1.3)
+
+
+def test_bench_svi_leaves_the_global_rngs_alone():
+    import random
+
+    import numpy as np
+
+    before = (random.getstate(), np.random.get_state()[1].copy(), torch.get_rng_state())
+    bench_svi.run(registry.get("bench", "svi").tiny)
+    assert random.getstate() == before[0]
+    assert np.array_equal(np.random.get_state()[1], before[1])
+    assert torch.equal(torch.get_rng_state(), before[2])
 
 
 def test_action_quick():
-    result = bench_action.run(bench_action.Config.quick())
-    data = result.to_dict()
-    assert set(data) == {"seconds", "baseline_seconds", "ratio"}
-    assert all(_positive(v) for v in data.values()), data
-    assert result.max_action_diff <= 1e-4
-    assert "infer_action" in result.to_markdown() and result.figures() == {}
+    rep = bench_action.run(registry.get("bench", "action").quick)
+    m = rep.metrics
+    assert all(_positive(m[k]) for k in ("seconds", "baseline_seconds", "ratio")), m
+    assert m["max_action_diff"] <= 1e-4 and rep.target("max_action_diff").met is True
+    assert [r[0] for r in rep.tables[0].rows] == ["infer_action", "plain torch loop"]
+
+
+def test_babble_quick_on_the_arm():
+    config = bench_babble.Config(body=bench_babble.BodyChoice("arm"), steps=60, frame_skip=5, repeats=1)
+    rep = bench_babble.run(config)
+    m = rep.metrics
+    assert m["body"] == "arm" and _positive(m["transitions_per_s"]) and _positive(m["raw_steps_per_s"])
+    assert m["ratio"] == pytest.approx(m["transitions_per_s"] / m["raw_steps_per_s"])
+    assert [r[0] for r in rep.tables[0].rows] == ["source", "raw_loop", "raw_nstep", "recorded"]

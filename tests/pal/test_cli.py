@@ -1,35 +1,137 @@
+"""The ``pal`` command: the demo, and one-line usage errors (exit 2) before any work starts."""
+
+from __future__ import annotations
+
 import json
+from pathlib import Path
 
 import pytest
 
+import pal.experiments.runner as runner
 from pal.cli import main
 
 
-def test_demo_quick_writes_figures_and_summary(tmp_path, capsys):
+def test_demo_quick_writes_every_report_and_the_target_table(tmp_path, capsys):
     assert main(["demo", "--quick", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert "do(X=0): Y_cf = 0.5000 [0.5], Z_cf = 0.0000 [0.0]" in out
+    assert "## Causal queries on X -> Y -> Z against closed forms" in out
+    assert "## pal demo: every target and its verdict" in out
     summary = json.loads((tmp_path / "demo.json").read_text())
-    # the graph with q_prev -> dq predicts the spring finger far better than Fig. 5.5
-    assert summary["b1"]["state"]["q_mse"] < 0.2 * summary["b1"]["thesis"]["q_mse"]
-    for name in (
-        "action_inference.png",
-        "curiosity.png",
-        "graph_thesis.png",
-        "fit_state.png",
-        "world_model_state.npz",
-        "perception_trajectories.png",
-        "loop.mp4",
-    ):
-        assert (tmp_path / name).stat().st_size > 0, name
+    names = [r["name"] for r in summary["runs"]]
+    assert names == ["queries", "spring", "b1", "b2", "a1", "loop"]
+    rows = summary["targets"]["rows"]
+    assert len(rows) == sum(len(r["targets"]) for r in summary["runs"])
+    assert {r[-1] for r in rows} <= {"met", "**NOT met**", "not measured"}
+    queries = summary["runs"][0]
+    exact = next(t for t in queries["targets"] if t["name"] == "exact_counterfactual_error")
+    assert exact["met"] is True and exact["value"] <= 1e-5
+    for name in names:
+        assert (tmp_path / f"{name}.json").is_file() and (tmp_path / f"{name}.md").is_file()
+    for png in ("spring_action_inference.png", "b2_fig5_6.png", "spring_curiosity.png"):
+        assert (tmp_path / png).read_bytes()[:4] == b"\x89PNG", png
+    assert (tmp_path / "loop.mp4").stat().st_size > 0
 
 
-def test_unknown_names_and_bad_arguments(capsys):
-    with pytest.raises(SystemExit, match="unknown bench 'nope'"):
-        main(["bench", "nope"])
-    with pytest.raises(SystemExit, match="--threads must be >= 1"):
-        main(["--threads", "0", "demo"])
-    with pytest.raises(SystemExit, match="pal experiment b1: unknown body 'hand'"):
-        main(["experiment", "b1", "--quick", "--body", "hand"])
-    with pytest.raises(SystemExit, match="--mjcf: pal.experiments.bench_svi has no 'mjcf' setting"):
-        main(["bench", "svi", "--mjcf", "x.xml"])
+def test_list_names_every_entry(capsys):
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    for name in ("b1", "queries", "loop", "c2", "discovery", "counterfactual"):
+        assert f" {name} " in out
+
+
+@pytest.fixture
+def a_file(tmp_path) -> Path:
+    path = tmp_path / "taken"
+    path.write_text("not a directory")
+    return path
+
+
+#: (argv, text the one-line message must contain); ``{file}`` is an existing regular file.
+BAD_INVOCATIONS = [
+    ([], "required: command"),
+    (["nope"], "invalid choice: 'nope'"),
+    (["experiment"], "required: name"),
+    (["experiment", "nope"], "unknown experiment 'nope'"),
+    (["bench", "nope"], "unknown bench 'nope'"),
+    (["--threads", "0", "list"], "--threads must be >= 1, got 0"),
+    (["--threads", "x", "list"], "invalid int value: 'x'"),
+    (["experiment", "b1", "--set"], "expected one argument"),
+    (["experiment", "b1", "--set", "seed"], "--set 'seed': expected KEY=VALUE"),
+    (["experiment", "b1", "--set", "nope=1"], "unknown setting 'nope'"),
+    (["experiment", "b1", "--set", "seed=abc"], "seed: 'abc' is not an int"),
+    (["experiment", "b1", "--set", "protocol.fit.epochs=0"], "epochs must be a positive int, got 0"),
+    (["experiment", "b1", "--set", "protocol.fit=3"], "protocol.fit|fit is a group of settings"),
+    (["experiment", "b1", "--set", 'protocol.graphs=["fancy"]'], "graphs ['fancy'] invalid"),
+    (["experiment", "b1", "--set", "protocol.split=1.5"], "split must be < 1.0, got 1.5"),
+    (["experiment", "b2", "--set", "targets=-3"], "targets must be a positive int, got -3"),
+    (["experiment", "b1", "--body", "hand"], "unknown body 'hand'"),
+    (["experiment", "b1", "--joint", "a", "--joint", "b"], "--joint given 2 times"),
+    (["bench", "svi", "--mjcf", "x.xml"], "--mjcf: pal bench svi has no body setting"),
+    (["experiment", "queries", "--body", "arm"], "--body: pal experiment queries has no body setting"),
+    (["experiment", "b1", "--out", "{file}"], "is a file, expected a directory"),
+    (["experiment", "b1", "--out", "{file}/sub"], "is a file, expected a directory"),
+    (["bench", "action", "--out", "{file}"], "is a file, expected a directory"),
+    (["demo", "--out", "{file}"], "is a file, expected a directory"),
+    (["babble", "--steps", "10"], "required: --out"),
+    (["babble", "--out", "{file}"], "is a file, expected a dataset directory"),
+    (["babble", "--body", "finger", "--mjcf", "x.xml", "--out", "d"], "either --body or --mjcf"),
+    (["babble", "--policy", "wild", "--out", "d"], "invalid choice: 'wild'"),
+    (["babble", "--steps", "x", "--out", "d"], "invalid int value: 'x'"),
+    (["record", "--out", "d"], "required: --motion"),
+    (["record", "--motion", "dance", "--out", "d"], "dance"),
+    (["loop", "--goal", "1"], "--goal '1': expected two numbers"),
+    (["loop", "--goal", "a,b"], "--goal 'a,b': expected X,Y in metres"),
+    (["loop", "--video", "x.avi"], "--video 'x.avi': expected a path ending in .mp4"),
+    (["loop", "--steps", "0"], "steps must be a positive int, got 0"),
+    (["loop", "--out", "{file}"], "is a file, expected a directory"),
+    (["list", "--bogus"], "unrecognized arguments: --bogus"),
+]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"), BAD_INVOCATIONS, ids=[" ".join(a) or "<none>" for a, _ in BAD_INVOCATIONS]
+)
+def test_usage_errors_are_one_line_exit_2_before_any_work(
+    argv, message, a_file, tmp_path, capsys, monkeypatch
+):
+    def no_run(*args, **kwargs):
+        raise AssertionError("the run started although the command line is unusable")
+
+    monkeypatch.setattr(runner, "execute", no_run)
+    monkeypatch.chdir(tmp_path)
+    argv = [a.replace("{file}", str(a_file)) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err, err
+    assert err.startswith("pal"), err
+    assert any(m in err for m in message.split("|")), (message, err)
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["babble", "--steps", "0", "--out", "d"], "steps"),
+        (["babble", "--body", "hand", "--out", "d"], "'hand' does not exist"),
+        (["babble", "--frame-skip", "0", "--out", "d"], "frame_skip"),
+        (["babble", "--mjcf", "/nonexistent/body.xml", "--out", "d"], "/nonexistent/body.xml"),
+        (["record", "--motion", "box-rotation", "--width", "0", "--out", "d"], "width"),
+    ],
+)
+def test_bad_body_and_recording_settings_are_refused_before_work(
+    argv, message, tmp_path, capsys, monkeypatch
+):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and message in err, err
+    assert not (tmp_path / "d" / "chunk_000000.npz").exists()
+
+
+def test_babble_refuses_an_existing_dataset_without_resume(tmp_path, capsys):
+    out = str(tmp_path / "data")
+    assert main(["babble", "--steps", "20", "--chunk-size", "10", "--out", out, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["rows"] == 20
+    assert main(["babble", "--steps", "20", "--out", out]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "already holds a dataset" in err

@@ -1,4 +1,4 @@
-"""Smoke tests of the structure-learning experiments and benchmark (tiny sizes)."""
+"""The structure-learning experiments and benchmark on their tiny configurations (seeded)."""
 
 from __future__ import annotations
 
@@ -8,17 +8,23 @@ import numpy as np
 import pytest
 
 from pal.cli import main
-from pal.experiments import BENCHMARKS, EXPERIMENTS, active_design, bench_discovery, discovery
+from pal.experiments import active_design, bench_discovery, discovery_body, discovery_synthetic, registry
 from pal.experiments import discovery_peers as peers
-from pal.experiments.discovery_body import physics_effects
-from pal.experiments.discovery_scm import random_scm
+from pal.experiments.discovery_scm import SCMConfig, random_scm
+from pal.experiments.wm_data import JointData, Realizer
 from pal.sim.babbling import BabbleConfig, collect
 
 
-def test_registered():
-    assert EXPERIMENTS["discovery"] == "pal.experiments.discovery"
-    assert EXPERIMENTS["active_design"] == "pal.experiments.active_design"
-    assert BENCHMARKS["discovery"] == "pal.experiments.bench_discovery"
+def test_registered_entries():
+    for kind, name, module in (
+        ("experiment", "discovery", discovery_synthetic),
+        ("experiment", "discovery_body", discovery_body),
+        ("experiment", "active_design", active_design),
+        ("bench", "discovery", bench_discovery),
+    ):
+        entry = registry.get(kind, name)
+        assert entry.run is module.run and entry.config is module.Config
+        assert entry.summary and not entry.summary.startswith("``")
 
 
 def test_synthetic_scm_interventions_cut_the_mechanism():
@@ -29,17 +35,48 @@ def test_synthetic_scm_interventions_cut_the_mechanism():
     assert np.all(np.abs(data[child] - scm.loc[child]) <= 2 * scm.scale[child] + 1e-6)
 
 
-def test_synthetic_experiment_reports_shd_per_d_method_regime():
-    config = discovery.quick_config(dims=(6,), n=200, interventions=4, rows_per_intervention=5, gated_max_d=0)
-    result = discovery.run(config)
-    d = result.to_dict()
-    shd = d["shd"]["6"]
-    assert set(shd["pal"]) == set(discovery.REGIMES)
-    assert all(isinstance(v, (int, float)) for v in shd["pal"].values())
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda: SCMConfig(dims=()), "dims is empty"),
+        (lambda: SCMConfig(dims=(1,)), "dims must be an int >= 2, got 1"),
+        (lambda: discovery_synthetic.Config(regimes=("bogus",)), "regime 'bogus' unknown"),
+        (lambda: discovery_synthetic.Config(regimes=("observational",) * 2), "distinct names"),
+        (lambda: discovery_synthetic.InterventionConfig(count=0), "count must be a positive int, got 0"),
+        (lambda: discovery_synthetic.GatedConfig(max_d=-1), "max_d must be a non-negative int"),
+        (lambda: discovery_body.Config(replicates=0), "replicates must be a positive int"),
+        (lambda: active_design.Config(budget=10, agents=20), "budget 10 is smaller than one round"),
+        (lambda: active_design.Config(strategies=("active",)), "expected 'random' plus"),
+        (lambda: active_design.EnsembleConfig(members=1), "members must be an int >= 2"),
+        (lambda: bench_discovery.Config(threads=0), "threads must be a positive int"),
+    ],
+)
+def test_configs_refuse_bad_values(make, message):
+    with pytest.raises(ValueError, match=message):
+        make()
+
+
+def test_synthetic_report_shd_per_d_method_regime():
+    rep = discovery_synthetic.run(discovery_synthetic.TINY)
+    shd = rep.metrics["shd"]["5"]
+    assert set(shd) == set(discovery_synthetic.METHODS)
+    assert set(shd["pal"]) == set(discovery_synthetic.REGIMES)
+    # the agent's interventions orient edges the observational rows leave wrong
+    assert shd["pal"]["interventional"] < shd["pal"]["observational"]
+    assert shd["pal_gated"]["interventional"] < shd["pal_gated"]["observational"]
+    assert len(rep.metrics["rows"]) == len(discovery_synthetic.METHODS) * len(discovery_synthetic.REGIMES)
     for method in peers.PEERS:
         assert all((v is None) != peers.available() for v in shd[method].values())
-    assert "| d | method | regime | SHD | seconds |" in result.to_markdown()
-    json.dumps(d)
+    names = [t.name for t in rep.targets]
+    assert names == ["shd_minus_grasp.observational.d5", "shd_minus_grasp.interventional.d5"]
+    assert all((t.value is None) != peers.available() for t in rep.targets)
+    summary, per_seed = rep.tables
+    assert len(summary.rows) == 12 and summary.columns[3] == "SHD"
+    assert [r[2] for r in per_seed.rows] == list(discovery_synthetic.REGIMES)
+    ax = rep.figures["shd"].axes
+    assert [a.get_title() for a in ax] == list(discovery_synthetic.REGIMES)
+    assert ax[0].get_ylabel() == "SHD [edges]" and len(ax[0].patches) == len(discovery_synthetic.METHODS)
+    json.dumps(rep.metrics, allow_nan=False)
 
 
 def test_peer_cpdag_shd_counts_undirected_edges():
@@ -49,45 +86,99 @@ def test_peer_cpdag_shd_counts_undirected_edges():
     assert peers.cpdag_shd([("a", "b")], [("b", "c")], truth, undirected_cost=0.0) == 0
 
 
-def test_finger_body_learns_q_prev_to_dq_and_reports_b1(tmp_path, capsys):
-    args = ["experiment", "discovery", "--body", "finger", "--json", "--quick"]
-    args += [
-        "--set",
-        "transitions=600",
-        "--set",
-        "epochs=2",
-        "--set",
-        "b1_seeds=[0]",
-        "--set",
-        'extra={"cache": false}',
-    ]
-    assert main(args) == 0
-    out = json.loads(capsys.readouterr().out)
-    assert ["q_prev.finger", "dq.finger"] in [e[:2] for e in out["learned_edges"]]
-    assert set(out["b1"]) == {"thesis", "state", "learned", "persistence"}
-    assert out["targets"]["q_prev_to_dq"] is True
+@pytest.mark.skipif(not peers.available(), reason="causal-learn is not installed")
+def test_peers_compare_on_a_strong_chain():
+    scm, data = SCMConfig(dims=(4,), n=2000).draw(4, 0)
+    out = peers.compare("grasp", data, scm.graph, seed=0)
+    assert out["shd_undirected_free"] <= out["shd"] and out["edges"] >= out["undirected"]
+
+
+def test_body_report_on_two_arm_joints():
+    rep = discovery_body.run(discovery_body.TINY)
+    m = rep.metrics
+    assert m["body"] == "arm" and m["joint"] == "finger" and m["body_graph"]["joints"] == ["elbow", "finger"]
+    assert [r["seed"] for r in m["replicates"]] == [0, 1]
+    assert ["q_prev.finger", "dq.finger"] in [e[:2] for e in m["learned_edges"]]
+    assert set(m["b1"]) == {"thesis", "state", "learned", "persistence"}
+    assert m["b1"]["learned"]["q_mse"] < m["b1"]["persistence"]["q_mse"]
+    assert rep.target("shd_to_state_graph").value == 0 and rep.target("shd_to_state_graph").met
+    assert rep.target("q_prev_to_dq").value == 1.0
+    assert rep.target("b1_q_mse_learned_over_state").met
+    assert rep.target("unjustified_cross_joint_transition_edges").value == 0
+    effects = m["physics_effects"]
+    assert len(effects) == 8  # q_prev and act of 2 joints -> dq of 2 joints
+    assert effects["act.finger->dq.finger"] > discovery_body.JUSTIFIED > effects["act.finger->dq.elbow"]
+    counts = m["body_graph"]["counts"]
+    assert counts["within_joint"] == 8 and counts["cross_joint_transition"] == 0
+    titles = [t.title for t in rep.tables]
+    assert "Test-set prediction error (thesis Table 5.7)" in titles
+    b1_table = rep.tables[titles.index("Test-set prediction error (thesis Table 5.7)")]
+    assert b1_table.rows[0][1] == 0.528 and "learned graph MSE" in b1_table.columns
+    assert set(rep.figures) == {"graph", "body_graph"}
+    ax = rep.figures["graph"].axes[0]
+    assert len(ax.patches) == len(m["learned_edges"])
+    assert {"act.finger", "dq.finger"} <= {t.get_text() for t in ax.texts}
 
 
 def test_physics_effects_of_the_finger():
     data = collect(BabbleConfig(body="finger", steps=20, seed=0))
-    effects = physics_effects(data, np.arange(4), "finger")
+    effects = discovery_body.physics_effects(Realizer(data, JointData.select(data), "finger"), np.arange(4))
     assert set(effects) == {"q_prev.finger->dq.finger", "act.finger->dq.finger"}
-    assert effects["act.finger->dq.finger"] > 0.05
+    assert effects["act.finger->dq.finger"] > discovery_body.JUSTIFIED
 
 
-def test_active_design_quick():
-    config = active_design.Config(budget=40, agents=20, members=2, epochs=2, seeds=(0,))
-    d = active_design.run(config).to_dict()
-    assert d["transitions"] == [20, 40]
-    assert set(d["mechanism_mse"]) == set(active_design.STRATEGIES)
-    assert d["fraction_to_random_final"]["random"] == 1.0
-    with pytest.raises(ValueError, match="budget 10 is smaller than one round"):
-        active_design.run(active_design.Config(budget=10, agents=20))
+def test_body_flags_reach_the_nested_body_choice(capsys):
+    args = ["experiment", "discovery_body", "--json", "--quick", "--body", "arm"]
+    args += ["--actuator", "elbow", "--actuator", "finger"]
+    settings = ("protocol.data.body.joint=elbow", "protocol.data.steps=300", "protocol.data.cache=false")
+    for setting in (*settings, "protocol.fit.epochs=2", "physics_rows=3"):
+        args += ["--set", setting]
+    assert main(args) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["config"]["protocol"]["data"]["body"] == {
+        "body": "arm",
+        "mjcf": None,
+        "joint": "elbow",
+        "actuator": ["elbow", "finger"],
+    }
+    assert doc["metrics"]["joint"] == "elbow" and doc["metrics"]["info"]["n_train"] == 240
+    assert {t["name"]: t["met"] for t in doc["targets"]}["q_prev_to_dq"] is True
 
 
-def test_bench_discovery_quick():
-    config = bench_discovery.Config(dims=(5,), n=120, joints=3, targets=4, steps=5, repeats=1)
-    d = bench_discovery.run(config).to_dict()
-    assert d["context"]["subgraph_variables"] == 4 and d["context"]["variables"] == 12
-    assert d["context"]["max_action_diff"] < 1e-5
-    assert d["discovery"]["5"]["seconds"] > 0
+def test_body_cli_refuses_a_bad_setting_in_one_line(capsys):
+    assert main(["experiment", "discovery_body", "--quick", "--set", "replicates=0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "replicates must be a positive int, got 0" in err
+
+
+def test_active_design_tiny():
+    config = registry.get("experiment", "active_design").tiny
+    rep = active_design.run(config)
+    m = rep.metrics
+    assert m["transitions"] == [20, 40] and m["seeds"] == [10]
+    assert set(m["mechanism_mse"]) == set(active_design.STRATEGIES)
+    assert m["fraction_to_random_final"]["random"] == 1.0
+    # the first round is random babbling for every strategy on the same seed
+    assert len({c[0] for c in m["mechanism_mse"].values()}) == 1
+    assert m["mechanism_mse"]["random"][-1] < m["mechanism_mse"]["random"][0]
+    assert [t.name for t in rep.targets] == [
+        "share_to_random_final.curiosity",
+        "share_to_random_final.active",
+    ]
+    for t in rep.targets:
+        share = m["fraction_to_random_final"][t.name.rsplit(".", 1)[1]]
+        assert t.value == (1.5 if share is None else share) and t.met == (t.value <= active_design.TARGET)
+    assert [r[0] for r in rep.tables[0].rows] == list(active_design.STRATEGIES)
+    ax = rep.figures["curves"].axes[0]
+    assert ax.get_xlabel() == "transitions" and len(ax.lines) == len(active_design.STRATEGIES) + 1
+
+
+def test_bench_discovery_tiny():
+    rep = bench_discovery.run(registry.get("bench", "discovery").tiny)
+    ctx = rep.metrics["context"]
+    assert ctx["subgraph_variables"] == 4 and ctx["variables"] == 12
+    assert rep.target("context.max_action_diff").met
+    row = rep.metrics["discovery"]["5"]
+    assert (row["ratio_grasp"] is None) != peers.available()
+    assert row["shd"] == rep.tables[0].rows[0][2]
+    assert rep.tables[1].rows[0][:2] == (12, 4)

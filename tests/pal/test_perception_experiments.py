@@ -1,14 +1,16 @@
-"""Experiments A1-A3 and the perception benchmark at tiny sizes; the conceptual-space evaluation helpers."""
+"""Experiments A1-A3 and the perception benchmark at small sizes; the conceptual-space evaluation helpers."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from pal.experiments import a1_kinematic, a2_visual, a3_multidomain, bench_perception
+from pal.cli import main
+from pal.experiments import a1_kinematic, a2_visual, a3_multidomain, bench_perception, configs, registry
 from pal.experiments.concept_eval import (
     FamilyScaler,
     leave_one_out,
@@ -16,31 +18,60 @@ from pal.experiments.concept_eval import (
     pca_2d,
     prototype_distances,
 )
-from pal.experiments.output import jsonable
 from pal.experiments.perception_eval import RunResult, evaluate_sequence
+from pal.experiments.perception_runs import TINY_RUNS, RunSet
+from pal.experiments.render import jsonable
 from pal.perception import KINEMATIC_DIM, VISUAL_DIM, PipelineConfig, RecordedSequence, SequenceWriter
 from pal.perception.synthetic import SyntheticCamera
 
+SMALL = RunSet(motions=("box-translation", "ball-roll"), per_motion=1, fps=6.0, width=320, height=240)
+
+
+def test_registered_entries_and_their_configs():
+    for name, module in (("a1", a1_kinematic), ("a2", a2_visual), ("a3", a3_multidomain)):
+        entry = registry.get("experiment", name)
+        assert entry.config is module.Config and entry.run is module.run
+        assert entry.tiny.runs == TINY_RUNS and entry.default().runs.per_motion == 4
+        assert entry.summary.startswith(name.upper() + ":")
+    quick = registry.get("experiment", "a1").quick.runs
+    assert quick.motions == ("box-rotation", "ball-roll") and quick.per_motion == 1 and quick.width == 640
+    bench = registry.get("bench", "perception")
+    assert (
+        bench.config is bench_perception.Config
+        and bench.tiny.frames < bench.quick.frames < bench.default().frames
+    )
+
+
+def test_config_checks_and_overrides():
+    with pytest.raises(ValueError, match="must be a non-empty list of"):
+        RunSet(motions=("box-flight",))
+    with pytest.raises(ValueError, match="per_motion must be a positive int, got 0"):
+        RunSet(per_motion=0)
+    with pytest.raises(ValueError, match="segmenter 'sam' unknown"):
+        RunSet(segmenter="sam")
+    with pytest.raises(ValueError, match="frames must be an int >= 2, got 1"):
+        bench_perception.Config(frames=1)
+    with pytest.raises(ValueError, match="motion 'box-flight' unknown"):
+        bench_perception.Config(motion="box-flight")
+    c = configs.override(a1_kinematic.Config(), "runs.motions", ["ball-roll"])
+    c = configs.override(c, "runs.per_motion", 2)
+    assert c.runs.motions == ("ball-roll",) and c.runs.per_motion == 2 and c.runs.width == 640
+    assert configs.as_dict(c)["runs"]["motions"] == ["ball-roll"]
+    with pytest.raises(ValueError, match="must be a non-empty list"):
+        configs.override(c, "runs.motions", ["box-flight"])
+
 
 @pytest.fixture(scope="module")
-def a1_result(tmp_path_factory):
-    config = a1_kinematic.Config(
-        motions=("box-translation", "ball-roll"),
-        runs=1,
-        fps=6.0,
-        width=320,
-        height=240,
-        data_dir=str(tmp_path_factory.mktemp("a1")),
-    )
-    return a1_kinematic.run(config)
+def a1_report(tmp_path_factory):
+    config = a1_kinematic.Config(runs=dataclasses.replace(SMALL, data_dir=str(tmp_path_factory.mktemp("a1"))))
+    return config, a1_kinematic.run(config)
 
 
 @pytest.mark.render
-def test_a1_on_tiny_recordings_reports_the_issue_keys(a1_result):
-    d = json.loads(json.dumps(jsonable(a1_result.to_dict()), allow_nan=False))
-    runs = {r["motion"]: r for r in d["runs"]}
-    for r in runs.values():
-        assert {"estimated_fraction", "trans_err_cm_median", "rot_err_deg_median", "valid_total"} <= set(r)
+def test_a1_scores_the_box_and_flags_the_ball(a1_report):
+    _, rep = a1_report
+    m = json.loads(json.dumps(jsonable(dict(rep.metrics)), allow_nan=False))
+    runs = {r["motion"]: r for r in m["runs"]}
     box, ball = runs["box-translation"], runs["ball-roll"]
     # the textured box is tracked with estimated poses close to the truth
     assert (
@@ -53,22 +84,43 @@ def test_a1_on_tiny_recordings_reports_the_issue_keys(a1_result):
     )
     # the one-colour ball has no usable 6-DoF trajectory, and is flagged as such
     assert not ball["usable_trajectory"] and ball["estimated_fraction"] < 0.8 and ball["failures"]
-    assert d["targets"]["ball_flagged"]["met"]
-    md = a1_result.to_markdown()
-    assert "Table 5.3" in md and "271/272" in md  # the thesis's numbers beside ours
-    figs = a1_result.figures()
-    assert {"trajectories", "pose_error"} <= set(figs)
+    assert m["ball"] == {
+        "runs": 1,
+        "usable_trajectories": 0,
+        "estimated_poses": [ball["valid_total"][0]],
+        "estimated_fraction": [ball["estimated_fraction"]],
+        "centroid_err_cm_median": ball["centroid_err_cm_median"],
+    }
+    assert m["rigid"]["runs"] == 1 and m["rigid"]["runs_meeting"] == 1
+    assert m["per_motion"]["box-translation"]["estimated_fraction_min"] == box["estimated_fraction"]
+    assert set(m["per_object"]) == {"box", "ball"} and m["per_object"]["box"]["seg_iou_mean"] > 0.85
+    assert rep.target("rigid_estimated_fraction").value == box["estimated_fraction"]
+    assert rep.target("rigid_trans_err_cm").value == box["trans_err_cm_median"]
+    assert all(t.met for t in rep.targets), [(t.name, t.value) for t in rep.targets]
+    # Table 5.3 with the thesis's numbers beside ours, and the summary against the thesis
+    t53 = next(t for t in rep.tables if "Table 5.3" in t.title)
+    row = dict(zip(t53.columns, next(r for r in t53.rows if r[0] == "box-translation"), strict=True))
+    assert row["thesis Valid/total"] == "271/272" and row["Valid/total"] == "{}/{}".format(
+        *box["valid_total"]
+    )
+    summary = next(t for t in rep.tables if t.title == "A1 against the thesis")
+    assert summary.rows[0][2].startswith("0.075-0.107") and summary.rows[0][3] == box["estimated_fraction"]
+    # figures: one trajectory panel per motion (ground truth, estimate, start, end), pose errors per run
+    assert set(rep.figures) == {"trajectories", "pose_error"}  # one descriptor only: no motion-space PCA
+    ax = rep.figures["trajectories"].axes[0]
+    assert ax.get_title() == "box-translation" and ax.get_xlabel() == "Δx [cm]" and len(ax.lines) == 4
+    assert rep.figures["pose_error"].axes[0].get_ylabel() == "error [cm]"
 
 
 @pytest.mark.render
-def test_a1_reuses_recordings_in_data_dir(a1_result):
-    root = Path(a1_result.config.data_dir)
+def test_a1_reuses_recordings_in_data_dir(a1_report):
+    config, rep = a1_report
+    root = Path(config.runs.data_dir)
     stamps = {p: p.stat().st_mtime_ns for p in root.rglob("sequence.json")}
-    again = a1_kinematic.run(a1_result.config)  # same data_dir: nothing is re-rendered, same numbers
+    again = a1_kinematic.run(config)  # same data_dir: nothing is re-rendered, same numbers
     assert len(stamps) == 2 and {p: p.stat().st_mtime_ns for p in root.rglob("sequence.json")} == stamps
-    assert [r.summary() for r in again.runs] == [
-        r.summary() | {"fps": s.fps} for r, s in zip(a1_result.runs, again.runs, strict=True)
-    ]
+    strip = [{k: v for k, v in r.items() if k != "fps"} for r in rep.metrics["runs"]]
+    assert strip == [{k: v for k, v in r.items() if k != "fps"} for r in again.metrics["runs"]]
 
 
 def _record(object_: str, kind: str, run: int, rng: np.random.Generator, usable: bool = True) -> RunResult:
@@ -114,28 +166,68 @@ def _records() -> list[RunResult]:
     ]
 
 
+def test_a1_report_on_records_with_known_clusters():
+    rep = a1_kinematic.report(_records(), RunSet(), 0)
+    space = rep.metrics["motion_space"]
+    assert space["labels"] == ["translation"] * 3 + ["rotation"] * 3 and space["motion_loo_accuracy"] == 1.0
+    assert rep.metrics["rigid"] == {
+        "runs": 6,
+        "runs_meeting": 6,
+        "estimated_fraction_min": 1.0,
+        "trans_err_cm_worst_run": 0.1,
+        "rot_err_deg_worst_run": 0.5,
+    }
+    assert rep.target("ball_usable_trajectories").value == 0 and rep.target("ball_usable_trajectories").met
+    pca = rep.figures["motion_pca"].axes[0]
+    assert len(pca.collections) == 6 and pca.get_xlabel().startswith("PC1")
+    filled = [c.get_facecolor()[0][3] for c in pca.collections]
+    assert filled == [1.0] * 6  # every box and boat trajectory usable: no hollow markers
+
+
 def test_a2_and_a3_on_records_with_known_clusters():
     records = _records()
-    d2 = a2_visual.analyse(records, a2_visual.Config()).to_dict()
-    assert d2["loo_accuracy"] == 1.0 and d2["nearest_own_prototype"] == 1.0
-    assert d2["prototype_support"] == {"ball": 3, "boat": 3, "box": 3}
-    assert {"loo_accuracy", "nearest_own_prototype"} <= set(d2) and "Table 5.4" in a2_visual.analyse(
-        records, a2_visual.Config()
-    ).to_markdown()
-    space = a3_multidomain.conceptual_space()
-    result = a3_multidomain.Result(records, a3_multidomain.build_entities(records, space), space)
-    d3 = result.to_dict()
-    domains = {e["name"]: e["domains"] for e in d3["entities"]}
-    assert domains["box-translation/0"] == ["motion", "visual"] and domains["ball-roll/0"] == ["visual"]
-    assert d3["coverage"] == {"both": 6, "visual_only": 3, "motion_only": 0} and d3["strict_pairs"] == 15
-    ball = next(e for e in d3["entities"] if e["name"] == "ball-roll/0")
-    assert ball["strict_nearest"] is None and ball["shared_nearest"]["domains"] == ["visual"]
-    box = next(e for e in d3["entities"] if e["name"] == "box-translation/0")
-    assert box["strict_nearest"]["entity"].startswith("box-translation")
-    with pytest.raises(ValueError, match="required domain 'motion' is missing"):
-        space.distance(result.entities[0], result.entities[-1], ("motion", "visual"))
+    rep2 = a2_visual.report(records, RunSet(), 0)
+    m2 = rep2.metrics
+    assert (
+        m2["loo_accuracy"] == 1.0 and m2["nearest_own_prototype"] == 1.0 and m2["nearest_own_count"] == [9, 9]
+    )
+    assert m2["prototype_support"] == {"ball": 3, "boat": 3, "box": 3}
+    assert [r["nearest"] for r in m2["records"]] == [r.object for r in records]
+    assert rep2.target("loo_accuracy").met and rep2.target("nearest_own_prototype").value == 1.0
+    summary = next(t for t in rep2.tables if t.title == "A2 against the thesis")
+    assert summary.rows[0][2].startswith("4 of 5") and summary.rows[0][3] == "9 of 9"
+    assert len(rep2.figures["visual_pca"].axes[0].collections) == 9
     with pytest.raises(ValueError, match="at least 2 visual records"):
-        a2_visual.analyse(records[:1], a2_visual.Config())
+        a2_visual.report(records[:1], RunSet(), 0)
+
+    rep3 = a3_multidomain.report(records, RunSet(), 0)
+    m3 = rep3.metrics
+    domains = {e["name"]: e["domains"] for e in m3["entities"]}
+    assert domains["box-translation/0"] == ["motion", "visual"] and domains["ball-roll/0"] == ["visual"]
+    assert m3["coverage"] == {
+        "entities": 9,
+        "both": 6,
+        "visual_only": 3,
+        "motion_only": 0,
+        "strict_pairs": 15,
+    }
+    ball = next(e for e in m3["entities"] if e["name"] == "ball-roll/0")
+    assert ball["strict_nearest"] is None and ball["shared_nearest"]["domains"] == ["visual"]
+    box = next(e for e in m3["entities"] if e["name"] == "box-translation/0")
+    assert box["strict_nearest"]["entity"].startswith("box-translation")
+    assert m3["shared_nearest_same_object"] == [9, 9]
+    cov = next(t for t in rep3.tables if t.title == "A3 against the thesis")
+    assert cov.rows[0] == ("entities", 5, 9) and cov.rows[4] == (
+        "pairs comparable strictly over both domains",
+        1,
+        15,
+    )
+    heat = np.ma.filled(rep3.figures["strict_distances"].axes[0].images[0].get_array(), np.nan)
+    assert heat.shape == (9, 9) and np.isnan(heat[0, 0]) and np.isnan(heat[0, -1]) and heat[0, 1] > 0
+    space = a3_multidomain.conceptual_space()
+    entities = a3_multidomain.build_entities(records, space)
+    with pytest.raises(ValueError, match="required domain 'motion' is missing"):
+        space.distance(entities[0], entities[-1], ("motion", "visual"))
 
 
 def test_concept_helpers():
@@ -167,9 +259,38 @@ def test_evaluate_sequence_needs_ground_truth(tmp_path):
 
 @pytest.mark.render
 def test_bench_perception_tiny():
-    d = bench_perception.run(bench_perception.Config(frames=3, width=160, height=120, repeats=1)).to_dict()
-    assert {"fps_no_pose", "fps_with_pose", "render_fps"} <= set(d)
-    assert d["fps_no_pose"] > 0 and d["fps_with_pose"] > 0 and d["render_fps"] > 0
-    assert d["limits"]["opencv_threads"] == 1 and d["frames"] == 3
-    with pytest.raises(ValueError, match="frames must be >= 2"):
-        bench_perception.run(bench_perception.Config(frames=1))
+    entry = registry.get("bench", "perception")
+    rep = entry.run(entry.tiny, False)
+    m = rep.metrics
+    assert m["frames"] == 3 and (m["width"], m["height"]) == (160, 120) and m["limits"]["opencv_threads"] == 1
+    assert m["ratio_no_pose"] == pytest.approx(m["fps_no_pose"] / m["render_fps"])
+    assert m["fps_no_pose"] == pytest.approx(3 / m["seconds_per_call"]["no_pose"])
+    assert "pose" in m["stage_ms"]["with_pose"] and m["stage_ms"]["with_pose"]["pose"] > m["stage_ms"][
+        "no_pose"
+    ].get("pose", 0.0)
+    assert [t.name for t in rep.targets] == ["fps_no_pose", "fps_with_pose"]
+    assert (
+        rep.target("fps_with_pose").value == m["fps_with_pose"]
+        and rep.target("fps_with_pose").threshold == 10
+    )
+    throughput = rep.tables[0]
+    assert [r[0] for r in throughput.rows] == ["render (baseline)", "Pi without pose", "Pi with pose"]
+    assert throughput.rows[0][3] == 1.0 and throughput.rows[2][2] == m["fps_with_pose"]
+
+
+@pytest.mark.render
+def test_cli_runs_a1_quick_as_json(capsys):
+    sets = ["runs.width=160", "runs.height=120", "runs.fps=3"]
+    assert main(["experiment", "a1", "--quick", "--json", *[a for s in sets for a in ("--set", s)]]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["name"] == "a1" and doc["kind"] == "experiment" and doc["seed"] == 0
+    assert (
+        doc["config"]["runs"]["motions"] == ["box-rotation", "ball-roll"]
+        and doc["config"]["runs"]["width"] == 160
+    )
+    assert [r["motion"] for r in doc["metrics"]["runs"]] == ["box-rotation", "ball-roll"]
+    assert {t["name"]: t["met"] for t in doc["targets"]}["ball_usable_trajectories"] is True
+    assert set(doc["figures"]) == {"trajectories", "pose_error"}
+    assert main(["experiment", "a1", "--quick", "--set", "runs.per_motion=0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "per_motion must be a positive int, got 0" in err

@@ -220,3 +220,75 @@ def test_missing_or_invalid_intrinsics_in_a_sequence_raise(tmp_path):
     intr.unlink()
     with pytest.raises(SequenceError, match=r"intrinsics\.json does not exist"):
         open_sequence(tmp_path / "s")
+
+
+# ---------------------------------------------------------------------------- the frame contract's home
+def test_the_frame_contract_lives_in_pal_frames_and_perception_re_exports_it():
+    import pal.frames
+    import pal.perception
+    import pal.perception.frames
+    import pal.sequence_files
+
+    assert pal.perception.RGBDFrame is pal.perception.frames.RGBDFrame is pal.frames.RGBDFrame
+    assert pal.perception.SequenceWriter is pal.sequence_files.SequenceWriter
+    assert issubclass(SequenceError, ValueError)
+
+
+def test_depth_in_millimetres_warns_with_the_range_and_the_fix():
+    from pal.frames import DepthUnitsWarning, check_depth_units
+
+    depth_mm = np.full((48, 64), 850.0, np.float32)
+    depth_mm[:10] = 0.0  # invalid pixels do not count
+    depth_mm[10:20] = 1200.0
+    with pytest.warns(
+        DepthUnitsWarning, match=r"span 850 to 1200 with median 850.*millimetres.*depth_scale"
+    ) as rec:
+        frame(depth=depth_mm)
+    assert rec[0].filename == __file__  # points at the code that built the frame
+    with pytest.warns(DepthUnitsWarning, match=r"centimetres \(0\.85 m\)"):
+        assert not check_depth_units(np.full((4, 4), 85.0, np.float32))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # metres, even with a far invalid-ish background, do not warn
+        far = np.ones((48, 64), np.float32)
+        far[:5] = 60.0
+        frame(depth=far)
+        frame(depth=np.zeros((48, 64), np.float32))
+        assert check_depth_units(np.full((4, 4), 19.9, np.float32))
+
+
+def test_a_recording_read_with_the_wrong_depth_scale_warns(tmp_path):
+    from pal.frames import DepthUnitsWarning
+
+    with SequenceWriter(tmp_path / "s") as w:
+        w.append(_render_sequence(1)[0])
+    info = json.loads((tmp_path / "s" / "sequence.json").read_text())
+    (tmp_path / "s" / "sequence.json").write_text(json.dumps({**info, "depth_scale": 1.0}))  # "metres"
+    with pytest.warns(DepthUnitsWarning, match="depth_scale"):
+        open_sequence(tmp_path / "s")[0]
+
+
+def test_ground_truth_poses_are_a_checked_file(tmp_path):
+    frames = _render_sequence(2)
+    with SequenceWriter(tmp_path / "s") as w:
+        for f in frames:
+            w.append(f, gt_poses={"box": np.eye(4)})
+    path = tmp_path / "s" / "gt" / "poses.npz"
+    raw = bytearray(path.read_bytes())
+    raw[len(raw) // 3] ^= 0x55
+    path.write_bytes(bytes(raw))
+    with pytest.raises(SequenceError, match=r"poses\.npz"):
+        open_sequence(tmp_path / "s")
+    np.savez(path, box=np.zeros((2, 4, 4)), **{"box.valid": np.ones(2, bool)})  # an unchecked plain npz
+    with pytest.raises(SequenceError, match="no __meta__ entry"):
+        open_sequence(tmp_path / "s")
+    info = json.loads((tmp_path / "s" / "sequence.json").read_text())
+    (tmp_path / "s" / "sequence.json").write_text(json.dumps({**info, "format": "pal.rgbd-sequence/1"}))
+    with pytest.raises(SequenceError, match="older layout; record the sequence again"):
+        open_sequence(tmp_path / "s")
+
+
+def test_sequence_metadata_refuses_nan_naming_the_key(tmp_path):
+    with pytest.raises(ValueError, match=r"sequence metadata\['noise'\] is nan"):
+        SequenceWriter(tmp_path / "s", metadata={"noise": float("nan")})

@@ -3,10 +3,12 @@
 import warnings
 
 import gymnasium
+import mujoco
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
+from pal.experiments.pushing_control import forward_kinematics, inverse_kinematics
 from pal.sim.pushing import ENV_ID, JOINTS, PushingEnv, PushingLayout
 
 # the same deliberate warnings as BabblingEnv: unbounded velocities, raw (unnormalised) action range
@@ -125,7 +127,28 @@ def test_bad_construction_and_actions(env):
         PushingLayout(spawn_radius=(0.3, 0.2))
     with pytest.raises(ValueError, match="render_mode"):
         PushingEnv(render_mode="human")
+    with pytest.raises(ValueError, match="touch_every must be a positive int"):
+        PushingEnv(touch_every=0)
     with pytest.raises(ValueError, match="expected \\(2,\\)"):
         env.step(np.zeros(3))
     with pytest.raises(ValueError, match="NaN or inf"):
         env.step(np.array([np.nan, 0.0]))
+
+
+def test_link_lengths_come_from_the_model_and_drive_the_kinematics(env):
+    m = env.model
+    body = lambda name: int(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name))  # noqa: E731
+    palm = int(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "arm/palm"))
+    # the MJCF's forearm body offset, and the hand body offset plus the palm geom's (arm.xml: 0.12, 0.1 + 0.03)
+    upper = np.linalg.norm(m.body_pos[body("arm/forearm")][:2])
+    lower = np.linalg.norm((m.body_pos[body("arm/hand")] + m.geom_pos[palm])[:2])
+    np.testing.assert_allclose(env.link_lengths, (upper, lower), atol=1e-12)
+    np.testing.assert_allclose(env.link_lengths, (0.12, 0.13), atol=1e-12)
+    env.reset(seed=0)
+    saved = env.get_state()
+    for q in np.random.default_rng(0).uniform(env.ctrl_low, env.ctrl_high, size=(5, 2)):
+        env.data.qpos[env.qpos_indices] = q
+        np.testing.assert_allclose(forward_kinematics(env, q), env.hand_position()[:2], atol=1e-9)
+        if q[1] <= 0:  # the elbow-flexed branch that inverse_kinematics returns
+            np.testing.assert_allclose(inverse_kinematics(env, forward_kinematics(env, q)), q, atol=1e-6)
+    env.set_state(saved)

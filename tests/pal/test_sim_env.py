@@ -208,7 +208,7 @@ def test_bad_actions_raise(action, match):
 
 
 def test_bad_arguments_and_states_raise():
-    with pytest.raises(ValueError, match="frame_skip must be an int >= 1, got 0"):
+    with pytest.raises(ValueError, match="frame_skip must be a positive int, got 0"):
         BabblingEnv("finger", frame_skip=0)
     with pytest.raises(ValueError, match="reset_noise"):
         BabblingEnv("finger", reset_noise=-1.0)

@@ -8,11 +8,9 @@ import pytest
 
 from pal.cli import main
 from pal.experiments import b1, b2, b3, explore
-from pal.experiments.wm_data import DataConfig, JointData, Realizer, babble_or_load, pick_rows
-from pal.experiments.wm_setup import ProtocolConfig, build_model, infer_actions
+from pal.experiments.wm_data import BodyChoice, DataConfig, JointData, Realizer, babble_or_load, pick_rows
+from pal.experiments.wm_setup import ActionConfig, FitConfig, ProtocolConfig, build_model, infer_actions
 from pal.sim.babbling import BabbleConfig, collect
-
-TINY = {"steps": 3000, "epochs": 15, "batch_size": 256}
 
 
 @pytest.fixture(scope="module")
@@ -39,75 +37,102 @@ def test_realizer_replays_recorded_transitions_and_counterfactual_commands():
 
 
 def test_dataset_is_cached_by_body_steps_and_seed(cache_dir):
-    cfg = DataConfig(steps=200, seed=0, cache_dir=cache_dir)
-    first = babble_or_load(cfg)
+    cfg = DataConfig(steps=200, cache_dir=cache_dir)
+    first = babble_or_load(cfg, 0)
     (path,) = [p for p in (Path(cache_dir) / "babble").iterdir() if "-n200-" in p.name]
     stamp = (path / "chunk_000000.npz").stat().st_mtime_ns
-    again = babble_or_load(cfg)
+    again = babble_or_load(cfg, 0)
     assert (path / "chunk_000000.npz").stat().st_mtime_ns == stamp  # loaded, not babbled again
     np.testing.assert_array_equal(first.states, again.states)
-    other = babble_or_load(DataConfig(steps=200, seed=1, cache_dir=cache_dir))
+    other = babble_or_load(cfg, 1)
     assert not np.array_equal(other.ctrl, first.ctrl)
     np.testing.assert_array_equal(collect(BabbleConfig(steps=200, seed=0)).ctrl, first.ctrl)
 
 
-def test_b1_reports_table_5_7_keys_and_the_state_graph_wins(cache_dir):
-    result = b1.run(b1.Config(**TINY, cache_dir=cache_dir))
-    d = result.to_dict()
-    assert set(d) == {"thesis", "state", "persistence"}
+def _protocol(cache_dir, graphs=("thesis", "state"), body="finger"):
+    return ProtocolConfig(
+        DataConfig(BodyChoice(body), steps=3000, cache_dir=cache_dir),
+        graphs=graphs,
+        fit=FitConfig(epochs=15, batch_size=256),
+    )
+
+
+def test_b1_reports_table_5_7_and_the_state_graph_wins(cache_dir):
+    rep = b1.run(b1.Config(protocol=_protocol(cache_dir)))
+    err = rep.metrics["error"]
+    assert set(err) == {"thesis", "state", "persistence"}
     for graph in ("thesis", "state"):
-        assert set(d[graph]) == {"dq_mse", "dq_mae", "q_mse", "q_mae"}
-    assert set(d["persistence"]) == {"q_mse", "q_mae"}
+        assert set(err[graph]) == {"dq_mse", "dq_mae", "q_mse", "q_mae"}
     # q_prev -> dq is a real parent: the state graph predicts far better, both beat persistence
-    assert d["state"]["q_mse"] < 0.25 * d["thesis"]["q_mse"] < 0.25 * d["persistence"]["q_mse"]
-    md = result.to_markdown()
-    assert "| Post-action position | 0.506 | 0.554 |" in md and "Persistence baseline" in md
-    assert set(result.figures()) == {"training", "prediction"}
+    assert err["state"]["q_mse"] < 0.25 * err["thesis"]["q_mse"] < 0.25 * err["persistence"]["q_mse"]
+    assert rep.target("q_mse_ratio").value == pytest.approx(err["state"]["q_mse"] / err["thesis"]["q_mse"])
+    assert rep.target("q_mse_over_persistence").met is True
+    table = rep.tables[0]
+    assert (
+        table.rows[1][:3] == ("Post-action position", 0.506, 0.554)
+        and table.rows[2][0] == "Persistence baseline"
+    )
+    first, last = rep.metrics["train_loss"]["state"]["q"]
+    assert last < first
+    assert set(rep.figures) == {"training", "prediction"}
+    ax = rep.figures["prediction"].axes[0]
+    assert ax.get_xlabel() == "recorded dq [rad]" and len(ax.collections[0].get_offsets()) == 600
 
 
 def test_b2_realized_errors_and_keys(cache_dir):
-    result = b2.run(b2.Config(**TINY, targets=24, cache_dir=cache_dir))
-    d = result.to_dict()
-    assert set(d) == {"thesis", "state"}
-    for graph in d:
-        assert set(d[graph]) == {"random", "inferred"}
-        assert set(d[graph]["random"]) == {"mae_model", "mae_real"}
-        assert set(d[graph]["inferred"]) == {"mae_model", "mae_real", "within_005_real", "within_010_real"}
-        inf = d[graph]["inferred"]
+    rep = b2.run(b2.Config(protocol=_protocol(cache_dir), targets=24))
+    err = rep.metrics["error"]
+    assert set(err) == {"thesis", "state"}
+    for graph in err:
+        assert set(err[graph]) == {"random", "inferred"}
+        assert set(err[graph]["random"]) == {"mae_model", "mae_real"}
+        assert set(err[graph]["inferred"]) == {"mae_model", "mae_real", "within_005_real", "within_010_real"}
+        inf = err[graph]["inferred"]
         assert 0 <= inf["within_005_real"] <= inf["within_010_real"] <= 1
-        assert inf["mae_model"] < d[graph]["random"]["mae_model"]
+        assert inf["mae_model"] < err[graph]["random"]["mae_model"]
     # the random actions are executed once: their realized error does not depend on the graph
-    assert d["thesis"]["random"]["mae_real"] == d["state"]["random"]["mae_real"]
-    assert d["state"]["inferred"]["mae_real"] < d["state"]["random"]["mae_real"]
-    assert "79.7 %" in result.to_markdown() and set(result.figures()) == {"fig5_6"}
+    assert err["thesis"]["random"]["mae_real"] == err["state"]["random"]["mae_real"]
+    assert err["state"]["inferred"]["mae_real"] < err["state"]["random"]["mae_real"]
+    assert rep.target("realized_mae.state").value == err["state"]["inferred"]["mae_real"]
+    assert rep.tables[0].rows[2][1] == 0.797 and set(rep.figures) == {"fig5_6"}
+    ax = rep.figures["fig5_6"].axes[1]
+    assert "realized in the simulator" in ax.get_title() and len(ax.collections[0].get_offsets()) == 24
 
 
 def test_b3_keys_and_curiosity_targets(cache_dir):
-    result = b3.run(b3.Config(**TINY, targets=40, graphs=("state",), cache_dir=cache_dir))
-    d = result.to_dict()
-    assert set(d) == {"state", "target_entropy"}
-    assert set(d["state"]) == {"random", "inferred"}
+    rep = b3.run(b3.Config(protocol=_protocol(cache_dir, graphs=("state",)), targets=40))
+    real = rep.metrics["realized"]
+    assert set(real) == {"state"} and set(real["state"]) == {"random", "inferred"}
     for cond in ("random", "inferred"):
-        assert set(d["state"][cond]) == {"occupancy_real", "entropy_real", "target_mae_real"}
-        assert 0 < d["state"][cond]["occupancy_real"] <= 1
+        assert set(real["state"][cond]) == {"occupancy", "entropy", "target_mae"}
+        assert 0 < real["state"][cond]["occupancy"] <= 1
     # curiosity targets favour rare bins: spread wider than the training data's outcomes
-    assert d["target_entropy"] > result.training["entropy"]
-    assert d["state"]["inferred"]["target_mae_real"] < d["state"]["random"]["target_mae_real"]
-    assert "| training outcomes | entropy H | 0.84 |" in result.to_markdown()
-    assert set(result.figures()) == {"fig5_7"}
+    assert rep.metrics["target_entropy"] > rep.metrics["training"]["entropy"]
+    assert real["state"]["inferred"]["target_mae"] < real["state"]["random"]["target_mae"]
+    assert rep.tables[0].rows[1][:3] == ("training outcomes", "entropy H", 0.84)
+    assert [t.name for t in rep.targets] == ["occupancy_gain.state", "entropy_gain.state"]
+    assert set(rep.figures) == {"fig5_7"}
 
 
 def test_explore_runs_both_conditions_and_reports_the_keys():
-    cfg = explore.Config(seeds=(0,), initial=5, budget=12, refit_every=6, epochs=20, action_steps=10)
-    result = explore.run(cfg)
-    d = result.to_dict()
-    assert set(d) == {"steps_to_full_occupancy", "entropy_at_budget"}
-    for key in d:
-        assert set(d[key]) == {"curiosity", "random"}
-    assert result.occupancy["curiosity"].shape == (1, 13)
-    assert np.all(np.diff(result.occupancy["random"][0]) >= 0)  # coverage never shrinks
-    assert len(result.visited["curiosity"]) == 17
-    assert "curiosity" in result.to_markdown() and set(result.figures()) == {"coverage"}
+    cfg = explore.Config(
+        runs=1,
+        initial=5,
+        budget=12,
+        refit_every=6,
+        fit=FitConfig(epochs=20, batch_size=256),
+        action=ActionConfig(steps=10, starts=3),
+    )
+    rep = explore.run(cfg)
+    m = rep.metrics
+    for key in ("steps_to_full_occupancy", "entropy_at_budget", "occupancy_at_budget", "steps_per_seed"):
+        assert set(m[key]) == {"curiosity", "random"}
+    assert all(0 < m["occupancy_at_budget"][c] <= 1 for c in ("curiosity", "random"))
+    fig = rep.figures["coverage"]
+    line = fig.axes[0].get_lines()[1]  # random, mean occupancy over seeds
+    assert len(line.get_ydata()) == 13 and np.all(np.diff(line.get_ydata()) >= 0)  # coverage never shrinks
+    assert sum(p.get_height() for p in fig.axes[2].patches[: cfg.bins]) == 17  # every visited angle counted
+    assert rep.tables[0].rows[0][0] == "curiosity"
 
 
 def test_coverage_curve_counts_bins_in_visiting_order():
@@ -133,13 +158,15 @@ def test_multi_start_action_inference_keeps_the_best_start():
 
 def test_bad_input_names_the_value():
     with pytest.raises(ValueError, match="unknown body 'hand'"):
-        b1.Config(body="hand")
+        BodyChoice(body="hand")
     with pytest.raises(ValueError, match=r"graphs \['thesis', 'fancy'\] invalid"):
-        b2.Config(graphs=("thesis", "fancy"))
+        ProtocolConfig(graphs=("thesis", "fancy"))
     with pytest.raises(ValueError, match="joint must be one name"):
-        ProtocolConfig(joint=("finger", "elbow"))
+        BodyChoice(joint=("finger", "elbow"))
     with pytest.raises(ValueError, match="steps must be an int >= 10"):
-        b3.Config(steps=5)
+        DataConfig(steps=5)
+    with pytest.raises(ValueError, match="targets must be a positive int, got 0"):
+        b2.Config(targets=0)
     with pytest.raises(ValueError, match="graph 'fancy' unknown"):
         explore.Config(graph="fancy")
     data = collect(BabbleConfig(steps=20, seed=0))
@@ -151,14 +178,19 @@ def test_bad_input_names_the_value():
 
 def test_cli_runs_b1_on_the_arm_and_writes_outputs(tmp_path, capsys, cache_dir):
     argv = ["experiment", "b1", "--json", "--body", "arm", "--out", str(tmp_path)]
-    argv += ["--set", "steps=2000", "--set", "epochs=5", "--set", f"cache_dir={cache_dir}"]
+    argv += ["--set", "protocol.data.steps=2000", "--set", "protocol.fit.epochs=5"]
+    argv += ["--set", f"protocol.data.cache_dir={cache_dir}"]
     assert main(argv) == 0
     printed = json.loads(capsys.readouterr().out)
-    assert set(printed) == {"thesis", "state", "persistence"}
+    assert set(printed["metrics"]["error"]) == {"thesis", "state", "persistence"}
     stored = json.loads((tmp_path / "b1.json").read_text())
-    assert stored["result"] == printed and stored["config"]["body"] == "arm"
     assert (
-        "Body `arm`, joint `finger` (action: actuator `finger`, 8 actuator(s) babbling)"
-        in (tmp_path / "b1.md").read_text()
+        stored["metrics"] == printed["metrics"]
+        and stored["config"]["protocol"]["data"]["body"]["body"] == "arm"
     )
+    assert stored["config"]["protocol"]["fit"]["epochs"] == 5
+    assert [t["name"] for t in stored["targets"]] == ["q_mse_ratio", "q_mse_over_persistence"]
+    assert all(isinstance(t["met"], bool) for t in stored["targets"])
+    md = (tmp_path / "b1.md").read_text()
+    assert "Body arm, joint finger (action: actuator finger, 8 actuator(s) babbling)" in md
     assert (tmp_path / "b1_prediction.png").stat().st_size > 0

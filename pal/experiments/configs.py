@@ -1,0 +1,157 @@
+"""Experiment configurations: nested frozen dataclasses, overridden by dotted paths.
+
+Every registered experiment has a frozen ``Config`` whose fields are plain values or nested
+frozen sub-configs (protocol, fitting, action inference, ...). ``pal experiment NAME --set
+protocol.fit.epochs=40`` reaches a nested field through :func:`override`, which parses the
+value as JSON (a bare word stays a string), checks it against the field's annotation and
+rebuilds every config on the path, so their ``__post_init__`` checks run again.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import types
+import typing
+from collections.abc import Iterator
+from typing import Any
+
+__all__ = ["ConfigError", "as_dict", "find", "override", "parse_value", "walk"]
+
+
+class ConfigError(ValueError):
+    """A configuration path or value that does not fit the experiment's config."""
+
+
+def _is_config(obj: Any) -> bool:
+    return dataclasses.is_dataclass(obj) and not isinstance(obj, type)
+
+
+def as_dict(config: Any) -> dict[str, Any]:
+    """The config as nested JSON-compatible dicts (tuples become lists)."""
+    if not _is_config(config):
+        raise ConfigError(f"expected a dataclass config, got {type(config).__name__}")
+
+    def plain(v: Any) -> Any:
+        if _is_config(v):
+            return {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v)}
+        if isinstance(v, (list, tuple)):
+            return [plain(x) for x in v]
+        if isinstance(v, dict):
+            return {str(k): plain(x) for k, x in v.items()}
+        return v
+
+    return plain(config)
+
+
+def walk(config: Any, prefix: str = "") -> Iterator[tuple[str, Any]]:
+    """Every ``(dotted path, value)`` of the config tree, sub-configs included."""
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        path = f"{prefix}{f.name}"
+        yield path, value
+        if _is_config(value):
+            yield from walk(value, f"{path}.")
+
+
+def find(config: Any, cls: type) -> list[str]:
+    """Dotted paths of every field holding an instance of ``cls`` (the root is ``""``)."""
+    paths = [""] if isinstance(config, cls) else []
+    return paths + [p for p, v in walk(config) if isinstance(v, cls)]
+
+
+def parse_value(raw: str) -> Any:
+    """``--set`` value text: JSON (``3``, ``0.5``, ``[1, 2]``, ``null``, ``true``) or else the bare string."""
+    try:
+        return json.loads(raw)
+    except json.JSONDecodeError:
+        return raw
+
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
+
+
+def _coerce(value: Any, tp: Any, where: str) -> Any:
+    """``value`` checked against annotation ``tp`` (int -> float and list -> tuple allowed)."""
+    origin = typing.get_origin(tp)
+    if tp is Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        for option in typing.get_args(tp):
+            try:
+                return _coerce(value, option, where)
+            except ConfigError:
+                continue  # try the next member of the union
+        raise ConfigError(f"{where}: {value!r} is not a {_type_name(tp)}")
+    if tp is type(None):
+        if value is None:
+            return None
+        raise ConfigError(f"{where}: {value!r} is not None")
+    if origin is typing.Literal:
+        if value in typing.get_args(tp):
+            return value
+        raise ConfigError(f"{where}: {value!r} is not one of {list(typing.get_args(tp))}")
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if isinstance(value, (str, bytes)) or not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where}: {value!r} is not a list; write it as JSON, e.g. [1, 2]")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(v, args[0], f"{where}[{i}]") for i, v in enumerate(value))
+        if args and len(args) != len(value):
+            raise ConfigError(f"{where}: {value!r} has {len(value)} entries, expected {len(args)}")
+        return tuple(_coerce(v, a, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value, strict=True)))
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+        raise ConfigError(f"{where}: {value!r} is not true or false")
+    if tp is int:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        raise ConfigError(f"{where}: {value!r} is not an int")
+    if tp is float:
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        raise ConfigError(f"{where}: {value!r} is not a number")
+    if tp is str:
+        if isinstance(value, str):
+            return value
+        raise ConfigError(f"{where}: {value!r} is not a string")
+    if isinstance(tp, type) and dataclasses.is_dataclass(tp):
+        raise ConfigError(
+            f"{where} is a group of settings; set one of its fields, e.g. {where}.<field>=VALUE"
+        )
+    return value
+
+
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def override(config: Any, path: str, value: Any) -> Any:
+    """A copy of ``config`` with the field at dotted ``path`` set to ``value``.
+
+    Args:
+        config: a frozen dataclass config.
+        path: e.g. ``"seed"`` or ``"protocol.fit.epochs"``.
+        value: the new value (already parsed, see :func:`parse_value`).
+
+    Raises:
+        ConfigError: an unknown path, or a value that does not fit the field's type; the
+            message names the path, the value and the choices.
+        ValueError: the config's own checks refuse the new value.
+    """
+    if not _is_config(config):
+        raise ConfigError(f"expected a dataclass config, got {type(config).__name__}")
+    head, _, rest = path.partition(".")
+    names = [f.name for f in dataclasses.fields(config)]
+    if head not in names:
+        raise ConfigError(f"unknown setting {path!r}; {type(config).__qualname__} has {names}")
+    current = getattr(config, head)
+    if rest:
+        if not _is_config(current):
+            raise ConfigError(f"{head!r} is a value, not a group of settings; cannot set {path!r}")
+        new = override(current, rest, value)
+    else:
+        new = _coerce(value, _hints(type(config))[head], head)
+    return dataclasses.replace(config, **{head: new})

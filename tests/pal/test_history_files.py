@@ -1,0 +1,97 @@
+"""The agent's history and perception's trajectories persist through pal.files, with provenance."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from pal.agent.history import FORMAT, History
+from pal.files import FileFormatError, read_npz
+from pal.perception.trajectory import Pose, PoseDiagnostics, Trajectory
+
+
+def _history(n: int = 3) -> History:
+    h = History(("shoulder",), ("box",), provenance={"seed": 5})
+    for k in range(n):
+        missing = np.full((1, 2), np.nan) if k == 1 else np.zeros((1, 2))
+        h.append(
+            episode=0,
+            act=[0.1 * k],
+            q_prev=[0.0],
+            q=[0.1],
+            hand_prev=[0, 0, 0],
+            hand=[0, 0, 0.01],
+            touch=[0.0],
+            meas_prev=missing,
+            meas=missing,
+            std=missing,
+            est_prev=np.zeros((1, 2)),
+            est=np.zeros((1, 2)),
+            truth_prev=np.zeros((1, 2)),
+            truth=np.zeros((1, 2)),
+            state=np.arange(4.0),
+        )
+    return h
+
+
+@dataclass(frozen=True)
+class _Config:
+    steps: int = 3
+    lr: float = 0.01
+
+
+def test_history_save_records_provenance_versions_and_format(tmp_path):
+    h = _history()
+    path = h.save(tmp_path / "h.npz", {"note": "x"}, config=_Config())
+    loaded, meta = History.load(path)
+    assert meta["provenance"] == {"seed": 5, "config": {"steps": 3, "lr": 0.01}} == loaded.provenance
+    assert meta["note"] == "x" and meta["format"] == FORMAT and "numpy" in meta["versions"]
+    for field in ("act", "meas", "state", "episode"):
+        np.testing.assert_array_equal(loaded.array(field), h.array(field))  # NaN stays NaN in arrays
+    assert np.isnan(loaded.array("meas")[1]).all()
+    assert read_npz(path, format=FORMAT).meta["joints"] == ["shoulder"]
+    path = h.save(tmp_path / "h2.npz", seed=9)
+    assert History.load(path)[1]["provenance"]["seed"] == 9
+    empty, _ = History.load(History(("a",), ()).save(tmp_path / "e.npz"))
+    assert len(empty) == 0 and empty.joints == ("a",)
+
+
+def test_history_save_refuses_nan_metadata_and_reserved_keys(tmp_path):
+    h = _history()
+    with pytest.raises(ValueError, match=r"history metadata\['provenance'\]\['config'\]\['lr'\] is nan"):
+        h.save(tmp_path / "h.npz", config={"lr": float("nan")})
+    with pytest.raises(ValueError, match="reserved"):
+        h.save(tmp_path / "h.npz", {"joints": []})
+    assert not (tmp_path / "h.npz").exists()
+
+
+def test_a_damaged_history_raises_the_documented_error(tmp_path):
+    path = _history().save(tmp_path / "h.npz")
+    raw = bytearray(path.read_bytes())
+    raw[len(raw) // 2] ^= 0x10
+    path.write_bytes(bytes(raw))
+    with pytest.raises(FileFormatError, match=r"h\.npz"):
+        History.load(path)
+    np.savez(path, _meta=np.frombuffer(json.dumps({"joints": []}).encode(), np.uint8))  # the old layout
+    with pytest.raises(FileFormatError, match="no __meta__ entry"):
+        History.load(path)
+
+
+def test_trajectory_files_are_checked(tmp_path):
+    traj = Trajectory()
+    traj.append(Pose(0.0, "estimated", np.eye(4), PoseDiagnostics(solver="kabsch")))
+    traj.append(Pose(0.1, "lost", None))
+    path = traj.save(tmp_path / "t.npz", metadata={"object": "box", "seed": 2})
+    back, meta = Trajectory.load(path)
+    assert [p.source for p in back.poses] == ["estimated", "lost"] and meta["metadata"]["seed"] == 2
+    assert meta["format"] == "pal.trajectory/2" and "scipy" in meta["versions"]
+    raw = bytearray(path.read_bytes())
+    raw[len(raw) // 2] ^= 0x01
+    path.write_bytes(bytes(raw))
+    with pytest.raises(FileFormatError, match="not a readable trajectory"):
+        Trajectory.load(path)
+    with pytest.raises(ValueError, match=r"trajectory metadata\['metadata'\]\['err'\] is inf"):
+        traj.save(tmp_path / "u.npz", metadata={"err": float("inf")})
