@@ -78,10 +78,11 @@ def _scales(scale: float | Mapping[str, float], names: Sequence[str]) -> dict[st
 def gaussian_log_preference(
     targets: Mapping[str, Tensor], scale: float | Mapping[str, float] = 1.0
 ) -> LogPreference:
-    """log p(x_tar | C) = sum_i -0.5 ((x_i - target_i) / scale_i)^2, per unit (Eq. 4.45).
+    """Gaussian log-preference around the targets (Eq. 4.45).
 
-    Up to constants this is ``sum_i log N(x_i; target_i, scale_i^2)``; with a common
-    scale it is ``-SSE / (2 scale^2)``.
+    Per unit, ``log p(x_tar | C) = sum_i -0.5 ((x_i - target_i) / scale_i)^2``. Up to
+    constants this is ``sum_i log N(x_i; target_i, scale_i^2)``; with a common scale it is
+    ``-SSE / (2 scale^2)``.
 
     Args:
         targets: name -> ``(N, dim)`` finite target values.
@@ -178,7 +179,8 @@ def infer_action(
         log_preference: optional callable ``predicted -> (N,)`` log-preference replacing
             the Gaussian one (then ``targets`` may be None).
         scale: Gaussian preference scale > 0 (targets' units), scalar or one per target.
-        steps, lr: Adam iterations K_act and learning rate eta_act (thesis B2: 200, 0.05).
+        steps: Adam iterations K_act (thesis B2: 200).
+        lr: Adam learning rate eta_act (thesis B2: 0.05).
         init: ``"midpoint"`` (thesis B2), ``"random"`` or name -> ``(N, dim)`` within bounds.
         noise: name -> ``(N, dim)`` standardised residuals u (e.g. abducted) of variables
             that are neither given nor optimised; default: expected residuals u-bar (Alg. 4.2).

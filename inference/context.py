@@ -91,6 +91,7 @@ def context_sensitivity(
     """Eq. 6.6: edge -> mean over the context samples of ||d f_i / d x_j||.
 
     Args:
+        model: the world model.
         samples: name -> ``(N, dim)`` draws from p(x | C) (e.g. recent data or
             ``model.sample``) for every variable.
         standardise: multiply by sd(x_j) / sd(x_i) over the samples (unit-free).
@@ -112,6 +113,7 @@ def target_relevance(
     """Eq. 6.7 per unit: variable j -> ``(N,)`` ||d Phi^tar / d x_j|| (0 for non-ancestors of the targets).
 
     Args:
+        model: the world model.
         values: name -> ``(N, dim)``; the roots are the assignment Phi starts from, the
             other values only give the scales when ``standardise``.
         targets: target variable names.

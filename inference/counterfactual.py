@@ -63,7 +63,7 @@ class CounterfactualResult:
 
     @property
     def mean(self) -> dict[str, Tensor]:
-        """name -> ``(K, N, dim)`` mean over posterior draws."""
+        """Mean over posterior draws: name -> ``(K, N, dim)``."""
         return {k: v.mean(0) for k, v in self.samples.items()}
 
     def interval(self, name: str, level: float = 0.9) -> tuple[Tensor, Tensor]:

@@ -180,6 +180,7 @@ class RepeatedScorer:
 
     @property
     def calls(self) -> int:
+        """Parent sets scored so far by the first scorer (each repeat scores the same sets)."""
         return self.scorers[0].calls
 
     def score(self, child: str, parent_sets: Sequence[Sequence[str]]) -> Tensor:

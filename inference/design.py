@@ -48,7 +48,8 @@ def orientation_margins(
 
     Args:
         result: a :func:`inference.discovery.discover` result.
-        data, intervened: the data it was learnt from (same layout as for ``discover``).
+        data: name -> ``(N, dim)`` values it was learnt from (as for ``discover``).
+        intervened: name -> ``(N,)`` bool ``do`` masks it was learnt with (as for ``discover``).
     """
     graph = _check_result(result).graph
     vs = as_variables(graph)

@@ -104,7 +104,8 @@ def shd(
     """Structural Hamming distance: missing + extra edges, a reversed edge counting once.
 
     Args:
-        learnt, truth: graphs or sequences of ``(parent, child)`` name pairs.
+        learnt: a graph or a sequence of ``(parent, child)`` name pairs.
+        truth: the reference graph, in the same forms.
     """
     a = set(learnt.edges if isinstance(learnt, CausalGraph) else check_edges("learnt", learnt))
     b = set(truth.edges if isinstance(truth, CausalGraph) else check_edges("truth", truth))
@@ -143,7 +144,7 @@ def _prune(
 
 
 def sigmoid(x: float) -> float:
-    """1 / (1 + exp(-x)) without overflow; sigmoid(inf) = 1 and sigmoid(-inf) = 0."""
+    """Logistic function ``1 / (1 + exp(-x))`` without overflow; 1 at inf and 0 at -inf."""
     if x >= 0:
         return 1.0 / (1.0 + math.exp(-x))
     e = math.exp(x)
@@ -182,7 +183,10 @@ def discover(
         intervened: name -> ``(N,)`` bool, True where the variable was set by ``do``;
             those rows do not enter that variable's mechanism likelihood. Actions need no
             mask: they are roots.
-        tiers, forbidden, required: background knowledge (:func:`admissible_parents`).
+        tiers: optional ordered groups of names; a parent must be in the same or an earlier
+            tier (:func:`admissible_parents`).
+        forbidden: ``(parent, child)`` edges that may not appear.
+        required: ``(parent, child)`` edges that must appear.
         min_gain: smallest held-out gain (nats) for the search to add an edge.
         prune_nats: edges with a smaller held-out log-likelihood ratio are removed.
         min_reverse: smallest held-out gain (nats) for the search to reverse an edge.
@@ -190,7 +194,11 @@ def discover(
         max_moves: cap on the moves of each search phase.
         sparsify: ``"none"`` or ``"gated"`` (group-lasso MLP selection from all admissible
             parents consistent with the search order).
-        features, ridge, folds, length, floor: the held-out scorer (:class:`CrossFitScorer`).
+        features: random Fourier features M of the held-out scorer (:class:`CrossFitScorer`).
+        ridge: ridge penalties on the feature weights to choose from.
+        folds: cross-fitting folds K >= 2.
+        length: RBF length scale(s) per sqrt(|P|) to choose from, in standard deviations.
+        floor: smallest residual variance, in standardised units.
         repeats: average the score over this many fold splits and feature draws
             (:class:`RepeatedScorer`); costs ``repeats`` times as much.
         gated: keyword arguments for :func:`inference.gated.select_parents`.

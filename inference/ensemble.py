@@ -61,8 +61,10 @@ class Ensemble:
 
     @classmethod
     def create(cls, make: Callable[[int], WorldModel], k: int = 5, seed: int = 0) -> Ensemble:
-        """``k`` members ``make(seed + m)``; the factory seeds each member's weights, e.g.
-        ``lambda s: WorldModel(graph, seed=s)``."""
+        """An ensemble of ``k`` members ``make(seed + m)``.
+
+        The factory seeds each member's weights, e.g. ``lambda s: WorldModel(graph, seed=s)``.
+        """
         check_callable("make", make)
         k = check_int("k", k, minimum=2)
         seed = check_seed("seed", seed)

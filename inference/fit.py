@@ -107,7 +107,9 @@ def fit(
             column and its parents' columns.
         variables: mechanisms to train; default every non-root whose columns are present.
         loss: ``"mse"`` (thesis §5.2.1; sigma from residuals) or ``"nll"`` (Gaussian NLL).
-        epochs, batch_size, lr: Adam schedule (thesis: 120, 2048, 0.01).
+        epochs: passes over the training rows (thesis: 120).
+        batch_size: Adam minibatch rows (thesis: 2048).
+        lr: Adam learning rate (thesis: 0.01).
         val_fraction: share of rows held out for validation curves, in [0, 1).
         seed: seeds the split and the minibatch order (local generator).
         progress_bar: show a tqdm bar over epochs.

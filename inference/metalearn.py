@@ -158,6 +158,7 @@ class SplitMechanism(Mechanism):
         self.log_sigma = nn.Parameter(torch.maximum(low.log_sigma, high.log_sigma).detach().clone())
 
     def forward(self, parents: Tensor) -> Tensor:
+        """``(..., out_dim)`` output of the regime selected by ``parents[..., component] < cut``."""
         below = parents[..., self.component : self.component + 1] < self.cut
         return torch.where(below, self.low(parents), self.high(parents))
 

@@ -47,12 +47,15 @@ class Dag:
         self.ancestors: dict[str, set[str]] = {n: set() for n in names}
 
     def creates_cycle(self, parent: str, child: str) -> bool:
+        """Whether adding the edge ``parent -> child`` would close a cycle."""
         return parent == child or child in self.ancestors[parent]
 
     def sorted(self, names: set[str] | Sequence[str]) -> tuple[str, ...]:
+        """The distinct ``names`` in declaration order."""
         return tuple(sorted(set(names), key=self.index.__getitem__))
 
     def add(self, parent: str, child: str) -> None:
+        """Add the edge ``parent -> child`` and update the ancestors; raises ValueError on a cycle."""
         if self.creates_cycle(parent, child):
             raise ValueError(f"edge {parent!r} -> {child!r} would close a cycle")
         self.parents[child] = self.sorted({*self.parents[child], parent})
@@ -62,6 +65,7 @@ class Dag:
                 self.ancestors[k] |= new
 
     def remove(self, parent: str, child: str) -> None:
+        """Remove the edge ``parent -> child`` and recompute the ancestors."""
         self.parents[child] = tuple(p for p in self.parents[child] if p != parent)
         self._recompute()
 
@@ -91,9 +95,11 @@ class Dag:
         return False
 
     def edges(self) -> list[tuple[str, str]]:
+        """All ``(parent, child)`` edges, grouped by child in declaration order."""
         return [(p, c) for c in self.names for p in self.parents[c]]
 
     def order(self) -> tuple[str, ...]:
+        """A topological order of the names (see :func:`kahn_order`)."""
         return kahn_order(self.names, self.parents)
 
 
@@ -105,6 +111,7 @@ class LocalScores:
         self.cache: dict[tuple[str, tuple[str, ...]], float] = {}
 
     def many(self, child: str, sets: Sequence[tuple[str, ...]]) -> list[float]:
+        """S_child(P) in nats for each parent set P in ``sets``, scoring only uncached sets."""
         todo = [s for s in dict.fromkeys(sets) if (child, s) not in self.cache]
         groups: dict[int, list[tuple[str, ...]]] = {}
         for s in todo:
@@ -115,6 +122,7 @@ class LocalScores:
         return [self.cache[child, s] for s in sets]
 
     def one(self, child: str, parents: tuple[str, ...]) -> float:
+        """S_child(parents) in nats (cached)."""
         return self.many(child, [parents])[0]
 
 

@@ -121,7 +121,9 @@ def infer_state(
             ``(dim,)`` replacing its learned sigma (:class:`inference.MeasurementScale`),
             e.g. the uncertainty perception reports for each frame.
         guide: ``"normal"`` (AutoNormal, mean field) or ``"mvn"`` (AutoMultivariateNormal).
-        num_steps, lr, lr_final: ClippedAdam with lr decaying geometrically to ``lr_final``.
+        num_steps: ClippedAdam steps.
+        lr: initial ClippedAdam learning rate.
+        lr_final: learning rate at the last step (geometric decay from ``lr``).
         num_particles: vectorised ELBO particles per step.
         num_samples: posterior draws S returned in ``samples``.
         init_scale: initial guide scale, > 0.

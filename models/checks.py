@@ -104,7 +104,10 @@ def check_float(
     Args:
         name: the parameter name used in the message.
         value: the value to check.
-        minimum, maximum: optional bounds; ``min_open``/``max_open`` exclude them.
+        minimum: optional lower bound.
+        maximum: optional upper bound.
+        min_open: exclude ``minimum`` itself.
+        max_open: exclude ``maximum`` itself.
         finite: refuse inf (NaN is always refused).
     """
     parts = []

@@ -116,6 +116,7 @@ class Mechanism(nn.Module):
         self.log_sigma = nn.Parameter(torch.full((out_dim,), math.log(sigma)))
 
     def core(self, z: Tensor) -> Tensor:  # pragma: no cover - abstract
+        """The map g on normalised parents z: ``(..., in_dim) -> (..., out_dim)``; subclasses define it."""
         raise NotImplementedError
 
     def forward(self, parents: Tensor) -> Tensor:
@@ -203,9 +204,11 @@ class MLPMechanism(Mechanism):
         self.net = nn.Sequential(*layers)
 
     def core(self, z: Tensor) -> Tensor:
+        """The MLP g(z) on normalised parents: ``(..., in_dim) -> (..., out_dim)``."""
         return self.net(z)
 
     def config(self) -> dict[str, Any]:
+        """JSON-compatible constructor arguments, including ``hidden`` and ``activation``."""
         return {**super().config(), "hidden": list(self.hidden), "activation": self.activation}
 
 
@@ -227,6 +230,7 @@ class LinearMechanism(Mechanism):
         self.linear = _linear(self.in_dim, self.out_dim, as_generator(seed))
 
     def core(self, z: Tensor) -> Tensor:
+        """``W z + b`` on normalised parents: ``(..., in_dim) -> (..., out_dim)``."""
         return self.linear(z)
 
     @classmethod
@@ -274,6 +278,7 @@ class FunctionMechanism(Mechanism):
         self.fn = fn
 
     def core(self, z: Tensor) -> Tensor:
+        """``fn(z)`` on normalised parents, checked to be finite and ``(..., out_dim)``."""
         out = self.fn(z)
         if not isinstance(out, Tensor) or out.shape != (*z.shape[:-1], self.out_dim):
             got = tuple(out.shape) if isinstance(out, Tensor) else type(out).__name__

@@ -320,7 +320,8 @@ class WorldModel(PyroModule):
 
         Args:
             name: a non-action root.
-            loc, scale: scalars or ``(dim,)`` in the variable's units; finite, scale > 0.
+            loc: prior mean, a scalar or ``(dim,)`` in the variable's units; finite.
+            scale: prior sd, a scalar or ``(dim,)`` in the variable's units; finite, > 0.
         """
         var = self.graph[name]
         if not self.graph.is_root(name) or var.role is Role.ACTION:
@@ -685,6 +686,7 @@ class WorldModel(PyroModule):
         return model
 
     def extra_repr(self) -> str:
+        """The graph's repr, shown inside ``repr(model)``."""
         return repr(self.graph)
 
 
@@ -704,8 +706,11 @@ def _rewire(
     new_parents: Sequence[str],
     generator: torch.Generator | None = None,
 ) -> Mechanism | None:
-    """A copy of ``mech`` reading ``new_parents``: kept parents keep their input columns
-    (first-layer weights and input normalisers), new ones start with zero weights."""
+    """A copy of ``mech`` reading ``new_parents``, or None if it cannot be rewired.
+
+    Kept parents keep their input columns (first-layer weights and input normalisers), new
+    ones start with zero weights.
+    """
     if isinstance(mech, MLPMechanism):
         first = "net.0"
     elif isinstance(mech, LinearMechanism):

@@ -49,8 +49,10 @@ def check_float(
     Args:
         name: the parameter's name, for the message.
         value: an int or float (bool refused).
-        low, high: bounds (None: unbounded on that side).
-        open_low, open_high: exclude the bound itself.
+        low: lower bound (None: unbounded below).
+        high: upper bound (None: unbounded above).
+        open_low: exclude ``low`` itself.
+        open_high: exclude ``high`` itself.
     """
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ValueError(f"{name} must be a number, got {value!r} ({type(value).__name__})")

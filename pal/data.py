@@ -105,7 +105,7 @@ class TransitionDataset:
 
     @property
     def columns(self) -> dict[str, np.ndarray]:
-        """name -> ``(N, 1)`` float32 column (the stored arrays, not copies)."""
+        """The columns, name -> ``(N, 1)`` float32 (the stored arrays, not copies)."""
         return dict(self._columns)
 
     def as_dict(self, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:

@@ -226,8 +226,11 @@ def read_json(path: str | os.PathLike[str], *, max_bytes: int = DEFAULT_LIMITS.m
 
 # ---------------------------------------------------------------------------- checked npz
 def checksum(fmt: str, file_versions: Mapping[str, str], meta: Any, arrays: Mapping[str, np.ndarray]) -> str:
-    """SHA-256 over the format tag, versions and metadata (canonical JSON) and every array's
-    name, dtype, shape and C-order bytes, in name order."""
+    """Hex SHA-256 digest of a checked npz's content.
+
+    It covers the format tag, versions and metadata (canonical JSON) and every array's name,
+    dtype, shape and C-order bytes, in name order.
+    """
     h = hashlib.sha256()
     h.update(_canonical({"format": fmt, "versions": dict(file_versions), "meta": meta}).encode())
     for name in sorted(arrays):

@@ -115,7 +115,8 @@ def backproject(u: np.ndarray, v: np.ndarray, z: np.ndarray, K: np.ndarray) -> n
     """Lift pixels with depth to camera-frame points.
 
     Args:
-        u, v: (...) pixel coordinates (x right, y down).
+        u: (...) pixel column coordinates (x right), pixels.
+        v: (...) pixel row coordinates (y down), pixels.
         z: (...) depth along the optical axis, metres.
         K: (3, 3) intrinsics.
 
@@ -210,10 +211,12 @@ class RGBDFrame:
 
     @property
     def height(self) -> int:
+        """Image height H, pixels."""
         return int(self.rgb.shape[0])
 
     @property
     def width(self) -> int:
+        """Image width W, pixels."""
         return int(self.rgb.shape[1])
 
     @property

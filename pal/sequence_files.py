@@ -147,6 +147,7 @@ class FrameSequence:
         return int(self.timestamps.shape[0])
 
     def frame(self, index: int) -> RGBDFrame:  # pragma: no cover - abstract
+        """Frame ``index`` in [0, len); subclasses read it."""
         raise NotImplementedError
 
     def __getitem__(self, index: int) -> RGBDFrame:
@@ -164,6 +165,7 @@ def atomic_write_png(path: str | os.PathLike[str], image: np.ndarray) -> Path:
     """Encode ``image`` as PNG and write it atomically.
 
     Args:
+        path: destination ``.png``.
         image: (H, W) uint8/uint16 or (H, W, 3) uint8 in OpenCV's BGR channel order.
     """
     ok, buf = cv2.imencode(".png", image)

@@ -160,8 +160,9 @@ class History:
         Args:
             path: destination ``.npz``.
             metadata: JSON-compatible extras, returned by :meth:`load` at the top level.
-            seed, config: provenance (a dataclass config is stored as a dict); they override
-                :attr:`provenance`'s entries.
+            seed: provenance seed; overrides :attr:`provenance`'s entry.
+            config: provenance config (a dataclass is stored as a dict); overrides
+                :attr:`provenance`'s entry.
 
         Raises:
             ValueError: metadata or provenance that is not strict JSON (names the key).
@@ -186,8 +187,10 @@ class History:
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> tuple[History, dict[str, Any]]:
-        """Inverse of :meth:`save`: ``(history, metadata)``; the metadata holds the caller's
-        keys, ``joints``, ``objects``, ``provenance``, ``versions`` and ``format``.
+        """Inverse of :meth:`save`: ``(history, metadata)``.
+
+        The metadata holds the caller's keys, ``joints``, ``objects``, ``provenance``,
+        ``versions`` and ``format``.
 
         Raises:
             FileFormatError: missing, corrupted or inconsistent file; names it.

@@ -77,9 +77,15 @@ class Percept:
 
 @dataclass(frozen=True)
 class Decision:
-    """An action and why: ``mode`` (babble / curious / goal / setup / hold), slot targets (2,) m,
-    the model's predicted positions (2,) m for them (after the setup step for ``"setup"``), and
-    the predicted distance to the targets, m (``objective``)."""
+    """An action and why it was chosen.
+
+    Attributes:
+        mode: babble / curious / goal / setup / hold.
+        action: (J,) servo targets, rad.
+        targets: slot -> (2,) target position, m.
+        predicted: slot -> (2,) position the model predicts, m (after the setup step for ``"setup"``).
+        objective: predicted distance to the targets, m.
+    """
 
     mode: str
     action: np.ndarray
@@ -311,8 +317,11 @@ class Agent:
         return Decision(mode, action, dict(targets), predicted, score)
 
     def random_action(self) -> np.ndarray:
-        """A babbling action: uniform servo targets over the joint ranges, or, with probability
-        ``babble_local``, a target within ``babble_reach`` rad of the current angles (small moves)."""
+        """A babbling action: (J,) servo targets, rad.
+
+        Uniform over the joint ranges, or, with probability ``babble_local``, within
+        ``babble_reach`` rad of the current angles (small moves).
+        """
         low, high = self.env.ctrl_low, self.env.ctrl_high
         if self.percept is not None and self.rng.random() < self.config.babble_local:
             r = self.config.babble_reach
@@ -413,8 +422,11 @@ class Agent:
         callback: Callable[[Agent, Decision, Percept], None] | None = None,
         progress_bar: bool = False,
     ) -> list[Decision]:
-        """Run ``steps`` loop steps in ``mode``; a fitted model is refitted every ``refit_every``
-        steps (default ``config.refit_every``; 0 disables). Episodes restart every ``reset_every``."""
+        """Run ``steps`` loop steps in ``mode`` and return their decisions.
+
+        A fitted model is refitted every ``refit_every`` steps (default ``config.refit_every``;
+        0 disables). Episodes restart every ``reset_every``.
+        """
         check_int("steps", steps, minimum=0)
         every = self.config.refit_every if refit_every is None else refit_every
         decisions = []

@@ -50,8 +50,11 @@ def self_filtered_frame(
     """An :class:`RGBDFrame` whose depth is 0 (invalid) on the agent's own body.
 
     Args:
-        rgb: (H, W, 3) uint8. depth: (H, W) float32 metres. K: (3, 3) intrinsics.
-        timestamp: s. body_mask: (H, W) bool, True on the agent's body.
+        rgb: (H, W, 3) uint8.
+        depth: (H, W) float32, metres.
+        K: (3, 3) camera intrinsics, pixels.
+        timestamp: frame time, s.
+        body_mask: (H, W) bool, True on the agent's body.
     """
     mask = np.asarray(body_mask, dtype=bool)
     if mask.shape != np.asarray(depth).shape:
@@ -175,7 +178,8 @@ class ObjectSlots:
         """This frame's measurement per slot, None for a slot without evidence (lost or not yet bound).
 
         Args:
-            state: Π's output. table_from_camera: (4, 4) camera pose in the table frame.
+            state: Π's output.
+            table_from_camera: (4, 4) camera pose in the table frame.
             reference: optional slot -> (2,) current estimate; a missing slot is re-bound to the
                 nearest unbound track around it (default: around its last measurement).
             focal: focal length of the frame, pixels (for the apparent metric size).

@@ -35,8 +35,11 @@ def candidate_actions(
     scales: tuple[float, ...] = (0.1, 0.25, 0.5),
     wide: float = 0.25,
 ) -> np.ndarray:
-    """(n, J) servo targets around joint angles q (rad): a share ``wide`` uniform over [low, high],
-    the rest q + U(-s, s) for each scale s in turn (fine and coarse moves), clipped to the ranges."""
+    """(n, J) candidate servo targets, rad, around the joint angles q (J,) rad.
+
+    A share ``wide`` is uniform over [low, high], the rest q + U(-s, s) for each scale s in
+    turn (fine and coarse moves), clipped to the ranges.
+    """
     check_int("n", n)
     check_float("wide", wide, 0.0, 1.0)
     k = round(wide * n)
@@ -108,8 +111,10 @@ def fit_world_model(
     min_sigma: float = 0.003,
     seed: int = 0,
 ) -> dict[str, Any]:
-    """Fit every learned mechanism on the history (Eq. 4.33); object mechanisms on the rows where
-    both positions of that object are known. Returns name -> fitted sigma and the row counts."""
+    """Fit every learned mechanism on the history (Eq. 4.33); return name -> fitted sigma and the row counts.
+
+    Object mechanisms are fitted on the rows where both positions of that object are known.
+    """
     arm, objects = history.columns(source, rows)
     trained: dict[str, Any] = {}
     arm_vars = [v for v in model.graph.non_roots if v.startswith(("dq.", "q.", "hand"))]

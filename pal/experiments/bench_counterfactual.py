@@ -124,7 +124,7 @@ class PeerFigures:
 
 
 def ratios(ours: PeerFigures, peer: PeerFigures) -> dict[str, Any]:
-    """figure -> ours / peer (peer / ours for ``units_per_s``); < 1: pal is faster."""
+    """Speed ratio per figure: ours / peer (peer / ours for ``units_per_s``); < 1: pal is faster."""
     return {
         "chain_unit_ms": ratio(ours.chain_unit_ms, peer.chain_unit_ms),
         "mlp50_unit_ms": ratio(ours.mlp50_unit_ms, peer.mlp50_unit_ms),

@@ -108,7 +108,8 @@ def coverage_curve(
         history: the agent's history (true positions are read).
         start: first row of the budget.
         checkpoints: (K,) step counts s.
-        region: ((x0, y0), (x1, y1)) table region, m. bins: grid cells per axis.
+        region: ((x0, y0), (x1, y1)) table region, m.
+        bins: grid cells per axis (x, y).
         min_motion: an object counts as moved when it moved more than this in the step, m.
 
     Returns:

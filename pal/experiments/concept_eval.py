@@ -38,9 +38,13 @@ __all__ = ["FamilyScaler", "Scaler", "leave_one_out", "loo_accuracy", "pca_2d", 
 class Scaler(Protocol):
     """What the evaluation needs of a scaler."""
 
-    def fit(self, X: np.ndarray) -> Scaler: ...
+    def fit(self, X: np.ndarray) -> Scaler:
+        """Learn the scaling from (n, d) points and return self."""
+        ...
 
-    def transform(self, X: np.ndarray) -> np.ndarray: ...
+    def transform(self, X: np.ndarray) -> np.ndarray:
+        """Scale (m, d) points with the fitted scaling: (m, d)."""
+        ...
 
 
 class FamilyScaler:
@@ -75,11 +79,13 @@ class FamilyScaler:
         return self
 
     def transform(self, X: np.ndarray) -> np.ndarray:
+        """(m, d) points divided by the fitted ``scale_``: (m, d) float64."""
         if not hasattr(self, "scale_"):
             raise ValueError("this FamilyScaler is not fitted yet; call fit(X) first")
         return np.asarray(X, dtype=np.float64) / self.scale_
 
     def fit_transform(self, X: np.ndarray) -> np.ndarray:
+        """Fit on (n, d) points and return them scaled: (n, d) float64."""
         return self.fit(X).transform(X)
 
 
@@ -99,8 +105,10 @@ def prototype_distances(
     """Distance of every record to every label prototype, all records forming the prototypes.
 
     Args:
-        X: (n, d) points. labels: n labels.
+        X: (n, d) points.
+        labels: n labels, one per point.
         scaler: factory of the scaler fitted on ``X`` (None: raw distances).
+        domain: name of the single domain of the conceptual space built over ``X``.
 
     Returns:
         (per record ``{label: distance}``, ``{label: prototype support}``).
@@ -121,8 +129,10 @@ def prototype_distances(
 def leave_one_out(
     X: np.ndarray, labels: Sequence[str], scaler: Callable[[], Scaler] | None, domain: str = "space"
 ) -> list[str | None]:
-    """Predicted label of each held-out record (None: its label has no other exemplar); the
-    scaler (a fresh one from the factory) is fitted on the other records only."""
+    """Predicted label of each held-out record (None: its label has no other exemplar).
+
+    The scaler (a fresh one from the factory) is fitted on the other records only.
+    """
     X = np.asarray(X, dtype=np.float64)
     labels = [str(lab) for lab in labels]
     n = X.shape[0]

@@ -137,6 +137,7 @@ class ChirhoPeer:
         return {k: v[:, 0] for k, v in factual.items()}
 
     def subset(self, data: dict[str, Tensor], n: int) -> dict[str, Tensor]:
+        """The first ``n`` units of native observations: name -> ``(n,)``."""
         return {k: v[:n] for k, v in data.items()}
 
     def run(
@@ -159,7 +160,7 @@ class ChirhoPeer:
             }
 
     def to_tensors(self, out: Mapping[str, Tensor], node: str, k: int, n: int) -> dict[str, Tensor]:
-        """name -> ``(K, N, 1)``."""
+        """The batched worlds as name -> ``(K, N, 1)``."""
         return {name: v[..., None] for name, v in out.items()}
 
 
@@ -245,6 +246,7 @@ class DowhyPeer:
         )
 
     def subset(self, data: Any, n: int) -> Any:
+        """The first ``n`` rows of a native DataFrame."""
         return data.iloc[:n]
 
     def run(self, which: str, data: Any, node: str, values: Sequence[float]) -> list[Any]:

@@ -182,7 +182,8 @@ def physics_effects(
         realizer: the recording (its states, commands and columns) and its simulator.
         rows: ``(R,)`` rows of the recording whose states are intervened on.
         joints: the joints j, k (default: every recorded joint).
-        h_angle: angle step h, rad; ``h_ctrl``: command step as a share of the ctrl range.
+        h_angle: angle step h, rad.
+        h_ctrl: command step as a share of the ctrl range.
 
     Returns:
         ``"p->dq.j"`` -> E (dimensionless; see the module docstring).

@@ -43,8 +43,10 @@ def available() -> bool:
 
 @contextmanager
 def _seeded(seed: int) -> Any:
-    """causal-learn draws from numpy's and Python's global generators (GRaSP shuffles with
-    ``random``): seed both for the call, then restore them."""
+    """Seed numpy's and Python's global generators for the call, then restore them.
+
+    causal-learn draws from both (GRaSP shuffles with ``random``).
+    """
     np_state, py_state = np.random.get_state(), random.getstate()
     np.random.seed(seed)
     random.seed(seed)

@@ -38,7 +38,7 @@ class SyntheticSCM:
     scale: dict[str, float]
 
     def sample(self, n: int, seed: int) -> dict[str, np.ndarray]:
-        """n observational rows: name -> ``(n, 1)`` float64."""
+        """Draw ``n`` observational rows: name -> ``(n, 1)`` float64."""
         gen = torch.Generator().manual_seed(seed)
         with torch.no_grad():
             return {k: v.double().numpy() for k, v in self.model.sample(n, gen).items()}
@@ -93,15 +93,19 @@ class SCMConfig:
         check_float("expected_parents", self.expected_parents, 0.0, open_low=True)
 
     def draw(self, d: int, seed: int) -> tuple[SyntheticSCM, dict[str, np.ndarray]]:
-        """The SCM of size ``d`` for ``seed`` (graph and mechanisms from ``1000 d + seed``) and its
-        ``n`` observational rows (from ``seed``): name -> ``(n, 1)`` float64."""
+        """The SCM of size ``d`` for ``seed`` and its ``n`` observational rows: name -> ``(n, 1)`` float64.
+
+        The graph and mechanisms are drawn from ``1000 d + seed``, the rows from ``seed``.
+        """
         scm = random_scm(d, self.expected_parents, seed=1000 * d + seed)
         return scm, scm.sample(self.n, seed=seed)
 
 
 def standardised(data: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """Every column to zero mean and unit sd over all its rows (no method may read the causal
-    order off the variances of simulated data)."""
+    """Every column to zero mean and unit sd over all its rows.
+
+    No method may then read the causal order off the variances of simulated data.
+    """
     return {k: (v - v.mean(0)) / v.std(0) for k, v in data.items()}
 
 

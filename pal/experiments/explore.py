@@ -116,6 +116,8 @@ def coverage_curve(
     Args:
         values: ``(n,)`` visited angles in visiting order, rad (outside values count in the edge bins).
         n_initial: values visited before exploring.
+        q_range: ``(low, high)`` angle range split into the bins, rad.
+        bins: number of equal-width angle bins.
 
     Returns:
         ``(occupancy, entropy)``, each ``(n - n_initial + 1,)``.

@@ -116,6 +116,7 @@ class RunResult:
 
     @property
     def name(self) -> str:
+        """The run's label, ``"motion/run"``."""
         return f"{self.motion}/{self.run}"
 
     @property

@@ -139,8 +139,11 @@ class Config:
 
 
 def ensure_recording(config: RecordConfig, path: Path) -> RecordedSequence:
-    """The recording of ``config`` at ``path``: reused if it exists with the same settings and the
-    same scene (MJCF and assets), else (re)recorded."""
+    """The recording of ``config`` at ``path``, reused or (re)recorded.
+
+    An existing recording is reused if it has the same settings and the same scene (MJCF and
+    assets).
+    """
     want = json.loads(json.dumps(asdict(config)))
     if (path / "sequence.json").is_file():
         try:

@@ -1,5 +1,6 @@
-"""The scripted reference of experiment C2: the arm's planar kinematics, the approach point of a push,
-and a pushing controller that knows the ground truth.
+"""The scripted reference of experiment C2: a pushing controller that knows the ground truth.
+
+The module holds the arm's planar kinematics, the approach point of a push, and the controller.
 
 **Kinematics.** The arm moves in the table plane: with shoulder S, heading h = yaw + 90 deg + q1,
 the palm centre is ``S + L1 u(h) + L2 u(h + q2)``, with L1 (shoulder to elbow) and L2 (elbow to the
@@ -71,8 +72,11 @@ def box_extent(yaw: float, direction: np.ndarray) -> float:
 
 
 def approach_point(position: np.ndarray, goal: np.ndarray, reach: float, gap: float = 0.02) -> np.ndarray:
-    """Where the hand starts a push of an object at ``position`` towards ``goal``: ``reach + gap``
-    metres behind it on the push line (``reach`` = the object's extent along it plus the hand's)."""
+    """Where the hand starts a push of an object at ``position`` towards ``goal``, m.
+
+    The point lies ``reach + gap`` metres behind the object on the push line (``reach`` = the
+    object's extent along it plus the hand's).
+    """
     e = np.asarray(goal, float) - np.asarray(position, float)
     u = e / max(float(np.linalg.norm(e)), 1e-9)
     return np.asarray(position, float) - u * (reach + gap)

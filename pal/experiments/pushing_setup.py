@@ -95,7 +95,9 @@ def babbled_agent(config: SetupConfig, seed: int, *, progress_bar: bool = False)
     """A new agent in a new world that has babbled ``config.babble_steps`` steps (not fitted yet).
 
     Args:
-        config: the protocol. seed: the agent's master seed.
+        config: the protocol.
+        seed: the agent's master seed.
+        progress_bar: show a tqdm bar over the babbling steps.
     """
     env = PushingEnv(camera_size=config.camera_size)
     agent = Agent(env, config.agent, seed=seed)
@@ -120,7 +122,11 @@ def fitted_model(
     """A new pushing world model fitted on ``rows`` of the agent's history (Eq. 4.33, ``config.agent``'s schedule).
 
     Args:
+        agent: the agent whose history and environment are used.
+        config: the protocol (its ``agent`` config gives the model size and fit schedule).
+        seed: seeds the model's initial weights and the fit.
         source: object positions from ``"perceived"`` (Π) or ``"truth"`` (the simulator).
+        rows: indices of the history rows to fit on.
 
     Returns:
         ``(model, rows)``: ``rows`` counts the fitted transitions (``arm`` and per object).

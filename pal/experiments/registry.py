@@ -96,7 +96,8 @@ def register(
         name: command-line name, unique within ``kind``.
         kind: ``"experiment"`` or ``"bench"``.
         config: the frozen dataclass config type; it must have a ``seed`` field.
-        quick, tiny: instances of ``config``.
+        quick: the ``config`` instance of ``--quick`` and ``pal demo``.
+        tiny: the smallest ``config`` instance that runs every code path (the contract test).
     """
     if kind not in KINDS:
         raise ValueError(f"kind {kind!r} unknown; expected one of {KINDS}")

@@ -248,7 +248,10 @@ class JointData:
         return f"act.{j}", f"q_prev.{j}", f"dq.{j}", f"q.{j}"
 
     def columns(self, dataset: TransitionDataset) -> dict[str, np.ndarray]:
-        """name -> ``(N, 1)`` float32 for ``act.J`` (the command), ``q_prev.J``, ``dq.J``, ``q.J`` (rad)."""
+        """The joint's columns, name -> ``(N, 1)`` float32.
+
+        They are ``act.J`` (the command), ``q_prev.J``, ``dq.J`` and ``q.J`` (rad).
+        """
         act, q_prev, dq, q = self.names
         cols = dataset.columns
         return {

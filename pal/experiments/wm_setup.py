@@ -227,7 +227,10 @@ def predict_q(model: WorldModel, joint: JointData, q_prev: np.ndarray, actions: 
     """Model-predicted post-action angle Phi(q_prev, a) (Eq. 5.7) with expected residuals.
 
     Args:
-        q_prev, actions: ``(n,)`` or ``(n, 1)``; rad and dimensionless.
+        model: the fitted world model.
+        joint: the joint whose variables are predicted.
+        q_prev: ``(n,)`` or ``(n, 1)`` pre-action angles, rad.
+        actions: ``(n,)`` or ``(n, 1)`` commands, dimensionless.
 
     Returns:
         ``(n,)`` float64 predicted q.J, rad.

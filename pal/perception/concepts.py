@@ -54,6 +54,7 @@ class Domain:
 
     @property
     def size(self) -> int:
+        """Number of quality dimensions of the domain."""
         return len(self.dimensions)
 
     def check(self, x: np.ndarray) -> np.ndarray:
@@ -88,6 +89,7 @@ class Entity:
 
     @property
     def domains(self) -> frozenset[str]:
+        """Names of the domains the entity has a point in (J_i)."""
         return frozenset(self.points)
 
 
@@ -201,6 +203,8 @@ class ConceptualSpace:
         """Nearest prototype (Eq. 1.7) over one set of domains for all prototypes.
 
         Args:
+            entity: the exemplar to categorize.
+            prototypes: label -> prototype.
             domains: required domains; default the entity's domains that every prototype has.
 
         Raises:

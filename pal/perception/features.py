@@ -102,6 +102,7 @@ class FeatureExtractor:
             self._dim, self._dtype = 128, np.float32
 
     def empty(self) -> Features:
+        """No features: (0, 2) keypoints and (0, D) descriptors of this extractor's kind."""
         return Features(np.zeros((0, 2), np.float32), np.zeros((0, self._dim), self._dtype), self.config.kind)
 
     def __call__(self, gray: np.ndarray, mask: Mask) -> Features:

@@ -104,6 +104,7 @@ def one_euro(values: np.ndarray, timestamps: np.ndarray, config: OneEuroConfig |
     Args:
         values: (N, D) samples.
         timestamps: (N,) strictly increasing, s.
+        config: filter settings (default: ``OneEuroConfig()``).
 
     Returns:
         (N, D) float64 filtered samples.

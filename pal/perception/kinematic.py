@@ -106,6 +106,7 @@ def kinematic_descriptor(
         timestamps: (N,) s, strictly increasing over the valid samples.
         poses: (N, 4, 4) camera_from_object.
         valid: (N,) bool, which samples are estimated (default: all).
+        config: descriptor settings (default: ``KinematicConfig()``).
 
     Raises:
         ValueError: shapes disagree, non-finite valid poses, fewer than 2 valid poses, or

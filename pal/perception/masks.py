@@ -1,8 +1,8 @@
-"""``Mask``: an instance mask stored as a tight bounding box plus a boolean crop, and the
-overlap measures of Eq. 4.9-4.10 (IoU, IoM).
+"""Instance masks (``Mask``: a tight bounding box plus a boolean crop) and their overlap measures.
 
-Storing the crop instead of the full (H, W) image keeps memory and overlap tests proportional
-to the object's size: two masks whose boxes do not intersect cost nothing to compare.
+The overlap measures are those of Eq. 4.9-4.10 (IoU, IoM). Storing the crop instead of the
+full (H, W) image keeps memory and overlap tests proportional to the object's size: two masks
+whose boxes do not intersect cost nothing to compare.
 """
 
 from __future__ import annotations
@@ -80,6 +80,7 @@ class Mask:
 
     @property
     def xywh(self) -> tuple[int, int, int, int]:
+        """The bounding box as ``(x0, y0, width, height)``, pixels."""
         x0, y0, x1, y1 = self.bbox
         return x0, y0, x1 - x0, y1 - y0
 

@@ -97,8 +97,11 @@ class AdmissionConfig:
 
 
 def sharpness(gray: np.ndarray, mask: Mask) -> float:
-    """Variance of the 3x3 Laplacian of ``gray`` (H, W) uint8 over the mask eroded by one pixel
-    (so the silhouette's own edge does not count); over the whole mask if erosion empties it."""
+    """Variance of the 3x3 Laplacian of ``gray`` (H, W) uint8 over the mask eroded by one pixel.
+
+    The erosion keeps the silhouette's own edge from counting; the whole mask is used if it
+    empties the mask.
+    """
     x0, y0, x1, y1 = mask.bbox
     h, w = gray.shape
     rx0, ry0, rx1, ry1 = max(0, x0 - 1), max(0, y0 - 1), min(w, x1 + 1), min(h, y1 + 1)
@@ -151,6 +154,7 @@ class Snapshot:
 
     @property
     def area(self) -> int:
+        """Object pixels in the snapshot's mask."""
         return int(self.mask.sum())
 
 
@@ -186,6 +190,7 @@ class Gallery:
         return len(self.snapshots)
 
     def anchored(self) -> list[Snapshot]:
+        """The snapshots with a known pose (``anchor`` set), in gallery order."""
         return [s for s in self.snapshots if s.anchor is not None]
 
     def _make(
@@ -229,8 +234,11 @@ class Gallery:
     def set_canonical(
         self, frame: RGBDFrame, gray: np.ndarray, mask: Mask, features: Features, anchor: np.ndarray
     ) -> AdmissionDecision:
-        """Admit the view that defines the object's canonical frame (skips the sharpness rank and
-        redundancy checks, which would compare with nothing useful)."""
+        """Admit the view that defines the object's canonical frame.
+
+        The sharpness rank and redundancy checks are skipped: they would compare with nothing
+        useful.
+        """
         if self.canonical is not None:
             raise ValueError("the canonical snapshot is already set; it is fixed for the object's lifetime")
         sharp = sharpness(gray, mask)
@@ -252,7 +260,9 @@ class Gallery:
         """Run the admission checks on one view and admit it if they pass.
 
         Args:
-            frame: the frame. gray: its (H, W) uint8 luminance. mask: the object mask.
+            frame: the frame.
+            gray: its (H, W) uint8 luminance.
+            mask: the object mask.
             features: the view's features, or a callable computing them on demand, or None
                 (then the feature-overlap check is skipped).
             extractor: matches features for the overlap check (required if features are given).

@@ -122,9 +122,11 @@ class RobustNormaliser:
         return (X - self.center_) / self.scale_ * self.weight_
 
     def fit_transform(self, X: np.ndarray) -> np.ndarray:
+        """Fit on (n, d) points and return them normalised: (n, d)."""
         return self.fit(X).transform(X)
 
     def inverse_transform(self, Z: np.ndarray) -> np.ndarray:
+        """(..., d) normalised points -> (..., d) in the original units (undoes :meth:`transform`)."""
         Z = self._check(Z)
         return Z / self.weight_ * self.scale_ + self.center_
 
@@ -142,6 +144,7 @@ class RobustNormaliser:
 
     @staticmethod
     def from_dict(data: Mapping[str, Any]) -> RobustNormaliser:
+        """A fitted normaliser from the state written by :meth:`to_dict`; ValueError if inconsistent."""
         fam = data.get("families")
         out = RobustNormaliser(
             None if fam is None else {k: slice(int(a), int(b)) for k, (a, b) in fam.items()},

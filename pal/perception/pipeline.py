@@ -150,6 +150,7 @@ class PerceptionState:
     timings: dict[str, float]
 
     def object(self, obj_id: int) -> ObjectState:
+        """The state of object ``obj_id``; KeyError if it is not in this frame's state."""
         for o in self.objects:
             if o.obj_id == obj_id:
                 return o

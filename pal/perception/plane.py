@@ -119,6 +119,7 @@ def plane_height(depth: np.ndarray, K: np.ndarray, plane: Plane) -> np.ndarray:
         depth: (H, W) float32, metres (0 = invalid: such pixels get height ``d``, the
             camera's own height, and the caller must mask them out).
         K: (3, 3) intrinsics.
+        plane: the plane ``n . x + d = 0`` in the camera frame.
 
     Returns:
         (H, W) float32 heights, metres.

@@ -131,6 +131,8 @@ def lift(
         depth: (h, w) float32 metres, the frame's depth or a crop of it.
         origin: (x0, y0) of ``depth`` in the full frame.
         K: (3, 3) full-frame intrinsics.
+        min_depth: smallest depth accepted, metres.
+        max_depth: largest depth accepted, metres.
 
     Returns:
         ((N, 3) camera-frame points, zero where invalid; (N,) bool valid).
@@ -187,6 +189,7 @@ class PoseEstimator:
         self.extractor = FeatureExtractor(self.config.features)
 
     def features(self, gray: np.ndarray, mask: Mask) -> Features:
+        """Features of the object ``mask`` in the (H, W) uint8 image ``gray``."""
         return self.extractor(gray, mask)
 
     def anchor_for(self, pose: Pose) -> np.ndarray | None:
@@ -378,8 +381,11 @@ class PoseEstimator:
         return order[: self.config.max_snapshots]
 
     def _correspond(self, snap: Snapshot, feats: Features) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Ratio-test matches (live index, snapshot index) inside both masks, with the snapshot
-        keypoints lifted to 3-D in the snapshot's camera frame: (pairs (M, 2), (M, 3), (M,) valid)."""
+        """Ratio-test matches with lifted snapshot keypoints: (pairs (M, 2), (M, 3), (M,) valid).
+
+        Pairs are (live index, snapshot index) inside both masks; the snapshot keypoints are
+        lifted to 3-D in the snapshot's camera frame, metres.
+        """
         empty = np.zeros((0, 2), dtype=np.int64), np.zeros((0, 3)), np.zeros(0, dtype=bool)
         if snap.features is None or len(snap.features) < 2 or len(feats) < 1:
             return empty
@@ -404,8 +410,10 @@ class PoseEstimator:
         return pairs, ref_pts, ref_valid
 
     def missing(self, record: ObjectRecord, t: float, diag: PoseDiagnostics) -> Pose:
-        """The pose sample of an object with no usable observation at ``t``: ``propagated`` (flagged,
-        if propagation is on and the last estimates are recent) or ``lost``."""
+        """The pose sample of an object with no usable observation at ``t``: ``propagated`` or ``lost``.
+
+        It is ``propagated`` (flagged) if propagation is on and the last estimates are recent.
+        """
         return self._fallback(record, t, diag)
 
     def _fallback(self, record: ObjectRecord, t: float, diag: PoseDiagnostics) -> Pose:

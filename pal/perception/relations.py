@@ -101,6 +101,7 @@ class PairRelation:
     synchrony: float | None
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible fields (arrays as lists, None kept)."""
         return {
             "a": self.a,
             "b": self.b,
@@ -197,9 +198,12 @@ def synchrony(
 
 
 def scene_vector_names(max_objects: int) -> list[str]:
-    """Names of the :meth:`SceneRelations.vector` entries: per object slot k (objects sorted by id)
+    """Names of the :meth:`SceneRelations.vector` entries, in order.
+
+    Per object slot k (objects sorted by id)
     ``obj{k}.{present,cx,cy,cz,distance,azimuth,elevation}``, then per slot pair k < l
-    ``pair{k}_{l}.{present,dx,dy,dz,distance,topo_*(4),synchrony,synchrony_defined}``."""
+    ``pair{k}_{l}.{present,dx,dy,dz,distance,topo_*(4),synchrony,synchrony_defined}``.
+    """
     names = [f"obj{k}.{f}" for k in range(max_objects) for f in _OBJ_FIELDS]
     names += [
         f"pair{k}_{m}.{f}"
@@ -225,8 +229,11 @@ class SceneRelations:
     pairs: tuple[PairRelation, ...]
 
     def graph(self) -> nx.DiGraph:
-        """Scene graph: nodes = object ids (attributes ``visible``, ``spatial`` dict or None),
-        edges (a, b) with the pair's relation fields."""
+        """The scene graph of this frame.
+
+        Nodes are object ids (attributes ``visible``, ``spatial`` dict or None); edges (a, b)
+        carry the pair's relation fields.
+        """
         g = nx.DiGraph()
         for oid, sp in self.objects.items():
             g.add_node(oid, visible=oid in self.visible, spatial=None if sp is None else sp.to_dict())
@@ -263,6 +270,7 @@ class SceneRelations:
         return np.concatenate([obj.ravel(), *[pairs[key] for key in sorted(pairs)]])
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible layer: objects (keyed by str id), sorted visible ids and pairs."""
         return {
             "objects": {str(k): None if v is None else v.to_dict() for k, v in self.objects.items()},
             "visible": sorted(self.visible),
@@ -285,6 +293,7 @@ def scene_relations(
         spatial: per object id, its spatial descriptor (None if unknown).
         masks: masks of the objects visible this frame.
         histories: per object id, recent (timestamps (N,), centroids (N, 3)).
+        config: relation settings (default: ``RelationConfig()``).
         ids: objects to relate (default: the keys of ``spatial``).
     """
     cfg = config or RelationConfig()

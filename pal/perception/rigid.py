@@ -1,5 +1,7 @@
-"""Rigid registration: Kabsch/Umeyama (Eq. 4.15) inside RANSAC with a threshold in metres, and
-PnP-RANSAC (Eq. 4.16) as the fallback when 3-D/3-D correspondences are too few.
+"""Rigid registration: Kabsch/Umeyama in RANSAC, with PnP-RANSAC as the fallback.
+
+Kabsch/Umeyama (Eq. 4.15) runs inside RANSAC with a threshold in metres; PnP-RANSAC
+(Eq. 4.16) is the fallback when 3-D/3-D correspondences are too few.
 
 The proof of concept fitted a 3-D *affine* map with a 3-unit threshold on metre-scale points
 (rejecting nothing) and projected it onto a rotation. Here every hypothesis is a proper rigid
@@ -34,9 +36,11 @@ class RigidFit:
 
     @property
     def num_inliers(self) -> int:
+        """Number of inlier correspondences."""
         return int(self.inliers.sum())
 
     def matrix(self) -> np.ndarray:
+        """The fit as a (4, 4) homogeneous transform."""
         return to_homogeneous(self.R, self.t)
 
 
@@ -88,7 +92,8 @@ def ransac_rigid(
     """Robust rigid fit: vectorised 3-point Kabsch hypotheses, best inlier count, Kabsch refits.
 
     Args:
-        src, dst: (N, 3) corresponding points, metres, N >= 3.
+        src: (N, 3) source points, metres, N >= 3.
+        dst: (N, 3) corresponding destination points, metres.
         threshold: inlier residual, metres.
         rng: source of the minimal samples.
         iterations: hypotheses.
@@ -158,6 +163,10 @@ def pnp_ransac(
         object_points: (N, 3) points in the reference frame, metres.
         image_points: (N, 2) their observed pixels in the current image.
         K: (3, 3) intrinsics of the current image.
+        iterations: RANSAC hypotheses.
+        reprojection_error: inlier threshold, pixels.
+        confidence: RANSAC confidence, in (0, 1).
+        min_inliers: fewer inliers than this -> None.
 
     Returns:
         ``x_cam = R x_ref + t`` with inliers and the reprojection RMSE in pixels, or None.

@@ -188,8 +188,10 @@ class GeometricSegmenter:
         )
 
     def _pieces(self, frame: RGBDFrame, min_area: int) -> list[tuple[int, int, np.ndarray]]:
-        """Foreground pieces ``(x0, y0, crop)``: components of the support cut at depth jumps
-        (components smaller than ``min_area`` pixels are skipped before cutting)."""
+        """Foreground pieces ``(x0, y0, crop)``: components of the support cut at depth jumps.
+
+        Components smaller than ``min_area`` pixels are skipped before cutting.
+        """
         cfg = self.config
         above = self._support(frame)
         _, labels = cv2.connectedComponents(above.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)

@@ -131,6 +131,7 @@ class RecordedSequence(FrameSequence):
         return ts
 
     def frame(self, index: int) -> RGBDFrame:
+        """Frame ``index`` read from disk (with ground-truth labels if recorded); SequenceError if bad."""
         name = f"{index:06d}.png"
         rgb = read_image(self.path / "rgb" / name)
         depth = decode_depth(read_image(self.path / "depth" / name, depth=True), self.depth_scale)

@@ -48,6 +48,7 @@ class SpatialDescriptor:
     num_points: int
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible fields (arrays as lists)."""
         return {
             "centroid": self.centroid.tolist(),
             "distance": self.distance,

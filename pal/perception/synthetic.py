@@ -31,9 +31,11 @@ def pinhole(width: int, height: int, fovy_deg: float = 45.0) -> np.ndarray:
 
 
 def table_pose(distance: float = 0.8, pitch_deg: float = 50.0) -> np.ndarray:
-    """camera_from_table (4, 4): the optical axis hits the table origin at ``distance`` metres,
-    tilted ``pitch_deg`` from the table normal (0 = straight down). Table z points up, table y
-    points away from the camera."""
+    """camera_from_table (4, 4) looking at the table origin from ``distance`` metres.
+
+    The optical axis is tilted ``pitch_deg`` from the table normal (0 = straight down). Table
+    z points up, table y points away from the camera.
+    """
     p = math.radians(pitch_deg)
     # table axes expressed in the camera frame (x right, y down, z forward)
     x_t = np.array([1.0, 0.0, 0.0])
@@ -122,6 +124,7 @@ class SyntheticCamera:
             objects: boxes and spheres.
             timestamp: s.
             depth_noise: std of Gaussian depth noise, metres (needs ``rng``).
+            rng: generator for the depth noise.
         """
         H, W = self.height, self.width
         d = self._rays  # (3, N), rows x, y, 1

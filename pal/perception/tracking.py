@@ -99,9 +99,11 @@ class Track:
     velocity: tuple[float, float] = (0.0, 0.0)
 
     def predicted(self, t: float, horizon: float) -> Mask | None:
-        """The last mask shifted by velocity * (t - last_seen) (clipped to ``horizon`` s), or None
-        when the shift rounds to zero pixels. The shifted box may leave the image; it is only
-        used for overlaps."""
+        """The last mask shifted by velocity * (t - last_seen), or None for a zero-pixel shift.
+
+        The elapsed time is clipped to ``horizon`` s. The shifted box may leave the image; it
+        is only used for overlaps.
+        """
         dt = min(t - self.last_seen, horizon)
         dx, dy = round(self.velocity[0] * dt), round(self.velocity[1] * dt)
         if dx == 0 and dy == 0:

@@ -134,6 +134,7 @@ class Trajectory:
 
     @property
     def num_valid(self) -> int:
+        """Number of estimated (valid) samples."""
         return sum(p.is_valid for p in self.poses)
 
     def last_valid(self, k: int = 1) -> list[Pose]:
@@ -154,8 +155,11 @@ class Trajectory:
         return ts, Ts
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """Columnar arrays of all samples: ``timestamps`` (N,), ``source`` (N,) int8 codes into
-        :data:`SOURCES`, ``poses`` (N, 4, 4) (zeros where lost)."""
+        """Columnar arrays of all samples: ``timestamps``, ``source`` and ``poses``.
+
+        ``timestamps`` (N,) s, ``source`` (N,) int8 codes into :data:`SOURCES`, ``poses``
+        (N, 4, 4) camera_from_object (zeros where lost).
+        """
         n = len(self.poses)
         poses = np.zeros((n, 4, 4))
         for k, p in enumerate(self.poses):
@@ -168,8 +172,11 @@ class Trajectory:
         }
 
     def save(self, path: str | os.PathLike[str], metadata: Mapping[str, Any] | None = None) -> Path:
-        """Write a checked ``.npz`` (:mod:`pal.files`: no pickle, atomic, checksummed) with the
-        arrays, the diagnostics and ``metadata`` (provenance) as JSON; versions are added."""
+        """Write the trajectory as a checked ``.npz`` and return its path.
+
+        The file (:mod:`pal.files`: no pickle, atomic, checksummed) holds the arrays, and the
+        diagnostics and ``metadata`` (provenance) as JSON; versions are added.
+        """
         meta = {
             "metadata": dict(metadata or {}),
             "diagnostics": [p.diagnostics.to_dict() for p in self.poses],
@@ -179,8 +186,9 @@ class Trajectory:
 
     @staticmethod
     def load(path: str | os.PathLike[str]) -> tuple[Trajectory, dict[str, Any]]:
-        """Read a file written by :meth:`save`; returns the trajectory and its metadata
-        (``metadata``, ``diagnostics``, ``versions``, ``format``).
+        """Read a file written by :meth:`save`: ``(trajectory, meta)``.
+
+        ``meta`` holds ``metadata``, ``diagnostics``, ``versions`` and ``format``.
 
         Raises:
             FileFormatError: the file is missing, corrupted, not a trajectory, or inconsistent.

@@ -114,6 +114,7 @@ class TUMSequence(FrameSequence):
         self.depth_timestamps = np.array([depth_t[j] for _, j in pairs])
 
     def frame(self, index: int) -> RGBDFrame:
+        """RGB image ``index`` with its associated depth image; SequenceError if they differ in size."""
         rgb_file, depth_file = self._files[index]
         rgb = read_image(self.path / rgb_file)
         depth = decode_depth(read_image(self.path / depth_file, depth=True), self.depth_scale)

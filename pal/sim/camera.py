@@ -46,7 +46,8 @@ def intrinsics(fovy_deg: float, width: int, height: int) -> np.ndarray:
 
     Args:
         fovy_deg: vertical field of view, degrees, in (0, 180).
-        width, height: image size, pixels.
+        width: image width W, pixels.
+        height: image height H, pixels.
 
     Returns:
         K, (3, 3) float64: ``[[f, 0, (W-1)/2], [0, f, (H-1)/2], [0, 0, 1]]`` with

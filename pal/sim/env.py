@@ -156,7 +156,7 @@ class BabblingEnv(gymnasium.Env[np.ndarray, np.ndarray]):
         mujoco.mj_forward(m, self.data)
 
     def _map_joint_actuators(self) -> dict[str, str]:
-        """joint name -> name of the selected actuator whose transmission is that joint."""
+        """Map each joint name to the name of the selected actuator whose transmission is that joint."""
         m, out = self.model, {}
         for aid, aname in zip(self.actuator_ids, self.actuator_names, strict=True):
             if int(m.actuator_trntype[aid]) != int(mujoco.mjtTrn.mjTRN_JOINT):
@@ -271,7 +271,7 @@ class BabblingEnv(gymnasium.Env[np.ndarray, np.ndarray]):
 
     @property
     def joint_ranges(self) -> dict[str, tuple[float, float] | None]:
-        """joint -> (low, high) limit in rad or m, or None for an unlimited joint."""
+        """Joint limits: name -> (low, high) in rad or m, or None for an unlimited joint."""
         m = self.model
         return {
             n: (float(m.jnt_range[j, 0]), float(m.jnt_range[j, 1])) if m.jnt_limited[j] else None
@@ -280,7 +280,7 @@ class BabblingEnv(gymnasium.Env[np.ndarray, np.ndarray]):
 
     @property
     def actuator_ranges(self) -> dict[str, tuple[float, float]]:
-        """actuator -> (low, high) ctrl range (infinite when not ctrllimited)."""
+        """Actuator ctrl ranges: name -> (low, high) (infinite when not ctrllimited)."""
         return {
             n: (float(lo), float(hi))
             for n, lo, hi in zip(self.actuator_names, self.ctrl_low, self.ctrl_high, strict=True)

@@ -92,6 +92,7 @@ class Script:
 
     @property
     def object(self) -> str:
+        """Name of the object the motion moves."""
         return MOTIONS[self.motion].object
 
     def __len__(self) -> int:
@@ -150,7 +151,8 @@ def script(
         motion: a key of :data:`MOTIONS`.
         seed: run seed (any non-negative int).
         fps: frames per second.
-        hold_start, hold_end: still time before and after the motion, s.
+        hold_start: still time before the motion, s.
+        hold_end: still time after the motion, s.
 
     Raises:
         ValueError: unknown motion, negative seed, non-positive fps or negative hold times.

@@ -72,15 +72,19 @@ class UniformPolicy:
         self.rng = rng
 
     def sample(self, n: int) -> np.ndarray:
+        """The next ``n`` i.i.d. uniform commands, float32 ``(n, n_actuators)``."""
         return self.rng.uniform(self.low, self.high, size=(n, self.low.size)).astype(np.float32)
 
     def get_state(self) -> dict[str, Any]:
+        """JSON-compatible state: the generator state."""
         return {"bit_generator": self.rng.bit_generator.state}
 
     def set_state(self, state: Mapping[str, Any]) -> None:
+        """Restore a state from :meth:`get_state`."""
         self.rng.bit_generator.state = dict(state["bit_generator"])
 
     def config(self) -> dict[str, Any]:
+        """JSON-compatible parameters: name and command bounds."""
         return {"name": self.name, "low": self.low.tolist(), "high": self.high.tolist()}
 
 
@@ -127,6 +131,7 @@ class OUPolicy:
         self.x = self.mu + self.scale * self.rng.standard_normal(self.low.size)
 
     def sample(self, n: int) -> np.ndarray:
+        """The next ``n`` clipped OU commands, float32 ``(n, n_actuators)``; advances the process."""
         eps = self.rng.standard_normal((n, self.low.size))
         innovation = self.scale * math.sqrt(1.0 - self.decay**2)
         out = np.empty((n, self.low.size))
@@ -138,13 +143,16 @@ class OUPolicy:
         return np.clip(out, self.low, self.high).astype(np.float32)
 
     def get_state(self) -> dict[str, Any]:
+        """JSON-compatible state: the generator state and the latent process x."""
         return {"bit_generator": self.rng.bit_generator.state, "x": self.x.tolist()}
 
     def set_state(self, state: Mapping[str, Any]) -> None:
+        """Restore a state from :meth:`get_state`."""
         self.rng.bit_generator.state = dict(state["bit_generator"])
         self.x = np.asarray(state["x"], np.float64)
 
     def config(self) -> dict[str, Any]:
+        """JSON-compatible parameters: name, command bounds, dt, theta and sigma."""
         return {
             "name": self.name,
             "low": self.low.tolist(),
@@ -168,7 +176,8 @@ def make_policy(
 
     Args:
         name: ``"uniform"`` or ``"ou"``.
-        low, high: (n_actuators,) command bounds.
+        low: (n_actuators,) lower command bounds (ctrl units).
+        high: (n_actuators,) upper command bounds (ctrl units).
         rng: the generator to draw from.
         dt: environment step, s (used by ``"ou"``).
         params: extra parameters (``theta``, ``sigma`` for ``"ou"``; none for ``"uniform"``).

@@ -473,6 +473,7 @@ class PushingEnv(BabblingEnv):
         return self.camera_frame().rgb
 
     def close(self) -> None:
+        """Release the camera's renderer, then close the environment."""
         if self._camera is not None:
             self._camera.close()
             self._camera = None

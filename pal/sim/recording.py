@@ -77,8 +77,13 @@ class RecordConfig:
 
 @dataclass(frozen=True, eq=False)
 class RecordedFrame:
-    """A rendered frame with its ground truth: ``poses`` maps object -> (4, 4) camera_from_object;
-    ``backend`` is the camera backend that rendered it."""
+    """A rendered frame with its ground truth.
+
+    Attributes:
+        frame: the rendered RGB-D frame.
+        poses: object -> (4, 4) camera_from_object, metres.
+        backend: the camera backend that rendered it.
+    """
 
     frame: RGBDFrame
     poses: dict[str, np.ndarray]

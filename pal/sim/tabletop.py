@@ -116,6 +116,7 @@ class Tabletop:
         """Place an object: writes its free joint's ``qpos`` (call :meth:`forward` or render after).
 
         Args:
+            name: the object's body name.
             table_from_object: (4, 4) pose in table coordinates, metres.
         """
         T = np.asarray(table_from_object, dtype=np.float64)
