@@ -6,7 +6,14 @@
 
 with V_act = {act.j}, V_obs = {q_prev.j}, V_lat = {dq.j, q.j} (Eq. 5.2). The ``"state"``
 variant adds q_prev.j -> dq.j: the spring torque, the joint limits and gravity all depend
-on the joint angle, so the displacement has the previous angle as a real parent.
+on the joint angle, so the displacement has the previous angle as a real parent. The
+``"dynamics"`` variant adds the previous step's displacement as an observed lag-1 root,
+
+    dq_prev.j -> dq.j,     dq_prev.j(t) = dq.j(t - 1) = q(t-1) - q(t-2),
+
+because a body that is still moving at t-1 keeps moving: without it the state has no
+velocity, and the command and the angle alone cannot tell where the joint goes.
+``rollout`` carries it forward (``lag_of = dq.j``, Alg. 4.1).
 """
 
 from __future__ import annotations
@@ -30,7 +37,7 @@ __all__ = [
     "random_graph",
 ]
 
-GRAPH_VARIANTS = ("thesis", "state")
+GRAPH_VARIANTS = ("thesis", "state", "dynamics")
 
 #: Action range X_a of the left finger motor (thesis §5.2.1): ctrl range of the motor.
 FINGER_ACTION_RANGE = (-1.0, 0.33)
@@ -47,9 +54,11 @@ def joint_chain_graph(
     """Independent per-joint chains ``act.j -> dq.j -> q.j <- q_prev.j``.
 
     Args:
-        joints: joint names; variables are named ``act.<j>``, ``q_prev.<j>``, ``dq.<j>``, ``q.<j>``.
+        joints: joint names; variables are named ``act.<j>``, ``q_prev.<j>``, ``dq.<j>``, ``q.<j>``
+            (and ``dq_prev.<j>`` in the ``"dynamics"`` variant).
         action_ranges: joint -> (low, high) motor command range.
-        variant: ``"thesis"`` (Fig. 5.5) or ``"state"`` (adds ``q_prev.j -> dq.j``).
+        variant: ``"thesis"`` (Fig. 5.5), ``"state"`` (adds ``q_prev.j -> dq.j``) or
+            ``"dynamics"`` (``state`` plus the observed lag-1 root ``dq_prev.j -> dq.j``).
         q_ranges: optional joint -> (low, high) angle range, rad, stored as bounds of q and q_prev.
     """
     if not isinstance(variant, str) or variant not in GRAPH_VARIANTS:
@@ -88,13 +97,25 @@ def joint_chain_graph(
             ),
         ]
         edges += [(f"act.{j}", f"dq.{j}"), (f"dq.{j}", f"q.{j}"), (f"q_prev.{j}", f"q.{j}")]
-        if variant == "state":
+        if variant in ("state", "dynamics"):
             edges.append((f"q_prev.{j}", f"dq.{j}"))
+        if variant == "dynamics":
+            variables.append(
+                Variable(
+                    f"dq_prev.{j}",
+                    Role.OBSERVED,
+                    unit="rad",
+                    lag=1,
+                    lag_of=f"dq.{j}",
+                    description="displacement of the previous step, q(t-1) - q(t-2)",
+                )
+            )
+            edges.append((f"dq_prev.{j}", f"dq.{j}"))
     return CausalGraph(variables, edges)
 
 
 def finger_graph(variant: str = "thesis", joint: str = "finger") -> CausalGraph:
-    """Thesis Fig. 5.5 for the left finger (``variant="thesis"``), or with q_prev -> dq (``"state"``)."""
+    """Thesis Fig. 5.5 for the left finger (``"thesis"``), with q_prev -> dq (``"state"``), or with dq_prev too (``"dynamics"``)."""
     if not isinstance(joint, str):
         raise ValueError(f"joint must be a joint name (str), got {describe(joint)}")
     return joint_chain_graph(
