@@ -93,7 +93,7 @@ class ProtocolConfig:
     """
 
     data: DataConfig = DataConfig()
-    graphs: tuple[str, ...] = GRAPH_VARIANTS
+    graphs: tuple[str, ...] = ("thesis", "state")
     split: float = 0.8
     fit: FitConfig = FitConfig()
 
