@@ -24,7 +24,7 @@ import torch
 from pal.experiments.registry import register
 from pal.experiments.report import Report, Table, Target
 from pal.experiments.wm_data import DataConfig
-from pal.experiments.wm_setup import FitConfig, Prepared, ProtocolConfig, prepare, setup_note
+from pal.experiments.wm_setup import FitConfig, Prepared, ProtocolConfig, prepare, setup_note, state_of
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -63,9 +63,9 @@ def evaluate(prep: Prepared) -> dict[str, dict[str, float]]:
     """Test-set errors: ``{graph: {dq_mse, dq_mae, q_mse, q_mae}, "persistence": {q_mse, q_mae}}``, rad² and rad."""
     act, q_prev, dq, q = prep.joint.names
     cols = prep.test_columns
-    inputs = {act: torch.as_tensor(cols[act]), q_prev: torch.as_tensor(cols[q_prev])}
     metrics: dict[str, dict[str, float]] = {}
     for graph, model in prep.models.items():
+        inputs = {k: torch.as_tensor(v) for k, v in {**state_of(model, cols), act: cols[act]}.items()}
         pred = model.predict(inputs)
         err_dq = pred[dq].numpy().astype(np.float64) - cols[dq]
         err_q = pred[q].numpy().astype(np.float64) - cols[q]
@@ -134,12 +134,12 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     """B1: one-step prediction error of both graphs against the recorded transitions (Table 5.7)."""
     prep = prepare(config.protocol, config.seed, progress_bar=progress_bar)
     error = evaluate(prep)
-    act, q_prev, dq, q = prep.joint.names
+    act, _, dq, q = prep.joint.names
     cols = prep.test_columns
     rows = np.random.default_rng(config.seed).permutation(len(prep.test))[:_SCATTER_POINTS]
     scatter = {"dq": cols[dq][rows, 0], "q": cols[q][rows, 0]}
-    sub = {act: torch.as_tensor(cols[act][rows]), q_prev: torch.as_tensor(cols[q_prev][rows])}
     for graph, model in prep.models.items():
+        sub = {k: torch.as_tensor(v) for k, v in {**state_of(model, cols, rows), act: cols[act][rows]}.items()}
         pred = model.predict(sub)
         scatter[f"{graph}.dq"], scatter[f"{graph}.q"] = pred[dq].numpy()[:, 0], pred[q].numpy()[:, 0]
     short = {dq: "dq", q: "q"}

@@ -38,6 +38,7 @@ from pal.experiments.wm_setup import (
     predict_q,
     prepare,
     setup_note,
+    state_of,
 )
 
 if TYPE_CHECKING:
@@ -163,9 +164,9 @@ def evaluate(
     ``points`` holds ``target``, ``random.real`` and per graph ``<graph>.model``,
     ``<graph>.real``, ``<graph>.random_model`` outcomes, rad, for the figure.
     """
-    _, qp, _, q = prep.joint.names
+    q = prep.joint.names[3]
     rows = pick_rows(len(prep.test), config.targets, config.seed)
-    q_prev = prep.test_columns[qp][rows, 0].astype(np.float64)
+    cols = prep.test_columns
     target = prep.test_columns[q][rows, 0].astype(np.float64)
     low, high = prep.joint.action_range
     random_a = np.random.default_rng([config.seed, 2]).uniform(low, high, size=len(rows))
@@ -175,9 +176,10 @@ def evaluate(
     metrics: dict[str, dict[str, dict[str, float]]] = {}
     extra: dict[str, dict[str, float]] = {}
     for graph, model in prep.models.items():
-        random_model = predict_q(model, prep.joint, q_prev, random_a)
+        state = state_of(model, cols, rows)
+        random_model = predict_q(model, prep.joint, state, random_a)
         actions, predicted, loss = infer_actions(
-            model, prep.joint, q_prev, target, config.action.steps, config.action.lr, config.action.starts
+            model, prep.joint, state, target, config.action.steps, config.action.lr, config.action.starts
         )
         real = prep.realizer.outcomes(rows, actions)
         err_model, err_real = abs_errors(predicted, target), abs_errors(real, target)

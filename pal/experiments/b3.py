@@ -38,6 +38,7 @@ from pal.experiments.wm_setup import (
     predict_q,
     prepare,
     setup_note,
+    state_of,
 )
 
 if TYPE_CHECKING:
@@ -162,9 +163,10 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     internal: dict[str, dict[str, dict[str, float]]] = {}
     a = config.action
     for graph, model in prep.models.items():
-        actions, predicted, _ = infer_actions(model, prep.joint, q_prev, goals, a.steps, a.lr, a.starts)
+        state = state_of(model, prep.test_columns, rows)
+        actions, predicted, _ = infer_actions(model, prep.joint, state, goals, a.steps, a.lr, a.starts)
         outcomes = {
-            "random": (predict_q(model, prep.joint, q_prev, random_a), random_real),
+            "random": (predict_q(model, prep.joint, state, random_a), random_real),
             "inferred": (predicted, prep.realizer.outcomes(rows, actions)),
         }
         realized[graph], internal[graph] = {}, {}

@@ -31,6 +31,7 @@ import numpy as np
 from tqdm import tqdm
 
 from inference import CuriositySampler, fit
+from models.presets import GRAPH_VARIANTS
 from pal.checks import check_choice, check_float, check_int
 from pal.experiments.registry import register
 from pal.experiments.report import Report, Table, Target
@@ -93,7 +94,7 @@ class Config:
         check_int("budget", self.budget)
         check_int("refit_every", self.refit_every)
         check_int("bins", self.bins, minimum=2)
-        check_choice("graph", self.graph, ("thesis", "state"))
+        check_choice("graph", self.graph, GRAPH_VARIANTS)
         check_float("alpha", self.alpha, 0.0)
         check_float("sigma_fraction", self.sigma_fraction, 0.0, open_low=True)
         if self.q_range is not None:
@@ -150,7 +151,7 @@ def _refit(
 ) -> WorldModel:
     f = config.fit
     model = build_model(joint, config.graph, q_range, seed, f.hidden)
-    cols = {k: np.asarray(v, np.float32)[:, None] for k, v in data.items()}
+    cols = {k: np.asarray(v, np.float32)[:, None] for k, v in data.items() if k in model.graph}
     fit(model, cols, loss="mse", epochs=f.epochs, batch_size=f.batch_size, lr=f.lr, seed=seed)
     return model
 
@@ -162,11 +163,14 @@ def _curiosity_run(
     source = _source(config, seed)
     block = source.run(config.initial)
     act, qp, dq, q = joint.names
+    dqp = f"dq_prev.{joint.joint}"
     j, a_idx = joint.joint_index, joint.actuator_index
+    moves = list(block.q[:, j] - block.q_prev[:, j])
     data = {
         act: list(block.ctrl[:, a_idx]),
         qp: list(block.q_prev[:, j]),
-        dq: list(block.q[:, j] - block.q_prev[:, j]),
+        dqp: [0.0, *moves[:-1]],  # the body starts at rest
+        dq: moves,
         q: list(block.q[:, j]),
     }
     lo, hi = q_range
@@ -183,7 +187,9 @@ def _curiosity_run(
         action, _, _ = infer_actions(
             model,
             joint,
-            np.array([q_now]),
+            {qp: np.array([q_now]), dqp: np.array([data[dq][-1]])}
+            if config.graph == "dynamics"
+            else {qp: np.array([q_now])},
             target,
             config.action.steps,
             config.action.lr,
@@ -194,7 +200,8 @@ def _curiosity_run(
         ctrl[a_idx] = action[0]
         env.step(ctrl)
         q_new = float(env.data.qpos[qidx])
-        for name, value in ((act, action[0]), (qp, q_now), (dq, q_new - q_now), (q, q_new)):
+        step = ((act, action[0]), (qp, q_now), (dqp, data[dq][-1]), (dq, q_new - q_now), (q, q_new))
+        for name, value in step:
             data[name].append(value)
         sampler.partial_fit([q_new])
         if (k + 1) % config.refit_every == 0 and k + 1 < config.budget:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -20,6 +21,7 @@ import torch
 from inference import FitResult, fit, infer_action
 from models import WorldModel
 from models.presets import GRAPH_VARIANTS, joint_chain_graph
+from models.variables import Role
 from pal.checks import check_float, check_int
 from pal.data import TransitionDataset
 from pal.experiments.wm_data import DataConfig, JointData, Realizer, babble_or_load
@@ -35,6 +37,7 @@ __all__ = [
     "predict_q",
     "prepare",
     "setup_note",
+    "state_of",
 ]
 
 log = logging.getLogger(__name__)
@@ -223,39 +226,61 @@ def abs_errors(pred: np.ndarray | torch.Tensor, target: np.ndarray | torch.Tenso
     return np.abs(p - t)
 
 
-def predict_q(model: WorldModel, joint: JointData, q_prev: np.ndarray, actions: np.ndarray) -> np.ndarray:
-    """Model-predicted post-action angle Phi(q_prev, a) (Eq. 5.7) with expected residuals.
+def state_of(model: WorldModel, columns: Mapping[str, np.ndarray], rows: Any = slice(None)) -> dict[str, np.ndarray]:
+    """The model's non-action roots (q_prev.J, and dq_prev.J in the dynamics graph) from ``columns``.
+
+    Args:
+        model: a fitted joint-chain world model.
+        columns: name -> ``(N, 1)`` columns (:meth:`JointData.columns`).
+        rows: the rows to take (indices, a mask or a slice).
+
+    Returns:
+        name -> ``(n, 1)`` float32, rad.
+    """
+    graph = model.graph
+    names = [r for r in graph.roots if graph[r].role is not Role.ACTION]
+    missing = [r for r in names if r not in columns]
+    if missing:
+        raise ValueError(f"the data have no column(s) {missing} for the roots of the {list(graph.roots)} graph")
+    return {r: np.asarray(columns[r][rows], np.float32).reshape(-1, 1) for r in names}
+
+
+def _tensors(values: Mapping[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    return {k: torch.as_tensor(np.asarray(v, np.float32).reshape(-1, 1)) for k, v in values.items()}
+
+
+def predict_q(
+    model: WorldModel, joint: JointData, state: Mapping[str, np.ndarray], actions: np.ndarray
+) -> np.ndarray:
+    """Model-predicted post-action angle Phi(s, a) (Eq. 5.7) with expected residuals.
 
     Args:
         model: the fitted world model.
         joint: the joint whose variables are predicted.
-        q_prev: ``(n,)`` or ``(n, 1)`` pre-action angles, rad.
+        state: the model's non-action roots (:func:`state_of`), each ``(n,)`` or ``(n, 1)``, rad.
         actions: ``(n,)`` or ``(n, 1)`` commands, dimensionless.
 
     Returns:
         ``(n,)`` float64 predicted q.J, rad.
     """
-    act, qp, _, q = joint.names
-    values = {
-        qp: torch.as_tensor(np.asarray(q_prev, np.float32).reshape(-1, 1)),
-        act: torch.as_tensor(np.asarray(actions, np.float32).reshape(-1, 1)),
-    }
+    act, _, _, q = joint.names
+    values = _tensors({**state, act: actions})
     return model.predict(values)[q].numpy().astype(np.float64).reshape(-1)
 
 
 def infer_actions(
     model: WorldModel,
     joint: JointData,
-    q_prev: np.ndarray,
+    state: Mapping[str, np.ndarray],
     targets: np.ndarray,
     steps: int,
     lr: float,
     starts: int = 1,
     rng: np.random.Generator | None = None,
 ) -> tuple[np.ndarray, np.ndarray, tuple[float, ...]]:
-    """Alg. 4.2 for each (q_prev, target) pair: projected Adam on the action, clipped to X_a.
+    """Alg. 4.2 for each (state, target) pair: projected Adam on the action, clipped to X_a.
 
-    The loss is ``0.5 (Phi(q_prev, a) - target)^2`` per pair (the thesis's MSE objective).
+    The loss is ``0.5 (Phi(s, a) - target)^2`` per pair (the thesis's MSE objective).
     With ``starts = 1`` Adam starts from the midpoint of X_a (thesis §5.2.3). With
     ``starts = k > 1`` it starts from the k interior points of ``linspace(low, high, k + 2)``
     (the midpoint among them when k is odd), all in one batch, and keeps per pair the
@@ -263,28 +288,36 @@ def infer_actions(
     pair are drawn uniformly from X_a instead, so that where the model predicts no effect
     of the action (a flat loss) the chosen action stays random rather than fixed.
 
+    Args:
+        model: the fitted world model.
+        joint: the analysed joint.
+        state: the model's non-action roots (:func:`state_of`), each ``(n,)`` or ``(n, 1)``, rad.
+        targets: ``(n,)`` target angles q.J, rad.
+        steps: Adam iterations.
+        lr: Adam learning rate.
+        starts: starting points per pair.
+        rng: draw the starts uniformly from X_a with this generator.
+
     Returns:
         ``(actions (n,), predicted q (n,), mean loss per Adam step)``; the loss curve is
         averaged over all pairs and starts.
     """
     check_int("starts", starts)
-    act, qp, _, q = joint.names
-    qp_arr = np.asarray(q_prev, np.float32).reshape(-1, 1)
-    tg_arr = np.asarray(targets, np.float32).reshape(-1, 1)
-    n = len(qp_arr)
+    act, _, _, q = joint.names
+    given = _tensors(state)
+    tg = torch.as_tensor(np.asarray(targets, np.float32).reshape(-1, 1))
+    n = len(tg)
     low, high = joint.action_range
     if rng is not None:
-        init: str | dict[str, np.ndarray] = {
-            act: rng.uniform(low, high, size=(starts * n, 1)).astype(np.float32)
-        }
+        init: str | dict[str, np.ndarray] = {act: rng.uniform(low, high, size=(starts * n, 1)).astype(np.float32)}
     elif starts == 1:
         init = "midpoint"
     else:
         init = {act: np.repeat(np.linspace(low, high, starts + 2)[1:-1], n)[:, None].astype(np.float32)}
     res = infer_action(
         model,
-        {qp: np.tile(qp_arr, (starts, 1))},
-        {q: np.tile(tg_arr, (starts, 1))},
+        {k: v.repeat(starts, 1) for k, v in given.items()},
+        {q: tg.repeat(starts, 1)},
         actions=[act],
         steps=steps,
         lr=lr,

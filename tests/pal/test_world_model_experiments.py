@@ -147,7 +147,7 @@ def test_multi_start_action_inference_keeps_the_best_start():
     data = collect(BabbleConfig(steps=400, seed=0))
     finger = JointData.select(data)
     model = build_model(finger, "state", (-3.0, 0.3), seed=0)
-    q_prev, target = np.array([-2.0, -1.0]), np.array([-1.5, -0.5])
+    q_prev, target = {"q_prev.finger": np.array([-2.0, -1.0])}, np.array([-1.5, -0.5])
     one = infer_actions(model, finger, q_prev, target, steps=5, lr=0.05)
     three = infer_actions(model, finger, q_prev, target, steps=5, lr=0.05, starts=3)
     assert np.all(np.abs(three[1] - target) <= np.abs(one[1] - target) + 1e-6)
