@@ -8,6 +8,7 @@ it, inside ``pyro.plate("units", N)``, passing ``data`` as ``obs=``.
 
 from inference.action import ActionResult, gaussian_log_preference, infer_action
 from inference.admissible import admissible_parents
+from inference.calibration import predictive_check
 from inference.context import active_subgraph, subgraph_model
 from inference.counterfactual import CounterfactualResult, abduct, counterfactual
 from inference.curiosity import CuriositySampler, normalized_entropy, occupancy
@@ -17,6 +18,7 @@ from inference.fit import FitResult, fit
 from inference.handlers import AbductNoise, Intervene, MeasurementScale, ReplayNoise
 from inference.interventions import do, simulate
 from inference.metalearn import ResidualMonitor, Revision, revise
+from inference.planning import SamplingConfig
 from inference.rewire import RewireResult, rewire
 from inference.state import StateResult, infer_state
 
@@ -34,6 +36,7 @@ __all__ = [
     "ResidualMonitor",
     "Revision",
     "RewireResult",
+    "SamplingConfig",
     "StateResult",
     "abduct",
     "active_subgraph",
@@ -47,6 +50,7 @@ __all__ = [
     "infer_state",
     "normalized_entropy",
     "occupancy",
+    "predictive_check",
     "revise",
     "rewire",
     "shd",

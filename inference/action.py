@@ -1,4 +1,4 @@
-"""Gradient-based action inference through do(action) (thesis Eq. 4.45-4.49, Alg. 4.2).
+"""Action inference through do(action) (thesis Eq. 4.45-4.49, Alg. 4.2), with a sampling stage.
 
     L_act(a) = -log p(Phi(s, a, u) | C)
     a <- clip(a - eta * Adam(grad_a L_act), A)          for K_act steps
@@ -7,12 +7,20 @@ Phi is the forward query: the program under ``do(actions = a)`` with the state g
 residuals replayed (expected residuals by default, or abducted ones). The world-model
 parameters stay fixed. Every (state, target) unit is optimised at once; the loss is a sum
 over units, so each unit's actions follow their own Adam trajectory.
+
+With ``sampling`` (a :class:`inference.planning.SamplingConfig`) a CEM / iCEM stage over the
+action box comes first, for all units x candidates in one batch, starting from the thesis
+start (one member of the first population); projected Adam then refines the best elites,
+and each unit keeps its best candidate. ``horizon=H > 1`` plans H-step sequences through
+:meth:`models.WorldModel.rollout`; ``risk`` weighs the disagreement of ensemble members
+(:mod:`inference.action_objective`). Without them (``sampling=None, horizon=1, risk=None``)
+this is the thesis protocol, Adam from one start through the Pyro program.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -20,13 +28,22 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
+from inference.action_objective import (
+    TARGET_AT,
+    ActionObjective,
+    LogPreference,
+    Risk,
+    check_risk,
+    gaussian_log_preference,
+    scales,
+)
 from inference.frozen import frozen_parameters
 from inference.handlers import Intervene, ReplayNoise
+from inference.planning import SamplingConfig, plan
 from models.checks import (
-    as_float_tensor,
     check_bool,
     check_callable,
-    check_finite_tensor,
+    check_choice,
     check_float,
     check_int,
     check_mapping,
@@ -37,11 +54,9 @@ from models.checks import (
 from models.variables import Role
 from models.world import WorldModel, as_values, check_action_bounds, require_world_model
 
-__all__ = ["ActionResult", "gaussian_log_preference", "infer_action"]
+__all__ = ["ActionResult", "SamplingConfig", "gaussian_log_preference", "infer_action"]
 
 log = logging.getLogger(__name__)
-
-LogPreference = Callable[[Mapping[str, Tensor]], Tensor]
 
 
 @dataclass(frozen=True)
@@ -49,73 +64,34 @@ class ActionResult:
     """Inferred actions.
 
     Attributes:
-        actions: name -> ``(N, dim)`` optimised actions a* (within bounds).
-        predicted: name -> ``(N, dim)`` forward query Phi(s, a*, u) for every variable.
-        loss: mean over units of L_act at each step (before the update), length ``steps``.
-        final_loss: ``(N,)`` L_act(a*) per unit.
+        actions: name -> ``(N, dim)`` optimised actions a* (within bounds); ``(N, H, dim)``
+            action sequences with ``horizon=H > 1``.
+        predicted: name -> ``(N, dim)`` forward query Phi(s, a*, u) for every variable
+            (``(N, H, dim)``, the simulated trajectory, with a horizon); the model's own
+            prediction, also when a risk weighs its ensemble members.
+        loss: mean over units (and refined elites) of L_act at each Adam step, before the
+            update; length ``steps`` (the refinement's steps with sampling).
+        final_loss: ``(N,)`` L_act(a*) per unit, with the risk term if any.
+        search_loss: mean over units of the best candidate's loss after each sampling
+            iteration (empty without sampling); never increasing.
     """
 
     actions: dict[str, Tensor]
     predicted: dict[str, Tensor]
     loss: tuple[float, ...]
     final_loss: Tensor
-
-
-def _scales(scale: float | Mapping[str, float], names: Sequence[str]) -> dict[str, float]:
-    """One finite scale > 0 per target name (a scalar applies to all)."""
-    if isinstance(scale, Mapping):
-        unknown = sorted(str(k) for k in scale if k not in names)
-        missing = [k for k in names if k not in scale]
-        if unknown or missing:
-            raise ValueError(
-                f"scale must give one value per target; unknown names {unknown}, missing {missing}"
-            )
-        return {k: check_float(f"scale[{k!r}]", scale[k], minimum=0.0, min_open=True) for k in names}
-    s = check_float("scale", scale, minimum=0.0, min_open=True)
-    return dict.fromkeys(names, s)
-
-
-def gaussian_log_preference(
-    targets: Mapping[str, Tensor], scale: float | Mapping[str, float] = 1.0
-) -> LogPreference:
-    """Gaussian log-preference around the targets (Eq. 4.45).
-
-    Per unit, ``log p(x_tar | C) = sum_i -0.5 ((x_i - target_i) / scale_i)^2``. Up to
-    constants this is ``sum_i log N(x_i; target_i, scale_i^2)``; with a common scale it is
-    ``-SSE / (2 scale^2)``.
-
-    Args:
-        targets: name -> ``(N, dim)`` finite target values.
-        scale: finite scale > 0 in the targets' units, one for all or name -> scale.
-
-    Returns:
-        A callable ``predicted -> (N,)``.
-    """
-    targets = check_mapping("targets", targets)
-    if not targets:
-        raise ValueError("targets is empty; give name -> (N, dim) target values")
-    tgt = {}
-    for name, value in targets.items():
-        if not isinstance(name, str):
-            raise ValueError(f"target names must be str, got {describe(name)}")
-        tgt[name] = check_finite_tensor(f"targets[{name!r}]", as_float_tensor(value, f"targets[{name!r}]"))
-    scales = _scales(scale, list(tgt))
-
-    def log_pref(pred: Mapping[str, Tensor]) -> Tensor:
-        missing = [k for k in tgt if k not in pred]
-        if missing:
-            raise ValueError(f"predicted values have no {missing}; the targets name them")
-        total = 0.0
-        for name, target in tgt.items():
-            total = total - (0.5 * ((pred[name] - target) / scales[name]) ** 2).sum(-1)
-        return total
-
-    return log_pref
+    search_loss: tuple[float, ...] = ()
 
 
 def _initial(
-    model: WorldModel, names: Sequence[str], n: int, init: str | Mapping[str, Any], generator: torch.Generator
+    model: WorldModel,
+    names: Sequence[str],
+    n: int,
+    init: str | Mapping[str, Any],
+    generator: torch.Generator,
+    horizon: int = 1,
 ) -> dict[str, Tensor]:
+    """Start values: name -> ``(N, dim)``, or ``(N, H, dim)`` with ``horizon=H > 1``."""
     out = {}
     if isinstance(init, Mapping):
         unknown = sorted(str(k) for k in init if k not in names)
@@ -123,24 +99,50 @@ def _initial(
             raise ValueError(f"init names {unknown}, which are not optimised actions {list(names)}")
     elif not isinstance(init, str):
         raise ValueError(f"init must be 'midpoint', 'random' or a mapping, got {describe(init)}")
+    lead = (n,) if horizon == 1 else (n, horizon)
     for name in names:
         low, high = model.bounds(name)
         dim = low.shape[0]
         if isinstance(init, Mapping):
             if name not in init:
                 raise ValueError(f"init has no value for action {name!r}")
-            given, _ = as_values(model.graph, {name: init[name]}, n=n, what="init", dtype=model.dtype)
-            a = given[name].detach().clone()
+            a = _given_init(model, name, init[name], n, horizon)
             if ((a < low) | (a > high)).any():
                 raise ValueError(f"init[{name!r}] lies outside the bounds [{low.tolist()}, {high.tolist()}]")
         elif init == "midpoint":
-            a = ((low + high) / 2).expand(n, dim).clone()
+            a = ((low + high) / 2).expand(*lead, dim).clone()
         elif init == "random":
-            a = low + (high - low) * torch.rand(n, dim, generator=generator, dtype=model.dtype)
+            a = low + (high - low) * torch.rand(*lead, dim, generator=generator, dtype=model.dtype)
         else:
             raise ValueError(f"init {init!r} unknown; expected 'midpoint', 'random' or a mapping")
         out[name] = a
     return out
+
+
+def _given_init(model: WorldModel, name: str, raw: Any, n: int, horizon: int) -> Tensor:
+    """A given start ``(N, dim)`` (held on every step) or, with a horizon, ``(N, H, dim)``."""
+    if horizon > 1 and getattr(raw, "ndim", None) == 3:
+        given, _ = as_values(model.graph, {name: raw}, n=n, what="init", extra_dims=1, dtype=model.dtype)
+        a = given[name].detach().clone()
+        if a.shape[1] != horizon:
+            raise ValueError(f"init[{name!r}] has {a.shape[1]} steps, expected horizon {horizon}")
+        return a
+    given, _ = as_values(model.graph, {name: raw}, n=n, what="init", dtype=model.dtype)
+    a = given[name].detach().clone()
+    return a if horizon == 1 else a.unsqueeze(1).expand(n, horizon, a.shape[-1]).clone()
+
+
+def _noise_values(model: WorldModel, noise: Any, n: int, horizon: int) -> dict[str, Tensor]:
+    """Residuals name -> ``(N, dim)``, or with a horizon also ``(N, H, dim)`` (one per step)."""
+    noise = check_mapping("noise", noise, allow_none=True)
+    steps = {k: v for k, v in noise.items() if horizon > 1 and getattr(v, "ndim", None) == 3}
+    rest = {k: v for k, v in noise.items() if k not in steps}
+    eps, _ = as_values(model.graph, rest, n=n, what="noise", dtype=model.dtype)
+    per_step, _ = as_values(model.graph, steps, n=n, what="noise", extra_dims=1, dtype=model.dtype)
+    for k, v in per_step.items():
+        if v.shape[1] != horizon:
+            raise ValueError(f"noise[{k!r}] has {v.shape[1]} steps, expected horizon {horizon}")
+    return {**eps, **per_step}
 
 
 def _preference(log_preference: LogPreference, predicted: Mapping[str, Tensor], n: int) -> Tensor:
@@ -149,6 +151,12 @@ def _preference(log_preference: LogPreference, predicted: Mapping[str, Tensor], 
         got = tuple(out.shape) if isinstance(out, Tensor) else describe(out)
         raise ValueError(f"log_preference returned {got}, expected a tensor of shape ({n},)")
     return out
+
+
+def _check_sampling(sampling: Any) -> SamplingConfig | None:
+    if sampling is not None and not isinstance(sampling, SamplingConfig):
+        raise ValueError(f"sampling must be None or a SamplingConfig, got {describe(sampling)}")
+    return sampling
 
 
 def infer_action(
@@ -163,38 +171,71 @@ def infer_action(
     lr: float = 0.05,
     init: str | Mapping[str, Any] = "midpoint",
     noise: Mapping[str, Any] | None = None,
+    sampling: SamplingConfig | None = None,
+    horizon: int = 1,
+    target_at: str = "final",
+    risk: Risk = None,
     seed: int = 0,
     progress_bar: bool = False,
 ) -> ActionResult:
     """Find actions whose predicted consequences match the targets (Alg. 4.2).
 
+    Without ``sampling``, ``horizon`` and ``risk`` this is the thesis protocol: projected
+    Adam from ``init`` through the Pyro program under ``do(actions)`` with residuals
+    replayed. Otherwise the loss of :mod:`inference.action_objective` is evaluated with the
+    torch twins :meth:`~models.WorldModel.predict` / :meth:`~models.WorldModel.rollout` of
+    that program: with ``sampling`` a CEM / iCEM stage (:mod:`inference.planning`) starts
+    from ``init`` (one member of the first population), projected Adam refines the best
+    ``sampling.refine_elites`` elites, and each unit keeps its lowest-loss candidate.
+
     Args:
         model: the world model (fixed).
         state: name -> ``(N, dim)`` current state estimate s(t) (e.g. ``q_prev``), and
             any actions that are held fixed (within their bounds); None if the graph has
-            no other roots.
+            no other roots. With a horizon only roots: lag-1 ones are the initial values of
+            the rollout, lag-0 ones are held on every step.
         targets: name -> ``(N, dim)`` desired values of non-action variables; with the
             default Gaussian preference the loss is ``sum 0.5 ((Phi - target) / scale)^2``.
         actions: action variables to optimise (default: every action not in ``state``).
         log_preference: optional callable ``predicted -> (N,)`` log-preference replacing
-            the Gaussian one (then ``targets`` may be None).
-        scale: Gaussian preference scale > 0 (targets' units), scalar or one per target.
-        steps: Adam iterations K_act (thesis B2: 200).
+            the Gaussian one (then ``targets`` may be None). With sampling, a horizon or a
+            risk it gets values with leading candidate axes ``(..., N, dim)`` and must
+            return ``(..., N)`` (broadcast like :func:`gaussian_log_preference`).
+        scale: Gaussian preference scale > 0 (targets' units), scalar or one per target;
+            also the unit of the disagreement term.
+        steps: Adam iterations K_act (thesis B2: 200); the refinement's unless
+            ``sampling.refine_steps`` is set.
         lr: Adam learning rate eta_act (thesis B2: 0.05).
-        init: ``"midpoint"`` (thesis B2), ``"random"`` or name -> ``(N, dim)`` within bounds.
+        init: ``"midpoint"`` (thesis B2), ``"random"`` or name -> ``(N, dim)`` within
+            bounds (with a horizon also ``(N, H, dim)``); the start of Adam, or the initial
+            mean of the sampling stage.
         noise: name -> ``(N, dim)`` standardised residuals u (e.g. abducted) of variables
-            that are neither given nor optimised; default: expected residuals u-bar (Alg. 4.2).
-        seed: seed for ``init="random"`` (local generator).
-        progress_bar: show a tqdm bar.
+            that are neither given nor optimised (with a horizon also ``(N, H, dim)``, one
+            per step); default: expected residuals u-bar (Alg. 4.2).
+        sampling: None (gradient only) or the sizes of the sampling stage.
+        horizon: planning steps H >= 1; H > 1 optimises ``(N, H, dim)`` action sequences
+            through the rollout (Alg. 4.1), which feeds each step's lag-0 predictions into
+            the next step's lag-1 slots.
+        target_at: with a horizon, ``"final"`` scores the targets on the last step only,
+            ``"every"`` sums the log-preference over all H steps (the same targets each step).
+        risk: None (the model's expected prediction), ``"mean"`` (expected loss over the
+            ensemble members of ``model.predict(..., members=True)``) or
+            ``("disagreement", w)`` (loss of the members' mean plus w times their variance
+            on the target sites in ``scale`` units; w < 0 is a bonus).
+        seed: seeds ``init="random"`` and the sampling stage (local generator).
+        progress_bar: show a tqdm bar over the Adam steps.
 
     Returns:
         :class:`ActionResult`. After each Adam step the actions are clipped to their
-        bounds, so ``actions`` always lies within them.
+        bounds, and sampled candidates are clipped to them, so ``actions`` always lies
+        within them.
 
     Raises:
         ValueError: bad state, targets, init or noise values (see
             :func:`models.world.as_values`), fixed actions outside their bounds, unknown or
-            non-action ``actions``, a bad scale, log-preference or optimiser argument.
+            non-action ``actions``, a bad scale, log-preference, optimiser argument,
+            sampling config, horizon, target_at or risk, non-roots in the state with a
+            horizon, or a disagreement risk without targets.
         FloatingPointError: the final loss is NaN or inf.
     """
     model = require_world_model(model)
@@ -203,6 +244,10 @@ def infer_action(
     lr = check_float("lr", lr, minimum=0.0, min_open=True)
     seed = check_seed("seed", seed)
     progress_bar = check_bool("progress_bar", progress_bar)
+    sampling = _check_sampling(sampling)
+    horizon = check_int("horizon", horizon)
+    target_at = check_choice("target_at", target_at, TARGET_AT)
+    risk_kind = check_risk(risk)
     if log_preference is not None:
         check_callable("log_preference", log_preference)
     given, n = as_values(graph, state, what="state", dtype=model.dtype)
@@ -230,14 +275,84 @@ def infer_action(
         log_preference = gaussian_log_preference(tgt, scale)
     fixed_acts = {k: v for k, v in given.items() if graph[k].role is Role.ACTION}
     evidence = {k: v for k, v in given.items() if k not in fixed_acts}
-    eps, _ = as_values(graph, noise, n=n, what="noise", dtype=model.dtype)
+    eps = _noise_values(model, noise, n, horizon)
     clash = sorted(k for k in eps if k in given or k in actions)
     if clash:
         raise ValueError(
             f"noise names {clash}, which are given in state or optimised; residuals are for the other variables"
         )
-
     generator = torch.Generator().manual_seed(seed)
+    if sampling is None and horizon == 1 and risk_kind[0] is None:
+        return _through_program(
+            model,
+            evidence,
+            fixed_acts,
+            actions,
+            eps,
+            log_preference,
+            n,
+            init,
+            steps,
+            lr,
+            generator,
+            progress_bar,
+        )
+    roots = [k for k in eps if graph.is_root(k)]
+    if roots:
+        raise ValueError(f"noise names roots {roots}; residuals are replayed for non-root variables only")
+    if horizon > 1:
+        not_roots = [k for k in given if not graph.is_root(k)]
+        if not_roots:
+            raise ValueError(
+                f"with horizon {horizon} the state may give roots only (rollout initial values and held "
+                f"inputs); {not_roots} are not roots"
+            )
+    if risk_kind[0] == "disagreement" and not tgt:
+        raise ValueError("risk ('disagreement', w) needs targets: the sites whose member spread is weighed")
+    objective = ActionObjective(
+        model,
+        given,
+        actions,
+        eps,
+        log_preference,
+        n,
+        horizon,
+        target_at,
+        risk_kind,
+        scales(scale, list(tgt)) if tgt else {},
+    )
+    start = _initial(model, actions, n, init, generator, horizon)
+    start_t = torch.cat([v if horizon > 1 else v.unsqueeze(1) for v in start.values()], -1)
+    low = torch.cat([model.bounds(a)[0] for a in actions])
+    high = torch.cat([model.bounds(a)[1] for a in actions])
+    with frozen_parameters(model):
+        best, history, search, final = plan(
+            objective, start_t, low, high, sampling, steps, lr, generator, progress_bar
+        )
+        with torch.no_grad():
+            predicted = {k: v[0] for k, v in objective.predict(best[None]).items()}
+    if not torch.isfinite(final).all():
+        raise FloatingPointError("action inference produced a non-finite loss; check targets and scales")
+    parts = torch.split(best, objective.dims, dim=-1)
+    acts = {k: (v if horizon > 1 else v[:, 0]).clone() for k, v in zip(actions, parts, strict=True)}
+    return ActionResult(acts, predicted, history, final, search)
+
+
+def _through_program(
+    model: WorldModel,
+    evidence: Mapping[str, Tensor],
+    fixed_acts: Mapping[str, Tensor],
+    actions: Sequence[str],
+    eps: Mapping[str, Tensor],
+    log_preference: LogPreference,
+    n: int,
+    init: str | Mapping[str, Any],
+    steps: int,
+    lr: float,
+    generator: torch.Generator,
+    progress_bar: bool,
+) -> ActionResult:
+    """The thesis protocol: projected Adam from one start through the program under do(actions)."""
     params = {k: v.requires_grad_(True) for k, v in _initial(model, actions, n, init, generator).items()}
     bounds = {k: model.bounds(k) for k in actions}
     optim = torch.optim.Adam(list(params.values()), lr=lr)

@@ -1,12 +1,21 @@
 """Counterfactuals by abduction, action and prediction (thesis §1.3.2, Eq. 4.43).
 
-1. Abduction: for each unit, the standardised residuals ``eps_i = (x_i - f_i(pa_i)) / sigma_i``
+1. Abduction: for each unit, the standardised residuals ``eps_i = (x_i - f_i(pa_i)) / sigma_i(pa_i)``
    compatible with the factual evidence. If every variable is observed this is exact. If
    some are latent, a posterior over them is first inferred from the factual evidence in
    one world (:func:`inference.infer_state`), and each posterior draw is completed and
    abducted in turn.
 2. Action: ``do`` the scenario's interventions.
-3. Prediction: replay the abducted residuals through the intervened program.
+3. Prediction: replay the abducted residuals through the intervened program,
+   ``x_i' = f_i(pa_i') + sigma_i(pa_i') * eps_i``.
+
+The rule holds for every location-scale site. A heteroscedastic site
+(:class:`models.HeteroscedasticMechanism`) uses its scale at the factual parents for
+abduction and at the counterfactual parents for prediction. An ensemble site
+(:class:`models.EnsembleMechanism`) is the moment-matched Normal of its K equally weighted
+members, ``loc = mean_k m_k``, ``scale^2 = mean_k s_k^2 + mean_k (m_k - loc)^2``, so it is
+abducted and replayed exactly as that Normal: the member index is not a latent of the
+program, and no member is picked per unit.
 
 K scenarios and S posterior draws run as one batch of ``K * S * N`` units, so the cost is
 linear in K and S.
@@ -151,7 +160,7 @@ def _replay_descendants(
 
     Sites outside ``affected`` (the descendants of the intervened sites) keep their
     factual values exactly, so only the affected mechanisms are evaluated:
-    ``x_i = f_i(pa_i) + sigma_i * eps_i`` (Eq. 4.39) with the abducted ``eps_i``. The
+    ``x_i = f_i(pa_i) + sigma_i(pa_i) * eps_i`` (Eq. 4.39) with the abducted ``eps_i``. The
     result equals replaying the whole intervened program.
     """
     tiled = {k: v.repeat(k_total, 1) for k, v in factual.items()}

@@ -1,21 +1,41 @@
-"""Local mechanism learning (thesis Eq. 4.33).
+"""Local mechanism learning (thesis Eq. 4.33) with a validation split and early stopping.
 
     theta_i* = argmin_theta_i  sum_tau L_i( x_i(tau), f_{i,theta_i}(x_pa(i)(tau)) )
 
 Each mechanism is trained on its own realised (parents, child) pairs; all of them share
-one Adam loop because their parameters are disjoint. ``loss="mse"`` trains f_i with the
-squared error and then sets sigma_i to the RMS training residual; ``loss="nll"`` trains
-f_i and sigma_i jointly with the Gaussian negative log-likelihood. Inputs and outputs are
-standardised with the training statistics (stored in the mechanism's normalisers).
+one Adam loop because their parameters are disjoint. Inputs and outputs are standardised
+with the training statistics (stored in the mechanism's normalisers), and the losses are
+computed in those standardised units, ``z = (x - loc) / out_scale`` and ``s = scale / out_scale``:
+
+- ``"mse"``: ``mean(z^2)``; trains the location only, and sigma_i is then set from residuals.
+- ``"nll"``: the Gaussian NLL ``mean(0.5 z^2 / s^2 + log s)``, location and scale jointly.
+- ``"beta_nll"``: ``mean(sg[s^(2 beta)] * (0.5 z^2 / s^2 + log s))`` (Seitzer et al. 2022),
+  ``sg`` a stop-gradient; ``beta = 0`` is the NLL, ``beta = 1`` gives the location the MSE
+  gradient. The default (``loss=None``) is ``"mse"`` for homoscedastic mechanisms and
+  ``"beta_nll"`` with ``beta = 0.5`` for heteroscedastic ones. Heteroscedastic mechanisms
+  add their bound penalty (:meth:`models.mechanisms.Mechanism.penalty`).
+
+A seeded random share ``validation`` of the rows is held out. On it the homoscedastic
+sigma_i is estimated (the RMS validation residual, whatever the loss), and with
+``patience`` each mechanism stops when its validation criterion (MSE for ``"mse"``, the
+site's NLL otherwise) has not improved for ``patience`` epochs and its best epoch is
+restored. The members of an ensemble (:class:`models.EnsembleMechanism`) are trained on their
+own bootstrap resamples of the training rows, from a generator derived from ``seed``.
+
+The thesis protocol (§5.2.1) is ``fit(model, data, loss="mse", epochs=120, batch_size=2048,
+lr=0.01, validation=0.0)``: no held-out rows, sigma_i the RMS training residual, every
+epoch kept, the same random streams (split, minibatch order) as always; a test holds its
+numbers fixed.
 """
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import torch
@@ -23,6 +43,8 @@ from torch import Tensor
 from tqdm import tqdm
 
 from models.checks import check_bool, check_choice, check_float, check_int, check_names, check_seed
+from models.ensemble import EnsembleMechanism
+from models.mechanisms import Mechanism
 from models.variables import Role
 from models.world import WorldModel, as_values, require_world_model
 
@@ -33,10 +55,22 @@ __all__ = ["FIT_KWARGS", "LOSSES", "FitResult", "fit"]
 
 log = logging.getLogger(__name__)
 
-LOSSES = ("mse", "nll")
+LOSSES = ("mse", "nll", "beta_nll")
 
 #: The keyword arguments of :func:`fit`; wrappers that forward ``**fit_kwargs`` check against it.
-FIT_KWARGS = ("variables", "loss", "epochs", "batch_size", "lr", "val_fraction", "seed", "progress_bar")
+FIT_KWARGS = (
+    "variables",
+    "loss",
+    "beta",
+    "epochs",
+    "batch_size",
+    "lr",
+    "validation",
+    "patience",
+    "bootstrap",
+    "seed",
+    "progress_bar",
+)
 
 
 @dataclass(frozen=True)
@@ -44,12 +78,23 @@ class FitResult:
     """Outcome of :func:`fit`.
 
     Attributes:
-        train_loss: name -> per-epoch mean training MSE, in the variable's units squared.
-        val_loss: name -> per-epoch validation MSE (empty tuples without a split).
-        sigma: name -> fitted residual sd per component.
+        train_loss: name -> per-epoch mean training MSE, in the variable's units squared
+            (for an ensemble, the mean over members on their own bootstrap rows).
+        val_loss: name -> per-epoch validation MSE of the site's loc (empty without a split).
+        sigma: name -> residual sd per component: sigma_i for homoscedastic sites, else the
+            RMS predictive sd over the validation rows (training rows without a split).
         trained: names of the mechanisms trained.
-        loss: ``"mse"`` or ``"nll"``.
-        epochs, n_train, n_val, seconds: run facts.
+        loss: the requested loss, or ``"auto"`` for the per-mechanism default.
+        epochs: epochs run (the most any mechanism ran).
+        n_train, n_val: training and validation rows.
+        seconds: wall time of the training loop.
+        val_nll: name -> per-epoch validation NLL of the site's Normal, nats per unit and
+            dim (empty for ``"mse"`` sites, whose sigma is set after training, and without
+            a split).
+        best_epoch: name -> the 1-based epoch whose parameters were kept.
+        losses: name -> the loss each mechanism was trained with.
+        beta: the beta of ``"beta_nll"``.
+        patience: the early-stopping patience (None: every epoch kept).
     """
 
     train_loss: dict[str, tuple[float, ...]]
@@ -61,16 +106,24 @@ class FitResult:
     n_train: int
     n_val: int
     seconds: float
+    val_nll: dict[str, tuple[float, ...]] = field(default_factory=dict)
+    best_epoch: dict[str, int] = field(default_factory=dict)
+    losses: dict[str, str] = field(default_factory=dict)
+    beta: float = 0.5
+    patience: int | None = None
 
     def plot(self) -> Figure:
-        """Loss curves per mechanism (log scale); returns the Figure."""
+        """Loss curves per mechanism (log scale), the kept epoch marked; returns the Figure."""
         import matplotlib.pyplot as plt
 
         fig, axes = plt.subplots(1, len(self.trained), figsize=(3.2 * len(self.trained), 2.8), squeeze=False)
         for ax, name in zip(axes[0], self.trained, strict=True):
-            ax.plot(range(1, self.epochs + 1), self.train_loss[name], label="train")
-            if self.val_loss[name]:
-                ax.plot(range(1, self.epochs + 1), self.val_loss[name], label="validation")
+            train = self.train_loss[name]
+            ax.plot(range(1, len(train) + 1), train, label="train")
+            if self.val_loss.get(name):
+                ax.plot(range(1, len(self.val_loss[name]) + 1), self.val_loss[name], label="validation")
+            if name in self.best_epoch:
+                ax.axvline(self.best_epoch[name], color="0.5", lw=0.8, ls="--")
             ax.set_yscale("log")
             ax.set_title(name, fontsize=9)
             ax.set_xlabel("epoch")
@@ -86,50 +139,141 @@ def _standardiser(x: Tensor) -> tuple[Tensor, Tensor]:
     return loc, torch.where(scale > 1e-8, scale, torch.ones_like(scale))
 
 
+def _derived_seed(seed: int, stream: str) -> int:
+    """A seed for a named random stream, independent of the main one (no global RNG)."""
+    digest = hashlib.sha256(f"pal.fit:{seed}:{stream}".encode()).digest()
+    return int.from_bytes(digest[:8], "little") >> 1
+
+
+def _members(mech: Mechanism) -> list[Mechanism]:
+    return list(mech.members) if isinstance(mech, EnsembleMechanism) else [mech]
+
+
+def _predicts_scale(mech: Mechanism) -> bool:
+    return any(m.log_sigma is None for m in _members(mech))
+
+
+def _member_loss(member: Mechanism, x: Tensor, y: Tensor, loss: str, beta: float) -> tuple[Tensor, Tensor]:
+    """``(training loss, residual)`` of one member on a batch, in standardised units."""
+    if member.log_sigma is None:
+        loc, scale = member.loc_scale(x)
+    else:
+        loc, scale = member(x), None
+    resid = y - loc
+    z = resid / member.out_scale
+    if loss == "mse":
+        return (z**2).mean(), resid
+    s = member.sigma / member.out_scale if scale is None else scale / member.out_scale
+    nll = 0.5 * (z / s) ** 2 + torch.log(s)
+    if loss == "beta_nll" and beta > 0:
+        nll = s.detach() ** (2 * beta) * nll
+    return nll.mean() + member.penalty(), resid
+
+
+def _site_nll(mech: Mechanism, x: Tensor, y: Tensor) -> float:
+    """Mean Gaussian NLL of the site ``Normal(loc(x), scale(x))`` at ``y``, nats per unit and dim."""
+    loc, scale = mech.loc_scale(x)
+    return float(-torch.distributions.Normal(loc, scale).log_prob(y).mean())
+
+
+def _select(model: WorldModel, cols: Mapping[str, Tensor], variables: Sequence[str] | None) -> list[str]:
+    """The trainable mechanisms to fit; every refusal happens here, before anything changes."""
+    graph = model.graph
+    if variables is None:
+        supported = [v for v in graph.non_roots if v in cols and all(p in cols for p in graph.parents(v))]
+        targets = [v for v in supported if model.mechanism(v).trainable]
+        if not targets:
+            fixed = [v for v in supported if not model.mechanism(v).trainable]
+            why = f"the mechanisms of {fixed} are fixed functions, which fit does not train" if fixed else ""
+            raise ValueError(
+                f"no mechanism can be trained from columns {sorted(cols)}" + (f": {why}" if why else "")
+            )
+        skipped = [v for v in graph.non_roots if v not in targets]
+        if skipped:
+            log.debug("fit: not training %s (fixed, not requested or columns missing)", skipped)
+        return targets
+    for v in variables:
+        graph.check_name(v, what="variable to fit")
+        if graph.is_root(v):
+            raise ValueError(f"{v!r} is a root and has no mechanism to fit")
+        missing = [c for c in (v, *graph.parents(v)) if c not in cols]
+        if missing:
+            raise ValueError(f"cannot fit {v!r}: data has no column for {missing}")
+        if not model.mechanism(v).trainable:
+            raise ValueError(
+                f"cannot fit {v!r}: its mechanism is a fixed {type(model.mechanism(v)).__name__}, which "
+                "fit does not train; leave it out of variables"
+            )
+    return list(variables)
+
+
 def fit(
     model: WorldModel,
     data: Mapping[str, Any],
     *,
     variables: Sequence[str] | None = None,
-    loss: str = "mse",
+    loss: str | None = None,
+    beta: float = 0.5,
     epochs: int = 120,
     batch_size: int = 2048,
     lr: float = 0.01,
-    val_fraction: float = 0.0,
+    validation: float = 0.1,
+    patience: int | None = None,
+    bootstrap: bool = True,
     seed: int = 0,
     progress_bar: bool = False,
 ) -> FitResult:
-    """Train the local mechanisms f_i (and sigma_i) of ``model`` in place.
+    """Train the local mechanisms (and their scales) of ``model`` in place.
+
+    See the module docstring for the losses, the validation split and early stopping.
 
     Args:
         model: the world model.
         data: name -> ``(N, dim)`` realised values; every trained variable needs its own
             column and its parents' columns.
-        variables: mechanisms to train; default every non-root whose columns are present.
-        loss: ``"mse"`` (thesis §5.2.1; sigma from residuals) or ``"nll"`` (Gaussian NLL).
-        epochs: passes over the training rows (thesis: 120).
+        variables: mechanisms to train; default every non-root whose columns are present
+            and whose mechanism is trainable (fixed :class:`models.FunctionMechanism`
+            mechanisms are left as they are).
+        loss: ``"mse"`` (thesis §5.2.1), ``"nll"`` or ``"beta_nll"``; None picks ``"mse"``
+            for homoscedastic and ``"beta_nll"`` for heteroscedastic mechanisms.
+        beta: the beta of ``"beta_nll"``, in [0, 1] (default 0.5, Seitzer et al. 2022).
+        epochs: the most passes over the training rows (thesis: 120).
         batch_size: Adam minibatch rows (thesis: 2048).
         lr: Adam learning rate (thesis: 0.01).
-        val_fraction: share of rows held out for validation curves, in [0, 1).
-        seed: seeds the split and the minibatch order (local generator).
+        validation: share of rows held out (seeded), in [0, 1); sigma_i is estimated on
+            them. 0 reproduces the thesis protocol (sigma from training residuals).
+        patience: stop a mechanism after this many epochs (>= 1) without a better
+            validation criterion and restore its best epoch; None trains every epoch and
+            keeps the last. Needs validation rows.
+        bootstrap: train each member of an ensemble of K > 1 on its own bootstrap
+            resample of the training rows.
+        seed: seeds the split, the minibatch order and the bootstraps (local generators).
         progress_bar: show a tqdm bar over epochs.
 
     Returns:
         :class:`FitResult`. Non-action roots present in ``data`` also get their Normal
-        prior set to the data mean and sd.
+        prior set to the training rows' mean and sd.
 
     Raises:
         ValueError: a model that is not a :class:`WorldModel`, bad data (see
-            :func:`models.world.as_values`), fewer than 2 rows, unknown, root or repeated
-            ``variables``, or a bad schedule argument (type or range).
+            :func:`models.world.as_values`), fewer than 2 rows, unknown, root, fixed or
+            repeated ``variables``, no trainable mechanism, ``loss="mse"`` for a mechanism
+            that predicts its scale, or a bad schedule argument (type or range: ``beta``
+            outside [0, 1], ``validation`` outside [0, 1), ``patience`` < 1 or without
+            validation rows).
         FloatingPointError: the training loss became NaN or inf.
     """
     model = require_world_model(model)
-    loss = check_choice("loss", loss, LOSSES)
+    if loss is not None:
+        loss = check_choice("loss", loss, LOSSES)
+    beta = check_float("beta", beta, minimum=0.0, maximum=1.0)
     epochs = check_int("epochs", epochs, minimum=1)
     batch_size = check_int("batch_size", batch_size, minimum=1)
     lr = check_float("lr", lr, minimum=0.0, min_open=True)
-    val_fraction = check_float("val_fraction", val_fraction, minimum=0.0, maximum=1.0, max_open=True)
+    validation = check_float("validation", validation, minimum=0.0, maximum=1.0, max_open=True)
+    if patience is not None:
+        patience = check_int("patience", patience, minimum=1)
+    bootstrap = check_bool("bootstrap", bootstrap)
     seed = check_seed("seed", seed)
     progress_bar = check_bool("progress_bar", progress_bar)
     if variables is not None:
@@ -140,30 +284,35 @@ def fit(
         raise ValueError("data is empty; fit needs name -> (N, dim) columns")
     if n < 2:
         raise ValueError(f"fit needs at least 2 rows of data, got {n}")
-    trainable = [v for v in graph.non_roots if v in cols and all(p in cols for p in graph.parents(v))]
-    if variables is None:
-        targets = trainable
-        if not targets:
-            raise ValueError(f"no mechanism can be trained from columns {sorted(cols)}")
-    else:
-        targets = variables
-        for v in targets:
-            graph.check_name(v, what="variable to fit")
-            if graph.is_root(v):
-                raise ValueError(f"{v!r} is a root and has no mechanism to fit")
-            missing = [c for c in (v, *graph.parents(v)) if c not in cols]
-            if missing:
-                raise ValueError(f"cannot fit {v!r}: data has no column for {missing}")
-    skipped = [v for v in graph.non_roots if v not in targets]
-    if skipped:
-        log.debug("fit: not training %s (not requested or columns missing)", skipped)
+    targets = _select(model, cols, variables)
+    losses = {v: loss or ("beta_nll" if _predicts_scale(model.mechanism(v)) else "mse") for v in targets}
+    bad = [v for v in targets if losses[v] == "mse" and _predicts_scale(model.mechanism(v))]
+    if bad:
+        raise ValueError(
+            f"loss='mse' cannot train the scale of the heteroscedastic mechanisms of {bad}; "
+            "use loss='beta_nll' (their default) or 'nll'"
+        )
 
     gen = torch.Generator().manual_seed(seed)
     perm = torch.randperm(n, generator=gen)
-    n_val = round(val_fraction * n)
+    n_val = round(validation * n)
     train_idx, val_idx = perm[n_val:], perm[:n_val]
     if len(train_idx) < 1:
-        raise ValueError("val_fraction leaves no training rows")
+        raise ValueError(f"validation={validation:g} of {n} rows leaves no training rows")
+    if patience is not None and n_val == 0:
+        raise ValueError(
+            f"patience={patience} needs validation rows; validation={validation:g} of {n} rows holds out none"
+        )
+    n_train = len(train_idx)
+    boot_gen = torch.Generator().manual_seed(_derived_seed(seed, "bootstrap"))
+    rows: dict[str, list[Tensor | None]] = {}
+    for v in targets:
+        k = len(_members(model.mechanism(v)))
+        use = bootstrap and k > 1
+        rows[v] = [
+            train_idx[torch.randint(n_train, (n_train,), generator=boot_gen)] if use else None
+            for _ in range(k)
+        ]
 
     for r in graph.roots:
         if r in cols and graph[r].role is not Role.ACTION:
@@ -172,76 +321,98 @@ def fit(
 
     inputs, outputs = {}, {}
     for v in targets:
-        parents = graph.parents(v)
-        inputs[v] = torch.cat([cols[p] for p in parents], -1)
+        inputs[v] = torch.cat([cols[p] for p in graph.parents(v)], -1)
         outputs[v] = cols[v]
-        mech = model.mechanism(v)
         in_loc, in_scale = _standardiser(inputs[v][train_idx])
         out_loc, out_scale = _standardiser(outputs[v][train_idx])
-        mech.set_normalization(in_loc, in_scale, out_loc, out_scale)
+        model.mechanism(v).set_normalization(in_loc, in_scale, out_loc, out_scale)
 
     params = []
     for v in targets:
-        mech = model.mechanism(v)
-        params += [p for name, p in mech.named_parameters() if loss == "nll" or name != "log_sigma"]
+        for member in _members(model.mechanism(v)):
+            params += [
+                p for name, p in member.named_parameters() if losses[v] != "mse" or name != "log_sigma"
+            ]
     optim = torch.optim.Adam(params, lr=lr)
     train_curves: dict[str, list[float]] = {v: [] for v in targets}
     val_curves: dict[str, list[float]] = {v: [] for v in targets}
-    n_train = len(train_idx)
+    nll_curves: dict[str, list[float]] = {v: [] for v in targets}
+    best: dict[str, tuple[float, int, dict[str, Tensor]]] = {}
+    active = list(targets)
     start = time.perf_counter()
     model.train()
     bar = tqdm(range(epochs), desc="fit", disable=not progress_bar, leave=False)
-    for _ in bar:
+    epochs_run = 0
+    for epoch in bar:
+        epochs_run = epoch + 1
         order = train_idx[torch.randperm(n_train, generator=gen)]
-        sums = dict.fromkeys(targets, 0.0)
+        member_order = {
+            v: [b if b is None else b[torch.randperm(n_train, generator=boot_gen)] for b in rows[v]]
+            for v in active
+        }
+        sums = dict.fromkeys(active, 0.0)
         for b in range(0, n_train, batch_size):
             idx = order[b : b + batch_size]
             optim.zero_grad()
             total = 0.0
-            for v in targets:
-                mech = model.mechanism(v)
-                pred = mech(inputs[v][idx])
-                resid = outputs[v][idx] - pred
-                z = resid / mech.out_scale
-                if loss == "mse":
-                    total = total + (z**2).mean()
-                else:
-                    s = mech.sigma / mech.out_scale
-                    total = total + (0.5 * (z / s) ** 2 + torch.log(s)).mean()
-                sums[v] += float((resid.detach() ** 2).mean(-1).sum())
+            for v in active:
+                members = _members(model.mechanism(v))
+                for member, m_order in zip(members, member_order[v], strict=True):
+                    m_idx = idx if m_order is None else m_order[b : b + batch_size]
+                    term, resid = _member_loss(member, inputs[v][m_idx], outputs[v][m_idx], losses[v], beta)
+                    total = total + term
+                    sums[v] += float((resid.detach() ** 2).mean(-1).sum()) / len(members)
             total.backward()
             optim.step()
-        for v in targets:
+        for v in active:
             train_curves[v].append(sums[v] / n_train)
-        if n_val:
-            with torch.no_grad():
-                for v in targets:
-                    resid = outputs[v][val_idx] - model.mechanism(v)(inputs[v][val_idx])
-                    val_curves[v].append(float((resid**2).mean()))
-        worst = max(train_curves[v][-1] for v in targets)
+        worst = max(train_curves[v][-1] for v in active)
         if not math.isfinite(worst):
             raise FloatingPointError(f"training diverged (loss {worst}); lower lr")
+        if n_val:
+            with torch.no_grad():
+                for v in active:
+                    mech = model.mechanism(v)
+                    x, y = inputs[v][val_idx], outputs[v][val_idx]
+                    val_curves[v].append(float(((y - mech(x)) ** 2).mean()))
+                    if losses[v] != "mse":
+                        nll_curves[v].append(_site_nll(mech, x, y))
+        if patience is not None:
+            for v in list(active):
+                score = val_curves[v][-1] if losses[v] == "mse" else nll_curves[v][-1]
+                if not math.isfinite(score):
+                    raise FloatingPointError(f"validation loss of {v!r} is {score}; lower lr")
+                if v not in best or score < best[v][0]:
+                    state = {key: t.detach().clone() for key, t in model.mechanism(v).state_dict().items()}
+                    best[v] = (score, epoch + 1, state)
+                elif epoch + 1 - best[v][1] >= patience:
+                    active.remove(v)
+            if not active:
+                break
         bar.set_postfix(mse=f"{worst:.4g}")
     model.eval()
-    if loss == "mse":
-        with torch.no_grad():
-            for v in targets:
-                mech = model.mechanism(v)
-                resid = outputs[v][train_idx] - mech(inputs[v][train_idx])
-                mech.set_sigma(resid.pow(2).mean(0).sqrt().clamp_min(1e-6))
+    best_epoch = {v: len(train_curves[v]) for v in targets}
+    for v, (_, epoch_kept, state) in best.items():
+        model.mechanism(v).load_state_dict(state)
+        best_epoch[v] = epoch_kept
     seconds = time.perf_counter() - start
-    sigma = {v: tuple(float(s) for s in model.mechanism(v).sigma.detach()) for v in targets}
+    sigma = _set_sigmas(model, targets, losses, inputs, outputs, val_idx, train_idx, rows)
     model.provenance = {
         **model.provenance,
         "fit": {
-            "loss": loss,
+            "loss": loss or "auto",
+            "losses": dict(losses),
+            "beta": beta,
             "epochs": epochs,
             "batch_size": batch_size,
             "lr": lr,
             "seed": seed,
-            "val_fraction": val_fraction,
+            "validation": validation,
+            "patience": patience,
+            "bootstrap": bootstrap,
             "n": n,
             "trained": list(targets),
+            "best_epoch": dict(best_epoch),
         },
     }
     return FitResult(
@@ -249,9 +420,54 @@ def fit(
         {v: tuple(c) for v, c in val_curves.items()},
         sigma,
         tuple(targets),
-        loss,
-        epochs,
+        loss or "auto",
+        epochs_run,
         n_train,
         n_val,
         seconds,
+        val_nll={v: tuple(c) for v, c in nll_curves.items()},
+        best_epoch=best_epoch,
+        losses=losses,
+        beta=beta,
+        patience=patience,
     )
+
+
+def _set_sigmas(
+    model: WorldModel,
+    targets: Sequence[str],
+    losses: Mapping[str, str],
+    inputs: Mapping[str, Tensor],
+    outputs: Mapping[str, Tensor],
+    val_idx: Tensor,
+    train_idx: Tensor,
+    rows: Mapping[str, Sequence[Tensor | None]],
+) -> dict[str, tuple[float, ...]]:
+    """Set each homoscedastic member's sigma from residuals and report every site's sd.
+
+    With validation rows, sigma is the RMS validation residual (whatever the loss);
+    without, the RMS training residual (the member's own bootstrap rows) for ``"mse"``,
+    and the learned sigma otherwise.
+    """
+    out: dict[str, tuple[float, ...]] = {}
+    with torch.no_grad():
+        for v in targets:
+            mech = model.mechanism(v)
+            for member, boot in zip(_members(mech), rows[v], strict=True):
+                if member.log_sigma is None:
+                    continue
+                if len(val_idx):
+                    idx = val_idx
+                elif losses[v] == "mse":
+                    idx = train_idx if boot is None else boot
+                else:
+                    continue
+                resid = outputs[v][idx] - member(inputs[v][idx])
+                member.set_sigma(resid.pow(2).mean(0).sqrt().clamp_min(1e-6))
+            if not mech.heteroscedastic:
+                out[v] = tuple(float(s) for s in mech.sigma.detach())
+            else:
+                idx = val_idx if len(val_idx) else train_idx
+                scale = mech.loc_scale(inputs[v][idx])[1]
+                out[v] = tuple(float(s) for s in scale.pow(2).mean(0).sqrt())
+    return out

@@ -5,9 +5,20 @@
 * :class:`ReplayNoise` -- sets x = loc + scale * eps from given residuals (Eq. 4.39).
 * :class:`MeasurementScale` -- per-unit sigma on measurement sites o_obs ~ Normal(o, sigma_t).
 
+Applied to a :class:`models.WorldModel` or a :class:`inference.program.Program`, each returns a
+``Program`` that keeps the model's graph, so the queries accept it; entered with ``with``
+they act on every query run inside.
+
+Discrete sites (:class:`models.discrete.CategoricalCode`) follow the Gumbel-max SCM: abduction
+draws ``(..., N, K)`` standard Gumbel noise from its exact posterior given the observed
+category (:func:`models.discrete.gumbel_posterior`, from the handler's generator), and replay
+sets ``x = argmax_k (l_k + g_k)``; zero noise replays the mode.
+
 They work on any Pyro program whose sites are location-scale distributions written the
 natural way (``Normal(f(pa), sigma)``, optionally ``.to_event``/expanded), ``Uniform``
-and ``Delta``; no ``TransformedDistribution`` is needed. Compose them as
+and ``Delta``; no ``TransformedDistribution`` is needed. The scale may differ per unit, as
+for heteroscedastic and ensemble sites (``Normal(f(pa), sigma(pa))``): abduction divides by
+the scale at the factual parents, replay multiplies by the scale at the parents it sees. Compose them as
 ``Intervene(ReplayNoise(model))``: the inner handler fixes the natural value first and
 the outer one intervenes on it, so shift interventions see the abducted value.
 """
@@ -24,13 +35,24 @@ from pyro.poutine.runtime import Message
 from pyro.poutine.subsample_messenger import _Subsample
 from torch import Tensor
 
-from models.checks import as_float_tensor, check_choice, check_finite_tensor, check_mapping, describe
+from inference.program import Program, as_program
+from models.checks import (
+    as_float_tensor,
+    check_choice,
+    check_finite_tensor,
+    check_generator,
+    check_mapping,
+    describe,
+)
+from models.discrete import CategoricalCode, check_codes, gumbel_max, gumbel_posterior
+from models.world import WorldModel
 
 __all__ = [
     "AbductNoise",
     "Intervene",
     "InterventionSpec",
     "MeasurementScale",
+    "ProgramMessenger",
     "ReplayNoise",
     "is_variable_site",
     "location_scale",
@@ -81,13 +103,38 @@ def location_scale(fn: dist.Distribution, name: str) -> tuple[Tensor, Tensor]:
     return loc.expand(shape), scale.expand(shape)
 
 
+class ProgramMessenger(Messenger):
+    """A pal handler: applied to a world model or a program it returns a :class:`Program`.
+
+    Subclasses name the sites they act on in :meth:`site_names`; applying the handler to a
+    program whose graph lacks one of them raises.
+    """
+
+    def site_names(self) -> tuple[str, ...]:
+        """The sites this handler acts on (empty: every site)."""
+        return ()
+
+    def __call__(self, fn: Any) -> Any:
+        """``fn`` under this handler: a :class:`Program` for a model or program, else Pyro's wrapper."""
+        if isinstance(fn, (WorldModel, Program)):
+            program = as_program(fn)
+            unknown = sorted(n for n in self.site_names() if n not in program.graph)
+            if unknown:
+                raise ValueError(
+                    f"{type(self).__name__} names {unknown}, which are not sites of the program; "
+                    f"its sites: {list(program.graph.names)}"
+                )
+            return program.with_handler(self)
+        return super().__call__(fn)
+
+
 def _fix(msg: Message, value: Tensor, flag: str) -> None:
     """Make the site deterministic at ``value``: Delta with zero log-density, not a latent."""
     fn = msg["fn"]
     msg["value"] = value
     msg["fn"] = dist.Delta(value, event_dim=fn.event_dim)
     msg["is_observed"] = True
-    msg["infer"] = {**msg["infer"], flag: True}
+    msg["infer"] = {**msg["infer"], flag: True, "pal_fn": msg["infer"].get("pal_fn", fn)}
 
 
 def broadcast_intervention(value: Any, shape: torch.Size, name: str) -> Tensor:
@@ -114,7 +161,7 @@ def broadcast_intervention(value: Any, shape: torch.Size, name: str) -> Tensor:
     return v.expand(shape)
 
 
-class Intervene(Messenger):
+class Intervene(ProgramMessenger):
     """do(): replace the mechanism of each named site by an assignment.
 
     A hard value ``v`` sets ``X := v``; a callable ``g`` sets ``X := g(x)`` where ``x`` is the
@@ -141,6 +188,10 @@ class Intervene(Messenger):
                 raise ValueError(f"intervention targets must be site names (str), got {describe(name)}")
         self.interventions = dict(interventions)
         self.bounds = dict(check_mapping("bounds", bounds, allow_none=True))
+
+    def site_names(self) -> tuple[str, ...]:
+        """The intervened sites."""
+        return tuple(self.interventions)
 
     def _pyro_sample(self, msg: Message) -> None:
         name = msg["name"]
@@ -170,29 +221,41 @@ class Intervene(Messenger):
                     )
         else:
             value = broadcast_intervention(spec, shape, name)
+        base = _base(fn)
+        if isinstance(base, CategoricalCode):
+            check_codes(f"intervention on {name!r}", value, base.categories)
         _fix(msg, value, "pal_intervened")
 
 
-class AbductNoise(Messenger):
+class AbductNoise(ProgramMessenger):
     """Abduction: record ``eps = (x - loc) / scale`` at every location-scale site.
 
     After the program runs, :attr:`noise` maps site name -> eps with the site's shape.
-    Intervened and Delta sites get eps = 0.
+    Intervened and Delta sites get eps = 0. A discrete site gets ``(..., N, K)`` Gumbel
+    noise drawn from its posterior given the observed category (module docstring).
+
+    Args:
+        generator: source of the Gumbel posterior draws (None: torch's global RNG).
     """
 
-    def __init__(self) -> None:
+    def __init__(self, generator: torch.Generator | None = None) -> None:
         super().__init__()
+        self.generator = check_generator("generator", generator)
         self.noise: dict[str, Tensor] = {}
 
     def _pyro_post_sample(self, msg: Message) -> None:
         if not is_variable_site(msg):
+            return
+        base = _base(msg["fn"])
+        if isinstance(base, CategoricalCode):
+            self.noise[msg["name"]] = gumbel_posterior(base.logits, msg["value"], self.generator)
             return
         loc, scale = location_scale(msg["fn"], msg["name"])
         safe = torch.where(scale > 0, scale, torch.ones_like(scale))
         self.noise[msg["name"]] = torch.where(scale > 0, (msg["value"] - loc) / safe, torch.zeros_like(loc))
 
 
-class ReplayNoise(Messenger):
+class ReplayNoise(ProgramMessenger):
     """Set every unobserved site to ``loc + scale * eps`` from given residuals.
 
     Args:
@@ -214,10 +277,18 @@ class ReplayNoise(Messenger):
             t = as_float_tensor(eps, f"noise[{name!r}]", keep)
             self.noise[name] = check_finite_tensor(f"noise[{name!r}]", t)
 
+    def site_names(self) -> tuple[str, ...]:
+        """The sites with replayed noise."""
+        return tuple(self.noise)
+
     def _pyro_sample(self, msg: Message) -> None:
         if not is_variable_site(msg) or msg["is_observed"]:
             return
         name = msg["name"]
+        base = _base(msg["fn"])
+        if isinstance(base, CategoricalCode):
+            self._replay_discrete(msg, base)
+            return
         loc, scale = location_scale(msg["fn"], name)
         if name in self.noise:
             eps = self.noise[name].to(loc.dtype)
@@ -231,9 +302,25 @@ class ReplayNoise(Messenger):
         else:
             raise ValueError(f"no replayed noise for site {name!r}; abduct it or pass default='expected'")
         _fix(msg, loc + scale * eps, "pal_replayed")
+        msg["infer"]["pal_eps"] = eps
+
+    def _replay_discrete(self, msg: Message, base: CategoricalCode) -> None:
+        name, logits = msg["name"], base.logits
+        if name in self.noise:
+            eps = self.noise[name].to(logits.dtype)
+            if eps.shape != logits.shape:
+                raise ValueError(
+                    f"replayed Gumbel noise for the discrete site {name!r} has shape {tuple(eps.shape)}, "
+                    f"expected {tuple(logits.shape)} (units, categories)"
+                )
+        elif self.default == "expected":
+            eps = torch.zeros_like(logits)  # zero Gumbel noise: the mode
+        else:
+            raise ValueError(f"no replayed noise for site {name!r}; abduct it or pass default='expected'")
+        _fix(msg, gumbel_max(logits, eps), "pal_replayed")
 
 
-class MeasurementScale(Messenger):
+class MeasurementScale(ProgramMessenger):
     """Set a per-unit scale on Normal measurement sites: ``o_obs ~ Normal(o, sigma_t)``.
 
     Perception reports a different uncertainty for every frame (from its pose
@@ -259,20 +346,39 @@ class MeasurementScale(Messenger):
                 raise ValueError(f"measurement scale of {name!r} must be finite and > 0, got {describe(s)}")
             self.scales[name] = s
 
+    def site_names(self) -> tuple[str, ...]:
+        """The measurement sites."""
+        return tuple(self.scales)
+
     def _pyro_sample(self, msg: Message) -> None:
         name = msg["name"]
         if name not in self.scales or not is_variable_site(msg):
             return
+        infer = msg["infer"] or {}
+        if infer.get("pal_replayed") and "pal_eps" in infer:
+            # replayed by an inner ReplayNoise before this handler saw the site: replay with
+            # the measurement scale, so the order of the handlers does not matter
+            fn = infer["pal_fn"]
+            base = _base(fn)
+            loc = base.loc.expand(site_shape(fn))
+            scale = self._scale_for(name, site_shape(fn))
+            value = loc + scale.expand_as(loc) * infer["pal_eps"]
+            _fix(msg, value, "pal_replayed")
+            return
         base = _base(msg["fn"])
         if not isinstance(base, dist.Normal):
             raise ValueError(f"measurement site {name!r} must be Normal, got {type(base).__name__}")
-        scale = self.scales[name]
         shape = site_shape(msg["fn"])
+        scale = self._scale_for(name, shape)
+        event_dims = len(msg["fn"].event_shape)
+        msg["fn"] = dist.Normal(base.loc.expand(shape), scale.expand(shape)).to_event(event_dims)
+
+    def _scale_for(self, name: str, shape: torch.Size) -> Tensor:
+        scale = self.scales[name]
         # trailing (N, dim) or (dim,); outer dims (e.g. vectorised particles) are broadcast
         if scale.shape != shape[-scale.ndim :]:
             raise ValueError(
                 f"measurement scale of {name!r} has shape {tuple(scale.shape)}, expected "
                 f"{tuple(shape[-1:])} or {tuple(shape[-2:])}"
             )
-        event_dims = len(msg["fn"].event_shape)
-        msg["fn"] = dist.Normal(base.loc.expand(shape), scale.expand(shape)).to_event(event_dims)
+        return scale

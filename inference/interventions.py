@@ -4,7 +4,12 @@
 mechanism of ``x`` is replaced by the assignment ``x := 0``. Values may be scalars (for
 dim-1 variables), ``(dim,)`` vectors applied to every unit, ``(N, dim)`` batched tensors,
 or callables ``g(x) -> x'`` of the pre-intervention value (shift interventions such as
-``lambda x: x + 0.1``). Values on action sites must lie within the action bounds.
+``lambda x: x + 0.1``). Values on action sites must lie within the action bounds, and
+values on discrete sites must be category codes ``0 .. K-1``.
+
+Applied to a :class:`models.WorldModel` or a :class:`inference.program.Program`, ``do`` returns
+a ``Program`` that keeps the model's graph, so ``infer_state(do(m, {...}), obs)``,
+``counterfactual(do(m, {...}), ...)`` and ``do(do(m, a), b)`` work.
 """
 
 from __future__ import annotations
@@ -16,16 +21,21 @@ import torch
 from torch import Tensor
 
 from inference.handlers import Intervene, InterventionSpec
+from inference.program import Program
 from models.checks import as_float_tensor, check_callable, check_int, check_mapping, check_seed, describe
+from models.discrete import check_codes
 from models.graph import CausalGraph
 from models.variables import Role
-from models.world import check_action_bounds, model_dtype
+from models.world import WorldModel, check_action_bounds, model_dtype
 
 __all__ = ["action_bounds", "check_interventions", "do", "simulate"]
 
 
 def check_interventions(
-    graph: CausalGraph | None, interventions: Mapping[str, Any], dtype: torch.dtype | None = None
+    graph: CausalGraph | None,
+    interventions: Mapping[str, Any],
+    dtype: torch.dtype | None = None,
+    categories: Mapping[str, int] | None = None,
 ) -> dict[str, InterventionSpec]:
     """Validate intervention names against ``graph`` and values for dtype, shape, NaN/inf and bounds.
 
@@ -33,6 +43,7 @@ def check_interventions(
         graph: the program's graph, or None for a program without one (names unchecked).
         interventions: name -> scalar, ``(dim,)``, ``(N, dim)`` or callable.
         dtype: floating dtype of the values (default: torch's default dtype).
+        categories: name -> K of the discrete sites, whose values must be codes ``0 .. K-1``.
 
     Returns:
         A dict with array values converted to tensors of ``dtype``; callables are kept.
@@ -64,6 +75,8 @@ def check_interventions(
             if t.ndim == 2 and t.shape[0] == 0:
                 raise ValueError(f"intervention on {name!r} has shape {tuple(t.shape)}: no rows")
             check_action_bounds(graph, {name: t}, "interventions")
+        if categories and name in categories:
+            check_codes(f"intervention on {name!r}", t, categories[name])
         out[name] = t
     return out
 
@@ -88,13 +101,17 @@ def do(model: Callable[..., Any], interventions: Mapping[str, InterventionSpec])
             shift callable. Action values must lie within the action bounds.
 
     Returns:
-        The intervened program (same call signature). If ``model`` has a ``graph``,
-        unknown names, wrong dims and out-of-bounds actions raise here rather than at run
+        The intervened program (same call signature): a :class:`inference.program.Program`
+        with the model's ``graph`` for a WorldModel or Program. Unknown names, wrong dims,
+        out-of-bounds actions and invalid category codes raise here rather than at run
         time (for callables, at run time).
     """
     check_callable("model", model)
     graph = getattr(model, "graph", None)
-    specs = check_interventions(graph, interventions, model_dtype(model))
+    world = model.world if isinstance(model, Program) else model
+    categories = world.discrete if isinstance(world, WorldModel) else None
+    dtype = world.dtype if isinstance(world, WorldModel) else model_dtype(model)
+    specs = check_interventions(graph, interventions, dtype, categories)
     return Intervene(specs, bounds=action_bounds(graph, specs))(model)
 
 

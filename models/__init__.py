@@ -3,7 +3,9 @@
 Depends on torch, pyro and networkx only.
 """
 
+from models.ensemble import EnsembleMechanism
 from models.graph import CausalGraph
+from models.heteroscedastic import HeteroscedasticMechanism
 from models.io import ModelFileError, load, save
 from models.mechanisms import FunctionMechanism, LinearMechanism, Mechanism, MLPMechanism
 from models.presets import chain_graph, finger_graph, joint_chain_graph, pushing_graph, random_graph
@@ -12,7 +14,9 @@ from models.world import WorldModel
 
 __all__ = [
     "CausalGraph",
+    "EnsembleMechanism",
     "FunctionMechanism",
+    "HeteroscedasticMechanism",
     "LinearMechanism",
     "MLPMechanism",
     "Mechanism",

@@ -24,6 +24,16 @@ __all__ = ["CausalGraph"]
 _FORMAT = "pal.causal_graph/1"
 
 
+def _dot_escape(text: str) -> str:
+    """``text`` for the inside of a DOT double-quoted string."""
+    return text.replace("\\", "\\\\").replace('"', '\\"')
+
+
+def _dot_id(name: str) -> str:
+    """A variable name as a quoted DOT node id."""
+    return f'"{_dot_escape(name)}"'
+
+
 class CausalGraph:
     """A validated DAG over typed :class:`Variable` nodes.
 
@@ -330,17 +340,22 @@ class CausalGraph:
         )
 
     def to_dot(self) -> str:
-        """Graphviz DOT text; shape encodes the role, dashed borders mark lag-1 slots."""
+        """Graphviz DOT text; shape encodes the role, dashed borders mark lag-1 slots.
+
+        Node ids and labels are quoted DOT strings (quotes and backslashes escaped), so names with
+        ``:``, ``/``, ``-``, spaces or quotes stay one node.
+        """
         shapes = {Role.ACTION: "box", Role.OBSERVED: "ellipse", Role.LATENT: "ellipse"}
         fills = {Role.ACTION: "#f4c06b", Role.OBSERVED: "#9cc3e6", Role.LATENT: "#ffffff"}
         lines = ["digraph world_model {", "  rankdir=LR;"]
         for n, v in self._variables.items():
             style = "filled,dashed" if v.lag else "filled"
-            label = n if not v.unit else f"{n}\\n[{v.unit}]"
+            label = _dot_escape(n) if not v.unit else f"{_dot_escape(n)}\\n[{_dot_escape(v.unit)}]"
             lines.append(
-                f'  "{n}" [label="{label}", shape={shapes[v.role]}, style="{style}", fillcolor="{fills[v.role]}"];'
+                f'  {_dot_id(n)} [label="{label}", shape={shapes[v.role]}, style="{style}", '
+                f'fillcolor="{fills[v.role]}"];'
             )
-        lines += [f'  "{p}" -> "{c}";' for p, c in self.edges]
+        lines += [f"  {_dot_id(p)} -> {_dot_id(c)};" for p, c in self.edges]
         lines.append("}")
         return "\n".join(lines) + "\n"
 
@@ -369,7 +384,9 @@ class CausalGraph:
             node_size=1400,
             edgecolors="#333333",
         )
-        nx.draw_networkx_labels(g, pos, ax=ax, font_size=8)
+        # names are drawn as plain text: a "$" would otherwise start matplotlib mathtext
+        labels = {n: n.replace("$", r"\$") for n in g.nodes}
+        nx.draw_networkx_labels(g, pos, labels=labels, ax=ax, font_size=8)
         # edges that skip a layer are drawn curved so they do not hide behind the others
         for bend, keep in ((0.0, lambda d: d <= 1), (0.25, lambda d: d > 1)):
             edges = [(u, v) for u, v in g.edges if keep(g.nodes[v]["layer"] - g.nodes[u]["layer"])]

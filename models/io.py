@@ -37,8 +37,9 @@ import numpy as np
 import torch
 
 from models.checks import check_int
+from models.ensemble import EnsembleMechanism
 from models.graph import CausalGraph
-from models.mechanisms import make_mechanism
+from models.mechanisms import make_mechanism, mechanism_classes
 from models.world import WorldModel
 
 __all__ = [
@@ -55,8 +56,10 @@ __all__ = [
     "versions",
 ]
 
-#: Format tag of world-model files.
-FORMAT = "pal.world_model/2"
+#: Format tag of world-model files written here. Version 3 adds heteroscedastic and
+#: ensemble mechanism configs; version 2 files (MLP and linear only) read unchanged.
+FORMAT = "pal.world_model/3"
+_READABLE_FORMATS = ("pal.world_model/2", FORMAT)
 _OLD_FORMATS = ("pal.world_model/1",)
 #: Mode of every file written here (owner read/write, everyone read), as in ``pal.files``.
 FILE_MODE = 0o644
@@ -286,16 +289,16 @@ def _read(path: str | os.PathLike[str], limits: ReadLimits) -> tuple[dict[str, A
             f"{path} is a {fmt} file, an older format without a metadata checksum; this version reads "
             f"{FORMAT}: rebuild the model (or load it with the pal release that wrote it) and save it again"
         )
-    if fmt != FORMAT:
-        raise ModelFileError(f"{path}: format {fmt!r}, expected {FORMAT!r}")
+    if fmt not in _READABLE_FORMATS:
+        raise ModelFileError(f"{path}: format {fmt!r}, expected one of {list(_READABLE_FORMATS)}")
     if set(doc) != _DOC_KEYS or not isinstance(doc["meta"], dict) or not isinstance(doc["versions"], dict):
         raise ModelFileError(f"{path}: metadata is not a {{format, versions, meta, checksum}} object")
-    if _checksum(FORMAT, doc["versions"], doc["meta"], arrays) != doc["checksum"]:
+    if _checksum(fmt, doc["versions"], doc["meta"], arrays) != doc["checksum"]:
         raise ModelFileError(f"{path}: checksum mismatch; its tensors or metadata were changed after saving")
     meta = doc["meta"]
     if set(meta) != _MODEL_KEYS:
         raise ModelFileError(f"{path}: metadata has keys {sorted(meta)}, expected {sorted(_MODEL_KEYS)}")
-    return {**meta, "format": FORMAT, "versions": doc["versions"]}, arrays
+    return {**meta, "format": fmt, "versions": doc["versions"]}, arrays
 
 
 def save(
@@ -304,8 +307,9 @@ def save(
     """Write ``model`` to one ``.npz`` file atomically.
 
     Args:
-        model: the world model; every mechanism must be serialisable (MLP or linear), and
-            every parameter finite.
+        model: the world model; every mechanism must be serialisable (MLP, linear,
+            heteroscedastic, or an ensemble of those: :func:`models.mechanisms.mechanism_classes`),
+            and every parameter finite.
         path: destination file (conventionally ``*.npz``).
         provenance: JSON-compatible extras, e.g. ``{"seed": 0, "config": {...}}`` (NaN/inf
             refused); library versions are added.
@@ -322,11 +326,14 @@ def save(
     mechs = {}
     for name in model.graph.non_roots:
         mech = model.mechanism(name)
-        if mech.kind not in ("mlp", "linear"):
-            raise ValueError(
-                f"mechanism of {name!r} is a {type(mech).__name__}, which cannot be saved; "
-                "only MLP and linear mechanisms are serialisable"
-            )
+        classes = mechanism_classes()
+        parts = list(mech.members) if isinstance(mech, EnsembleMechanism) else [mech]
+        for part in [mech, *parts]:
+            if classes.get(part.kind) is not type(part):
+                raise ValueError(
+                    f"mechanism of {name!r} is (or holds) a {type(part).__name__}, which cannot be saved; "
+                    f"only {', '.join(c.__name__ for c in classes.values())} are serialisable"
+                )
         mechs[name] = mech.config()
     arrays = {}
     for key, value in model.state_dict().items():

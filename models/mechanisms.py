@@ -1,12 +1,15 @@
-"""Local structural mechanisms f_i and their noise scales sigma_i (thesis Eq. 4.31, 5.3-5.4).
+"""Local structural mechanisms f_i and their noise scales (thesis Eq. 4.31, 5.3-5.4).
 
-Every mechanism defines the additive Gaussian assignment
+Every mechanism defines a Gaussian assignment with a location and a scale,
 
-    X_i = f_i(pa_i) + sigma_i * eps_i,   eps_i ~ N(0, I),
+    X_i = f_i(pa_i) + sigma_i(pa_i) * eps_i,   eps_i ~ N(0, I),
 
-with ``f_i(z) = out_loc + out_scale * g((z - in_loc) / in_scale)``. The affine
-normalisers are buffers that :func:`inference.fit` sets from data; ``g`` is the learned
-core (MLP or linear), and ``sigma_i = exp(log_sigma)`` is learned per component.
+and :meth:`Mechanism.loc_scale` returns both. The mechanisms here are homoscedastic:
+``sigma_i(pa_i) = sigma_i = exp(log_sigma)`` is learned per component, and
+``f_i(z) = out_loc + out_scale * g((z - in_loc) / in_scale)``. The affine normalisers are
+buffers that :func:`inference.fit` sets from data; ``g`` is the learned core (MLP or
+linear). :mod:`models.heteroscedastic` predicts ``sigma_i(pa_i)`` as well, and
+:mod:`models.ensemble` combines K mechanisms into one site.
 
 Weights are initialised as by ``torch.nn.Linear`` (uniform on +-1/sqrt(fan_in)). With
 ``seed`` (an int or a ``torch.Generator``) they are drawn from a local generator and the
@@ -40,6 +43,7 @@ __all__ = [
     "Mechanism",
     "as_generator",
     "make_mechanism",
+    "mechanism_classes",
 ]
 
 ACTIVATIONS: dict[str, type[nn.Module]] = {
@@ -88,39 +92,77 @@ def _vector(value: Any, n: int, what: str, allow_scalar: bool = False) -> Tensor
     return t.detach().clone()
 
 
+_CLASSES: dict[str, type[Mechanism]] = {}
+
+
 class Mechanism(nn.Module):
-    """Base class: a parent-conditioned predictor with a learned residual scale.
+    """Base class: a parent-conditioned Gaussian assignment ``X = loc(pa) + scale(pa) * eps``.
+
+    Subclasses define :meth:`core` (the map on normalised parents). The base class is
+    homoscedastic, ``scale(pa) = sigma = exp(log_sigma)``; a subclass that predicts its own
+    scale passes ``sigma=None`` (no ``log_sigma`` parameter) and overrides :meth:`loc_scale`.
 
     Args:
         in_dim: total dimension of the concatenated parents.
         out_dim: dimension of the child variable.
-        sigma: initial residual standard deviation, > 0.
+        sigma: initial residual standard deviation, > 0, in the child's units; None for a
+            mechanism that predicts its scale.
 
     Shapes:
-        ``forward``: ``(..., in_dim) -> (..., out_dim)``; ``sigma``: ``(out_dim,)``.
+        ``forward``: ``(..., in_dim) -> (..., out_dim)``; ``loc_scale``: ``(..., in_dim) ->
+        ((..., out_dim), (..., out_dim))``; ``sigma``: ``(out_dim,)``.
     """
 
     kind: ClassVar[str] = ""
+    #: Constructor arguments that :func:`make_mechanism` accepts besides ``kind``.
+    config_keys: ClassVar[frozenset[str]] = frozenset()
+    #: True (set in a class's own body) registers the class with :func:`make_mechanism`.
+    serialisable: ClassVar[bool] = False
 
-    def __init__(self, in_dim: int, out_dim: int, sigma: float = 1.0) -> None:
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.__dict__.get("serialisable", False):
+            _CLASSES[cls.kind] = cls
+
+    def __init__(self, in_dim: int, out_dim: int, sigma: float | None = 1.0) -> None:
         super().__init__()
         in_dim = check_int("in_dim", in_dim, minimum=1)
         out_dim = check_int("out_dim", out_dim, minimum=1)
-        sigma = check_float("sigma", sigma, minimum=0.0, min_open=True)
         self.in_dim = in_dim
         self.out_dim = out_dim
         self.register_buffer("in_loc", torch.zeros(in_dim))
         self.register_buffer("in_scale", torch.ones(in_dim))
         self.register_buffer("out_loc", torch.zeros(out_dim))
         self.register_buffer("out_scale", torch.ones(out_dim))
-        self.log_sigma = nn.Parameter(torch.full((out_dim,), math.log(sigma)))
+        if sigma is None:
+            self.register_parameter("log_sigma", None)
+        else:
+            sigma = check_float("sigma", sigma, minimum=0.0, min_open=True)
+            self.log_sigma = nn.Parameter(torch.full((out_dim,), math.log(sigma)))
 
+    # ------------------------------------------------------------------ properties
+    @property
+    def heteroscedastic(self) -> bool:
+        """True when the scale depends on the parents (then :attr:`sigma` is undefined)."""
+        return self.log_sigma is None
+
+    @property
+    def trainable(self) -> bool:
+        """True when :func:`inference.fit` may train this mechanism (fixed functions are not)."""
+        return True
+
+    @property
+    def size(self) -> int:
+        """Number of members K (1 unless an ensemble)."""
+        return 1
+
+    # ------------------------------------------------------------------ evaluation
     def core(self, z: Tensor) -> Tensor:  # pragma: no cover - abstract
         """The map g on normalised parents z: ``(..., in_dim) -> (..., out_dim)``; subclasses define it."""
         raise NotImplementedError
 
-    def forward(self, parents: Tensor) -> Tensor:
-        """f_i: ``(..., in_dim) -> (..., out_dim)``; floating input of another dtype is converted."""
+    def check_input(self, parents: Any) -> Tensor:
+        """``parents`` as a floating tensor of the mechanism's dtype, last dim ``in_dim``."""
         if not isinstance(parents, Tensor) or parents.dtype != self.in_loc.dtype:
             parents = as_float_tensor(parents, "mechanism input", self.in_loc.dtype)
         if parents.ndim == 0 or parents.shape[-1] != self.in_dim:
@@ -129,16 +171,59 @@ class Mechanism(nn.Module):
                 f"mechanism input has last dim {last}, expected {self.in_dim} "
                 f"(concatenated parent dims; shape {tuple(parents.shape)})"
             )
+        return parents
+
+    def forward(self, parents: Tensor) -> Tensor:
+        """The location f_i: ``(..., in_dim) -> (..., out_dim)``; floating input of another dtype is converted."""
+        parents = self.check_input(parents)
         z = (parents - self.in_loc) / self.in_scale
         return self.out_loc + self.out_scale * self.core(z)
 
+    def loc_scale(self, parents: Tensor) -> tuple[Tensor, Tensor]:
+        """``(f_i(pa), sigma_i(pa))``, each ``(..., out_dim)`` in the child's units.
+
+        The site samples ``X ~ Normal(loc, scale)``. Homoscedastic mechanisms return
+        their sigma broadcast to the shape of loc.
+        """
+        loc = self(parents)
+        return loc, self.sigma.expand_as(loc)
+
+    def member_loc_scale(self, parents: Tensor, paired: bool = False) -> tuple[Tensor, Tensor]:
+        """Per-member ``(loc, scale)``, each ``(K, ..., out_dim)``; K = 1 here.
+
+        Args:
+            parents: ``(..., in_dim)`` shared by all members, or with ``paired``
+                ``(K, ..., in_dim)`` where member k reads ``parents[k]``.
+            paired: see ``parents``.
+        """
+        loc, scale = self.loc_scale(parents)
+        return (loc, scale) if paired else (loc.unsqueeze(0), scale.unsqueeze(0))
+
+    def penalty(self) -> Tensor:
+        """A regulariser that :func:`inference.fit` adds to the training loss (0 here)."""
+        return self.in_loc.new_zeros(())
+
+    # ------------------------------------------------------------------ setting values
     @property
     def sigma(self) -> Tensor:
-        """Residual standard deviation sigma_i, shape ``(out_dim,)``."""
+        """Residual standard deviation sigma_i, shape ``(out_dim,)``, in the child's units.
+
+        Raises:
+            ValueError: the mechanism is heteroscedastic (its scale depends on the parents).
+        """
+        if self.log_sigma is None:
+            raise ValueError(
+                f"a {type(self).__name__} is heteroscedastic: its scale depends on the parents; "
+                "use loc_scale(parents) (or WorldModel.predict_scale) instead of sigma"
+            )
         return self.log_sigma.exp()
 
     def set_sigma(self, sigma: Any) -> None:
         """Set sigma_i: ``(out_dim,)`` values > 0 in the child's units (a scalar sets all)."""
+        if self.log_sigma is None:
+            raise ValueError(
+                f"a {type(self).__name__} is heteroscedastic: it predicts its scale, which cannot be set"
+            )
         s = _vector(sigma, self.out_dim, "sigma", allow_scalar=True)
         if not (s > 0).all():
             raise ValueError(f"sigma must be > 0, got {s.tolist()}")
@@ -159,9 +244,23 @@ class Mechanism(nn.Module):
         for key, value in values.items():
             getattr(self, key).copy_(value)
 
+    # ------------------------------------------------------------------ persistence
     def config(self) -> dict[str, Any]:
         """JSON-compatible constructor arguments; used by :mod:`models.io`."""
         return {"kind": self.kind, "in_dim": self.in_dim, "out_dim": self.out_dim}
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any], seed: Seed = 0) -> Mechanism:
+        """Build from :meth:`config` output without ``kind`` (keys checked by :func:`make_mechanism`)."""
+        return cls(**config, seed=seed)
+
+    def input_weights(self) -> tuple[str, ...]:
+        """``state_dict`` keys of the weights that read the normalised parents (columns = inputs).
+
+        :meth:`models.WorldModel.with_graph` rewires these when parents change; empty
+        when the mechanism cannot be rewired.
+        """
+        return ()
 
 
 class MLPMechanism(Mechanism):
@@ -178,6 +277,8 @@ class MLPMechanism(Mechanism):
     """
 
     kind = "mlp"
+    serialisable = True
+    config_keys = frozenset({"in_dim", "out_dim", "hidden", "activation", "sigma"})
 
     def __init__(
         self,
@@ -211,6 +312,10 @@ class MLPMechanism(Mechanism):
         """JSON-compatible constructor arguments, including ``hidden`` and ``activation``."""
         return {**super().config(), "hidden": list(self.hidden), "activation": self.activation}
 
+    def input_weights(self) -> tuple[str, ...]:
+        """The first layer's weight, ``net.0.weight``."""
+        return ("net.0.weight",)
+
 
 class LinearMechanism(Mechanism):
     """f_i(pa) = W pa + b, W of shape ``(out_dim, in_dim)``.
@@ -224,6 +329,8 @@ class LinearMechanism(Mechanism):
     """
 
     kind = "linear"
+    serialisable = True
+    config_keys = frozenset({"in_dim", "out_dim", "sigma"})
 
     def __init__(self, in_dim: int, out_dim: int = 1, sigma: float = 1.0, *, seed: Seed = None) -> None:
         super().__init__(in_dim, out_dim, sigma)
@@ -232,6 +339,10 @@ class LinearMechanism(Mechanism):
     def core(self, z: Tensor) -> Tensor:
         """``W z + b`` on normalised parents: ``(..., in_dim) -> (..., out_dim)``."""
         return self.linear(z)
+
+    def input_weights(self) -> tuple[str, ...]:
+        """The weight W, ``linear.weight``."""
+        return ("linear.weight",)
 
     @classmethod
     def from_coefficients(cls, weight: Any, bias: Any = 0.0, sigma: Any = 1.0) -> LinearMechanism:
@@ -264,7 +375,8 @@ class FunctionMechanism(Mechanism):
         fn: ``(..., in_dim) -> (..., out_dim)`` torch function.
         in_dim, out_dim, sigma: see :class:`Mechanism`.
 
-    Not serialisable: :func:`models.io.save` refuses models that contain one.
+    Not serialisable: :func:`models.io.save` refuses models that contain one. Not
+    trainable: :func:`inference.fit` leaves it (and its sigma) as given.
     """
 
     kind = "function"
@@ -276,6 +388,11 @@ class FunctionMechanism(Mechanism):
             raise ValueError(f"fn must be callable, got {type(fn).__name__}")
         super().__init__(in_dim, out_dim, sigma)
         self.fn = fn
+
+    @property
+    def trainable(self) -> bool:
+        """False: a fixed function is given, not learned."""
+        return False
 
     def core(self, z: Tensor) -> Tensor:
         """``fn(z)`` on normalised parents, checked to be finite and ``(..., out_dim)``."""
@@ -290,34 +407,40 @@ class FunctionMechanism(Mechanism):
         return out
 
 
-_REGISTRY: dict[str, type[Mechanism]] = {"mlp": MLPMechanism, "linear": LinearMechanism}
+def mechanism_classes() -> dict[str, type[Mechanism]]:
+    """The serialisable mechanism classes by ``kind``: what :func:`make_mechanism` can build.
 
-
-_CONFIG_KEYS = {
-    "mlp": {"in_dim", "out_dim", "hidden", "activation", "sigma"},
-    "linear": {"in_dim", "out_dim", "sigma"},
-}
+    A subclass of :class:`Mechanism` that sets ``serialisable = True`` in its own body is
+    registered under its ``kind`` when it is defined (``models`` imports all of its own).
+    """
+    return dict(_CLASSES)
 
 
 def make_mechanism(config: Mapping[str, Any], seed: Seed = 0) -> Mechanism:
     """Build a mechanism from :meth:`Mechanism.config` output.
 
     Args:
-        config: ``{"kind": "mlp" | "linear", "in_dim": ..., ...}``.
+        config: ``{"kind": "mlp" | "linear" | "hetero" | "ensemble", "in_dim": ..., ...}``
+            (an ensemble's config nests its members' configs).
         seed: initial weights (normally overwritten by a ``state_dict``); the default
             seed 0 keeps the global RNG untouched.
+
+    Raises:
+        ValueError: not a mapping, an unknown kind or key, or a missing ``in_dim``.
     """
     if not isinstance(config, Mapping):
         raise ValueError(f"mechanism config must be a mapping, got {type(config).__name__}")
     config = dict(config)
+    registry = mechanism_classes()
     kind = config.pop("kind", None)
-    if not isinstance(kind, str) or kind not in _REGISTRY:
-        raise ValueError(f"mechanism kind {kind!r} cannot be built; expected one of {sorted(_REGISTRY)}")
-    unknown = sorted(set(config) - _CONFIG_KEYS[kind])
+    if not isinstance(kind, str) or kind not in registry:
+        raise ValueError(f"mechanism kind {kind!r} cannot be built; expected one of {sorted(registry)}")
+    cls = registry[kind]
+    unknown = sorted(str(k) for k in set(config) - cls.config_keys)
     if unknown:
         raise ValueError(
-            f"{kind} mechanism config has unknown keys {unknown}; expected {sorted(_CONFIG_KEYS[kind])}"
+            f"{kind} mechanism config has unknown keys {unknown}; expected {sorted(cls.config_keys)}"
         )
-    if "in_dim" not in config:
+    if "in_dim" in cls.config_keys and "in_dim" not in config:
         raise ValueError(f"{kind} mechanism config needs 'in_dim', got keys {sorted(config)}")
-    return _REGISTRY[kind](**config, seed=seed)
+    return cls.from_config(config, seed=seed)

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 import numbers
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -19,9 +18,18 @@ import numpy as np
 
 from models.checks import check_int, describe
 
-__all__ = ["Role", "Variable"]
+__all__ = ["Role", "Variable", "valid_name"]
 
-_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z0-9_]+)*$")
+
+def valid_name(name: Any) -> bool:
+    """Whether ``name`` can name a variable (and its Pyro site).
+
+    Any non-empty string of printable characters without leading or trailing whitespace:
+    ``"q"``, ``"q.finger"``, and names made from MuJoCo names such as
+    ``"act.robot:left_fingers"``, ``"q.arm/elbow"``, ``"q.left-knee"`` or ``"q.joint 1"``.
+    Control characters, tabs and newlines are refused.
+    """
+    return isinstance(name, str) and bool(name) and name.isprintable() and name == name.strip()
 
 
 class Role(StrEnum):
@@ -76,8 +84,8 @@ class Variable:
     """One typed node of the world model.
 
     Args:
-        name: site name, e.g. ``"q"`` or ``"q.finger"``; it is the public name of the
-            Pyro sample site.
+        name: site name, e.g. ``"q"``, ``"q.finger"`` or ``"q.arm/elbow"`` (see
+            :func:`valid_name`); it is the public name of the Pyro sample site.
         role: ``"action"``, ``"observed"`` or ``"latent"``.
         dim: number of components of the value; values have shape ``(..., dim)``.
         bounds: ``(low, high)``, scalars or ``dim``-sequences with ``low < high``.
@@ -98,10 +106,10 @@ class Variable:
     description: str = field(default="", compare=False)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not _NAME.match(self.name):
+        if not valid_name(self.name):
             raise ValueError(
-                f"variable name {self.name!r} is not valid; expected letters, digits and "
-                "underscores, optionally dotted (e.g. 'q' or 'q.finger')"
+                f"variable name {self.name!r} is not valid; expected a non-empty string of printable "
+                "characters without leading or trailing whitespace (e.g. 'q.finger' or 'q.arm/elbow')"
             )
         if not isinstance(self.role, str) or self.role not in [r.value for r in Role]:
             raise ValueError(

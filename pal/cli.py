@@ -2,13 +2,15 @@
 
 pal demo [--quick] [--out DIR]
 pal list
-pal experiment NAME [--quick] [--json] [--out DIR] [--set KEY=VALUE ...] [--body B | --mjcf PATH]
-                    [--joint J] [--actuator A ...]
+pal experiment NAME [--quick] [--json] [--out DIR] [--set KEY=VALUE ...] [BODY OPTIONS] [--dataset DIR]
 pal bench NAME [same options]
 pal loop [--steps N] [--video out.mp4] [--babble B] [--goal X,Y] [--seed S] [--json] [--out DIR]
-pal babble [--body finger|arm | --mjcf PATH] [--joint J ...] [--actuator A ...] --steps N --seed S
-           --out DIR [--policy uniform|ou] [--resume] [--json]
+pal babble [BODY OPTIONS] [--joint J ...] --steps N --seed S --out DIR [--policy uniform|ou]
+           [--probe-steps N] [--resume] [--json]
 pal record --motion MOTION --seed S --out DIR [--fps F] [--width W] [--height H] [--overwrite] [--json]
+
+BODY OPTIONS: ``--body finger|arm | --mjcf PATH``, ``--name NAME``, ``--joint J``,
+``--actuator A ...``, ``--frame-skip N``, ``--action-range A=LOW,HIGH ...``, ``--effective-range``.
 
 Every usage error (a bad flag, an unknown name, a setting of the wrong type, an unusable
 ``--out``) is one line on stderr and exit status 2, reported before any work starts.
@@ -30,8 +32,17 @@ __all__ = ["UsageError", "build_parser", "main"]
 
 log = logging.getLogger("pal")
 
-#: ``pal experiment|bench`` body flags -> field of the config's body choice.
-BODY_FLAGS = {"body": "body", "mjcf": "mjcf", "joint": "joint", "actuator": "actuator"}
+#: ``pal experiment|bench`` body flags -> field of the config's body choice, in the order they are set.
+BODY_FLAGS = {
+    "body": "body",
+    "mjcf": "mjcf",
+    "body_name": "name",
+    "frame_skip": "frame_skip",
+    "joint": "joint",
+    "actuator": "actuator",
+    "action_range": "action_range",
+    "effective_range": "effective_range",
+}
 
 
 class UsageError(Exception):
@@ -74,26 +85,74 @@ def _output_dir(out: str | None) -> Path | None:
         raise UsageError(str(err)) from None
 
 
+def _action_ranges(texts: Sequence[str] | None) -> tuple[tuple[str, float, float], ...]:
+    from pal.sim.ranges import parse_action_range
+
+    try:
+        return tuple(parse_action_range(t) for t in texts or ())
+    except ValueError as err:
+        raise UsageError(f"--action-range: {err}") from None
+
+
 def _body_fields(entry: Any, args: argparse.Namespace) -> dict[str, Any]:
+    """The body and dataset flags as ``--set`` paths, applied in this order.
+
+    A new body (``--body``/``--mjcf``) first clears the joint, actuators and action ranges of
+    the old one that no flag replaces; the body comes before the joint, actuators and ranges,
+    which are checked against it.
+    """
     from pal.experiments import configs
-    from pal.experiments.wm_data import BodyChoice
+    from pal.experiments.wm_data import BodyChoice, DataConfig
 
     given = {flag: getattr(args, flag, None) for flag in BODY_FLAGS}
     given = {k: (tuple(v) if isinstance(v, list) else v) for k, v in given.items() if v is not None}
+    if "body" in given and "mjcf" in given:
+        raise UsageError("give either --body or --mjcf, not both")
     if "joint" in given:
         if len(given["joint"]) != 1:
             raise UsageError(
                 f"--joint given {len(given['joint'])} times {list(given['joint'])}; name the one joint to analyse"
             )
         given["joint"] = given["joint"][0]
-    if not given:
+    if "action_range" in given:
+        given["action_range"] = _action_ranges(given["action_range"])
+    dataset = getattr(args, "dataset", None)
+    if not given and dataset is None:
         return {}
-    paths = configs.find(entry.default(), BodyChoice)
-    if not paths:
-        flags = ", ".join(f"--{k}" for k in given)
-        raise UsageError(f"{flags}: pal {entry.kind} {entry.name} has no body setting")
-    prefix = f"{paths[0]}." if paths[0] else ""
-    return {f"{prefix}{BODY_FLAGS[k]}": v for k, v in given.items()}
+    default = entry.default()
+    fields: dict[str, Any] = {}
+    if given:
+        paths = configs.find(default, BodyChoice)
+        if len(paths) != 1:
+            flags = ", ".join("--" + BODY_FLAGS[k].replace("_", "-") for k in given)
+            found = f" (it has {paths})" if paths else ""
+            raise UsageError(f"{flags}: pal {entry.kind} {entry.name} has no body setting{found}")
+        prefix = f"{paths[0]}." if paths[0] else ""
+        if "body" in given or "mjcf" in given:  # settings of the old body that no flag replaces
+            cleared = {"joint": None, "actuator": None, "action_range": ()}
+            fields.update({f"{prefix}{k}": v for k, v in cleared.items() if k not in given})
+            if "body" in given:
+                fields[f"{prefix}mjcf"] = None
+        fields.update({f"{prefix}{BODY_FLAGS[k]}": given[k] for k in BODY_FLAGS if k in given})
+    if dataset is not None:
+        paths = configs.find(default, DataConfig)
+        if len(paths) != 1:
+            raise UsageError(f"--dataset: pal {entry.kind} {entry.name} has no dataset setting")
+        fields[f"{paths[0]}.dataset" if paths[0] else "dataset"] = dataset
+    return fields
+
+
+def _check_data(kind: str, name: str, config: Any) -> None:
+    """Refuse a dataset choice that cannot be analysed, before the run starts."""
+    from pal.experiments import configs
+    from pal.experiments.wm_data import DataConfig
+
+    for _, data in configs.walk(config):
+        if isinstance(data, DataConfig):
+            try:
+                data.check()
+            except ValueError as err:
+                raise UsageError(f"pal {kind} {name}: {err}") from None
 
 
 def _run_entry(kind: str, name: str, args: argparse.Namespace, fields: dict[str, Any] | None = None) -> int:
@@ -113,6 +172,7 @@ def _run_entry(kind: str, name: str, args: argparse.Namespace, fields: dict[str,
         )
     except ValueError as err:  # unknown setting, wrong type, or refused by the config's checks
         raise UsageError(f"pal {kind} {name}: {err}") from None
+    _check_data(kind, name, config)
     out = _output_dir(args.out)
     record = execute(entry, config, progress_bar=not args.json and sys.stderr.isatty())
     if out is not None:
@@ -166,7 +226,7 @@ def _loop(args: argparse.Namespace) -> int:
 
 
 def _babble(args: argparse.Namespace) -> int:
-    from pal.sim.babbling import BabbleConfig, babble
+    from pal.sim.babbling import BabbleConfig, babble, check_config
 
     if args.mjcf and args.body:
         raise UsageError("give either --body or --mjcf, not both")
@@ -184,36 +244,54 @@ def _babble(args: argparse.Namespace) -> int:
             frame_skip=args.frame_skip,
             reset_every=args.reset_every,
             chunk_size=args.chunk_size,
+            name=args.body_name,
+            action_ranges=_action_ranges(args.action_range),
+            effective_range=args.effective_range,
+            probe_steps=args.probe_steps,
         )
-    except ValueError as err:  # bad sizes, names or MJCF
+        check_config(config)  # names, ranges and the file, before the directory is touched
+    except ValueError as err:  # bad sizes, names, ranges or MJCF
         raise UsageError(f"pal babble: {err}") from None
     _output_dir(args.out)
     start = time.perf_counter()
     try:
         dataset = babble(config, args.out, resume=args.resume, progress_bar=sys.stderr.isatty())
-    except ValueError as err:  # bad names, an occupied, locked or corrupted directory
+    except ValueError as err:  # an occupied, locked or corrupted directory
         raise UsageError(f"pal babble: {err}") from None
+    meta = dataset.metadata
     q = {j: dataset.columns[f"q.{j}"][:, 0] for j in dataset.joints}
     summary = {
         "out": str(args.out),
         "rows": len(dataset),
-        "body": dataset.metadata["body"],
+        "body": meta["body"],
+        "mjcf_path": meta["mjcf_path"],
+        "frame_skip": meta["frame_skip"],
+        "dt": meta["dt"],
         "joints": dataset.joints,
+        "actuators": dataset.actuators,
+        "action_ranges": meta["action_ranges"],
+        "effective_ranges": meta["effective_ranges"],
         "q": {
             j: {"min": float(v.min()), "max": float(v.max()), "mean": float(v.mean()), "std": float(v.std())}
             for j, v in q.items()
         },
     }
     if args.json:
-        print(json.dumps(summary, indent=2, sort_keys=True))
-    else:
+        print(json.dumps(summary, indent=2, sort_keys=True, allow_nan=False))
+        return 0
+    print(
+        f"{len(dataset)} transitions of {summary['body']!r} in {args.out} ({time.perf_counter() - start:.1f} s; "
+        f"step {summary['dt']:.3g} s = {summary['frame_skip']} MuJoCo steps)"
+    )
+    for j, st in summary["q"].items():
+        print(f"  q.{j}: [{st['min']:.3f}, {st['max']:.3f}], mean {st['mean']:.3f}, std {st['std']:.3f}")
+    for a in dataset.actuators:
+        e = summary["effective_ranges"][a]
+        lo, hi = e["effective"]
         print(
-            f"{len(dataset)} transitions of {summary['body']!r} in {args.out} ({time.perf_counter() - start:.1f} s)"
+            f"  {a}: babbled [{e['babbled'][0]:.3g}, {e['babbled'][1]:.3g}], effective [{lo:.3g}, {hi:.3g}] "
+            f"({100 * e['saturated_fraction']:.0f} % saturated)"
         )
-        for j, st in summary["q"].items():
-            print(
-                f"  q.{j}: [{st['min']:.3f}, {st['max']:.3f}] rad, mean {st['mean']:.3f}, std {st['std']:.3f}"
-            )
     return 0
 
 
@@ -262,6 +340,47 @@ def _record(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_body_flags(p: argparse.ArgumentParser, *, babble: bool) -> None:
+    p.add_argument("--body", default=None, help="shipped body: finger (default) or arm")
+    p.add_argument("--mjcf", default=None, metavar="PATH", help="any MJCF file instead of a shipped body")
+    p.add_argument(
+        "--name",
+        dest="body_name",
+        default=None,
+        help="the body's name in reports and caches (default: the model's)",
+    )
+    if babble:
+        p.add_argument(
+            "--joint", action="append", metavar="NAME", help="record this joint (repeatable; default all)"
+        )
+    else:
+        p.add_argument("--joint", action="append", metavar="NAME", help="joint to analyse")
+    p.add_argument(
+        "--actuator",
+        action="append",
+        metavar="NAME",
+        help="babble this actuator (repeatable; default all that drive a recorded joint)",
+    )
+    p.add_argument(
+        "--frame-skip",
+        type=int,
+        default=50 if babble else None,
+        help="MuJoCo steps per transition (default 50)",
+    )
+    p.add_argument(
+        "--action-range",
+        action="append",
+        metavar="NAME=LOW,HIGH",
+        help="babble actuator NAME over [LOW, HIGH] inside its ctrlrange (repeatable)",
+    )
+    p.add_argument(
+        "--effective-range",
+        action="store_true",
+        default=False if babble else None,
+        help="babble over the effective ranges found by a short probe run",
+    )
+
+
 def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--out", default=None, help="directory for JSON, markdown and PNG figures (checked first)")
@@ -273,10 +392,10 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
             metavar="KEY=VALUE",
             help="override a setting, e.g. protocol.fit.epochs=40",
         )
-        p.add_argument("--body", default=None, help="shipped body (finger, arm) where the run uses one")
-        p.add_argument("--mjcf", default=None, metavar="PATH", help="any MJCF file instead of a shipped body")
-        p.add_argument("--joint", action="append", metavar="NAME", help="joint to analyse")
-        p.add_argument("--actuator", action="append", metavar="NAME", help="actuator to drive (repeatable)")
+        _add_body_flags(p, babble=False)
+        p.add_argument(
+            "--dataset", default=None, metavar="DIR", help="use this babbling dataset instead of babbling"
+        )
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -314,21 +433,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_loop)
 
     p = sub.add_parser("babble", help="record motor-babbling transitions to a dataset directory")
-    p.add_argument("--body", default=None, help="shipped body: finger (default) or arm")
-    p.add_argument("--mjcf", default=None, metavar="PATH", help="any MJCF file instead of a shipped body")
-    p.add_argument(
-        "--joint", action="append", metavar="NAME", help="record this joint (repeatable; default all)"
-    )
-    p.add_argument(
-        "--actuator", action="append", metavar="NAME", help="babble this actuator (repeatable; default all)"
-    )
+    _add_body_flags(p, babble=True)
     p.add_argument("--steps", type=int, default=100_000, help="transitions (default 100000)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="dataset directory")
     p.add_argument(
         "--policy", choices=["uniform", "ou"], default="uniform", help="babbling policy (default uniform)"
     )
-    p.add_argument("--frame-skip", type=int, default=50, help="MuJoCo steps per transition (default 50)")
+    p.add_argument(
+        "--probe-steps",
+        type=int,
+        default=2000,
+        help="transitions of the --effective-range probe (default 2000)",
+    )
     p.add_argument("--reset-every", type=int, default=10_000, help="environment reset period (default 10000)")
     p.add_argument("--chunk-size", type=int, default=10_000, help="rows per chunk file (default 10000)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")

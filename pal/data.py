@@ -252,7 +252,16 @@ class DatasetWriter:
 
     def _resume(self) -> str:
         stored = read_metadata(self.root)
-        ignore = {"steps", "versions", "n_rows", "complete", "mjcf_path", "chunks", "run_id"}
+        ignore = {
+            "steps",
+            "versions",
+            "n_rows",
+            "complete",
+            "mjcf_path",
+            "chunks",
+            "run_id",
+            "effective_ranges",
+        }
         keys = (set(stored) | set(self.metadata)) - ignore
         diff = sorted(k for k in keys if stored.get(k) != self.metadata.get(k))
         if diff:
@@ -322,10 +331,19 @@ class DatasetWriter:
         self._write_metadata()
         return path
 
-    def finish(self, steps: int) -> None:
-        """Record the final row count in ``metadata.json`` and release the lock."""
+    def finish(self, steps: int, extra: Mapping[str, Any] | None = None) -> None:
+        """Record the final row count in ``metadata.json`` and release the lock.
+
+        Args:
+            steps: the rows the run aimed at (``complete`` is ``rows >= steps``).
+            extra: JSON-compatible entries added to the metadata, e.g. what was measured on
+                the finished data (``effective_ranges``).
+        """
         if self.closed:
             raise ValueError(f"the writer of {self.root} is closed")
+        if extra:
+            check_json(dict(extra), "dataset metadata")
+            self.metadata.update(json.loads(json.dumps(dict(extra))))
         self.metadata.update(n_rows=self.rows, complete=self.rows >= steps)
         self._write_metadata()
         self.close()

@@ -12,9 +12,10 @@ A dataset is a directory::
 Each chunk is a checked ``.npz`` of :mod:`pal.files` (format :data:`CHUNK_FORMAT`: no pickled
 objects, a SHA-256 over arrays and metadata) holding, for its rows:
 
-- per joint j the columns ``act.<j>``, ``q_prev.<j>``, ``dq.<j>``, ``q.<j>``: float32
-  ``(n, 1)``; rad for hinges (m for slides); ``act.<j>`` is the command of the actuator
-  driving joint j (dimensionless ctrl), ``dq = q - q_prev`` computed in float64;
+- per joint j the columns ``act.<j>``, ``q_prev.<j>``, ``dq_prev.<j>``, ``dq.<j>``, ``q.<j>``:
+  float32 ``(n, 1)``; rad for hinges (m for slides); ``act.<j>`` is the command of the
+  actuator driving joint j (dimensionless ctrl), ``dq = q - q_prev`` computed in float64,
+  and ``dq_prev`` is the previous row's ``dq`` within an episode (0 at its first row);
 - ``ctrl``: float32 ``(n, n_actuators)``, the full applied command (for replay);
 - ``state``: float64 ``(n, state_size)``, the MuJoCo state before each step
   (``mjSTATE_FULLPHYSICS | mjSTATE_WARMSTART``);
@@ -55,11 +56,15 @@ __all__ = [
     "verify_chunks",
 ]
 
-FORMAT = "pal.transitions/2"
-CHUNK_FORMAT = "pal.transitions-chunk/2"
+FORMAT = "pal.transitions/3"
+CHUNK_FORMAT = "pal.transitions-chunk/3"
 METADATA = "metadata.json"
-_OLD_FORMATS = ("pal.transitions/1",)
-_KINDS = ("act", "q_prev", "dq", "q")
+#: Older dataset formats, and what they lack.
+_OLD_FORMATS = {
+    "pal.transitions/1": "an older layout without a chunk manifest",
+    "pal.transitions/2": "an older layout without the dq_prev columns",
+}
+_KINDS = ("act", "q_prev", "dq_prev", "dq", "q")
 ROW_ARRAYS = ("ctrl", "state", "step", "episode")
 _CHUNK_KEYS = ("file", "index", "start", "rows", "checksum")
 
@@ -69,7 +74,7 @@ class DatasetFileError(FileFormatError):
 
 
 def column_names(joints: Sequence[str], actuated: Sequence[str] | None = None) -> list[str]:
-    """Column names per joint, in order: ``act.j`` (if j is actuated), ``q_prev.j``, ``dq.j``, ``q.j``."""
+    """Column names per joint, in order: ``act.j`` (if j is actuated), ``q_prev.j``, ``dq_prev.j``, ``dq.j``, ``q.j``."""
     actuated = set(joints if actuated is None else actuated)
     return [f"{k}.{j}" for j in joints for k in _KINDS if k != "act" or j in actuated]
 
@@ -99,9 +104,9 @@ def read_metadata(root: Path) -> dict[str, Any]:
     except FileFormatError as err:
         raise DatasetFileError(str(err)) from err
     fmt = data.get("format") if isinstance(data, dict) else None
-    if fmt in _OLD_FORMATS:
+    if isinstance(fmt, str) and fmt in _OLD_FORMATS:
         raise DatasetFileError(
-            f"{path}: format {fmt!r} is an older layout without a chunk manifest; babble the dataset "
+            f"{path}: format {fmt!r} is {_OLD_FORMATS[fmt]}; babble the dataset "
             f"again into a new directory (this version reads {FORMAT!r})"
         )
     if fmt != FORMAT:

@@ -40,6 +40,7 @@ from inference import (
     infer_state,
     normalized_entropy,
     occupancy,
+    predictive_check,
     revise,
     rewire,
     shd,
@@ -50,7 +51,9 @@ from inference.context import context_sensitivity, local_sensitivity, target_rel
 from inference.design import choose_interventions, orientation_margins, structure_uncertainty
 from models import (
     CausalGraph,
+    EnsembleMechanism,
     FunctionMechanism,
+    HeteroscedasticMechanism,
     LinearMechanism,
     MLPMechanism,
     Variable,
@@ -117,6 +120,32 @@ def _ensemble() -> None:
     ens.predict({"act.finger": torch.zeros(2, 1), "q_prev.finger": torch.zeros(2, 1)})
     ens.information({"act.finger": torch.zeros(2, 1), "q_prev.finger": torch.zeros(2, 1)}, ["q.finger"])
     ens.choose(STATE, {"act.finger": torch.zeros(3, 2, 1)}, ["q.finger"], spread=0.5)
+
+
+def _calibrated_models(tmp: Path) -> None:
+    """Heteroscedastic and ensemble mechanisms: construction, fit, member queries, calibration, files."""
+    HeteroscedasticMechanism(2, 1, hidden=(3,), seed=0)(torch.zeros(2, 2))
+    HeteroscedasticMechanism.from_coefficients([[1.0]], log_scale_weight=[[0.5]])
+    EnsembleMechanism.replicate(lambda g: MLPMechanism(1, 1, hidden=(2,), seed=g), 3, seed=1)
+    make_mechanism({"kind": "ensemble", "members": [{"kind": "hetero", "in_dim": 1, "hidden": [2]}] * 2})
+    values = {"act.finger": torch.zeros(2, 1), "q_prev.finger": torch.zeros(2, 1)}
+    for kind, members in (("hetero", 1), ("mlp", 3), ("hetero", 2)):
+        model = WorldModel(finger_graph("state"), seed=2, kind=kind, members=members, hidden=(4,))
+        fit(model, _finger_data(), epochs=2, batch_size=8, validation=0.25, patience=1)
+        model.predict(values, members=True)
+        model.predict(values, "sampled", torch.Generator().manual_seed(0), members=True)
+        model.rollout(
+            {"q_prev.finger": torch.zeros(2, 1)}, {"act.finger": torch.zeros(2, 3, 1)}, members=True
+        )
+        model.predict_scale(values)
+        model.predict_scale(values, component="epistemic")
+        model.residuals(model.sample(4, torch.Generator().manual_seed(0)))
+        model.with_graph(finger_graph("thesis"), seed=1)
+        predictive_check(model, _finger_data(), levels=[0.5, 0.9])
+        models.load(models.save(model, tmp / f"{kind}{members}.npz"))
+    counterfactual(
+        WorldModel(chain_graph(), seed=0, kind="hetero", members=2, hidden=(3,)), FACTUAL, {"x": 0.0}
+    )
 
 
 def _handlers() -> None:
@@ -239,9 +268,22 @@ CASES: dict[str, Callable[[Path], object]] = {
     ),
     "infer_action midpoint": lambda tmp: infer_action(_finger(), STATE, TARGET, steps=3),
     "infer_action random init": lambda tmp: infer_action(_finger(), STATE, TARGET, steps=3, init="random"),
+    "infer_action sampling, horizon, ensemble risk": lambda tmp: infer_action(
+        WorldModel(finger_graph("state"), seed=0, members=2, hidden=(4,)),
+        STATE,
+        TARGET,
+        steps=2,
+        sampling=inference.SamplingConfig(population=8, elites=2, iterations=1),
+        risk="mean",
+        seed=1,
+    ),
     "gaussian_log_preference": lambda tmp: gaussian_log_preference(TARGET, 0.5)(TARGET),
-    "fit": lambda tmp: fit(_finger(), _finger_data(), epochs=2, batch_size=8, val_fraction=0.25),
+    "fit": lambda tmp: fit(_finger(), _finger_data(), epochs=2, batch_size=8, validation=0.25),
     "fit nll": lambda tmp: fit(_finger(), _finger_data(), loss="nll", epochs=2, batch_size=8),
+    "fit thesis protocol": lambda tmp: fit(
+        _finger(), _finger_data(), loss="mse", epochs=2, batch_size=8, validation=0.0
+    ),
+    "heteroscedastic and ensemble models": _calibrated_models,
     "curiosity": lambda tmp: _curiosity(),
     "admissible_parents and shd": lambda tmp: (
         admissible_parents(finger_graph(), tiers=[["act.finger", "q_prev.finger"]]),

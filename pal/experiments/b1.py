@@ -23,6 +23,12 @@ import torch
 
 from pal.experiments.registry import register
 from pal.experiments.report import Report, Table, Target
+from pal.experiments.wm_calibration import (
+    calibration,
+    calibration_table,
+    coverage_targets,
+    reliability_figure,
+)
 from pal.experiments.wm_data import DataConfig
 from pal.experiments.wm_setup import FitConfig, Prepared, ProtocolConfig, prepare, setup_note, state_of
 
@@ -139,7 +145,9 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     rows = np.random.default_rng(config.seed).permutation(len(prep.test))[:_SCATTER_POINTS]
     scatter = {"dq": cols[dq][rows, 0], "q": cols[q][rows, 0]}
     for graph, model in prep.models.items():
-        sub = {k: torch.as_tensor(v) for k, v in {**state_of(model, cols, rows), act: cols[act][rows]}.items()}
+        sub = {
+            k: torch.as_tensor(v) for k, v in {**state_of(model, cols, rows), act: cols[act][rows]}.items()
+        }
         pred = model.predict(sub)
         scatter[f"{graph}.dq"], scatter[f"{graph}.q"] = pred[dq].numpy()[:, 0], pred[q].numpy()[:, 0]
     short = {dq: "dq", q: "q"}
@@ -147,13 +155,19 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     curves = {g: {short[v]: c for v, c in f.train_loss.items()} for g, f in prep.fits.items()}
     train_loss = {g: {v: [c[0], c[-1]] for v, c in cv.items()} for g, cv in curves.items()}
     info = prep.info()
+    cal = calibration(prep.models, dict.fromkeys(prep.models, cols))
+    what = "the held-out test transitions"
     return Report(
         title="B1: sensorimotor transition prediction (thesis Table 5.7)",
-        metrics={"error": error, "train_loss": train_loss, "info": info},
-        tables=tables(error, train_loss),
-        targets=targets(error),
-        notes=[setup_note(info)],
-        figures={"training": _curves_figure(curves), "prediction": _scatter_figure(scatter, graphs)},
+        metrics={"error": error, "train_loss": train_loss, "calibration": cal, "info": info},
+        tables=[*tables(error, train_loss), calibration_table(cal, what)],
+        targets=[*targets(error), *coverage_targets(cal, what)],
+        notes=[setup_note(info), f"Mechanisms: {config.protocol.fit.describe()}."],
+        figures={
+            "training": _curves_figure(curves),
+            "prediction": _scatter_figure(scatter, graphs),
+            "reliability": reliability_figure(cal, what),
+        },
     )
 
 

@@ -27,8 +27,15 @@ import numpy as np
 from inference import CuriositySampler, normalized_entropy, occupancy
 from pal.checks import check_float, check_int
 from pal.experiments.b1 import QUICK_PROTOCOL, TINY_PROTOCOL
+from pal.experiments.b2 import SAMPLED
 from pal.experiments.registry import register
 from pal.experiments.report import Report, Table, Target
+from pal.experiments.wm_calibration import (
+    calibration,
+    calibration_table,
+    coverage_targets,
+    reliability_figure,
+)
 from pal.experiments.wm_data import pick_rows
 from pal.experiments.wm_setup import (
     ActionConfig,
@@ -76,7 +83,7 @@ class Config:
     bins: int = 20
     alpha: float = 0.5
     sigma_fraction: float = 0.1
-    action: ActionConfig = ActionConfig()
+    action: ActionConfig = SAMPLED
 
     def __post_init__(self) -> None:
         check_int("targets", self.targets)
@@ -141,12 +148,14 @@ def _coverage(
     "b3",
     config=Config,
     quick=Config(protocol=QUICK_PROTOCOL, targets=64),
-    tiny=Config(protocol=TINY_PROTOCOL, targets=6, bins=5, action=ActionConfig(steps=20)),
+    tiny=Config(
+        protocol=TINY_PROTOCOL, targets=6, bins=5, action=ActionConfig(steps=20, population=16, elites=4)
+    ),
 )
 def run(config: Config, progress_bar: bool = False) -> Report:
     """B3: curiosity targets reached with inferred or random actions, replayed in the simulator (Fig. 5.7)."""
     prep = prepare(config.protocol, config.seed, progress_bar=progress_bar)
-    _, qp, _, q = prep.joint.names
+    act, qp, dq, q = prep.joint.names
     low_q, high_q = prep.q_range
     sampler = CuriositySampler(
         low_q, high_q, bins=config.bins, alpha=config.alpha, sigma=config.sigma_fraction * (high_q - low_q)
@@ -162,9 +171,10 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     realized: dict[str, dict[str, dict[str, float]]] = {}
     internal: dict[str, dict[str, dict[str, float]]] = {}
     a = config.action
+    transitions: dict[str, dict[str, np.ndarray]] = {}
     for graph, model in prep.models.items():
         state = state_of(model, prep.test_columns, rows)
-        actions, predicted, _ = infer_actions(model, prep.joint, state, goals, a.steps, a.lr, a.starts)
+        actions, predicted, _ = infer_actions(model, prep.joint, state, goals, a, seed=config.seed)
         outcomes = {
             "random": (predict_q(model, prep.joint, state, random_a), random_real),
             "inferred": (predicted, prep.realizer.outcomes(rows, actions)),
@@ -174,26 +184,30 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             internal[graph][cond] = _coverage(pred, goals, prep.q_range, config.bins)
             realized[graph][cond] = _coverage(real, goals, prep.q_range, config.bins)
             points[f"{graph}.{cond}.model"] = pred
-        points[f"{graph}.inferred.real"] = outcomes["inferred"][1]
+        points[f"{graph}.inferred.real"] = real_inferred = outcomes["inferred"][1]
+        transitions[graph] = {**state, act: actions, dq: real_inferred - q_prev, q: real_inferred}
     info = prep.info()
+    cal = calibration(prep.models, transitions)
+    what = "the realized transitions of the inferred actions"
     metrics = {
         "realized": realized,
         "model_internal": internal,
         "target_entropy": normalized_entropy(goals, low_q, high_q, config.bins),
         "training": {"occupancy": sampler.occupancy(), "entropy": sampler.normalized_entropy()},
+        "calibration": cal,
         "info": info,
     }
     return Report(
         title="B3: curiosity-conditioned target selection (thesis §5.2.4, Fig. 5.7)",
         metrics=metrics,
-        tables=tables(metrics),
-        targets=targets(realized),
+        tables=[*tables(metrics), calibration_table(cal, what)],
+        targets=[*targets(realized), *coverage_targets(cal, what)],
         notes=[
             setup_note(info),
             f"{len(rows)} test pre-action states, {config.bins} bins over X_q, alpha {config.alpha}, "
             f"sigma {config.sigma_fraction} x |X_q| (Eq. 5.8-5.9).",
         ],
-        figures={"fig5_7": _figure(points, list(realized))},
+        figures={"fig5_7": _figure(points, list(realized)), "reliability": reliability_figure(cal, what)},
     )
 
 

@@ -1,10 +1,12 @@
 """``pal bench babble``: throughput of the babbling data source against bare ``mj_step``.
 
-Contenders, on the same model, each producing ``steps`` environment steps of uniform
-random commands with ``frame_skip`` MuJoCo steps each:
+Contenders, on the same model (any body: ``--mjcf``, ``--actuator``, ``--frame-skip``,
+``--action-range`` as for ``pal babble``), each producing ``steps`` environment steps of
+uniform random commands with ``frame_skip`` MuJoCo steps each:
 
 * ``source``: :meth:`pal.sim.babbling.BabblingSource.run` — policy draws, command clipping,
-  the full state before every step, q before and after, episode resets.
+  the full state before every step, q before and after, the previous displacement, episode
+  resets.
 * ``raw_loop`` (the baseline): a bare Python loop that sets ``data.ctrl`` from pre-drawn
   commands and calls ``mujoco.mj_step`` ``frame_skip`` times per environment step,
   recording nothing.
@@ -33,7 +35,7 @@ from pal.experiments.registry import register
 from pal.experiments.report import Report, Table, Target
 from pal.experiments.timing import measure_interleaved, ratio
 from pal.experiments.wm_data import BodyChoice
-from pal.sim.babbling import BabbleConfig, babble, make_source
+from pal.sim.babbling import babble, make_source
 
 __all__ = ["TARGET_RATIO", "Config", "run"]
 
@@ -49,9 +51,9 @@ class Config:
 
     Attributes:
         seed: seed of the commands.
-        body: the body (shipped name or MJCF path) and its babbling actuators.
+        body: the body (shipped name or MJCF path), its babbling actuators, command ranges
+            and frame skip (MuJoCo steps per environment step).
         steps: environment steps per timed call.
-        frame_skip: MuJoCo steps per environment step.
         repeats: timed repeats (median reported) after one warm-up of each contender.
         record: also time ``babble`` to disk (``recorded``).
     """
@@ -59,14 +61,12 @@ class Config:
     seed: int = 0
     body: BodyChoice = BodyChoice()
     steps: int = 4000
-    frame_skip: int = 50
     repeats: int = 3
     record: bool = True
 
     def __post_init__(self) -> None:
-        check_int("steps", self.steps)
-        check_int("frame_skip", self.frame_skip)
-        check_int("repeats", self.repeats)
+        for key in ("steps", "repeats"):
+            check_int(key, getattr(self, key))
 
 
 @register(
@@ -74,26 +74,21 @@ class Config:
     kind="bench",
     config=Config,
     quick=Config(steps=300, repeats=1),
-    tiny=Config(steps=40, frame_skip=5, repeats=1),
+    tiny=Config(body=BodyChoice(frame_skip=5), steps=40, repeats=1),
 )
 def run(config: Config, progress_bar: bool = False) -> Report:
     """Babbling throughput: the data source against a bare mj_step loop on the same model."""
-    babble_cfg = BabbleConfig(
-        body=config.body.source,
-        actuators=config.body.actuator,
-        steps=config.steps,
-        seed=config.seed,
-        frame_skip=config.frame_skip,
-        chunk_size=max(1, (config.steps + 1) // 2),
+    babble_cfg = config.body.babble_config(
+        config.steps, config.seed, chunk_size=max(1, (config.steps + 1) // 2)
     )
     source = make_source(babble_cfg)
     model = source.env.model
     raw_data = mujoco.MjData(model)
     env = source.env
     commands = np.random.default_rng(config.seed).uniform(
-        env.ctrl_low, env.ctrl_high, size=(config.steps, len(env.actuator_ids))
+        source.policy.low, source.policy.high, size=(config.steps, len(env.actuator_ids))
     )
-    aidx, fs = env.actuator_ids, config.frame_skip
+    aidx, fs = env.actuator_ids, env.frame_skip
 
     def raw_loop() -> None:
         mujoco.mj_resetData(model, raw_data)
@@ -134,6 +129,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             "recorded_transitions_per_s": rate.get("recorded"),
             "seconds_per_call": seconds,
             "body": env.loaded.name,
+            "frame_skip": env.frame_skip,
         },
         tables=[
             Table("Environment steps per second", ("", "seconds per call", "env steps/s", "/ raw_loop"), rows)
@@ -148,7 +144,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             )
         ],
         notes=[
-            f"Body {env.loaded.name}, {c.steps} environment steps per call, frame skip {c.frame_skip}, "
-            f"uniform commands, median of {c.repeats} repeats."
+            f"Body {env.loaded.name}, {c.steps} environment steps per call, frame skip {env.frame_skip} "
+            f"({env.dt:.3g} s per step), uniform commands, median of {c.repeats} repeats."
         ],
     )

@@ -30,14 +30,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from tqdm import tqdm
 
-from inference import CuriositySampler, fit
+from inference import CuriositySampler
 from models.presets import GRAPH_VARIANTS
 from pal.checks import check_choice, check_float, check_int
 from pal.experiments.registry import register
 from pal.experiments.report import Report, Table, Target
 from pal.experiments.wm_data import BodyChoice, JointData
-from pal.experiments.wm_setup import ActionConfig, FitConfig, build_model, infer_actions
-from pal.sim.babbling import BabbleConfig, BabblingSource, make_source
+from pal.experiments.wm_setup import ActionConfig, FitConfig, build_model, fit_model, infer_actions
+from pal.sim.babbling import BabblingSource, make_source
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -135,24 +135,14 @@ def coverage_curve(
 
 def _source(config: Config, seed: int) -> BabblingSource:
     total = config.initial + config.budget
-    return make_source(
-        BabbleConfig(
-            body=config.body.source,
-            actuators=config.body.actuator,
-            steps=total,
-            seed=seed,
-            reset_every=total + 1,
-        )
-    )
+    return make_source(config.body.babble_config(total, seed, reset_every=total + 1))
 
 
 def _refit(
     config: Config, joint: JointData, data: dict[str, list[float]], q_range: tuple[float, float], seed: int
 ) -> WorldModel:
-    f = config.fit
-    model = build_model(joint, config.graph, q_range, seed, f.hidden)
-    cols = {k: np.asarray(v, np.float32)[:, None] for k, v in data.items() if k in model.graph}
-    fit(model, cols, loss="mse", epochs=f.epochs, batch_size=f.batch_size, lr=f.lr, seed=seed)
+    model = build_model(joint, config.graph, q_range, seed, config.fit)
+    fit_model(model, {k: np.asarray(v, np.float32)[:, None] for k, v in data.items()}, config.fit, seed)
     return model
 
 
@@ -191,10 +181,9 @@ def _curiosity_run(
             if config.graph == "dynamics"
             else {qp: np.array([q_now])},
             target,
-            config.action.steps,
-            config.action.lr,
-            config.action.starts,
+            config.action,
             rng=start_rng,
+            seed=seed,
         )
         ctrl = source.policy.sample(1)[0].astype(np.float64)
         ctrl[a_idx] = action[0]
@@ -245,7 +234,7 @@ def _median_steps(steps: list[int | None]) -> float | None:
 def run(config: Config, progress_bar: bool = False) -> Report:
     """Online exploration: steps until the curiosity loop and random babbling have visited every bin of q."""
     probe = _source(config, config.seed)
-    joint = JointData.from_env(probe.env, config.body.joint)
+    joint = JointData.from_env(probe.env, config.body.joint, probe.action_ranges)
     q_range = config.q_range or probe.env.joint_ranges[joint.joint]
     if q_range is None:
         raise ValueError(f"joint {joint.joint!r} is unlimited; give the bins' support as q_range=(low, high)")

@@ -1,11 +1,15 @@
 """Babbling data of the world-model experiments (B1-B3, explore): body choice, cache, replay.
 
-- :class:`BodyChoice`: which body (shipped name or MJCF path), which joint is analysed and
-  which actuators babble. The ``pal experiment`` flags ``--body/--mjcf/--joint/--actuator``
-  set its fields.
+- :class:`BodyChoice`: which body (shipped name or MJCF path) and its name, which joint is
+  analysed, which actuators babble, over which command ranges, with which frame skip. The
+  ``pal experiment``/``pal bench`` flags ``--body/--mjcf/--name/--joint/--actuator/
+  --frame-skip/--action-range/--effective-range`` set its fields; names, ranges and the file
+  are checked when it is built (the MJCF is compiled once per file version).
+- :class:`DataConfig`: the dataset: babbled (and cached) or an existing directory
+  (``--dataset``), which must have been recorded for the same body, actuators and frame skip.
 - :func:`babble_or_load`: i.i.d. uniform motor babbling (thesis §5.2.1), cached on disk by
-  (body file hash, actuators, steps, seed), so B1, B2 and B3 share one dataset.
-- :class:`JointData`: the analysed joint's columns ``act.J, q_prev.J, dq.J, q.J``.
+  body, babbling settings, steps and seed, so B1, B2 and B3 share one dataset.
+- :class:`JointData`: the analysed joint's columns ``act.J, q_prev.J, dq_prev.J, dq.J, q.J``.
 - :class:`Realizer`: realized evaluation. It restores the recorded simulator state before a
   transition, executes a given command for the analysed actuator (the other actuators keep
   their recorded commands) for one environment step, and returns the joint angle reached.
@@ -17,8 +21,9 @@ import hashlib
 import json
 import logging
 import os
+import re
 import shutil
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,8 +32,10 @@ import numpy as np
 
 from pal.checks import check_int
 from pal.data import FORMAT, METADATA, DatasetFileError, TransitionDataset
+from pal.dataset_files import read_metadata
 from pal.sim.babbling import BabbleConfig, babble, collect, replay
-from pal.sim.bodies import BODIES, load_model
+from pal.sim.bodies import BODIES, check_name
+from pal.sim.body_info import BodyInfo, body_info, check_selection, dataset_mismatch
 from pal.sim.env import BabblingEnv
 
 __all__ = [
@@ -57,38 +64,129 @@ def _one_name(value: Any, what: str) -> str | None:
     return names[0]
 
 
+def _resolve_joint(joints: Sequence[str], joint: str | None) -> str:
+    """``joint``, else ``"finger"`` if the body has it, else its only joint."""
+    if joint is not None:
+        return joint
+    if DEFAULT_JOINT in joints:
+        return DEFAULT_JOINT
+    if len(joints) == 1:
+        return joints[0]
+    raise ValueError(f"the body has joints {list(joints)}; name the one to analyse (--joint NAME)")
+
+
+def _action_range(item: Any) -> tuple[str, float, float]:
+    if isinstance(item, str) or not isinstance(item, Sequence) or len(item) != 3:
+        raise ValueError(f"action_range entry {item!r} is not a (actuator, low, high) triple")
+    name, low, high = item
+    check_name("action_range actuator", name)
+    if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in (low, high)):
+        raise ValueError(f"action_range entry {item!r}: low and high must be numbers")
+    return name, float(low), float(high)
+
+
 @dataclass(frozen=True)
 class BodyChoice:
-    """The body, the analysed joint and the babbling actuators.
+    """The body, the analysed joint and how its actuators babble.
 
     Attributes:
         body: shipped body, one of ``pal.sim.BODIES`` (``"finger"``, ``"arm"``).
         mjcf: path to any MJCF file; when given it replaces ``body``.
         joint: the analysed joint (default ``"finger"``, or the only joint of the model).
-        actuator: the actuators that babble (default all). The analysed action is the
-            selected actuator whose transmission is ``joint``.
+        actuator: the actuators that babble (default all); each must drive a joint. The
+            analysed action is the selected actuator whose transmission is ``joint``.
+        frame_skip: MuJoCo steps per transition (50: 0.25 s on the shipped bodies).
+        action_range: ``(actuator, low, high)`` triples babbled instead of the ctrlrange,
+            each inside it.
+        name: the body's name in reports, caches and metadata (default the model's own).
+        effective_range: babble over the effective ranges a probe run finds
+            (:func:`pal.sim.ranges.effective_ranges`).
+
+    Raises:
+        ValueError: an unknown body, a missing or malformed file, an unknown joint or
+            actuator, an actuator that drives no joint or not the analysed one, a frame skip
+            < 1, an action range outside the ctrlrange, or a bad name.
     """
 
     body: str = "finger"
     mjcf: str | None = None
     joint: str | None = None
     actuator: tuple[str, ...] | None = None
+    frame_skip: int = 50
+    action_range: tuple[tuple[str, float, float], ...] = ()
+    name: str | None = None
+    effective_range: bool = False
 
     def __post_init__(self) -> None:
         if self.mjcf is None and self.body not in BODIES:
             raise ValueError(
                 f"unknown body {self.body!r}; expected one of {list(BODIES)}, or give mjcf=PATH (--mjcf)"
             )
-        object.__setattr__(self, "joint", _one_name(self.joint, "joint"))
+        joint = _one_name(self.joint, "joint")
+        if joint is not None:
+            check_name("joint", joint)
+        object.__setattr__(self, "joint", joint)
         if self.actuator is not None:
-            if isinstance(self.actuator, str):
-                object.__setattr__(self, "actuator", (self.actuator,))
-            object.__setattr__(self, "actuator", tuple(self.actuator))
+            names = (self.actuator,) if isinstance(self.actuator, str) else tuple(self.actuator)
+            object.__setattr__(self, "actuator", tuple(check_name("actuator", a) for a in names))
+        object.__setattr__(self, "frame_skip", check_int("frame_skip", self.frame_skip))
+        object.__setattr__(self, "action_range", tuple(_action_range(r) for r in self.action_range))
+        if self.name is not None:
+            check_name("body name", self.name)
+        if not isinstance(self.effective_range, bool):
+            raise ValueError(f"effective_range must be true or false, got {self.effective_range!r}")
+        check_selection(
+            body_info(self.source), joint=self.joint, actuators=self.actuator, action_ranges=self.action_range
+        )
 
     @property
     def source(self) -> str:
         """What :class:`~pal.sim.env.BabblingEnv` loads: the MJCF path or the body name."""
         return self.mjcf if self.mjcf is not None else self.body
+
+    def info(self) -> BodyInfo:
+        """The body's names and ranges (:func:`pal.sim.body_info.body_info`, cached)."""
+        return body_info(self.source)
+
+    def analysed(self) -> tuple[str, str]:
+        """``(joint, actuator)`` analysed: the named joint, else ``"finger"`` or the only joint.
+
+        Raises:
+            ValueError: several joints and none named, or no babbling actuator drives the joint.
+        """
+        info = self.info()
+        joint = _resolve_joint(info.joints, self.joint)
+        acts = check_selection(info, joint=joint, actuators=self.actuator, action_ranges=self.action_range)
+        return joint, next(a for a in acts if info.joint_actuators.get(a) == joint)
+
+    def dataset_mismatch(self, meta: Mapping[str, Any], root: str | os.PathLike[str]) -> str | None:
+        """Why the dataset with metadata ``meta`` was not babbled by this choice, or None."""
+        ranges = None if self.effective_range else self.action_range
+        return dataset_mismatch(
+            meta,
+            self.info(),
+            root=root,
+            actuators=self.actuator,
+            frame_skip=self.frame_skip,
+            action_ranges=ranges,
+        )
+
+    def babble_config(self, steps: int, seed: int, **settings: Any) -> BabbleConfig:
+        """The :class:`~pal.sim.babbling.BabbleConfig` of this choice (all joints recorded).
+
+        Args:
+            steps: transitions.
+            seed: master seed.
+            settings: other :class:`BabbleConfig` fields (``chunk_size``, ``reset_every``, ...).
+        """
+        body = {
+            "body": self.source,
+            "name": self.name,
+            "actuators": self.actuator,
+            "frame_skip": self.frame_skip,
+        }
+        ranges = {"action_ranges": self.action_range, "effective_range": self.effective_range}
+        return BabbleConfig(steps=steps, seed=seed, **body, **ranges, **settings)
 
 
 @dataclass(frozen=True)
@@ -97,18 +195,59 @@ class DataConfig:
 
     Attributes:
         body: the body, analysed joint and babbling actuators.
-        steps: transitions (thesis: 100 000).
+        steps: transitions (thesis: 100 000); ignored with ``dataset``.
         cache: keep the dataset on disk and reuse it.
         cache_dir: cache root; default ``$PAL_CACHE_DIR`` or ``~/.cache/pal``.
+        dataset: an existing dataset directory (``pal babble --out DIR``) used instead of
+            babbling; it must be complete and recorded for ``body``'s MJCF file (hash),
+            actuators, frame skip and command ranges.
+
+    Raises:
+        ValueError: ``steps < 10``, or a ``dataset`` that is missing, unreadable, incomplete
+            or recorded for another body, actuator set, frame skip or command range.
     """
 
     body: BodyChoice = BodyChoice()
     steps: int = 100_000
     cache: bool = True
     cache_dir: str | None = None
+    dataset: str | None = None
 
     def __post_init__(self) -> None:
         check_int("steps", self.steps, minimum=10)
+        if self.dataset is not None:
+            self._check_dataset()
+
+    def _check_dataset(self) -> dict[str, Any]:
+        root = Path(str(self.dataset))
+        if not root.is_dir():
+            raise ValueError(
+                f"dataset {str(root)!r} is not a directory; give a directory written by pal babble --out"
+            )
+        meta = read_metadata(root)
+        if not meta.get("complete"):
+            raise ValueError(
+                f"dataset {root} is incomplete ({meta.get('n_rows', 'unknown')} of {meta.get('steps')} rows); "
+                "finish it with pal babble --resume"
+            )
+        reason = self.body.dataset_mismatch(meta, root)
+        if reason:
+            raise ValueError(reason)
+        return meta
+
+    def check(self) -> None:
+        """Refuse, before any babbling, a choice that cannot be analysed (see :meth:`BodyChoice.analysed`).
+
+        Raises:
+            ValueError: no analysable joint, or a ``dataset`` that does not record it.
+        """
+        joint, _ = self.body.analysed()
+        if self.dataset is not None:
+            meta = self._check_dataset()
+            if joint not in meta.get("joints", ()):
+                raise ValueError(
+                    f"dataset {self.dataset} does not record joint {joint!r}; its joints are {meta.get('joints')}"
+                )
 
 
 def default_cache_dir() -> Path:
@@ -119,43 +258,66 @@ def default_cache_dir() -> Path:
     return Path(base) / "pal"
 
 
-def _babble_config(config: DataConfig, seed: int) -> BabbleConfig:
-    return BabbleConfig(
-        body=config.body.source,
-        actuators=config.body.actuator,
-        steps=config.steps,
-        seed=seed,
-        chunk_size=min(10_000, config.steps),
-    )
+def _slug(name: str) -> str:
+    """A directory-safe form of a body name (the cache key's hash keeps entries apart)."""
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._") or "body"
 
 
-def babble_or_load(config: DataConfig, seed: int, progress_bar: bool = False) -> TransitionDataset:
-    """The uniform-babbling dataset of ``config``: from the cache, else babbled (and cached).
+def cache_path(config: DataConfig, seed: int) -> Path:
+    """The cache directory of ``config`` and ``seed``: ``<root>/babble/<body>-n<steps>-s<seed>-<hash>``.
 
-    The cache directory is ``<cache_dir>/babble/<body>-n<steps>-s<seed>-<hash>``; the hash
-    covers the MJCF file's bytes, the babbling actuators and the babbling settings, so an
-    edited body file never reuses stale data. An interrupted run resumes.
-
-    Returns:
-        All recorded joints; ``(steps, 1)`` float32 columns and the state before every step.
+    The hash covers the MJCF file's bytes, the body name, the babbling actuators, the frame
+    skip, the command ranges (override or effective), the babbling settings and the dataset
+    format, so an edited body file or another choice never reuses stale data.
     """
-    bcfg = _babble_config(config, seed)
-    if not config.cache:
-        return collect(bcfg, progress_bar=progress_bar)
-    loaded = load_model(config.body.source)
+    bcfg = config.body.babble_config(config.steps, seed, chunk_size=min(10_000, config.steps))
+    info = config.body.info()
+    name = config.body.name or info.name
     spec = {
-        "mjcf_sha256": loaded.sha256,
-        "actuators": list(config.body.actuator) if config.body.actuator else None,
+        "format": FORMAT,
+        "mjcf_sha256": info.sha256,
+        "name": name,
+        "actuators": list(bcfg.actuators) if bcfg.actuators else None,
         "steps": bcfg.steps,
         "seed": bcfg.seed,
         "policy": bcfg.policy,
         "frame_skip": bcfg.frame_skip,
+        "action_ranges": [list(r) for r in bcfg.action_ranges],
+        "effective_range": bcfg.effective_range,
+        "probe_steps": bcfg.probe_steps if bcfg.effective_range else None,
         "reset_every": bcfg.reset_every,
         "chunk_size": bcfg.chunk_size,
     }
     digest = hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:12]
     root = Path(config.cache_dir) if config.cache_dir else default_cache_dir()
-    path = root / "babble" / f"{loaded.name}-n{config.steps}-s{seed}-{digest}"
+    return root / "babble" / f"{_slug(name)}-n{config.steps}-s{seed}-{digest}"
+
+
+def babble_or_load(config: DataConfig, seed: int, progress_bar: bool = False) -> TransitionDataset:
+    """The dataset of ``config``: the given directory, else from the cache, else babbled (and cached).
+
+    Everything is checked before any stepping (:meth:`DataConfig.check`). The cache
+    directory is :func:`cache_path`; an interrupted run resumes, and a stale entry (another
+    format, damaged) is babbled again.
+
+    Returns:
+        All recorded joints; ``(N, 1)`` float32 columns and the state before every step.
+
+    Raises:
+        ValueError: see :meth:`DataConfig.check`; the dataset changed since the config was built.
+    """
+    config.check()
+    if config.dataset is not None:
+        dataset = TransitionDataset.load(config.dataset)
+        reason = config.body.dataset_mismatch(dataset.metadata, config.dataset)
+        if reason:  # pragma: no cover - the directory changed since the check
+            raise ValueError(reason)
+        log.info("using the dataset %s (%d rows)", config.dataset, len(dataset))
+        return dataset
+    bcfg = config.body.babble_config(config.steps, seed, chunk_size=min(10_000, config.steps))
+    if not config.cache:
+        return collect(bcfg, progress_bar=progress_bar)
+    path = cache_path(config, seed)
     meta_path = path / METADATA
     if meta_path.is_file():
         try:
@@ -177,11 +339,12 @@ class JointData:
     """The analysed joint of a dataset.
 
     Attributes:
-        joint: joint name J; variables are ``act.J``, ``q_prev.J``, ``dq.J``, ``q.J``.
+        joint: joint name J; variables are ``act.J``, ``q_prev.J``, ``dq_prev.J``, ``dq.J``, ``q.J``.
         actuator: name of the actuator driving J (its command is ``act.J``).
         actuator_index: column of that actuator in ``dataset.ctrl``.
         joint_index: position of J in ``dataset.joints``.
-        action_range: ``(low, high)`` ctrl range X_a of the actuator (dimensionless).
+        action_range: ``(low, high)`` command range X_a the actuator babbled over (its
+            ctrlrange unless overridden), dimensionless.
     """
 
     joint: str
@@ -199,16 +362,26 @@ class JointData:
                 drives the joint, or the actuator's ctrl range is unbounded.
         """
         meta = dataset.metadata
-        return cls._pick(
-            dataset.joints, dataset.actuators, meta.get("joint_actuators", {}), meta["actuator_ranges"], joint
-        )
+        ranges = meta.get("action_ranges") or meta["actuator_ranges"]
+        return cls._pick(dataset.joints, dataset.actuators, meta.get("joint_actuators", {}), ranges, joint)
 
     @classmethod
-    def from_env(cls, env: BabblingEnv, joint: str | None = None) -> JointData:
-        """The same as :meth:`select` for an environment's joints and actuators."""
-        return cls._pick(
-            list(env.joint_names), list(env.actuator_names), env.joint_actuators, env.actuator_ranges, joint
-        )
+    def from_env(
+        cls,
+        env: BabblingEnv,
+        joint: str | None = None,
+        action_ranges: Mapping[str, tuple[float, float]] | None = None,
+    ) -> JointData:
+        """The same as :meth:`select` for an environment's joints and actuators.
+
+        Args:
+            env: the environment.
+            joint: the analysed joint (default as in :meth:`select`).
+            action_ranges: the babbled command ranges (default the ctrl ranges), e.g.
+                :attr:`pal.sim.babbling.BabblingSource.action_ranges`.
+        """
+        ranges = dict(env.actuator_ranges) if action_ranges is None else dict(action_ranges)
+        return cls._pick(list(env.joint_names), list(env.actuator_names), env.joint_actuators, ranges, joint)
 
     @classmethod
     def _pick(
@@ -216,16 +389,10 @@ class JointData:
         joints: list[str],
         actuators: list[str],
         driving: dict[str, str],
-        ranges: dict[str, Any],
+        ranges: Mapping[str, Any],
         joint: str | None,
     ) -> JointData:
-        if joint is None:
-            if DEFAULT_JOINT in joints:
-                joint = DEFAULT_JOINT
-            elif len(joints) == 1:
-                joint = joints[0]
-            else:
-                raise ValueError(f"the body has joints {joints}; name the one to analyse (--joint NAME)")
+        joint = _resolve_joint(joints, joint)
         if joint not in joints:
             raise ValueError(f"unknown joint {joint!r}; the body's joints are {joints}")
         if joint not in driving:
@@ -250,13 +417,16 @@ class JointData:
     def columns(self, dataset: TransitionDataset) -> dict[str, np.ndarray]:
         """The joint's columns, name -> ``(N, 1)`` float32.
 
-        They are ``act.J`` (the command), ``q_prev.J``, ``dq.J`` and ``q.J`` (rad).
+        They are ``act.J`` (the command), ``q_prev.J``, ``dq_prev.J`` (the previous step's
+        displacement), ``dq.J`` and ``q.J`` (rad).
         """
         act, q_prev, dq, q = self.names
+        dq_prev = f"dq_prev.{self.joint}"
         cols = dataset.columns
         return {
             act: dataset.ctrl[:, self.actuator_index : self.actuator_index + 1].astype(np.float32),
             q_prev: cols[q_prev].copy(),
+            dq_prev: cols[dq_prev].copy(),
             dq: cols[dq].copy(),
             q: cols[q].copy(),
         }

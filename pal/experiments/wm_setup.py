@@ -1,8 +1,11 @@
-"""The shared protocol of experiments B1-B3 (thesis §5.2.1): data, split, both graphs, fit.
+"""The shared protocol of experiments B1-B3 (thesis §5.2.1): data, split, the graphs, fit.
 
 Protocol: 100 000 uniform-babbling transitions split 80:20 at random; for each graph
-variant (``"thesis"``: Fig. 5.5, ``"state"``: with q_prev -> dq) a world model with MLP
-mechanisms (2 x 32, tanh) trained with MSE for 120 epochs, batch 2048, lr 0.01 (Eq. 4.33).
+variant (``"thesis"``: Fig. 5.5, ``"state"``: with q_prev -> dq, ``"dynamics"``: also with
+dq_prev -> dq) a world model with MLP mechanisms (2 x 32, tanh) trained with MSE for 120
+epochs, batch 2048, lr 0.01 (Eq. 4.33). Beyond the thesis, 10 % of the training rows are
+held out to estimate each sigma_i (not from training residuals), and the mechanisms may be
+heteroscedastic (``X ~ Normal(f(pa), sigma(pa))``, beta-NLL) and ensembles of K members.
 :func:`prepare` runs it once and hands B1, B2 and B3 the same data and models.
 """
 
@@ -18,11 +21,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from inference import FitResult, fit, infer_action
+from inference import FitResult, SamplingConfig, fit, infer_action
 from models import WorldModel
 from models.presets import GRAPH_VARIANTS, joint_chain_graph
 from models.variables import Role
-from pal.checks import check_float, check_int
+from pal.checks import check_choice, check_float, check_int
 from pal.data import TransitionDataset
 from pal.experiments.wm_data import DataConfig, JointData, Realizer, babble_or_load
 
@@ -33,6 +36,7 @@ __all__ = [
     "ProtocolConfig",
     "abs_errors",
     "build_model",
+    "fit_model",
     "infer_actions",
     "predict_q",
     "prepare",
@@ -45,43 +49,108 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class FitConfig:
-    """Adam schedule of :func:`inference.fit` (MSE loss, Eq. 4.33) and the MLP mechanisms.
+    """The mechanisms and their fit by :func:`inference.fit` (Eq. 4.33).
 
     Attributes:
-        epochs, batch_size, lr: the schedule (thesis: 120, 2048, 0.01).
+        epochs: passes over the training rows (thesis: 120).
+        batch_size: minibatch rows (thesis: 2048).
+        lr: Adam learning rate (thesis: 0.01).
         hidden: MLP hidden widths (tanh).
+        kind: ``"mlp"`` (homoscedastic, MSE: the thesis) or ``"hetero"`` (each mechanism
+            predicts its own scale sigma(pa), trained with beta-NLL).
+        members: ensemble size K per site (1: no ensemble); each member sees its own
+            bootstrap of the training rows, and their disagreement is the epistemic variance.
+        validation: share of the training rows held out to estimate sigma_i and, with
+            ``patience``, to stop early; 0 is the thesis protocol (sigma from training residuals).
+        patience: epochs without a better validation loss before a mechanism stops (None: never).
+        beta: the beta of beta-NLL, in [0, 1].
     """
 
     epochs: int = 120
     batch_size: int = 2048
     lr: float = 0.01
     hidden: tuple[int, ...] = (32, 32)
+    kind: str = "mlp"
+    members: int = 1
+    validation: float = 0.1
+    patience: int | None = None
+    beta: float = 0.5
 
     def __post_init__(self) -> None:
         check_int("epochs", self.epochs)
         check_int("batch_size", self.batch_size)
         check_float("lr", self.lr, 0.0, open_low=True)
         object.__setattr__(self, "hidden", tuple(check_int("hidden", h) for h in self.hidden))
+        check_choice("kind", self.kind, ("mlp", "hetero"))
+        check_int("members", self.members)
+        check_float("validation", self.validation, 0.0, 1.0, open_high=True)
+        if self.patience is not None:
+            check_int("patience", self.patience)
+            if self.validation == 0:
+                raise ValueError("patience needs validation rows; give validation > 0 or patience=None")
+        check_float("beta", self.beta, 0.0, 1.0)
+
+    def describe(self) -> str:
+        """A phrase for reports."""
+        mech = "heteroscedastic MLPs (beta-NLL)" if self.kind == "hetero" else "MLPs (MSE)"
+        ens = f", ensembles of {self.members}" if self.members > 1 else ""
+        sigma = (
+            f"sigma from {self.validation:.0%} held-out rows"
+            if self.validation
+            else "sigma from training residuals"
+        )
+        return f"{'x'.join(map(str, self.hidden))} tanh {mech}{ens}, {self.epochs} epochs, {sigma}"
 
 
 @dataclass(frozen=True)
 class ActionConfig:
-    """Alg. 4.2: projected Adam on the action, clipped to X_a (thesis §5.2.3: 200 steps, lr 0.05).
+    """Action inference: Alg. 4.2 (thesis §5.2.3: 200 Adam steps, lr 0.05), optionally after a sampling stage.
 
     Attributes:
-        steps, lr: Adam iterations and learning rate.
+        steps: Adam iterations.
+        lr: Adam learning rate.
         starts: 1 starts at the midpoint of X_a (the thesis protocol); k > 1 restarts from
             k points across X_a and keeps the best under the model.
+        population: candidates per target and iteration of a CEM sampling stage over X_a
+            before Adam (:class:`inference.SamplingConfig`); 0 skips it (the thesis protocol).
+            The thesis's midpoint is a member of the first population.
+        elites: candidates kept per iteration to refit the sampling distribution.
+        iterations: CEM iterations.
     """
 
     steps: int = 200
     lr: float = 0.05
     starts: int = 1
+    population: int = 0
+    elites: int = 16
+    iterations: int = 3
 
     def __post_init__(self) -> None:
         check_int("steps", self.steps)
         check_float("lr", self.lr, 0.0, open_low=True)
         check_int("starts", self.starts)
+        check_int("population", self.population, minimum=0)
+        check_int("elites", self.elites)
+        check_int("iterations", self.iterations)
+        if self.population and self.population < self.elites:
+            raise ValueError(f"population {self.population} is smaller than elites {self.elites}")
+
+    @property
+    def sampling(self) -> SamplingConfig | None:
+        """The sampling stage, or None for pure gradient descent (Alg. 4.2 as in the thesis)."""
+        if not self.population:
+            return None
+        return SamplingConfig(population=self.population, elites=self.elites, iterations=self.iterations)
+
+    def describe(self) -> str:
+        """A phrase for reports."""
+        start = "the midpoint of X_a" if self.starts == 1 else f"{self.starts} points across X_a"
+        search = (
+            f"CEM ({self.population} x {self.iterations}, {self.elites} elites) then "
+            if self.population
+            else ""
+        )
+        return f"{search}Adam {self.steps} steps, lr {self.lr}, from {start}, clipped to X_a"
 
 
 @dataclass(frozen=True)
@@ -90,13 +159,13 @@ class ProtocolConfig:
 
     Attributes:
         data: the babbling dataset.
-        graphs: graph variants to fit, from ``("thesis", "state")``.
+        graphs: graph variants to fit, from ``("thesis", "state", "dynamics")``.
         split: training share of the random split.
         fit: the fitting schedule.
     """
 
     data: DataConfig = DataConfig()
-    graphs: tuple[str, ...] = ("thesis", "state")
+    graphs: tuple[str, ...] = GRAPH_VARIANTS
     split: float = 0.8
     fit: FitConfig = FitConfig()
 
@@ -166,13 +235,38 @@ def build_model(
     variant: str,
     q_range: tuple[float, float],
     seed: int,
-    hidden: tuple[int, ...] = (32, 32),
+    fit: FitConfig = FitConfig(),
 ) -> WorldModel:
     """An unfitted world model over the analysed joint; tanh MLP weights drawn from ``seed``."""
     graph = joint_chain_graph(
         [joint.joint], {joint.joint: joint.action_range}, variant=variant, q_ranges={joint.joint: q_range}
     )
-    return WorldModel(graph, hidden=hidden, activation="tanh", seed=seed)
+    return WorldModel(
+        graph, kind=fit.kind, members=fit.members, hidden=fit.hidden, activation="tanh", seed=seed
+    )
+
+
+def fit_model(
+    model: WorldModel,
+    data: Mapping[str, np.ndarray],
+    config: FitConfig,
+    seed: int,
+    progress_bar: bool = False,
+) -> FitResult:
+    """Fit ``model`` on the columns of its graph in ``data`` with the schedule of ``config``."""
+    return fit(
+        model,
+        {k: v for k, v in data.items() if k in model.graph},
+        loss="mse" if config.kind == "mlp" else "beta_nll",
+        beta=config.beta,
+        epochs=config.epochs,
+        batch_size=config.batch_size,
+        lr=config.lr,
+        validation=config.validation,
+        patience=config.patience,
+        seed=seed,
+        progress_bar=progress_bar,
+    )
 
 
 _LAST: dict[tuple[ProtocolConfig, int], Prepared] = {}
@@ -197,17 +291,8 @@ def prepare(config: ProtocolConfig, seed: int, progress_bar: bool = False) -> Pr
     data = joint.columns(train)
     for variant in config.graphs:
         start = time.perf_counter()
-        model = build_model(joint, variant, prep.q_range, seed, config.fit.hidden)
-        prep.fits[variant] = fit(
-            model,
-            data,
-            loss="mse",
-            epochs=config.fit.epochs,
-            batch_size=config.fit.batch_size,
-            lr=config.fit.lr,
-            seed=seed,
-            progress_bar=progress_bar,
-        )
+        model = build_model(joint, variant, prep.q_range, seed, config.fit)
+        prep.fits[variant] = fit_model(model, data, config.fit, seed, progress_bar)
         prep.models[variant] = model
         prep.seconds[f"fit_{variant}"] = time.perf_counter() - start
         log.info("fitted the %s graph in %.1f s", variant, prep.seconds[f"fit_{variant}"])
@@ -226,7 +311,9 @@ def abs_errors(pred: np.ndarray | torch.Tensor, target: np.ndarray | torch.Tenso
     return np.abs(p - t)
 
 
-def state_of(model: WorldModel, columns: Mapping[str, np.ndarray], rows: Any = slice(None)) -> dict[str, np.ndarray]:
+def state_of(
+    model: WorldModel, columns: Mapping[str, np.ndarray], rows: Any = slice(None)
+) -> dict[str, np.ndarray]:
     """The model's non-action roots (q_prev.J, and dq_prev.J in the dynamics graph) from ``columns``.
 
     Args:
@@ -241,7 +328,9 @@ def state_of(model: WorldModel, columns: Mapping[str, np.ndarray], rows: Any = s
     names = [r for r in graph.roots if graph[r].role is not Role.ACTION]
     missing = [r for r in names if r not in columns]
     if missing:
-        raise ValueError(f"the data have no column(s) {missing} for the roots of the {list(graph.roots)} graph")
+        raise ValueError(
+            f"the data have no column(s) {missing} for the roots of the {list(graph.roots)} graph"
+        )
     return {r: np.asarray(columns[r][rows], np.float32).reshape(-1, 1) for r in names}
 
 
@@ -273,43 +362,45 @@ def infer_actions(
     joint: JointData,
     state: Mapping[str, np.ndarray],
     targets: np.ndarray,
-    steps: int,
-    lr: float,
-    starts: int = 1,
+    action: ActionConfig,
     rng: np.random.Generator | None = None,
+    seed: int = 0,
 ) -> tuple[np.ndarray, np.ndarray, tuple[float, ...]]:
-    """Alg. 4.2 for each (state, target) pair: projected Adam on the action, clipped to X_a.
+    """Alg. 4.2 for each (state, target) pair: the action whose predicted q.J is the target.
 
-    The loss is ``0.5 (Phi(s, a) - target)^2`` per pair (the thesis's MSE objective).
-    With ``starts = 1`` Adam starts from the midpoint of X_a (thesis §5.2.3). With
-    ``starts = k > 1`` it starts from the k interior points of ``linspace(low, high, k + 2)``
-    (the midpoint among them when k is odd), all in one batch, and keeps per pair the
-    action with the lowest final loss under the model. With ``rng`` the k starts of every
-    pair are drawn uniformly from X_a instead, so that where the model predicts no effect
-    of the action (a flat loss) the chosen action stays random rather than fixed.
+    The loss is ``0.5 (Phi(s, a) - target)^2`` per pair (the thesis's MSE objective),
+    minimised by projected Adam clipped to X_a, after an optional CEM sampling stage
+    (``action.population > 0``). With ``action.starts = 1`` Adam starts from the midpoint of
+    X_a (thesis §5.2.3). With ``starts = k > 1`` it starts from the k interior points of
+    ``linspace(low, high, k + 2)`` (the midpoint among them when k is odd), all in one
+    batch, and keeps per pair the action with the lowest final loss under the model. With
+    ``rng`` the k starts of every pair are drawn uniformly from X_a instead, so that where
+    the model predicts no effect of the action (a flat loss) the chosen action stays random
+    rather than fixed.
 
     Args:
         model: the fitted world model.
         joint: the analysed joint.
         state: the model's non-action roots (:func:`state_of`), each ``(n,)`` or ``(n, 1)``, rad.
         targets: ``(n,)`` target angles q.J, rad.
-        steps: Adam iterations.
-        lr: Adam learning rate.
-        starts: starting points per pair.
+        action: the inference settings.
         rng: draw the starts uniformly from X_a with this generator.
+        seed: seeds the sampling stage.
 
     Returns:
         ``(actions (n,), predicted q (n,), mean loss per Adam step)``; the loss curve is
         averaged over all pairs and starts.
     """
-    check_int("starts", starts)
+    starts = action.starts
     act, _, _, q = joint.names
     given = _tensors(state)
     tg = torch.as_tensor(np.asarray(targets, np.float32).reshape(-1, 1))
     n = len(tg)
     low, high = joint.action_range
     if rng is not None:
-        init: str | dict[str, np.ndarray] = {act: rng.uniform(low, high, size=(starts * n, 1)).astype(np.float32)}
+        init: str | dict[str, np.ndarray] = {
+            act: rng.uniform(low, high, size=(starts * n, 1)).astype(np.float32)
+        }
     elif starts == 1:
         init = "midpoint"
     else:
@@ -319,9 +410,11 @@ def infer_actions(
         {k: v.repeat(starts, 1) for k, v in given.items()},
         {q: tg.repeat(starts, 1)},
         actions=[act],
-        steps=steps,
-        lr=lr,
+        steps=action.steps,
+        lr=action.lr,
         init=init,
+        sampling=action.sampling,
+        seed=seed,
     )
     best = res.final_loss.numpy().reshape(starts, n).argmin(0) * n + np.arange(n)
     return (

@@ -2,8 +2,16 @@
 
 Protocol (thesis §5.2.1): at every environment step the policy draws a command for each
 selected actuator, the body moves for ``frame_skip`` MuJoCo steps, and the transition
-``(act, q(t-1), dq, q(t))`` is recorded per joint together with the full simulator state
-before the step. The environment resets every ``reset_every`` steps (thesis: 10 000).
+``(act, q(t-1), dq(t-1), dq, q(t))`` is recorded per joint together with the full simulator
+state before the step; ``dq_prev(t) = dq(t-1) = q(t-1) - q(t-2)`` is the previous step's
+displacement, 0 for the first step of an episode (the body starts at rest). The environment
+resets every ``reset_every`` steps (thesis: 10 000).
+
+Commands are drawn over each actuator's ``ctrlrange``, or over a narrower override
+(``action_ranges``), or over the effective range (``effective_range=True``: a short probe run
+of ``probe_steps`` finds it with :func:`~pal.sim.ranges.effective_ranges`, seeded by
+``SeedSequence([seed, 2])``). Every dataset's metadata reports the effective ranges found in
+it.
 
 Seeds: the policy draws from ``default_rng(SeedSequence([seed, 0]))``; the reset of episode
 e uses ``episode_seed(seed, e)``. Everything else is deterministic, so a run is a function
@@ -13,28 +21,35 @@ produces the same rows as an uninterrupted one.
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import mujoco
 import numpy as np
 
+from pal.checks import check_int
 from pal.data import FORMAT, DatasetFileError, DatasetWriter, TransitionDataset, column_names
+from pal.sim.bodies import check_name, load_model
 from pal.sim.env import STATE_SPEC, BabblingEnv
 from pal.sim.policies import POLICIES, make_policy
+from pal.sim.ranges import babbling_ranges, effective_ranges
 
 __all__ = [
     "BabbleConfig",
     "BabblingSource",
     "TransitionBlock",
     "babble",
+    "check_config",
     "collect",
+    "effective_ranges",
     "episode_seed",
     "make_source",
+    "probe_seed",
     "replay",
 ]
 
@@ -53,7 +68,7 @@ class BabbleConfig:
     Attributes:
         body: shipped body name (``"finger"``, ``"arm"``) or a path to an MJCF file.
         joints: recorded joints (default all hinge/slide joints).
-        actuators: babbling actuators (default all).
+        actuators: babbling actuators (default all that drive a recorded joint).
         steps: number of transitions.
         seed: master seed.
         policy: ``"uniform"`` or ``"ou"``.
@@ -62,6 +77,11 @@ class BabbleConfig:
         reset_every: environment reset period, steps.
         reset_noise: reset noise half-width on joint positions, rad.
         chunk_size: rows per chunk file when writing to disk.
+        name: the body's name in metadata and reports (default the model's own name).
+        action_ranges: ``(actuator, low, high)`` triples babbled instead of the ctrlrange
+            (each inside it).
+        effective_range: babble over the effective ranges found by a probe run.
+        probe_steps: transitions of that probe run.
     """
 
     body: str = "finger"
@@ -75,18 +95,23 @@ class BabbleConfig:
     reset_every: int = 10_000
     reset_noise: float = 0.0
     chunk_size: int = 10_000
+    name: str | None = None
+    action_ranges: tuple[tuple[str, float, float], ...] = ()
+    effective_range: bool = False
+    probe_steps: int = 2000
 
     def __post_init__(self) -> None:
-        for key in ("steps", "reset_every", "chunk_size", "frame_skip"):
-            value = getattr(self, key)
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, (int, np.integer))
-                or value < (0 if key == "steps" else 1)
-            ):
-                raise ValueError(
-                    f"{key} must be a {'non-negative' if key == 'steps' else 'positive'} int, got {value!r}"
-                )
+        check_int("steps", self.steps, minimum=0)
+        for key in ("reset_every", "chunk_size", "frame_skip", "probe_steps"):
+            check_int(key, getattr(self, key))
+        if self.name is not None:
+            check_name("body name", self.name)
+        bad = [r for r in self.action_ranges if not isinstance(r, (tuple, list))]
+        if bad:
+            raise ValueError(f"action_ranges entries must be (actuator, low, high) triples, got {bad}")
+        object.__setattr__(self, "action_ranges", tuple(tuple(r) for r in self.action_ranges))
+        if not isinstance(self.effective_range, bool):
+            raise ValueError(f"effective_range must be True or False, got {self.effective_range!r}")
         if self.policy not in POLICIES:
             raise ValueError(f"unknown policy {self.policy!r}; expected one of {POLICIES}")
         for key in ("joints", "actuators"):
@@ -102,6 +127,8 @@ class TransitionBlock:
     Attributes:
         ctrl: (n, U) float32 applied commands.
         q_prev, q: (n, J) float64 joint positions before and after each step, rad.
+        dq_prev: (n, J) float64 displacement of the step before, q(t-1) - q(t-2), rad
+            (0 at the first step of an episode).
         states: (n, S) float64 simulator states before each step.
         step, episode: (n,) int64 global step and episode indices.
     """
@@ -109,6 +136,7 @@ class TransitionBlock:
     ctrl: np.ndarray
     q_prev: np.ndarray
     q: np.ndarray
+    dq_prev: np.ndarray
     states: np.ndarray
     step: np.ndarray
     episode: np.ndarray
@@ -122,11 +150,30 @@ class BabblingSource:
         policy: a :class:`~pal.sim.policies.Policy` over ``env.actuator_names``.
         seed: master seed (episode reset seeds derive from it).
         reset_every: reset period, steps.
+        probe: what the effective-range probe found (metadata), or None.
     """
 
-    def __init__(self, env: BabblingEnv, policy: Any, *, seed: int, reset_every: int) -> None:
+    def __init__(
+        self,
+        env: BabblingEnv,
+        policy: Any,
+        *,
+        seed: int,
+        reset_every: int,
+        probe: dict[str, Any] | None = None,
+    ) -> None:
         self.env, self.policy, self.seed, self.reset_every = env, policy, int(seed), int(reset_every)
+        self.probe = probe
         self.step_index = 0
+        self._last_dq = np.zeros(len(env.qpos_indices))
+
+    @property
+    def action_ranges(self) -> dict[str, tuple[float, float]]:
+        """The command range each actuator babbles over: actuator -> ``(low, high)``."""
+        return {
+            a: (float(lo), float(hi))
+            for a, lo, hi in zip(self.env.actuator_names, self.policy.low, self.policy.high, strict=True)
+        }
 
     def blocks(self, steps: int, block_size: int) -> Iterator[TransitionBlock]:
         """Run ``steps`` more steps, yielding blocks of at most ``block_size`` rows."""
@@ -135,12 +182,13 @@ class BabblingSource:
             yield self.run(min(block_size, end - self.step_index))
 
     def __iter__(self) -> Iterator[dict[str, Any]]:
-        """Endless single transitions: dicts with ``ctrl``, ``q_prev``, ``q``, ``state``, ``step``, ``episode``."""
+        """Endless single transitions: dicts with ``ctrl``, ``q_prev``, ``dq_prev``, ``q``, ``state``, ``step``, ``episode``."""
         while True:
             b = self.run(1)
             yield {
                 "ctrl": b.ctrl[0],
                 "q_prev": b.q_prev[0],
+                "dq_prev": b.dq_prev[0],
                 "q": b.q[0],
                 "state": b.states[0],
                 "step": int(b.step[0]),
@@ -169,8 +217,15 @@ class BabblingSource:
             ctrl[aidx] = applied[i]
             mujoco.mj_step(m, d, fs)
             q[i] = qpos[qidx]
+        dq = q - q_prev
+        dq_prev = np.empty_like(dq)
+        dq_prev[0] = self._last_dq
+        dq_prev[1:] = dq[:-1]
+        dq_prev[steps % every == 0] = 0.0  # an episode starts at rest
+        if n:
+            self._last_dq = dq[-1].copy()
         self.step_index += n
-        return TransitionBlock(applied.astype(np.float32), q_prev, q, states, steps, episode)
+        return TransitionBlock(applied.astype(np.float32), q_prev, q, dq_prev, states, steps, episode)
 
     # ------------------------------------------------------------------ resuming
     def resume_state(self) -> dict[str, Any]:
@@ -179,6 +234,7 @@ class BabblingSource:
             "step": self.step_index,
             "policy": self.policy.get_state(),
             "sim_state": self.env.get_state().tolist(),
+            "dq_prev": self._last_dq.tolist(),
         }
 
     def restore(self, state: dict[str, Any]) -> None:
@@ -187,22 +243,28 @@ class BabblingSource:
         self.policy.set_state(state["policy"])
         if self.step_index % self.reset_every != 0:  # otherwise the next step resets anyway
             self.env.set_state(np.asarray(state["sim_state"], np.float64))
+            self._last_dq = np.asarray(state["dq_prev"], np.float64)
 
     # ------------------------------------------------------------------ dataset glue
     def columns(self, block: TransitionBlock) -> dict[str, np.ndarray]:
-        """The per-joint ``(n, 1)`` float32 columns of a block (``dq`` from float64 positions)."""
+        """The per-joint ``(n, 1)`` float32 columns of a block (``dq``, ``dq_prev`` from float64 positions)."""
         env, out = self.env, {}
         for c, j in enumerate(env.joint_names):
             if j in env.joint_actuators:
                 a = env.actuator_names.index(env.joint_actuators[j])
                 out[f"act.{j}"] = block.ctrl[:, a : a + 1].copy()
             out[f"q_prev.{j}"] = block.q_prev[:, c : c + 1].astype(np.float32)
+            out[f"dq_prev.{j}"] = block.dq_prev[:, c : c + 1].astype(np.float32)
             out[f"dq.{j}"] = (block.q[:, c : c + 1] - block.q_prev[:, c : c + 1]).astype(np.float32)
             out[f"q.{j}"] = block.q[:, c : c + 1].astype(np.float32)
         return out
 
     def metadata(self, config: BabbleConfig) -> dict[str, Any]:
-        """Dataset metadata: body, model hash, physics settings, names, ranges, policy, seeds."""
+        """Dataset metadata: body, model hash, physics settings, names, ranges, policy, seeds.
+
+        ``actuator_ranges`` are the ctrl ranges (None for an unlimited side), ``action_ranges`` the babbled ranges,
+        ``actuator_force_limits`` the commands within which no force limit binds (or None).
+        """
         env = self.env
         return {
             "body": env.loaded.name,
@@ -214,7 +276,14 @@ class BabblingSource:
             "joints": list(env.joint_names),
             "actuators": list(env.actuator_names),
             "joint_actuators": dict(env.joint_actuators),
-            "actuator_ranges": {k: list(v) for k, v in env.actuator_ranges.items()},
+            "actuator_ranges": {
+                k: [float(x) if np.isfinite(x) else None for x in v] for k, v in env.actuator_ranges.items()
+            },
+            "action_ranges": {k: list(v) for k, v in self.action_ranges.items()},
+            "actuator_force_limits": {
+                k: (list(v) if v else None) for k, v in env.actuator_force_limits.items()
+            },
+            "effective_range_probe": self.probe,
             "joint_ranges": {k: (list(v) if v else None) for k, v in env.joint_ranges.items()},
             "columns": column_names(env.joint_names, list(env.joint_actuators)),
             "state_spec": STATE_SPEC,
@@ -227,26 +296,72 @@ class BabblingSource:
             "reset_noise": env.reset_noise,
             "chunk_size": config.chunk_size,
             "steps": config.steps,
-            "config": {
-                k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(config).items() if k != "steps"
-            },
+            "config": json.loads(json.dumps({k: v for k, v in asdict(config).items() if k != "steps"})),
         }
 
 
-def make_source(config: BabbleConfig) -> BabblingSource:
-    """Build the environment, policy and source of ``config``."""
+def probe_seed(seed: int) -> int:
+    """The seed of the effective-range probe run of a run seeded with ``seed``."""
+    return int(np.random.SeedSequence([seed, 2]).generate_state(1)[0])
+
+
+def check_config(config: BabbleConfig) -> tuple[BabblingEnv, dict[str, tuple[float, float]]]:
+    """Build the environment of ``config`` and its babbling command ranges, checking everything.
+
+    This compiles the body and steps nothing, so a command line can be refused before any
+    directory is touched. The effective-range probe is not run.
+
+    Returns:
+        ``(env, ranges)``: the environment and actuator -> ``(low, high)`` babbled (the
+        ctrlrange or the override).
+
+    Raises:
+        MJCFError: missing or malformed MJCF file.
+        ValueError: a bad body name, unknown or idle joints and actuators, an action range
+            outside the ctrlrange, or an actuator without a finite ctrlrange.
+    """
     env = BabblingEnv(
-        config.body,
+        load_model(config.body, name=config.name),
         joints=config.joints,
         actuators=config.actuators,
         frame_skip=config.frame_skip,
         reset_noise=config.reset_noise,
     )
+    ranges = babbling_ranges(env.actuator_names, env.actuator_ranges, config.action_ranges)
+    unbounded = [a for a, (lo, hi) in ranges.items() if not (np.isfinite(lo) and np.isfinite(hi))]
+    if unbounded:
+        raise ValueError(
+            f"actuator(s) {unbounded} have no finite ctrlrange; babbling needs one (ctrllimited, or "
+            "--action-range NAME=LOW,HIGH)"
+        )
+    return env, ranges
+
+
+def make_source(config: BabbleConfig) -> BabblingSource:
+    """Build the environment, policy and source of ``config`` (runs the probe of ``effective_range``).
+
+    Raises:
+        MJCFError, ValueError: see :func:`check_config`.
+    """
+    env, ranges = check_config(config)
+    probe = None
+    if config.effective_range:
+        probe_config = replace(
+            config,
+            steps=config.probe_steps,
+            seed=probe_seed(config.seed),
+            effective_range=False,
+            chunk_size=config.probe_steps,
+        )
+        found = collect(probe_config).metadata["effective_ranges"]
+        ranges = {a: tuple(found[a]["effective"]) for a in ranges}
+        probe = {"steps": config.probe_steps, "seed": probe_config.seed, "effective_ranges": found}
+        logger.info("babbling over the effective ranges %s", ranges)
+    low = np.array([r[0] for r in ranges.values()])
+    high = np.array([r[1] for r in ranges.values()])
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0]))
-    policy = make_policy(
-        config.policy, env.ctrl_low, env.ctrl_high, rng, dt=env.dt, params=config.policy_params
-    )
-    return BabblingSource(env, policy, seed=config.seed, reset_every=config.reset_every)
+    policy = make_policy(config.policy, low, high, rng, dt=env.dt, params=config.policy_params)
+    return BabblingSource(env, policy, seed=config.seed, reset_every=config.reset_every, probe=probe)
 
 
 def _bar(total: int, initial: int, enabled: bool) -> Any:
@@ -271,7 +386,7 @@ def collect(config: BabbleConfig, *, progress_bar: bool = False) -> TransitionDa
     def cat(key: str) -> np.ndarray:
         return np.concatenate([getattr(p[1], key) for p in parts])
 
-    return TransitionDataset(
+    dataset = TransitionDataset(
         cols,
         cat("ctrl"),
         cat("states"),
@@ -279,6 +394,8 @@ def collect(config: BabbleConfig, *, progress_bar: bool = False) -> TransitionDa
         cat("episode"),
         {**meta, "n_rows": config.steps, "complete": True},
     )
+    dataset.metadata["effective_ranges"] = effective_ranges(dataset)
+    return dataset
 
 
 def babble(
@@ -325,7 +442,8 @@ def babble(
                 )
                 logger.debug("wrote %s (%d rows)", path, len(block.step))
                 bar.update(len(block.step))
-        writer.finish(config.steps)
+        found = effective_ranges(TransitionDataset.load(Path(out_dir)))
+        writer.finish(config.steps, extra={"effective_ranges": found})
     return TransitionDataset.load(Path(out_dir))
 
 

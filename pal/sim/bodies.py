@@ -5,6 +5,10 @@ Bodies are package data (``pal/sim/assets/*.xml``) and load through
 
 - ``finger``: a hand with the lumped finger joint of MIMo's left hand (thesis §5.2), one motor.
 - ``arm``: shoulder (3), elbow, wrist (3) and finger, 8 motors, gravity on.
+
+A body's name is the model's own (``<mujoco model="...">``) unless the caller gives one;
+only a file whose model has no name falls back to its file stem. Names of bodies, joints and
+actuators follow :func:`check_name`, the rule of the world model's variable names.
 """
 
 from __future__ import annotations
@@ -14,17 +18,38 @@ import os
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import mujoco
 
-__all__ = ["BODIES", "LoadedModel", "MJCFError", "body_path", "load_body", "load_model"]
+__all__ = ["BODIES", "LoadedModel", "MJCFError", "body_path", "check_name", "load_body", "load_model"]
 
 #: Names of the bodies shipped as package data.
 BODIES: tuple[str, ...] = ("finger", "arm")
 
+#: The name MuJoCo gives a model without a ``model`` attribute.
+_UNNAMED_MODEL = "MuJoCo Model"
+
 
 class MJCFError(ValueError):
     """An MJCF file is missing, unreadable or rejected by MuJoCo's compiler."""
+
+
+def check_name(what: str, name: Any) -> str:
+    """``name`` if it is a usable name of a body, joint or actuator, else ``ValueError``.
+
+    The rule is that of :class:`models.variables.Variable` names: a non-empty string of
+    printable characters without leading or trailing whitespace. ``:``, ``/``, ``-``, dots
+    and inner spaces are allowed (``robot:left_fingers``, ``arm/elbow``, ``joint 1``).
+    """
+    if not isinstance(name, str):
+        raise ValueError(f"{what} must be a string, got {name!r} ({type(name).__name__})")
+    if not name or not name.isprintable() or name != name.strip():
+        raise ValueError(
+            f"{what} {name!r} is not a usable name; expected a non-empty string of printable "
+            "characters without leading or trailing whitespace (e.g. 'arm/elbow')"
+        )
+    return name
 
 
 @dataclass(frozen=True)
@@ -33,7 +58,8 @@ class LoadedModel:
 
     Attributes:
         model: the compiled ``mujoco.MjModel``.
-        name: body name (``"finger"``, ``"arm"``) or the file stem of a custom MJCF file.
+        name: body name: the caller's, else the model's ``<mujoco model="...">``, else the
+            file stem (only for a model without a name).
         path: the MJCF file it was compiled from.
         sha256: SHA-256 hex digest of the MJCF file's bytes.
     """
@@ -66,11 +92,24 @@ def _is_body_name(source: str | os.PathLike[str]) -> bool:
     return isinstance(source, str) and source in BODIES and not source.endswith(".xml")
 
 
-def load_model(source: str | os.PathLike[str]) -> LoadedModel:
+def source_path(source: str | os.PathLike[str]) -> Path:
+    """The MJCF file of a shipped body name or a path (not checked for existence)."""
+    return body_path(str(source)) if _is_body_name(source) else Path(source)
+
+
+def model_name(model: mujoco.MjModel) -> str | None:
+    """The model's own name (``<mujoco model="...">``), or None when it has none."""
+    raw = bytes(model.names).split(b"\0", 1)[0].decode("utf-8", errors="replace")
+    return None if raw in ("", _UNNAMED_MODEL) else raw
+
+
+def load_model(source: str | os.PathLike[str], *, name: str | None = None) -> LoadedModel:
     """Compile a shipped body (by name) or any MJCF file (by path).
 
     Args:
         source: a name in :data:`BODIES` or a path to an MJCF ``.xml`` file.
+        name: the body's name in reports, caches and dataset metadata (default: the
+            model's own name, see :class:`LoadedModel`).
 
     Returns:
         :class:`LoadedModel` with the model, its name, path and file hash.
@@ -78,12 +117,11 @@ def load_model(source: str | os.PathLike[str]) -> LoadedModel:
     Raises:
         MJCFError: the file does not exist, cannot be read, or MuJoCo rejects it; the
             message names the path and carries MuJoCo's own error.
+        ValueError: ``name`` (or the model's name) breaks :func:`check_name`.
     """
-    if _is_body_name(source):
-        path, name = body_path(str(source)), str(source)
-    else:
-        path = Path(source)
-        name = path.stem
+    if name is not None:
+        check_name("body name", name)
+    path = source_path(source)
     if not path.is_file():
         hint = f" (or a body name from {list(BODIES)})" if isinstance(source, str) else ""
         raise MJCFError(f"MJCF file {str(path)!r} does not exist; pass an existing .xml path{hint}")
@@ -96,6 +134,9 @@ def load_model(source: str | os.PathLike[str]) -> LoadedModel:
     except ValueError as err:  # MuJoCo's parser and compiler errors
         message = str(err).strip().replace("\n", " ")
         raise MJCFError(f"MuJoCo cannot load MJCF file {str(path)!r}: {message}") from None
+    if name is None:
+        own = model_name(model)
+        name = check_name(f"the model name of {str(path)!r} (override it with --name)", own or path.stem)
     return LoadedModel(model=model, name=name, path=path, sha256=hashlib.sha256(blob).hexdigest())
 
 

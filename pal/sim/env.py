@@ -11,7 +11,9 @@ physics by ``frame_skip`` MuJoCo steps (``0.005 s * 50 = 0.25 s`` for the shippe
   Out-of-range actions are clipped to ``ctrlrange`` before they are written to
   ``data.ctrl``; this is exactly MuJoCo's own clamping of limited controls, made visible
   (``info["ctrl"]`` is the applied command). NaN/inf actions raise ``ValueError``.
-  Unselected actuators keep ``ctrl = 0`` (clamped by MuJoCo into their range).
+  Unselected actuators keep ``ctrl = 0`` (clamped by MuJoCo into their range). Joints and
+  actuators are selected by their MuJoCo names; an unnamed actuator is called after the joint
+  it drives (:mod:`pal.sim.body_info`), and a selected actuator must drive a selected joint.
 - Reward 0, never terminated or truncated: the data source decides when to reset.
 - Reset: ``mj_resetData`` (the model's ``qpos0``, zero velocity, time 0), plus, if
   ``reset_noise > 0``, a seeded uniform offset in ``[-reset_noise, reset_noise]`` on each
@@ -42,6 +44,14 @@ from gymnasium import spaces
 
 from pal.checks import check_int
 from pal.sim.bodies import LoadedModel, load_model
+from pal.sim.body_info import (
+    JOINT_TRANSMISSIONS,
+    SCALAR_JOINTS,
+    actuator_names,
+    driven_joints,
+    force_limit_ranges,
+    joint_names,
+)
 
 __all__ = ["ENV_ID", "STATE_SPEC", "BabblingEnv"]
 
@@ -52,18 +62,13 @@ STATE_SPEC = int(mujoco.mjtState.mjSTATE_FULLPHYSICS | mujoco.mjtState.mjSTATE_W
 #: gymnasium registry id (``gymnasium.make(ENV_ID, model="finger")``).
 ENV_ID = "pal/Babbling-v0"
 
-_SCALAR_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
-
-
-def _names(model: mujoco.MjModel, obj: mujoco.mjtObj, count: int) -> list[str]:
-    return [mujoco.mj_id2name(model, obj, i) or "" for i in range(count)]
-
 
 def _select(
     kind: str, requested: Sequence[str] | None, known: list[str], allowed: list[str], why: str
-) -> list[str]:
+) -> list[str] | None:
+    """The requested names checked against ``known`` and ``allowed``, or None when none were requested."""
     if requested is None:
-        return list(allowed)
+        return None
     if isinstance(requested, str):
         raise ValueError(
             f"{kind}s must be a sequence of names, got the string {requested!r}; use [{requested!r}]"
@@ -90,15 +95,21 @@ class BabblingEnv(gymnasium.Env[np.ndarray, np.ndarray]):
         model: a body name (``"finger"``, ``"arm"``), a path to any MJCF file, or a
             :class:`~pal.sim.bodies.LoadedModel`.
         joints: names of the observed joints (hinge or slide); default all of them.
-        actuators: names of the commanded actuators; default all of them.
+        actuators: names of the commanded actuators (see :mod:`pal.sim.body_info` for
+            unnamed ones); default every actuator that drives a selected joint. Each must
+            drive a selected joint.
         frame_skip: MuJoCo steps per environment step (>= 1).
         reset_noise: half-width of the uniform reset offset on selected joint positions,
             rad or m (>= 0; default 0: reset to ``qpos0`` exactly).
 
     Raises:
         MJCFError: missing or malformed MJCF file.
-        ValueError: unknown joint/actuator names (the message lists the known ones), a bad
-            frame_skip or reset_noise.
+        ValueError: unknown joint/actuator names (the message lists the known ones), an
+            actuator that drives no selected joint, a bad frame_skip or reset_noise.
+
+    Attributes:
+        actuator_force_limits: actuator -> the commands within which no force limit clamps
+            its output, or None (:func:`pal.sim.body_info.force_limit_ranges`).
     """
 
     metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012 - gymnasium's class attribute
@@ -122,19 +133,31 @@ class BabblingEnv(gymnasium.Env[np.ndarray, np.ndarray]):
         self.reset_noise = float(reset_noise)
         m = self.model
 
-        all_joints = _names(m, mujoco.mjtObj.mjOBJ_JOINT, m.njnt)
-        scalar = [n for i, n in enumerate(all_joints) if int(m.jnt_type[i]) in _SCALAR_JOINTS and n]
-        self.joint_names: tuple[str, ...] = tuple(
-            _select("joint", joints, all_joints, scalar, "only named hinge and slide joints")
-        )
-        all_acts = _names(m, mujoco.mjtObj.mjOBJ_ACTUATOR, m.nu)
-        self.actuator_names: tuple[str, ...] = tuple(
-            _select("actuator", actuators, all_acts, [n for n in all_acts if n], "only named actuators")
-        )
-        if not self.joint_names:
+        all_joints = joint_names(m)
+        scalar = [n for i, n in enumerate(all_joints) if n and int(m.jnt_type[i]) in SCALAR_JOINTS]
+        if not scalar:
             raise ValueError(f"model {self.loaded.name!r} has no hinge or slide joint to observe")
-        if not self.actuator_names:
-            raise ValueError(f"model {self.loaded.name!r} has no named actuator to command")
+        chosen = _select("joint", joints, [n for n in all_joints if n], scalar, "only hinge and slide joints")
+        self.joint_names: tuple[str, ...] = tuple(chosen or scalar)
+        all_acts = actuator_names(m)
+        drives = dict(zip(all_acts, driven_joints(m), strict=True))
+        selected = {all_joints.index(n) for n in self.joint_names}
+        driving = [a for a in all_acts if selected & set(drives[a])]
+        requested = _select("actuator", actuators, all_acts, all_acts, "")
+        if requested is not None:
+            idle = [a for a in requested if a not in driving]
+            if idle:
+                where = {a: [all_joints[j] for j in drives[a]] for a in idle}
+                raise ValueError(
+                    f"actuator(s) {idle} drive no selected joint (they drive {where}; selected joints: "
+                    f"{list(self.joint_names)}); select their joints (--joint) or drop them"
+                )
+        elif not driving:
+            raise ValueError(
+                f"no actuator of model {self.loaded.name!r} drives the selected joints {list(self.joint_names)}; "
+                f"its actuators are {all_acts}"
+            )
+        self.actuator_names: tuple[str, ...] = tuple(requested or driving)
 
         jids = [all_joints.index(n) for n in self.joint_names]
         self.joint_ids = np.array(jids, dtype=np.intp)
@@ -145,7 +168,11 @@ class BabblingEnv(gymnasium.Env[np.ndarray, np.ndarray]):
         rng = m.actuator_ctrlrange[self.actuator_ids]
         self.ctrl_low = np.where(limited, rng[:, 0], -np.inf)
         self.ctrl_high = np.where(limited, rng[:, 1], np.inf)
-        self.joint_actuators: dict[str, str] = self._map_joint_actuators()
+        self.joint_actuators: dict[str, str] = self._map_joint_actuators(all_joints)
+        limits = force_limit_ranges(m)
+        self.actuator_force_limits: dict[str, tuple[float, float] | None] = {
+            n: limits[int(i)] for n, i in zip(self.actuator_names, self.actuator_ids, strict=True)
+        }
 
         n = len(self.joint_names)
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(2 * n,), dtype=np.float64)
@@ -155,14 +182,13 @@ class BabblingEnv(gymnasium.Env[np.ndarray, np.ndarray]):
         self.state_size = int(mujoco.mj_stateSize(m, STATE_SPEC))
         mujoco.mj_forward(m, self.data)
 
-    def _map_joint_actuators(self) -> dict[str, str]:
+    def _map_joint_actuators(self, all_joints: list[str]) -> dict[str, str]:
         """Map each joint name to the name of the selected actuator whose transmission is that joint."""
         m, out = self.model, {}
         for aid, aname in zip(self.actuator_ids, self.actuator_names, strict=True):
-            if int(m.actuator_trntype[aid]) != int(mujoco.mjtTrn.mjTRN_JOINT):
+            if int(m.actuator_trntype[aid]) not in JOINT_TRANSMISSIONS:
                 continue
-            jid = int(m.actuator_trnid[aid, 0])
-            jname = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, jid)
+            jname = all_joints[int(m.actuator_trnid[aid, 0])]
             if jname in self.joint_names:
                 if jname in out:
                     logger.warning(

@@ -39,6 +39,8 @@ class Policy(Protocol):
     """What the babbling data source needs from a policy."""
 
     name: str
+    low: np.ndarray  # (n_actuators,) lowest commands
+    high: np.ndarray  # (n_actuators,) highest commands
 
     def sample(self, n: int) -> np.ndarray:
         """The next ``n`` commands, float32 ``(n, n_actuators)``."""

@@ -1,10 +1,22 @@
 """Counterfactuals against closed-form answers on the linear-Gaussian chain."""
 
+import math
+
 import pytest
 import torch
 
 from inference import counterfactual, infer_state
-from models import CausalGraph, LinearMechanism, MLPMechanism, Variable, WorldModel
+from models import (
+    CausalGraph,
+    EnsembleMechanism,
+    HeteroscedasticMechanism,
+    LinearMechanism,
+    Mechanism,
+    MLPMechanism,
+    Variable,
+    WorldModel,
+    chain_graph,
+)
 
 FACTUAL = {"x": torch.tensor([[1.0]]), "y": torch.tensor([[2.5]]), "z": torch.tensor([[-3.0]])}
 
@@ -159,14 +171,15 @@ def test_state_errors(chain):
         infer_state(chain, {})
 
 
-def test_descendants_only_replay_equals_the_full_intervened_program():
+@pytest.mark.parametrize(("kind", "members"), [("mlp", 1), ("hetero", 1), ("mlp", 3), ("hetero", 3)])
+def test_descendants_only_replay_equals_the_full_intervened_program(kind, members):
     from inference.counterfactual import _combine, abduct
     from inference.handlers import Intervene, ReplayNoise
     from inference.interventions import check_interventions
     from models import random_graph
 
     torch.manual_seed(3)
-    model = WorldModel(random_graph(12, seed=3))
+    model = WorldModel(random_graph(12, seed=3), kind=kind, members=members)
     root = max(model.graph.roots, key=lambda r: len(model.graph.descendants(r)))
     assert 0 < len(model.graph.descendants(root)) < 11  # some sites are left untouched
     factual = model.sample(20, torch.Generator().manual_seed(0))
@@ -191,3 +204,138 @@ def test_nested_interventions_recompute_the_downstream_natural_value(chain):
     cf = counterfactual(chain, fact, {"x": 0.0, "y": lambda y: y + 1.0})
     assert cf.samples["y"].item() == pytest.approx(1.5, abs=1e-5)
     assert cf.samples["z"].item() == pytest.approx(-1.5 * 1.5 + 0.75, abs=1e-5)
+
+
+# ---------------------------------------------------------------------------- closed forms
+def _clamp(s, low=-30.0, high=30.0):
+    """The soft clamp of HeteroscedasticMechanism, in float64 by hand."""
+
+    def softplus(v):
+        return math.log1p(math.exp(-abs(v))) + max(v, 0.0)
+
+    s = high - softplus(high - s)
+    return low + softplus(s - low)
+
+
+def test_heteroscedastic_counterfactual_matches_the_closed_form():
+    """Y = a X + b + exp(c X + d) U_y, Z = e Y + exp(f Y + h) U_z; abduct, do(X = x'), replay."""
+    a, b, c, d = 1.5, -0.5, 0.4, -1.0
+    e, f, h = -0.8, 0.3, -0.2
+    model = WorldModel(
+        chain_graph(),
+        {
+            "y": HeteroscedasticMechanism.from_coefficients(a, b, log_scale_weight=c, log_scale_bias=d),
+            "z": HeteroscedasticMechanism.from_coefficients(e, 0.0, log_scale_weight=f, log_scale_bias=h),
+        },
+    )
+    xs, ys, zs = [0.7, -1.2, 2.0], [1.1, -3.0, 2.2], [-0.4, 2.5, -1.0]
+    x_new = [-0.3, 1.0, 0.5]
+    factual = {k: torch.tensor(v)[:, None] for k, v in (("x", xs), ("y", ys), ("z", zs))}
+    cf = counterfactual(model, factual, {"x": torch.tensor(x_new)[:, None]})
+    assert cf.exact
+    for i in range(3):
+        u_y = (ys[i] - (a * xs[i] + b)) / math.exp(_clamp(c * xs[i] + d))
+        u_z = (zs[i] - e * ys[i]) / math.exp(_clamp(f * ys[i] + h))
+        y_cf = a * x_new[i] + b + math.exp(_clamp(c * x_new[i] + d)) * u_y
+        z_cf = e * y_cf + math.exp(_clamp(f * y_cf + h)) * u_z
+        assert float(cf.noise["y"][0, i, 0]) == pytest.approx(u_y, abs=1e-5)
+        assert float(cf.noise["z"][0, i, 0]) == pytest.approx(u_z, abs=1e-5)
+        assert float(cf.samples["y"][0, 0, i, 0]) == pytest.approx(y_cf, abs=1e-5)
+        assert float(cf.samples["z"][0, 0, i, 0]) == pytest.approx(z_cf, abs=1e-5)
+    # do(Y = y') instead: Z' = e y' + exp(f y' + h) u_z, X and Y's own residual untouched
+    cf_y = counterfactual(model, factual, {"y": 0.25})
+    for i in range(3):
+        u_z = (zs[i] - e * ys[i]) / math.exp(_clamp(f * ys[i] + h))
+        z_cf = e * 0.25 + math.exp(_clamp(f * 0.25 + h)) * u_z
+        assert float(cf_y.samples["z"][0, 0, i, 0]) == pytest.approx(z_cf, abs=1e-5)
+        assert float(cf_y.samples["x"][0, 0, i, 0]) == pytest.approx(xs[i], abs=1e-6)
+
+
+class LinearScale(Mechanism):
+    """X = w pa + b + (c + d pa) eps: a fixed linear sigma(pa), positive for pa > -c/d."""
+
+    def __init__(self, w, b, c, d):
+        super().__init__(1, 1, sigma=None)
+        self.coef = (w, b, c, d)
+
+    def core(self, z):
+        w, b, _, _ = self.coef
+        return w * z + b
+
+    def loc_scale(self, parents):
+        _, _, c, d = self.coef
+        x = self.check_input(parents)
+        return self(x), c + d * x
+
+
+def test_ensemble_counterfactual_matches_the_moment_matched_closed_form():
+    """Two members m_k = w_k X + b_k, s_k = c_k + d_k X; Y's site is the moment-matched Normal.
+
+    u = (y - m(x)) / s(x) with m = mean_k m_k, s^2 = mean_k s_k^2 + mean_k (m_k - m)^2, and
+    under do(X = x') Y' = m(x') + s(x') u; Z = g Y + 0.5 U_z follows it.
+    """
+    members = [(2.0, 0.5, 0.3, 0.2), (1.0, -0.5, 0.6, 0.1)]
+    g_z = -1.5
+    model = WorldModel(
+        chain_graph(),
+        {
+            "y": EnsembleMechanism([LinearScale(*m) for m in members]),
+            "z": LinearMechanism.from_coefficients(g_z, sigma=0.5),
+        },
+    )
+
+    def site(x):
+        locs = [w * x + b for w, b, _, _ in members]
+        scales = [c + d * x for _, _, c, d in members]
+        m = sum(locs) / 2
+        var = sum(s**2 for s in scales) / 2 + sum((loc - m) ** 2 for loc in locs) / 2
+        return m, math.sqrt(var)
+
+    xs, ys, zs = [0.5, 1.5, 0.1], [1.0, 4.0, -0.7], [-2.0, -5.5, 1.5]
+    x_new = [1.2, 0.0, 2.0]
+    factual = {k: torch.tensor(v)[:, None] for k, v in (("x", xs), ("y", ys), ("z", zs))}
+    cf = counterfactual(model, factual, {"x": torch.tensor(x_new)[:, None]})
+    for i in range(3):
+        m, s = site(xs[i])
+        u_y = (ys[i] - m) / s
+        u_z = (zs[i] - g_z * ys[i]) / 0.5
+        m_new, s_new = site(x_new[i])
+        y_cf = m_new + s_new * u_y
+        assert float(cf.noise["y"][0, i, 0]) == pytest.approx(u_y, abs=1e-5)
+        assert float(cf.samples["y"][0, 0, i, 0]) == pytest.approx(y_cf, abs=1e-5)
+        assert float(cf.samples["z"][0, 0, i, 0]) == pytest.approx(g_z * y_cf + 0.5 * u_z, abs=1e-5)
+    # the empty scenario gives the factual world back exactly
+    same = counterfactual(model, factual, {})
+    torch.testing.assert_close(same.samples["y"][0, 0], factual["y"], atol=1e-6, rtol=0)
+
+
+def test_a_latent_heteroscedastic_site_is_inferred_then_abducted():
+    """Y latent with sigma(x) = exp(0.5 x - 1): the posterior of Y given X, Z is the Gaussian closed form."""
+    model = WorldModel(
+        chain_graph(),
+        {
+            "y": HeteroscedasticMechanism.from_coefficients(
+                2.0, 0.0, log_scale_weight=0.5, log_scale_bias=-1.0
+            ),
+            "z": LinearMechanism.from_coefficients(-1.5, sigma=1.0),
+        },
+    )
+    x, z = 1.0, -2.0
+    s_y = math.exp(0.5 * x - 1.0)
+    # Y | X, Z: prior N(2x, s_y^2), likelihood Z ~ N(-1.5 Y, 1)
+    precision = 1 / s_y**2 + 1.5**2
+    mean = (2 * x / s_y**2 + (-1.5) * z) / precision
+    cf = counterfactual(
+        model,
+        {"x": torch.tensor([[x]]), "z": torch.tensor([[z]])},
+        {"x": 0.0},
+        num_samples=2000,
+        state_kwargs={"num_steps": 300, "seed": 0},
+    )
+    assert not cf.exact
+    y_post = cf.posterior.samples["y"]
+    assert float(y_post.mean()) == pytest.approx(mean, abs=0.05)
+    assert float(y_post.std()) == pytest.approx(precision**-0.5, rel=0.15)
+    # each draw is abducted exactly: Y' = 0 + exp(-1) * (y - 2x) / s_y
+    expected = math.exp(-1.0) * (y_post - 2 * x) / s_y
+    torch.testing.assert_close(cf.samples["y"][:, 0], expected, atol=1e-5, rtol=0)

@@ -102,3 +102,27 @@ def test_simulate_is_seeded_and_intervenes(fork):
     assert float(corr_obs) == pytest.approx(1 / 1.25, abs=0.05)
     with pytest.raises(ValueError, match="n must be a positive int"):
         simulate(fork, 0)
+
+
+@pytest.mark.parametrize(("kind", "members"), [("mlp", 1), ("linear", 2), ("hetero", 1), ("hetero", 3)])
+def test_predict_is_the_twin_of_intervene_and_replay_noise(kind, members):
+    """WorldModel.predict with given values and residuals = the program under Intervene + ReplayNoise."""
+    from inference import AbductNoise
+    from models import random_graph
+
+    model = WorldModel(random_graph(8, seed=1), seed=2, kind=kind, members=members, hidden=(6,))
+    n = 16
+    factual = model.sample(n, torch.Generator().manual_seed(0))
+    with AbductNoise() as abduction, torch.no_grad():
+        model(factual, n)
+    noise = {k: v for k, v in abduction.noise.items() if not model.graph.is_root(k)}
+    torch.testing.assert_close(noise, model.residuals(factual))
+    roots = {r: factual[r] for r in model.graph.roots}
+    target = max(model.graph.roots, key=lambda r: len(model.graph.descendants(r)))
+    roots[target] = roots[target] + 0.5
+    fast = model.predict(roots, noise=noise)
+    with torch.no_grad():
+        program = Intervene({target: roots[target]})(ReplayNoise(noise, default="expected")(model))
+        slow = program({k: v for k, v in roots.items() if k != target}, n)
+    for name in model.graph.names:
+        torch.testing.assert_close(fast[name], slow[name], atol=1e-5, rtol=1e-5)

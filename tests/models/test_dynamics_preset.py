@@ -36,8 +36,10 @@ def test_rollout_feeds_each_displacement_into_the_next_step():
         },
     )
     actions = torch.tensor([[[0.2], [-0.4], [0.1]]])
-    traj = model.rollout({"q_prev.finger": torch.tensor([[-1.0]]), "dq_prev.finger": torch.tensor([[0.3]])},
-                         {"act.finger": actions})
+    traj = model.rollout(
+        {"q_prev.finger": torch.tensor([[-1.0]]), "dq_prev.finger": torch.tensor([[0.3]])},
+        {"act.finger": actions},
+    )
     q, dq_prev = -1.0, 0.3
     for t, a in enumerate((0.2, -0.4, 0.1)):
         dq = 0.5 * a - 0.1 * q + 0.8 * dq_prev

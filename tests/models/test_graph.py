@@ -1,6 +1,7 @@
 import json
 
 import pytest
+import torch
 
 from models import CausalGraph, Role, Variable, chain_graph, finger_graph, random_graph
 
@@ -74,10 +75,32 @@ def test_variable_validation(kwargs, match):
         Variable("x", **kwargs)
 
 
-def test_variable_name_validation():
-    with pytest.raises(ValueError, match="variable name '1x' is not valid"):
-        Variable("1x", "latent")
-    assert Variable("q.finger", "latent").name == "q.finger"
+@pytest.mark.parametrize("name", ["", " q", "q ", "q\nx", "q\tx", "q\x00"])
+def test_variable_name_validation(name):
+    with pytest.raises(ValueError, match=f"variable name {name!r} is not valid".replace("\\", "\\\\")):
+        Variable(name, "latent")
+
+
+@pytest.mark.parametrize(
+    "name", ["q.finger", "1x", "act.robot:left_fingers", "q.arm/elbow", "q.left-knee", "q.joint 1"]
+)
+def test_mujoco_names_are_variable_and_site_names(name):
+    from models import WorldModel
+
+    assert Variable(name, "latent").name == name
+    g = CausalGraph([Variable("a.b", "observed"), Variable(name, "latent")], [("a.b", name)])
+    m = WorldModel(g, seed=0, hidden=(2,))
+    out = m.predict({"a.b": torch.zeros(2, 1)})
+    assert set(out) == {"a.b", name}
+
+
+def test_module_keys_are_one_per_name():
+    from models.values import module_key
+
+    names = ["q.finger", "q:finger", "q%3Afinger", "%q", "keys", "a.b:c", "a:b.c", "q.joint 1"]
+    keys = [module_key(n) for n in names]
+    assert len(set(keys)) == len(keys) and all("." not in k for k in keys)
+    assert module_key("q.finger") == "q:finger"  # the key of every saved model
 
 
 def test_json_round_trip_and_fingerprint():

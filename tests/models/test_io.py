@@ -208,3 +208,54 @@ def test_size_limits_are_checked_before_reading(model, tmp_path):
     with pytest.raises(model_io.ModelFileTooLargeError, match="more than the 1000 allowed"):
         load(path, limits=ReadLimits(max_bytes=1000))
     assert load(path, limits=ReadLimits(max_bytes=10**6)) is not None
+
+
+# ---------------------------------------------------------------------------- new mechanisms
+@pytest.mark.parametrize(("kind", "members"), [("hetero", 1), ("mlp", 3), ("hetero", 2), ("linear", 2)])
+def test_heteroscedastic_and_ensemble_models_round_trip(tmp_path, kind, members):
+    m = WorldModel(finger_graph("state"), seed=4, kind=kind, members=members, hidden=(5,))
+    with torch.no_grad():  # move the learned bounds off their initial values
+        for name, p in m.named_parameters():
+            if "log_scale_m" in name:
+                p.add_(0.25)
+    path = save(m, tmp_path / "wm.npz")
+    loaded = load(path, finger_graph("state"))
+    assert read_metadata(path)["format"] == FORMAT == "pal.world_model/3"
+    for name in m.graph.non_roots:
+        assert loaded.mechanism(name).config() == m.mechanism(name).config()
+        assert type(loaded.mechanism(name)) is type(m.mechanism(name))
+    for (k, a), (_, b) in zip(m.state_dict().items(), loaded.state_dict().items(), strict=True):
+        assert torch.equal(a, b), k
+    with torch.no_grad():
+        for a, b in (
+            (m.predict(inputs(), members=True), loaded.predict(inputs(), members=True)),
+            (m.predict_scale(inputs()), loaded.predict_scale(inputs())),
+        ):
+            for k in a:
+                assert torch.equal(a[k], b[k]), k
+    assert loaded.ensemble_size == members
+
+
+def test_a_version_2_file_still_loads(model, tmp_path, monkeypatch):
+    monkeypatch.setattr(model_io, "FORMAT", "pal.world_model/2")
+    path = save(model, tmp_path / "wm.npz")
+    monkeypatch.undo()
+    assert read_metadata(path)["format"] == "pal.world_model/2"
+    loaded = load(path)
+    with torch.no_grad():
+        a, b = model.predict(inputs()), loaded.predict(inputs())
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    _edit(path, lambda d: d.update(format="pal.world_model/9"))
+    with pytest.raises(ModelFileError, match="format 'pal.world_model/9', expected one of"):
+        load(path)
+
+
+def test_an_ensemble_holding_a_function_cannot_be_saved(tmp_path):
+    from models import EnsembleMechanism, FunctionMechanism, chain_graph
+
+    ens = EnsembleMechanism([FunctionMechanism(torch.sin, 1), FunctionMechanism(torch.cos, 1)])
+    with pytest.raises(
+        ValueError, match="mechanism of 'y' is \\(or holds\\) a FunctionMechanism, which cannot be saved"
+    ):
+        save(WorldModel(chain_graph(), {"y": ens}), tmp_path / "x.npz")
+    assert not (tmp_path / "x.npz").exists()

@@ -59,7 +59,7 @@ def test_source_is_deterministic_and_block_size_invariant():
     np.testing.assert_array_equal(a.states, b.states)
     c = collect(BabbleConfig(**{**cfg.__dict__, "seed": 4}))
     assert not np.array_equal(a.ctrl, c.ctrl)
-    assert len(a.column_names) == 32 and a.states.shape == (40, 25)
+    assert len(a.column_names) == 40 and a.states.shape == (40, 25)
     # every reset_every steps the body starts again from qpos0 at time 0
     resets = a.step % 15 == 0
     assert (a.states[resets, 0] == 0).all() and (a.states[~resets, 0] > 0).all()
@@ -69,7 +69,8 @@ def test_source_is_deterministic_and_block_size_invariant():
 def test_source_yields_single_transitions():
     source = make_source(BabbleConfig(steps=5))
     first = next(iter(source))
-    assert set(first) == {"ctrl", "q_prev", "q", "state", "step", "episode"} and first["step"] == 0
+    assert set(first) == {"ctrl", "q_prev", "dq_prev", "q", "state", "step", "episode"} and first["step"] == 0
+    assert first["dq_prev"].tolist() == [0.0]  # the first step of an episode starts at rest
     assert source.step_index == 1
 
 
@@ -126,6 +127,8 @@ def test_pal_babble_cli_any_mjcf_and_names(tmp_path, capsys):
                 str(body_path("arm")),
                 "--joint",
                 "elbow",
+                "--joint",
+                "finger",
                 "--actuator",
                 "elbow",
                 "--actuator",
@@ -141,9 +144,13 @@ def test_pal_babble_cli_any_mjcf_and_names(tmp_path, capsys):
         == 0
     )
     ds = TransitionDataset.load(out)
-    assert ds.column_names == ["act.elbow", "q_prev.elbow", "dq.elbow", "q.elbow"]
+    assert ds.column_names[:5] == ["act.elbow", "q_prev.elbow", "dq_prev.elbow", "dq.elbow", "q.elbow"]
     assert ds.ctrl.shape == (20, 2) and ds.metadata["policy"]["name"] == "ou"
     capsys.readouterr()
+    argv = ["babble", "--body", "arm", "--joint", "elbow", "--actuator", "finger", "--steps", "5"]
+    assert main([*argv, "--out", str(tmp_path / "idle")]) == 2
+    assert "actuator(s) ['finger'] drive no selected joint" in capsys.readouterr().err
+    assert not (tmp_path / "idle").exists()
     assert (
         main(["babble", "--body", "arm", "--joint", "knee", "--steps", "5", "--out", str(tmp_path / "x")])
         == 2

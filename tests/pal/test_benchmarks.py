@@ -113,13 +113,22 @@ def test_bench_svi_leaves_the_global_rngs_alone():
 def test_action_quick():
     rep = bench_action.run(registry.get("bench", "action").quick)
     m = rep.metrics
-    assert all(_positive(m[k]) for k in ("seconds", "baseline_seconds", "ratio")), m
-    assert m["max_action_diff"] <= 1e-4 and rep.target("max_action_diff").met is True
-    assert [r[0] for r in rep.tables[0].rows] == ["infer_action", "plain torch loop"]
+    for figures in (m, m["planner"]):
+        assert all(_positive(figures[k]) for k in ("seconds", "baseline_seconds", "ratio")), figures
+        assert figures["ratio"] == pytest.approx(figures["seconds"] / figures["baseline_seconds"])
+        assert figures["max_action_diff"] <= 1e-4
+    assert rep.target("max_action_diff").met is True and rep.target("planner_max_action_diff").met is True
+    assert rep.target("planner_ratio").value == m["planner"]["ratio"]
+    assert [r[0] for r in rep.tables[0].rows] == ["infer_action", "bare Adam", "planner", "bare CEM + Adam"]
+    reached = m["reached"]
+    assert (
+        reached["planner"] == reached["bare CEM + Adam"] and reached["infer_action"] == reached["bare Adam"]
+    )
+    assert reached["infer_action"] < reached["planner"] <= m["reachable"] + 1 / 32
 
 
 def test_babble_quick_on_the_arm():
-    config = bench_babble.Config(body=bench_babble.BodyChoice("arm"), steps=60, frame_skip=5, repeats=1)
+    config = bench_babble.Config(body=bench_babble.BodyChoice("arm", frame_skip=5), steps=60, repeats=1)
     rep = bench_babble.run(config)
     m = rep.metrics
     assert m["body"] == "arm" and _positive(m["transitions_per_s"]) and _positive(m["raw_steps_per_s"])

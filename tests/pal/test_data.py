@@ -56,7 +56,8 @@ def test_round_trip_matches_the_in_memory_run(written):
     loaded = TransitionDataset.load(root)
     assert_same_rows(loaded, ds)
     assert_same_rows(loaded, collect(SMALL))
-    assert loaded.column_names == ["act.finger", "q_prev.finger", "dq.finger", "q.finger"]
+    assert loaded.column_names == ["act.finger", "q_prev.finger", "dq_prev.finger", "dq.finger", "q.finger"]
+    assert loaded.column_names == column_names(["finger"])
     for name, col in loaded.columns.items():
         assert col.shape == (250, 1) and col.dtype == np.float32, name
     assert loaded.states.shape == (250, 4) and loaded.states.dtype == np.float64
@@ -72,6 +73,10 @@ def test_metadata_records_provenance(written):
     assert meta["policy"]["name"] == "uniform" and meta["reset_every"] == 100
     assert {"python", "numpy", "mujoco", "gymnasium", "pal"} <= set(meta["versions"])
     assert meta["n_rows"] == 250 and meta["complete"] is True
+    assert meta["format"] == "pal.transitions/3" and meta["action_ranges"] == {"finger": [-1.0, 0.33]}
+    assert meta["actuator_force_limits"] == {"finger": None} and meta["effective_range_probe"] is None
+    found = meta["effective_ranges"]["finger"]
+    assert found["joint"] == "finger" and found["babbled"] == [-1.0, 0.33]
     assert ds.metadata == meta
 
 
@@ -84,6 +89,10 @@ def test_columns_are_consistent_transitions(written):
     cont = ds.step[1:] % 100 != 0
     np.testing.assert_array_equal(c["q_prev.finger"][1:][cont], c["q.finger"][:-1][cont])
     np.testing.assert_array_equal(c["act.finger"][:, 0], ds.ctrl[:, 0])
+    # dq_prev(t) is dq(t-1) within an episode (across chunk files too), 0 at an episode's first step
+    np.testing.assert_array_equal(c["dq_prev.finger"][1:][cont], c["dq.finger"][:-1][cont])
+    starts = ds.step % 100 == 0
+    assert (c["dq_prev.finger"][starts] == 0).all() and (c["dq_prev.finger"][~starts] != 0).all()
     assert c["act.finger"].min() >= -1.0 and c["act.finger"].max() <= np.float32(0.33)
 
 
@@ -220,6 +229,9 @@ def test_missing_chunk_and_bad_metadata_raise(written, tmp_path):
         TransitionDataset.load(empty)
     (empty / "metadata.json").write_text(json.dumps({**meta, "format": "pal.transitions/1"}))
     with pytest.raises(DatasetFileError, match=r"older layout without a chunk manifest; babble"):
+        TransitionDataset.load(empty)
+    (empty / "metadata.json").write_text(json.dumps({**meta, "format": "pal.transitions/2"}))
+    with pytest.raises(DatasetFileError, match=r"older layout without the dq_prev columns; babble"):
         TransitionDataset.load(empty)
 
 

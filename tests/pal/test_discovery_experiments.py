@@ -99,17 +99,19 @@ def test_body_report_on_two_arm_joints():
     assert m["body"] == "arm" and m["joint"] == "finger" and m["body_graph"]["joints"] == ["elbow", "finger"]
     assert [r["seed"] for r in m["replicates"]] == [0, 1]
     assert ["q_prev.finger", "dq.finger"] in [e[:2] for e in m["learned_edges"]]
-    assert set(m["b1"]) == {"thesis", "state", "learned", "persistence"}
+    assert set(m["b1"]) == {"thesis", "state", "dynamics", "learned", "persistence"}
     assert m["b1"]["learned"]["q_mse"] < m["b1"]["persistence"]["q_mse"]
-    assert rep.target("shd_to_state_graph").value == 0 and rep.target("shd_to_state_graph").met
     assert rep.target("q_prev_to_dq").value == 1.0
-    assert rep.target("b1_q_mse_learned_over_state").met
     assert rep.target("unjustified_cross_joint_transition_edges").value == 0
     effects = m["physics_effects"]
-    assert len(effects) == 8  # q_prev and act of 2 joints -> dq of 2 joints
+    assert len(effects) == 12  # q_prev, dq_prev and act of 2 joints -> dq of 2 joints
     assert effects["act.finger->dq.finger"] > discovery_body.JUSTIFIED > effects["act.finger->dq.elbow"]
+    # the finger still moving at t-1 keeps moving: the simulator justifies dq_prev -> dq
+    assert effects["dq_prev.finger->dq.finger"] > discovery_body.JUSTIFIED > effects["dq_prev.finger->dq.elbow"]
+    assert ["dq_prev.finger", "dq.finger"] in m["physics_graph"]
+    assert rep.target("shd_to_physics_graph").value == max(r["shd_to"]["physics"] for r in m["replicates"])
     counts = m["body_graph"]["counts"]
-    assert counts["within_joint"] == 8 and counts["cross_joint_transition"] == 0
+    assert counts["cross_joint_transition"] == 0
     titles = [t.title for t in rep.tables]
     assert "Test-set prediction error (thesis Table 5.7)" in titles
     b1_table = rep.tables[titles.index("Test-set prediction error (thesis Table 5.7)")]
@@ -123,8 +125,19 @@ def test_body_report_on_two_arm_joints():
 def test_physics_effects_of_the_finger():
     data = collect(BabbleConfig(body="finger", steps=20, seed=0))
     effects = discovery_body.physics_effects(Realizer(data, JointData.select(data), "finger"), np.arange(4))
-    assert set(effects) == {"q_prev.finger->dq.finger", "act.finger->dq.finger"}
+    assert set(effects) == {"q_prev.finger->dq.finger", "dq_prev.finger->dq.finger", "act.finger->dq.finger"}
     assert effects["act.finger->dq.finger"] > discovery_body.JUSTIFIED
+    truth = discovery_body.physics_graph("finger", effects)
+    assert ("act.finger", "dq.finger") in truth and ("q_prev.finger", "q.finger") in truth
+
+
+def test_finger_quick_learns_the_graph_the_physics_justifies():
+    rep = discovery_body.run(discovery_body.QUICK)
+    m = rep.metrics
+    assert ["dq_prev.finger", "dq.finger"] in m["physics_graph"]
+    assert rep.target("shd_to_physics_graph").met and rep.target("b1_q_mse_learned_over_best_preset").met
+    # the previous step's displacement roughly halves the one-step error of the state graph
+    assert m["b1"]["dynamics"]["q_mse"] < 0.7 * m["b1"]["state"]["q_mse"] < 0.7 * m["b1"]["thesis"]["q_mse"]
 
 
 def test_body_flags_reach_the_nested_body_choice(capsys):
@@ -140,6 +153,10 @@ def test_body_flags_reach_the_nested_body_choice(capsys):
         "mjcf": None,
         "joint": "elbow",
         "actuator": ["elbow", "finger"],
+        "frame_skip": 50,
+        "action_range": [],
+        "name": None,
+        "effective_range": False,
     }
     assert doc["metrics"]["joint"] == "elbow" and doc["metrics"]["info"]["n_train"] == 240
     assert {t["name"]: t["met"] for t in doc["targets"]}["q_prev_to_dq"] is True

@@ -49,7 +49,7 @@ def test_dataset_is_cached_by_body_steps_and_seed(cache_dir):
     np.testing.assert_array_equal(collect(BabbleConfig(steps=200, seed=0)).ctrl, first.ctrl)
 
 
-def _protocol(cache_dir, graphs=("thesis", "state"), body="finger"):
+def _protocol(cache_dir, graphs=("thesis", "state", "dynamics"), body="finger"):
     return ProtocolConfig(
         DataConfig(BodyChoice(body), steps=3000, cache_dir=cache_dir),
         graphs=graphs,
@@ -60,11 +60,21 @@ def _protocol(cache_dir, graphs=("thesis", "state"), body="finger"):
 def test_b1_reports_table_5_7_and_the_state_graph_wins(cache_dir):
     rep = b1.run(b1.Config(protocol=_protocol(cache_dir)))
     err = rep.metrics["error"]
-    assert set(err) == {"thesis", "state", "persistence"}
-    for graph in ("thesis", "state"):
+    assert set(err) == {"thesis", "state", "dynamics", "persistence"}
+    for graph in ("thesis", "state", "dynamics"):
         assert set(err[graph]) == {"dq_mse", "dq_mae", "q_mse", "q_mae"}
-    # q_prev -> dq is a real parent: the state graph predicts far better, both beat persistence
+    # q_prev -> dq is a real parent: the state graph predicts far better, both beat persistence;
+    # the previous step's displacement (the finger still moving) improves it again
     assert err["state"]["q_mse"] < 0.25 * err["thesis"]["q_mse"] < 0.25 * err["persistence"]["q_mse"]
+    assert err["dynamics"]["q_mse"] < 0.9 * err["state"]["q_mse"]
+    cal = rep.metrics["calibration"]
+    assert set(cal) == {"thesis", "state", "dynamics"} and set(cal["state"]) == {"dq.finger", "q.finger"}
+    for sites in cal.values():
+        for c in sites.values():
+            assert 0.8 < c["coverage"] <= 1.0 and c["n"] == 600  # sigma estimated on held-out rows
+            nominal, observed = zip(*c["reliability"], strict=True)
+            assert nominal[0] == 0.1 and nominal[-1] == 0.9 and list(observed) == sorted(observed)
+    assert {"coverage_gap.thesis", "coverage_gap.state", "coverage_gap.dynamics"} <= {t.name for t in rep.targets}
     assert rep.target("q_mse_ratio").value == pytest.approx(err["state"]["q_mse"] / err["thesis"]["q_mse"])
     assert rep.target("q_mse_over_persistence").met is True
     table = rep.tables[0]
@@ -74,7 +84,9 @@ def test_b1_reports_table_5_7_and_the_state_graph_wins(cache_dir):
     )
     first, last = rep.metrics["train_loss"]["state"]["q"]
     assert last < first
-    assert set(rep.figures) == {"training", "prediction"}
+    assert set(rep.figures) == {"training", "prediction", "reliability"}
+    rel = rep.figures["reliability"].axes
+    assert len(rel) == 3 and rel[0].get_xlabel() == "nominal coverage" and len(rel[0].get_lines()) == 3
     ax = rep.figures["prediction"].axes[0]
     assert ax.get_xlabel() == "recorded dq [rad]" and len(ax.collections[0].get_offsets()) == 600
 
@@ -82,7 +94,7 @@ def test_b1_reports_table_5_7_and_the_state_graph_wins(cache_dir):
 def test_b2_realized_errors_and_keys(cache_dir):
     rep = b2.run(b2.Config(protocol=_protocol(cache_dir), targets=24))
     err = rep.metrics["error"]
-    assert set(err) == {"thesis", "state"}
+    assert set(err) == {"thesis", "state", "dynamics"}
     for graph in err:
         assert set(err[graph]) == {"random", "inferred"}
         assert set(err[graph]["random"]) == {"mae_model", "mae_real"}
@@ -93,14 +105,21 @@ def test_b2_realized_errors_and_keys(cache_dir):
     # the random actions are executed once: their realized error does not depend on the graph
     assert err["thesis"]["random"]["mae_real"] == err["state"]["random"]["mae_real"]
     assert err["state"]["inferred"]["mae_real"] < err["state"]["random"]["mae_real"]
+    # with the sampling stage the state graph no longer stalls on the plateau at the flexion limit
+    assert err["state"]["inferred"]["mae_real"] < 0.5 * err["thesis"]["inferred"]["mae_real"]
+    thesis_protocol = b2.run(b2.Config(protocol=_protocol(cache_dir), targets=24, action=ActionConfig()))
+    plain = thesis_protocol.metrics["error"]["state"]["inferred"]
+    assert err["state"]["inferred"]["mae_model"] <= plain["mae_model"] + 1e-6
+    assert set(rep.metrics["calibration"]["dynamics"]) == {"dq.finger", "q.finger"}
     assert rep.target("realized_mae.state").value == err["state"]["inferred"]["mae_real"]
-    assert rep.tables[0].rows[2][1] == 0.797 and set(rep.figures) == {"fig5_6"}
+    assert rep.tables[0].rows[2][1] == 0.797 and set(rep.figures) == {"fig5_6", "reliability"}
     ax = rep.figures["fig5_6"].axes[1]
     assert "realized in the simulator" in ax.get_title() and len(ax.collections[0].get_offsets()) == 24
 
 
 def test_b3_keys_and_curiosity_targets(cache_dir):
     rep = b3.run(b3.Config(protocol=_protocol(cache_dir, graphs=("state",)), targets=40))
+    assert set(rep.metrics["calibration"]) == {"state"}
     real = rep.metrics["realized"]
     assert set(real) == {"state"} and set(real["state"]) == {"random", "inferred"}
     for cond in ("random", "inferred"):
@@ -110,8 +129,8 @@ def test_b3_keys_and_curiosity_targets(cache_dir):
     assert rep.metrics["target_entropy"] > rep.metrics["training"]["entropy"]
     assert real["state"]["inferred"]["target_mae"] < real["state"]["random"]["target_mae"]
     assert rep.tables[0].rows[1][:3] == ("training outcomes", "entropy H", 0.84)
-    assert [t.name for t in rep.targets] == ["occupancy_gain.state", "entropy_gain.state"]
-    assert set(rep.figures) == {"fig5_7"}
+    assert [t.name for t in rep.targets] == ["occupancy_gain.state", "entropy_gain.state", "coverage_gap.state"]
+    assert set(rep.figures) == {"fig5_7", "reliability"}
 
 
 def test_explore_runs_both_conditions_and_reports_the_keys():
@@ -148,12 +167,17 @@ def test_multi_start_action_inference_keeps_the_best_start():
     finger = JointData.select(data)
     model = build_model(finger, "state", (-3.0, 0.3), seed=0)
     q_prev, target = {"q_prev.finger": np.array([-2.0, -1.0])}, np.array([-1.5, -0.5])
-    one = infer_actions(model, finger, q_prev, target, steps=5, lr=0.05)
-    three = infer_actions(model, finger, q_prev, target, steps=5, lr=0.05, starts=3)
+    one = infer_actions(model, finger, q_prev, target, ActionConfig(steps=5, lr=0.05))
+    three = infer_actions(model, finger, q_prev, target, ActionConfig(steps=5, lr=0.05, starts=3))
     assert np.all(np.abs(three[1] - target) <= np.abs(one[1] - target) + 1e-6)
     assert np.all((three[0] >= -1.0) & (three[0] <= 0.33))
     with pytest.raises(ValueError, match="starts must be a positive int"):
-        infer_actions(model, finger, q_prev, target, steps=5, lr=0.05, starts=0)
+        ActionConfig(steps=5, lr=0.05, starts=0)
+    with pytest.raises(ValueError, match="population 8 is smaller than elites 16"):
+        ActionConfig(population=8)
+    sampled = infer_actions(model, finger, q_prev, target, ActionConfig(steps=5, population=32, elites=4))
+    # the sampling stage keeps its best candidate, so it is never worse under the model than Adam alone
+    assert np.all(np.abs(sampled[1] - target) <= np.abs(one[1] - target) + 1e-6)
 
 
 def test_bad_input_names_the_value():
@@ -182,14 +206,14 @@ def test_cli_runs_b1_on_the_arm_and_writes_outputs(tmp_path, capsys, cache_dir):
     argv += ["--set", f"protocol.data.cache_dir={cache_dir}"]
     assert main(argv) == 0
     printed = json.loads(capsys.readouterr().out)
-    assert set(printed["metrics"]["error"]) == {"thesis", "state", "persistence"}
+    assert set(printed["metrics"]["error"]) == {"thesis", "state", "dynamics", "persistence"}
     stored = json.loads((tmp_path / "b1.json").read_text())
     assert (
         stored["metrics"] == printed["metrics"]
         and stored["config"]["protocol"]["data"]["body"]["body"] == "arm"
     )
     assert stored["config"]["protocol"]["fit"]["epochs"] == 5
-    assert [t["name"] for t in stored["targets"]] == ["q_mse_ratio", "q_mse_over_persistence"]
+    assert [t["name"] for t in stored["targets"]][:2] == ["q_mse_ratio", "q_mse_over_persistence"]
     assert all(isinstance(t["met"], bool) for t in stored["targets"])
     md = (tmp_path / "b1.md").read_text()
     assert "Body arm, joint finger (action: actuator finger, 8 actuator(s) babbling)" in md

@@ -1,0 +1,296 @@
+"""The sampling stage of action inference: CEM / iCEM over the action box.
+
+For every unit n at once (one tensor program for all units x candidates), with the action
+sequence a in R^{H x D} (H steps, D the optimised actions' dims concatenated) and the box
+``[low, high]^D``:
+
+    mu_0 = a_start (the thesis midpoint by default),  sigma_0 = init_std * (high - low)
+    for i = 1 .. I:
+        a^(p) = clip(mu + sigma * eps^(p), low, high),  p = 1 .. P,   a^(1) = clip(mu)
+        eps^(p) ~ coloured Gaussian noise over the horizon, PSD ~ 1 / f^beta   (iCEM; beta = 0: CEM)
+        E_i   = the ``elites`` candidates of lowest L(a) among these and E_{i-1}
+        mu    <- alpha mu    + (1 - alpha) mean(E_i)
+        sigma <- alpha sigma + (1 - alpha) sd(E_i)
+
+The current mean is a member of every population, so the first population contains the
+thesis start, and the elites of the previous iteration are kept, so the best loss never
+rises. :func:`plan` then refines the best elites with projected Adam (Alg. 4.2, CEM-GD
+style) and keeps per unit the best candidate. Randomness comes only from the generator
+passed in.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+from tqdm import tqdm
+
+from models.checks import check_float, check_int
+
+__all__ = [
+    "SamplingConfig",
+    "SearchResult",
+    "colored_noise",
+    "cross_entropy_search",
+    "plan",
+    "projected_adam",
+]
+
+Objective = Callable[[Tensor], Tensor]
+
+
+@dataclass(frozen=True)
+class SamplingConfig:
+    """Sizes of the sampling stage (CEM / iCEM) and of the gradient refinement after it.
+
+    Attributes:
+        population: new candidates P per unit and iteration (the current mean among them).
+        elites: candidates E kept per unit to refit the sampling distribution; <= population.
+        iterations: CEM iterations I, >= 1.
+        alpha: momentum in [0, 1): weight of the previous mean and sd in the refit.
+        noise_beta: iCEM coloured-noise exponent beta >= 0 over the horizon (0: white noise,
+            plain CEM; 2: Brownian-like, smooth action sequences).
+        init_std: initial sd sigma_0 as a fraction of the box width (high - low), > 0.
+        refine_steps: projected Adam steps on the refined elites (Alg. 4.2); None uses
+            ``infer_action``'s ``steps``; 0 skips the refinement.
+        refine_elites: how many of the best elites per unit Adam refines, 1 .. elites.
+
+    Raises:
+        ValueError: a field of the wrong type or out of range, or population < elites or
+            refine_elites > elites.
+    """
+
+    population: int = 128
+    elites: int = 16
+    iterations: int = 3
+    alpha: float = 0.1
+    noise_beta: float = 0.0
+    init_std: float = 0.5
+    refine_steps: int | None = None
+    refine_elites: int = 1
+
+    def __post_init__(self) -> None:
+        check_int("population", self.population)
+        check_int("elites", self.elites)
+        if self.population < self.elites:
+            raise ValueError(
+                f"population {self.population} is smaller than elites {self.elites}; "
+                "give population >= elites"
+            )
+        check_int("iterations", self.iterations)
+        check_float("alpha", self.alpha, minimum=0.0, maximum=1.0, max_open=True)
+        check_float("noise_beta", self.noise_beta, minimum=0.0)
+        check_float("init_std", self.init_std, minimum=0.0, min_open=True)
+        if self.refine_steps is not None:
+            check_int("refine_steps", self.refine_steps, minimum=0)
+        check_int("refine_elites", self.refine_elites)
+        if self.refine_elites > self.elites:
+            raise ValueError(
+                f"refine_elites {self.refine_elites} is larger than elites {self.elites}; "
+                "Adam refines some of the elites"
+            )
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    """Outcome of :func:`cross_entropy_search`.
+
+    Attributes:
+        elites: ``(E, N, H, D)`` the final elites per unit, best first, within the box.
+        losses: ``(E, N)`` their losses L(a).
+        history: mean over units of the best loss after each iteration, length I.
+    """
+
+    elites: Tensor
+    losses: Tensor
+    history: tuple[float, ...]
+
+
+def colored_noise(
+    shape: tuple[int, ...], beta: float, generator: torch.Generator, dtype: torch.dtype
+) -> Tensor:
+    """Gaussian noise of unit variance whose power spectrum along the last axis is ~ 1 / f^beta.
+
+    The iCEM sampler (Pinneri et al. 2020): frequencies f = 0, 1/H, .., 1/2 get Gaussian
+    amplitudes of sd ``max(f, 1/H)^(-beta / 2)`` (Timmer & Koenig 1995), the inverse real
+    FFT gives the sequence, and it is divided by its exact sd, so every step has unit
+    variance. ``beta = 0`` or a last axis of length 1 draws white noise ``torch.randn``.
+
+    Args:
+        shape: output shape; the last axis is the horizon H.
+        beta: exponent >= 0.
+        generator: the only source of randomness.
+        dtype: floating dtype of the result.
+
+    Returns:
+        ``shape`` tensor of ``dtype``.
+    """
+    h = shape[-1]
+    if beta == 0 or h == 1:
+        return torch.randn(shape, generator=generator, dtype=dtype)
+    freqs = torch.fft.rfftfreq(h, dtype=torch.float64)
+    freqs[0] = 1.0 / h
+    amp = freqs ** (-beta / 2)
+    # Var y_t = (2 a_0^2 + 4 sum_{0<k<h/2} a_k^2 + 2 a_{h/2}^2 [h even]) / h^2, the same for every t
+    power = 4 * amp**2
+    power[0] /= 2
+    if h % 2 == 0:
+        power[-1] /= 2
+    sd = math.sqrt(float(power.sum())) / h
+    lead = (*shape[:-1], freqs.shape[0])
+    real = torch.randn(lead, generator=generator, dtype=torch.float64) * amp
+    imag = torch.randn(lead, generator=generator, dtype=torch.float64) * amp
+    imag[..., 0] = 0.0
+    real[..., 0] *= math.sqrt(2)
+    if h % 2 == 0:
+        imag[..., -1] = 0.0
+        real[..., -1] *= math.sqrt(2)
+    return (torch.fft.irfft(torch.complex(real, imag), n=h) / sd).to(dtype)
+
+
+def _select(candidates: Tensor, losses: Tensor, k: int) -> tuple[Tensor, Tensor]:
+    """The k candidates of lowest loss per unit, best first: ``(k, N, H, D)``, ``(k, N)``."""
+    best, idx = torch.topk(losses, k, dim=0, largest=False, sorted=True)
+    index = idx[:, :, None, None].expand(k, *candidates.shape[1:])
+    return candidates.gather(0, index), best
+
+
+def cross_entropy_search(
+    objective: Objective,
+    start: Tensor,
+    low: Tensor,
+    high: Tensor,
+    config: SamplingConfig,
+    generator: torch.Generator,
+) -> SearchResult:
+    """CEM / iCEM over the action box for every unit at once (see the module docstring).
+
+    Args:
+        objective: ``a (R, N, H, D) -> L (R, N)`` losses per candidate and unit (called
+            under ``torch.no_grad``); NaN losses rank last.
+        start: ``(N, H, D)`` initial mean mu_0 within the box (the thesis midpoint start).
+        low: ``(D,)`` lower box bounds.
+        high: ``(D,)`` upper box bounds.
+        config: population, elites, iterations, momentum alpha, noise exponent, init sd.
+        generator: the only source of randomness.
+
+    Returns:
+        :class:`SearchResult` with the final elites, best first.
+    """
+    n, horizon, d = start.shape
+    p, e = config.population, config.elites
+    mean = start.clone()
+    std = (config.init_std * (high - low)).expand(n, horizon, d).clone()
+    elites = start.new_empty((0, n, horizon, d))
+    elite_losses = start.new_empty((0, n))
+    history: list[float] = []
+    with torch.no_grad():
+        for _ in range(config.iterations):
+            eps = colored_noise((p, n, d, horizon), config.noise_beta, generator, start.dtype)
+            cand = mean + std * eps.transpose(-1, -2)
+            cand[0] = mean
+            cand = torch.clamp(cand, low, high)
+            losses = torch.nan_to_num(objective(cand), nan=math.inf)
+            cand, losses = torch.cat([cand, elites]), torch.cat([losses, elite_losses])
+            elites, elite_losses = _select(cand, losses, e)
+            mean = config.alpha * mean + (1 - config.alpha) * elites.mean(0)
+            std = config.alpha * std + (1 - config.alpha) * elites.std(0, unbiased=False)
+            history.append(float(elite_losses[0].mean()))
+    return SearchResult(elites, elite_losses, tuple(history))
+
+
+def projected_adam(
+    objective: Objective,
+    start: Tensor,
+    low: Tensor,
+    high: Tensor,
+    steps: int,
+    lr: float,
+    progress_bar: bool,
+) -> tuple[Tensor, tuple[float, ...]]:
+    """Projected Adam on candidates through the objective (Alg. 4.2).
+
+        a <- clip(a - eta * Adam(grad_a sum_{r,n} L(a)_{rn}), low, high)     ``steps`` times
+
+    The loss is a sum, so every candidate follows its own Adam trajectory.
+
+    Args:
+        objective: ``a (R, N, H, D) -> L (R, N)``, differentiable in ``a``.
+        start: ``(R, N, H, D)`` start values within the box.
+        low: ``(D,)`` lower box bounds.
+        high: ``(D,)`` upper box bounds.
+        steps: Adam steps K_act (0 returns the start).
+        lr: Adam learning rate eta_act.
+        progress_bar: show a tqdm bar.
+
+    Returns:
+        ``(a (R, N, H, D), mean loss over candidates and units before each step)``.
+    """
+    params = start.clone().requires_grad_(True)
+    optim = torch.optim.Adam([params], lr=lr)
+    rows = params.shape[0] * params.shape[1]
+    history: list[float] = []
+    for _ in tqdm(range(steps), desc="infer_action", disable=not progress_bar, leave=False):
+        optim.zero_grad()
+        loss = objective(params).sum()
+        loss.backward()
+        optim.step()
+        with torch.no_grad():
+            params.copy_(torch.clamp(params, low, high))
+        history.append(float(loss.detach()) / rows)
+    return params.detach(), tuple(history)
+
+
+def plan(
+    objective: Objective,
+    start: Tensor,
+    low: Tensor,
+    high: Tensor,
+    sampling: SamplingConfig | None,
+    steps: int,
+    lr: float,
+    generator: torch.Generator,
+    progress_bar: bool,
+) -> tuple[Tensor, tuple[float, ...], tuple[float, ...], Tensor]:
+    """The sampling stage (if any), then projected Adam on its best elites; the best per unit wins.
+
+    Without ``sampling`` Adam runs from ``start``. With it, Adam refines the best
+    ``sampling.refine_elites`` elites for ``sampling.refine_steps`` steps (default
+    ``steps``), and each unit keeps the lowest loss among the refined elites and the
+    unrefined best elite.
+
+    Args:
+        objective: ``a (R, N, H, D) -> L (R, N)``.
+        start: ``(N, H, D)`` start within the box (the thesis midpoint by default).
+        low: ``(D,)`` lower box bounds.
+        high: ``(D,)`` upper box bounds.
+        sampling: None or the sampling sizes.
+        steps: Adam steps when ``sampling.refine_steps`` is None.
+        lr: Adam learning rate.
+        generator: the only source of randomness.
+        progress_bar: show a tqdm bar over the Adam steps.
+
+    Returns:
+        ``(best (N, H, D), Adam loss curve, sampling loss curve, L(best) (N,))``.
+    """
+    if sampling is None:
+        refined, history = projected_adam(objective, start[None], low, high, steps, lr, progress_bar)
+        with torch.no_grad():
+            final = objective(refined)[0]
+        return refined[0], history, (), final
+    found = cross_entropy_search(objective, start, low, high, sampling, generator)
+    refine_steps = steps if sampling.refine_steps is None else sampling.refine_steps
+    refined, history = projected_adam(
+        objective, found.elites[: sampling.refine_elites], low, high, refine_steps, lr, progress_bar
+    )
+    with torch.no_grad():
+        losses = objective(refined)
+    cands = torch.cat([refined, found.elites[:1]])
+    losses = torch.nan_to_num(torch.cat([losses, found.losses[:1]]), nan=float("inf"))
+    pick = losses.argmin(0)
+    units = torch.arange(start.shape[0])
+    return cands[pick, units], history, found.history, losses[pick, units]
