@@ -1,27 +1,60 @@
-"""The agent: the composition root of the perception-action loop (thesis §4.1, §6.3).
+"""The agent: the composition root of the perception-action loop (thesis §4.1, §6.3), over any Gymnasium env.
 
-- :mod:`pal.agent.loop`: :class:`Agent`, the loop perceive -> estimate state -> target -> act;
-- :mod:`pal.agent.world`: the pushing world model, its fitting from the history, sub-models;
-- :mod:`pal.agent.perception`: o(t) -> Π -> object variables in table coordinates, object slots;
-- :mod:`pal.agent.history`: the sensorimotor history H_t as columns;
-- :mod:`pal.agent.curiosity`: curiosity targets over 2-D object variables;
-- :mod:`pal.agent.video`: the annotated video of a run.
+- :mod:`pal.agent.spec`: :class:`EnvSpec`, which observation entries or perceived objects are what;
+- :mod:`pal.agent.graph`: the world model built from the spec (a generalised pushing graph);
+- :mod:`pal.agent.senses`: perceive, o(t) -> percept (Π optional); :mod:`pal.agent.perception`: Π's front end;
+- :mod:`pal.agent.estimate`: the belief through the measurement sites;
+- :mod:`pal.agent.plan`: the planner, a pure function of model, belief and target (MPC);
+- :mod:`pal.agent.influence`: curiosity by ensemble disagreement gated by causal action influence;
+- :mod:`pal.agent.curiosity`: the density-based curiosity of Eq. 4.34-4.38 on a grid;
+- :mod:`pal.agent.learn`: refits and structural revisions;
+- :mod:`pal.agent.loop`: :class:`Agent`, which composes them; :mod:`pal.agent.config`: its settings;
+- :mod:`pal.agent.history`: the sensorimotor history H_t; :mod:`pal.agent.video`: the annotated video.
 
 Only this package, :mod:`pal.experiments` and :mod:`pal.cli` wire the simulator, perception, the
 world model and inference together.
 """
 
-from pal.agent.loop import MODES, Agent, AgentConfig, Decision, Percept
-from pal.agent.world import build_world_model, candidate_actions, fit_world_model, submodel
+from pal.agent.config import (
+    AgentConfig,
+    BabbleConfig,
+    CuriosityConfig,
+    EstimateConfig,
+    LearnConfig,
+    ModelConfig,
+    PlanConfig,
+)
+from pal.agent.graph import blanket, build_graph, build_model, discover_parents, restrict
+from pal.agent.learn import fit_model
+from pal.agent.loop import MODES, Agent, Decision
+from pal.agent.plan import Plan, plan
+from pal.agent.senses import Percept
+from pal.agent.spec import EnvSpec, ObjectSpec, Sensor, check_env, pusher_spec, pushing_spec
 
 __all__ = [
     "MODES",
     "Agent",
     "AgentConfig",
+    "BabbleConfig",
+    "CuriosityConfig",
     "Decision",
+    "EnvSpec",
+    "EstimateConfig",
+    "LearnConfig",
+    "ModelConfig",
+    "ObjectSpec",
     "Percept",
-    "build_world_model",
-    "candidate_actions",
-    "fit_world_model",
-    "submodel",
+    "Plan",
+    "PlanConfig",
+    "Sensor",
+    "blanket",
+    "build_graph",
+    "build_model",
+    "check_env",
+    "discover_parents",
+    "fit_model",
+    "plan",
+    "pusher_spec",
+    "pushing_spec",
+    "restrict",
 ]

@@ -1,12 +1,15 @@
 """The agent's sensorimotor history H_t (thesis Eq. 4.4) as columns, and its world-model training columns.
 
-One row per executed step t-1 -> t. Per joint j: ``act`` (servo target, rad), ``q_prev``, ``q`` (rad).
-Hand: ``hand_prev``, ``hand`` (3,) m. Per object o: ``touch`` (fraction of the step in contact),
-``meas_prev``/``meas`` (2,) perceived table position, m, and ``std`` (2,) its 1-sigma; ``est_prev``/
-``est`` (2,) the agent's state estimate. Missing evidence is NaN *inside this store only*:
-:meth:`History.columns` drops those rows, so no NaN reaches the world model. ``truth_prev``/``truth``
-(2,) are ground-truth positions kept for evaluation (the agent never reads them), ``state`` is the
-simulator state before the step (for exact replay), ``episode`` the episode index.
+One row per executed step t-1 -> t. ``act`` (A,) the executed actions; ``q_prev``, ``q`` (J,) joint
+angles, rad, and with ``velocities`` ``v_prev``, ``v`` (J,) rad/s. Effector: ``hand_prev``, ``hand``
+(E,) m. Per object o: ``touch`` (contact sensed over the step, 0 without touch sensing),
+``meas_prev``/``meas`` (d,) its sensed or perceived position, m, and ``std`` (d,) the 1-sigma of a
+perceived one (0 for a sensed one); ``est_prev``/``est`` (d,) the agent's state estimate; with
+``momentum`` ``vel_prev`` (d,) its displacement over the previous step. Missing evidence is NaN
+*inside this store only*: :meth:`History.columns` drops those rows, so no NaN reaches the world
+model. ``truth_prev``/``truth`` (d,) are ground-truth positions and ``state`` the simulator state
+before the step, copied from the environment's ``info`` when it reports them, for evaluation and
+exact replay (the agent never reads them; NaN and empty otherwise). ``episode`` is the episode index.
 
 On disk a history is a checked, compressed ``.npz`` of :mod:`pal.files` (format
 :data:`FORMAT`): one array per field, and as metadata the joints, objects, provenance (seed
@@ -25,12 +28,12 @@ import numpy as np
 
 from pal.files import FileFormatError, check_json, read_npz, write_npz
 
-__all__ = ["FIELDS", "FORMAT", "SOURCES", "History"]
+__all__ = ["FIELDS", "FORMAT", "MOMENTUM_FIELDS", "SOURCES", "VELOCITY_FIELDS", "History", "relative"]
 
 #: Format tag of history files.
 FORMAT = "pal.history/1"
 
-#: Per-row fields and their trailing shapes (J joints, O objects, S state entries).
+#: Per-row fields of every history (J joints, O objects, S state entries).
 FIELDS = (
     "episode",
     "act",
@@ -48,57 +51,106 @@ FIELDS = (
     "truth",
     "state",
 )
+#: Fields of histories with joint velocities and with object momentum.
+VELOCITY_FIELDS = ("v_prev", "v")
+MOMENTUM_FIELDS = ("vel_prev",)
 #: Position sources of :meth:`History.columns`.
 SOURCES = ("perceived", "truth")
+
+
+_DEFAULT_OPTIONS: dict[str, Any] = {
+    "actions": None,
+    "effector_dim": 3,
+    "object_dim": 2,
+    "velocities": False,
+    "momentum": False,
+}
+
+
+def relative(effector: np.ndarray, position: np.ndarray) -> np.ndarray:
+    """The effector relative to an object: ``ee - [pos, 0]``, ``(N, E)`` from ``(N, E)`` and ``(N, d)``, m."""
+    ee = np.asarray(effector, dtype=np.float64)
+    p = np.asarray(position, dtype=np.float64)
+    out = ee.copy()
+    k = min(p.shape[-1], ee.shape[-1])
+    out[..., :k] -= p[..., :k]
+    return out
 
 
 class History:
     """Columnar sensorimotor history (module docstring).
 
     Args:
-        joints: short joint names (``act.<j>``, ``q.<j>`` ...).
+        joints: joint names (J).
         objects: object slot names (``pos.<o>`` ...).
         provenance: how the history was made, e.g. ``{"seed": 0, "config": {...}}``
             (JSON-compatible); :meth:`save` records it.
+        actions: number of actions A (default J).
+        effector_dim: E, the effector's dim.
+        object_dim: d, every object's position dim.
+        velocities: rows also hold joint velocities.
+        momentum: rows also hold each object's previous displacement.
     """
 
     def __init__(
-        self, joints: Sequence[str], objects: Sequence[str], provenance: Mapping[str, Any] | None = None
+        self,
+        joints: Sequence[str],
+        objects: Sequence[str],
+        provenance: Mapping[str, Any] | None = None,
+        *,
+        actions: int | None = None,
+        effector_dim: int = 3,
+        object_dim: int = 2,
+        velocities: bool = False,
+        momentum: bool = False,
     ) -> None:
         self.joints, self.objects = tuple(joints), tuple(objects)
         self.provenance: dict[str, Any] = dict(provenance or {})
-        self._rows: dict[str, list[np.ndarray]] = {f: [] for f in FIELDS}
+        self.actions = len(self.joints) if actions is None else int(actions)
+        self.effector_dim, self.object_dim = int(effector_dim), int(object_dim)
+        self.velocities, self.momentum = bool(velocities), bool(momentum)
+        self.fields = FIELDS + VELOCITY_FIELDS * self.velocities + MOMENTUM_FIELDS * self.momentum
+        self._rows: dict[str, list[np.ndarray]] = {f: [] for f in self.fields}
+
+    @property
+    def options(self) -> dict[str, Any]:
+        """The layout keywords of this history (JSON-compatible)."""
+        return {
+            "actions": self.actions,
+            "effector_dim": self.effector_dim,
+            "object_dim": self.object_dim,
+            "velocities": self.velocities,
+            "momentum": self.momentum,
+        }
 
     def __len__(self) -> int:
         return len(self._rows["episode"])
 
     def append(self, **row: Any) -> None:
-        """Add one step; every field of :data:`FIELDS` is required."""
-        missing = sorted(set(FIELDS) - set(row))
-        extra = sorted(set(row) - set(FIELDS))
+        """Add one step; every field of :attr:`fields` is required."""
+        missing = sorted(set(self.fields) - set(row))
+        extra = sorted(set(row) - set(self.fields))
         if missing or extra:
             raise ValueError(f"history row: missing fields {missing}, unknown fields {extra}")
-        shapes = {
-            "act": (len(self.joints),),
-            "q_prev": (len(self.joints),),
-            "q": (len(self.joints),),
-            "hand_prev": (3,),
-            "hand": (3,),
-            "touch": (len(self.objects),),
-        }
-        for key in ("meas_prev", "meas", "std", "est_prev", "est", "truth_prev", "truth"):
-            shapes[key] = (len(self.objects), 2)
+        j, o, d = len(self.joints), len(self.objects), self.object_dim
+        shapes = {"act": (self.actions,), "q_prev": (j,), "q": (j,), "touch": (o,)}
+        shapes.update({k: (self.effector_dim,) for k in ("hand_prev", "hand")})
+        shapes.update({k: (j,) for k in VELOCITY_FIELDS if self.velocities})
+        for key in ("meas_prev", "meas", "std", "est_prev", "est", "truth_prev", "truth", *MOMENTUM_FIELDS):
+            shapes[key] = (o, d)
         for key, shape in shapes.items():
+            if key not in self._rows:
+                continue
             value = np.asarray(row[key], dtype=np.float64)
             if value.shape != shape:
                 raise ValueError(f"history row {key!r} has shape {value.shape}, expected {shape}")
-        for key in FIELDS:
+        for key in self.fields:
             self._rows[key].append(np.array(row[key], dtype=np.int64 if key == "episode" else np.float64))
 
     def array(self, field: str) -> np.ndarray:
         """All rows of one field stacked: (N, ...)."""
         if field not in self._rows:
-            raise ValueError(f"unknown history field {field!r}; fields are {list(FIELDS)}")
+            raise ValueError(f"unknown history field {field!r}; fields are {list(self.fields)}")
         rows = self._rows[field]
         if not rows:
             raise ValueError("the history is empty")
@@ -107,42 +159,49 @@ class History:
     def columns(
         self, source: str = "perceived", rows: np.ndarray | slice | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, np.ndarray]]]:
-        """World-model training columns, float32 ``(n, dim)`` (Eq. 4.33 needs realized parents).
+        """World-model training columns (:mod:`pal.agent.graph`), float32 ``(n, dim)`` (Eq. 4.33).
 
         Args:
             source: ``"perceived"`` (object positions are the measurements) or ``"truth"``.
             rows: a subset of rows (indices, boolean mask or slice); default all.
 
         Returns:
-            ``(arm, objects)``: ``arm`` has ``act.j``, ``q_prev.j``, ``dq.j``, ``q.j``,
-            ``hand_prev``, ``hand`` for every row; ``objects[o]`` has ``pos_prev.o``, ``dpos.o``,
-            ``pos.o``, ``contact.o`` plus ``hand_prev`` and ``hand`` for the rows where both
-            positions of o are known.
+            ``(arm, objects)``: ``arm`` has ``act``, ``q_prev``, ``dq``, ``q`` (and ``v_prev``,
+            ``v``), ``ee_prev``, ``dee``, ``ee`` for every row; ``objects[o]`` has
+            ``pos_prev.o``, ``dpos.o``, ``pos.o``, ``rel_prev.o``, ``rel.o``, ``contact.o`` (and
+            ``vel_prev.o``) plus the arm's columns for the rows where both positions of o (and
+            its previous displacement) are known.
         """
         if source not in SOURCES:
             raise ValueError(f"source {source!r} unknown; expected one of {SOURCES}")
         idx = np.arange(len(self))[rows if rows is not None else slice(None)]
-        a = {f: self.array(f)[idx] for f in ("act", "q_prev", "q", "hand_prev", "hand", "touch")}
-        arm: dict[str, np.ndarray] = {}
-        for c, j in enumerate(self.joints):
-            arm[f"act.{j}"] = a["act"][:, c : c + 1]
-            arm[f"q_prev.{j}"] = a["q_prev"][:, c : c + 1]
-            arm[f"dq.{j}"] = a["q"][:, c : c + 1] - a["q_prev"][:, c : c + 1]
-            arm[f"q.{j}"] = a["q"][:, c : c + 1]
-        arm["hand_prev"], arm["hand"] = a["hand_prev"], a["hand"]
+        get = lambda f: self.array(f)[idx]  # noqa: E731
+        q_prev, q, ee_prev, ee = get("q_prev"), get("q"), get("hand_prev"), get("hand")
+        arm = {"act": get("act"), "q_prev": q_prev, "dq": q - q_prev, "q": q}
+        if self.velocities:
+            arm["v_prev"], arm["v"] = get("v_prev"), get("v")
+        arm.update({"ee_prev": ee_prev, "dee": ee - ee_prev, "ee": ee})
         prev_key, key = ("meas_prev", "meas") if source == "perceived" else ("truth_prev", "truth")
-        prev, now = self.array(prev_key)[idx], self.array(key)[idx]
+        prev, now, touch = get(prev_key), get(key), get("touch")
+        vel = get("vel_prev") if self.momentum else None
         objects = {}
         for k, o in enumerate(self.objects):
             ok = np.isfinite(prev[:, k]).all(1) & np.isfinite(now[:, k]).all(1)
-            objects[o] = {
-                f"pos_prev.{o}": prev[ok, k],
+            if vel is not None:
+                ok &= np.isfinite(vel[:, k]).all(1)
+            p = prev[ok, k]
+            cols = {
+                f"pos_prev.{o}": p,
                 f"pos.{o}": now[ok, k],
-                f"dpos.{o}": now[ok, k] - prev[ok, k],
-                f"contact.{o}": a["touch"][ok, k : k + 1],
-                "hand_prev": a["hand_prev"][ok],
-                "hand": a["hand"][ok],
+                f"dpos.{o}": now[ok, k] - p,
+                f"contact.{o}": touch[ok, k : k + 1],
+                f"rel_prev.{o}": relative(ee_prev[ok], p),
+                f"rel.{o}": relative(ee[ok], p),
+                **{k: v[ok] for k, v in arm.items()},
             }
+            if vel is not None:
+                cols[f"vel_prev.{o}"] = vel[ok, k]
+            objects[o] = cols
         as32 = lambda d: {n: np.ascontiguousarray(v, dtype=np.float32) for n, v in d.items()}  # noqa: E731
         return as32(arm), {o: as32(v) for o, v in objects.items()}
 
@@ -177,12 +236,13 @@ class History:
                 else config
             )
         extra = dict(metadata or {})
-        clash = sorted(set(extra) & {"joints", "objects", "provenance"})
+        clash = sorted(set(extra) & {"joints", "objects", "provenance", "layout"})
         if clash:
             raise ValueError(f"metadata keys {clash} are reserved for the history's own fields")
         meta = {"joints": list(self.joints), "objects": list(self.objects), "provenance": prov, **extra}
+        meta["layout"] = self.options
         check_json(meta, "history metadata")
-        arrays = {f: self.array(f) for f in FIELDS} if len(self) else {}
+        arrays = {f: self.array(f) for f in self.fields} if len(self) else {}
         return write_npz(path, arrays, meta, format=FORMAT, compress=True)
 
     @classmethod
@@ -204,14 +264,19 @@ class History:
             and isinstance(meta.get("provenance"), dict)
         ):
             raise FileFormatError(f"{path}: metadata lacks joints, objects or provenance")
-        out = cls(joints, objects, meta["provenance"])
+        layout = meta.get("layout", {})
+        if not isinstance(layout, dict) or sorted(set(layout) - set(_DEFAULT_OPTIONS)):
+            raise FileFormatError(f"{path}: layout {layout!r} is not a history layout")
+        out = cls(
+            joints, objects, meta["provenance"], **{**_DEFAULT_OPTIONS, "actions": len(joints), **layout}
+        )
         if arrays:
-            if set(arrays) != set(FIELDS):
-                raise FileFormatError(f"{path}: fields {sorted(arrays)}, expected {sorted(FIELDS)}")
+            if set(arrays) != set(out.fields):
+                raise FileFormatError(f"{path}: fields {sorted(arrays)}, expected {sorted(out.fields)}")
             n = len(arrays["episode"])
             bad = [k for k, a in arrays.items() if a.ndim == 0 or a.shape[0] != n]
             if bad:
                 raise FileFormatError(f"{path}: fields {bad} do not have the {n} rows of 'episode'")
-            for key in FIELDS:
+            for key in out.fields:
                 out._rows[key] = list(arrays[key])
         return out, {**meta, "versions": f.versions, "format": f.format}

@@ -1,26 +1,24 @@
-"""The agent: the closed perception-action loop of thesis §4.1 (Eq. 4.1-4.4), Alg. 4.1-4.2, §6.3.
+"""The agent: the closed perception-action loop over any Gymnasium environment (thesis §4.1, Eq. 4.1-4.4, §6.3).
 
-At every step t the agent
+``Agent(env, spec)`` composes five parts, each in its own module:
 
-1. renders o(t) = [RGB-D, q] (:meth:`Agent.perceive`);
-2. runs Π on the self-filtered frame and reads each tracked object's table position with its
-   uncertainty (from the pose diagnostics) (:mod:`pal.agent.perception`);
-3. forms s(t) = s_vis(t) ∪ q(t) (Eq. 4.3): joint angles, hand position and touch are sensed,
-   object positions perceived;
-4. gives the perceived positions to the world model through the measurement sites
-   ``meas.o ~ Normal(pos.o, sigma_perception(t))``: :func:`inference.infer_state` with
-   ``measurement_scale`` returns the posterior over the true position ``pos.o`` given the last
-   transition (Eq. 4.41-4.42). A lost object has no measurement site: it is unobserved and its
-   posterior is the model's prediction; no NaN ever reaches the model;
-5. takes a target over an object variable, from curiosity (:class:`pal.agent.curiosity.GridCuriosity`,
-   Eq. 4.34-4.38) or from a user goal;
-6. infers the action with :func:`inference.infer_action` (Alg. 4.2), from ``action_starts`` random
-   starts, keeping the best under the model;
-7. steps the environment (``do(a)``, Eq. 4.48) and records the transition (:class:`pal.agent.history.History`).
+1. **perceive** (:mod:`pal.agent.senses`): the observation and ``info`` of the last ``reset`` or
+   ``step``, read through the spec; Π on the camera frame when the spec has perceived objects;
+2. **estimate** (:mod:`pal.agent.estimate`): the belief over the object positions, through the
+   measurement sites for perceived objects (a lost object stays unobserved);
+3. **plan** (:mod:`pal.agent.plan`): a pure function of the model, the belief and a target; the
+   sampling planner over a horizon, replanned every step (MPC); curiosity targets come from
+   :mod:`pal.agent.influence` (gated ensemble disagreement) or :mod:`pal.agent.curiosity`
+   (the density of Eq. 4.34-4.38);
+4. **act**: ``env.step(a)``, the transition recorded in :class:`pal.agent.history.History`
+   (:mod:`pal.agent.record`);
+5. **learn** (:mod:`pal.agent.learn`): refits (Eq. 4.33) and revisions when the residual monitor fires.
 
-:meth:`Agent.run` babbles first (random servo targets, half of them small moves), fits the pushing world model
-(:func:`models.pushing_graph`, Eq. 4.33), then learns online, curiosity-driven, refitting every
-``refit_every`` steps. Episodes end every ``reset_every`` steps (the objects are put back).
+The world model is built from the spec (:mod:`pal.agent.graph`). The agent calls nothing but
+``reset`` and ``step`` on the environment; ground truth that the environment reports in
+``info`` is copied into the history for evaluation and never read. Bad specs, spaces that do
+not match, actions without bounds and perceived objects that Π does not see are refused when
+the agent is made (:meth:`Agent.__init__` resets the environment once to check).
 """
 
 from __future__ import annotations
@@ -30,24 +28,26 @@ from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+import gymnasium
 import numpy as np
-import pyro
 import torch
 from tqdm import tqdm
 
-from inference import infer_action, infer_state
 from models import WorldModel
 from pal.agent.config import AgentConfig
 from pal.agent.curiosity import GridCuriosity
+from pal.agent.estimate import Estimator, belief
+from pal.agent.graph import build_graph, build_model, discover_parents
 from pal.agent.history import History
-from pal.agent.perception import Measurement, ObjectSlots, self_filtered_frame
-from pal.agent.world import build_world_model, candidate_actions, fit_world_model, submodel
+from pal.agent.influence import explore
+from pal.agent.learn import Learner, site_data
+from pal.agent.plan import Plan, one_step, plan
+from pal.agent.record import transition
+from pal.agent.senses import Percept, Senses
+from pal.agent.spec import EnvSpec, check_env
 from pal.checks import check_int
-from pal.perception import PerceptionState, Pipeline
-from pal.sim.camera import CameraFrame
-from pal.sim.pushing import JOINTS, PushingEnv
 
-__all__ = ["MODES", "Agent", "AgentConfig", "Decision", "Percept"]
+__all__ = ["MODES", "Agent", "Decision"]
 
 log = logging.getLogger(__name__)
 
@@ -55,36 +55,18 @@ log = logging.getLogger(__name__)
 MODES = ("babble", "curious", "goal")
 
 
-@dataclass(frozen=True, eq=False)
-class Percept:
-    """o(t) and what Π made of it.
-
-    Attributes:
-        frame: the rendered camera view. perception: Π's state.
-        measurements: slot -> :class:`Measurement` or None (lost).
-        q: (J,) joint angles, rad. hand: (3,) hand position, m (table frame).
-        table_from_camera: (4, 4) camera pose. time: s on the agent's clock.
-    """
-
-    frame: CameraFrame
-    perception: PerceptionState
-    measurements: dict[str, Measurement | None]
-    q: np.ndarray
-    hand: np.ndarray
-    table_from_camera: np.ndarray
-    time: float
-
-
 @dataclass(frozen=True)
 class Decision:
     """An action and why it was chosen.
 
     Attributes:
-        mode: babble / curious / goal / setup / hold.
-        action: (J,) servo targets, rad.
-        targets: slot -> (2,) target position, m.
-        predicted: slot -> (2,) position the model predicts, m (after the setup step for ``"setup"``).
-        objective: predicted distance to the targets, m.
+        mode: babble / curious / goal / hold.
+        action: (A,) the action.
+        targets: object -> (d,) target, m.
+        predicted: object -> (d,) position the model predicts at the plan's horizon, m.
+        objective: predicted distance to the targets at the horizon, m (None without a plan).
+        step_mean, step_sd: object -> (d,) predicted displacement over this step and its sd, m.
+        score: the curiosity score (gated disagreement), or None.
     """
 
     mode: str
@@ -92,324 +74,283 @@ class Decision:
     targets: dict[str, np.ndarray] = field(default_factory=dict)
     predicted: dict[str, np.ndarray] = field(default_factory=dict)
     objective: float | None = None
+    step_mean: dict[str, np.ndarray] = field(default_factory=dict)
+    step_sd: dict[str, np.ndarray] = field(default_factory=dict)
+    score: float | None = None
+
+
+def _decision(p: Plan, mode: str | None = None, score: float | None = None) -> Decision:
+    return Decision(
+        mode or p.mode, p.action, p.targets, p.predicted, p.objective, p.step_mean, p.step_sd, score
+    )
 
 
 class Agent:
-    """The perception-action loop around a :class:`PushingEnv` (module docstring).
+    """The perception-action loop (module docstring).
 
     Args:
-        env: the world. config: loop settings.
-        seed: master seed (actions, targets, inference seeds, episode resets, the model's
-            initial weights and its fits).
-        model: a fitted world model to start from (default: a fresh one, fitted after babbling).
-        goal: optional user goal, slot -> (x, y) table position, m (used in ``"goal"`` mode).
+        env: any ``gymnasium.Env`` with 1-D Box observation and action spaces described by ``spec``.
+        spec: what the observation entries (or perceived objects) are.
+        config: the parts' settings.
+        seed: master seed (actions, targets, inference, episode resets, the model's weights and fits).
+        model: a fitted world model over the spec's graph to start from (default: a fresh one,
+            fitted by :meth:`refit`).
+        goal: optional user goal, object -> target position, m (``"goal"`` mode; default the
+            goals the spec observes).
+
+    Raises:
+        ValueError: the environment does not match the spec (:func:`pal.agent.spec.check_env`),
+            objects of different dims, an info entry the spec reads is missing, or a perceived
+            object that Π does not see in the first frame.
     """
 
     def __init__(
         self,
-        env: PushingEnv,
+        env: gymnasium.Env,
+        spec: EnvSpec,
         config: AgentConfig | None = None,
         *,
         seed: int = 0,
         model: WorldModel | None = None,
         goal: Mapping[str, Any] | None = None,
     ) -> None:
-        self.env, self.config = env, config or AgentConfig()
+        if not isinstance(spec, EnvSpec):
+            raise ValueError(f"spec must be an EnvSpec, got {type(spec).__name__}")
+        self.env, self.spec, self.config = env, spec, config or AgentConfig()
         self.seed = check_int("seed", seed, minimum=0)
+        self.low, self.high = check_env(spec, env)
+        dims = {o.dim for o in spec.objects}
+        if len(dims) > 1:
+            raise ValueError(f"objects have different dims {sorted(dims)}; the history holds one dim for all")
         cfg = self.config
-        unknown = [o for o in cfg.objects if o not in env.objects]
-        if unknown:
-            raise ValueError(f"objects {unknown} are not in the environment; it has {list(env.objects)}")
-        self.joints = tuple(JOINTS)
         self.rng = np.random.default_rng(np.random.SeedSequence([seed, 2]))
-        self.model = model if model is not None else build_world_model(env, cfg.objects, cfg.hidden, seed)
+        self.graph = build_graph(spec, (self.low, self.high)) if model is None else model.graph
+        self.model = model if model is not None else self._new_model(self.graph)
         self.fitted = model is not None
         self.history = History(
-            self.joints, cfg.objects, provenance={"seed": self.seed, "config": asdict(cfg)}
+            spec.joints,
+            spec.object_names,
+            provenance={"seed": self.seed, "config": asdict(cfg)},
+            actions=len(spec.actions),
+            effector_dim=0 if spec.effector is None else spec.effector.dim,
+            object_dim=dims.pop() if dims else 2,
+            velocities=spec.velocities is not None,
+            momentum=spec.object_momentum,
         )
-        self.pipeline = Pipeline(cfg.perception)
-        self.slots = ObjectSlots(cfg.objects, use_top=cfg.top_surface)
-        (x0, y0), (x1, y1) = cfg.region
-        self.curiosity = {o: GridCuriosity((x0, y0), (x1, y1), cfg.bins, cfg.alpha) for o in cfg.objects}
+        self.senses = Senses(spec, cfg.perception, cfg.top_surface)
+        self.estimator = Estimator(spec, cfg.estimate)
+        self.learner = Learner(spec, cfg.model, cfg.learn)
+        (x0, y0), (x1, y1) = cfg.curiosity.region
+        c = cfg.curiosity
+        self.curiosity = {o: GridCuriosity((x0, y0), (x1, y1), c.bins, c.alpha) for o in spec.object_names}
         self.goal = {} if goal is None else self._check_targets(goal)
         self.episode, self.steps, self.episode_steps, self.clock = -1, 0, 0, 0.0
-        self.estimate: dict[str, np.ndarray | None] = {}
-        self._target_index = 0
-        self._blankets: dict[tuple[str, ...], WorldModel] = {}
         self.percept: Percept | None = None
+        self.estimate: dict[str, np.ndarray | None] = {}
+        self.previous: dict[str, np.ndarray | None] = {}
+        self.done = False
+        self._sequence: np.ndarray | None = None
+        self._target_index = 0
+        self._dt = float(getattr(env.unwrapped, "dt", 1.0))
+        self._probe()
 
-    # ------------------------------------------------------------------ o(t) -> s(t)
+    def _new_model(self, graph: Any) -> WorldModel:
+        return build_model(self.spec, graph, self.config.model, seed=self.seed)
+
+    def _probe(self) -> None:
+        """Reset once and read the percept: missing info entries and unseen objects fail here."""
+        seed = int(np.random.SeedSequence([self.seed, 4]).generate_state(1)[0])
+        obs, info = self.env.reset(seed=seed)
+        percept = self.senses.read(obs, info, 0.0)
+        unseen = [o for o in self.spec.perceived if percept.measurements[o] is None]
+        if unseen:
+            n = 0 if percept.perception is None else len(percept.perception.observations())
+            raise ValueError(
+                f"objects {unseen} named by the spec are not seen: perception finds {n} object(s) in the first "
+                f"frame and the spec names {len(self.spec.perceived)}; check the camera and the spec's objects"
+            )
+        self.senses.reset()
+
     def _check_targets(self, targets: Mapping[str, Any]) -> dict[str, np.ndarray]:
         out = {}
         for name, value in targets.items():
-            if name not in self.config.objects:
+            if name not in self.spec.object_names:
                 raise ValueError(
-                    f"target names unknown object {name!r}; objects are {list(self.config.objects)}"
+                    f"target names unknown object {name!r}; objects are {list(self.spec.object_names)}"
                 )
             v = np.asarray(value, dtype=np.float64)
-            if v.shape != (2,) or not np.all(np.isfinite(v)):
-                raise ValueError(f"target of {name!r} is {value!r}; expected a finite (x, y) in metres")
+            if v.shape != (self.spec.object(name).dim,) or not np.all(np.isfinite(v)):
+                raise ValueError(
+                    f"target of {name!r} is {value!r}; expected a finite ({self.spec.object(name).dim},) in metres"
+                )
             out[name] = v
         return out
 
-    def perceive(self) -> Percept:
-        """Render o(t) = [RGB-D, q] and run Π (steps 1-3 of the module docstring)."""
-        env = self.env
-        view = env.camera_frame()
-        frame = self_filtered_frame(view.rgb, view.depth, view.K, self.clock, env.arm_mask(view))
-        state = self.pipeline(frame)
-        T = env.table_from_camera(view)
-        return Percept(
-            view,
-            state,
-            self.slots.update(state, T, self.estimate, float(view.K[1, 1]), frame),
-            env.data.qpos[env.qpos_indices].copy(),
-            env.hand_position(),
-            T,
-            self.clock,
-        )
-
+    # ------------------------------------------------------------------ perceive, estimate
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> Percept:
-        """Start an episode: reset the world and perception; the estimate is the first measurement."""
+        """Start an episode: reset the environment and perception; the estimate is the first measurement."""
         self.episode += 1
         self.episode_steps = 0
         if seed is None:
             seed = int(np.random.SeedSequence([self.seed, 3, self.episode]).generate_state(1)[0])
-        self.env.reset(seed=seed, options=options)
-        self.pipeline.reset()
-        self.slots.reset()
-        self.estimate = {}
-        self.percept = self.perceive()
-        self.estimate = {
-            o: (None if m is None else m.position.copy()) for o, m in self.percept.measurements.items()
-        }
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.senses.reset()
+        self.done = False
+        self._sequence = None
+        self.percept = self.senses.read(obs, info, self.clock)
+        self.estimate = self.estimator.initial(self.percept)
+        self.previous = {}
         self._visit()
         return self.percept
 
     def _visit(self) -> None:
         for o, e in self.estimate.items():
-            if e is not None:
+            if e is not None and e.shape == (2,):
                 self.curiosity[o].partial_fit(e)
 
-    def _blanket(self, objects: tuple[str, ...]) -> WorldModel:
-        if objects not in self._blankets:
-            self._blankets[objects] = submodel(self.model, objects, blanket=True)
-        return self._blankets[objects]
+    def belief(self) -> dict[str, np.ndarray]:
+        """The planner's state: the graph's lag-1 roots now (:func:`pal.agent.estimate.belief`)."""
+        if self.percept is None:
+            raise ValueError("call reset() before planning")
+        return belief(self.spec, self.percept, self.estimate, self.previous)
 
-    def state_posterior(
-        self, prev: Percept, est_prev: dict[str, np.ndarray | None], new: Percept, touch: np.ndarray
-    ) -> dict[str, np.ndarray | None]:
-        """Posterior mean of pos.o after the transition (Eq. 4.41-4.42) through the measurement sites.
+    # ------------------------------------------------------------------ plan
+    def _seed(self) -> int:
+        return int(self.rng.integers(2**31))
 
-        The evidence is the sensed hand before and after, the previous estimate ``pos_prev.o``,
-        touch ``contact.o`` and, for a visible object, ``meas.o`` with perception's sigma; a lost
-        object's ``meas.o`` is left unobserved, so its posterior is the model's prediction.
-        """
-        meas = new.measurements
-        if not self.fitted:
-            return {o: (m.position.copy() if m is not None else est_prev[o]) for o, m in meas.items()}
-        known = tuple(o for o in self.config.objects if est_prev[o] is not None)
-        out = {o: (None if meas[o] is None else meas[o].position.copy()) for o in self.config.objects}
-        if not known:  # nothing seen yet in this episode: the first measurement starts the estimate
-            return out
-        obs: dict[str, Any] = {"hand_prev": prev.hand[None], "hand": new.hand[None]}
-        scales = {}
-        for k, o in enumerate(self.config.objects):
-            if o not in known:
-                continue
-            obs[f"pos_prev.{o}"] = est_prev[o][None]
-            obs[f"contact.{o}"] = np.array([[touch[k]]])
-            m = meas[o]
-            if m is not None:
-                obs[f"meas.{o}"] = m.position[None]
-                scales[f"meas.{o}"] = torch.as_tensor(m.std[None], dtype=torch.get_default_dtype())
-        cfg = self.config
-        with pyro.validation_enabled(False):  # the evidence was checked above; validation only adds cost
-            post = infer_state(
-                self._blanket(known),
-                obs,
-                measurement_scale=scales or None,
-                num_steps=cfg.state_steps,
-                lr=cfg.state_lr,
-                lr_final=cfg.state_lr_final,
-                num_particles=16,
-                num_samples=64,
-                init_scale=cfg.state_init_scale,
-                guide=cfg.state_guide,
-                seed=int(self.rng.integers(2**31)),
-            )
-        for o in known:
-            out[o] = post.mean[f"pos.{o}"][0].numpy().astype(np.float64)
-        return out
-
-    # ------------------------------------------------------------------ target -> action
-    def _base_state(self, n: int) -> dict[str, Any]:
-        state: dict[str, Any] = {
-            f"q_prev.{j}": np.full((n, 1), self.percept.q[c]) for c, j in enumerate(self.joints)
-        }
-        for o, e in self.estimate.items():
-            if e is not None:
-                state[f"pos_prev.{o}"] = np.tile(e, (n, 1))
-        return state
-
-    def _infer(
-        self, state: Mapping[str, Any], targets: Mapping[str, np.ndarray], n: int
-    ) -> tuple[Any, np.ndarray]:
-        """Alg. 4.2 for n units at once; returns the result and each unit's predicted distance, m."""
-        cfg = self.config
-        result = infer_action(
-            self.model,
-            state,
-            {f"pos.{o}": np.tile(t, (n, 1)) for o, t in targets.items()},
-            scale=cfg.target_scale,
-            steps=cfg.action_steps,
-            lr=cfg.action_lr,
-            init="random",
-            seed=int(self.rng.integers(2**31)),
-        )
-        dist = sum(
-            np.linalg.norm(result.predicted[f"pos.{o}"].numpy() - t, axis=1) for o, t in targets.items()
-        )
-        return result, np.asarray(dist, dtype=np.float64)
-
-    def plan(self, targets: Mapping[str, Any], lookahead: bool | None = None) -> Decision:
-        """The action whose predicted outcome is closest to ``targets`` (slot -> (2,) m).
-
-        Direct: Alg. 4.2 from ``action_starts`` random starts, the best under the model wins.
-        With ``lookahead`` (default ``config.lookahead``) also two steps: ``action_starts``
-        candidate first actions (:func:`candidate_actions`) are simulated through the model
-        (Alg. 4.1; small moves only, so that a mispredicted sweep cannot fling the object) and
-        Alg. 4.2 infers the follow-up from each predicted state; a first action
-        whose follow-up is predicted to end ``lookahead_margin`` m closer than the best direct
-        action is taken instead (mode ``"setup"``: it repositions the hand for the next push).
-        """
-        cfg = self.config
+    def plan(self, targets: Mapping[str, Any], mode: str = "goal") -> Plan:
+        """Plan towards ``targets`` (object -> (d,) m) from the belief, warm-started (:func:`pal.agent.plan.plan`)."""
         if self.percept is None:
             raise ValueError("call reset() before plan()")
         targets = self._check_targets(targets)
         missing = [o for o in targets if self.estimate.get(o) is None]
         if missing:
             raise ValueError(f"no state estimate for {missing}; they have not been perceived in this episode")
-        k = cfg.action_starts
-        direct, dist = self._infer(self._base_state(k), targets, k)
-        best = int(np.argmin(dist))
-        action = np.array([float(direct.actions[f"act.{j}"][best, 0]) for j in self.joints])
-        predicted = {o: direct.predicted[f"pos.{o}"][best].numpy().astype(np.float64) for o in targets}
-        mode, score = "goal", float(dist[best])
-        if cfg.lookahead if lookahead is None else lookahead:
-            first = candidate_actions(
-                self.percept.q, self.env.ctrl_low, self.env.ctrl_high, self.rng, k, wide=0.0
-            )
-            values = {
-                **self._base_state(k),
-                **{f"act.{j}": first[:, c : c + 1] for c, j in enumerate(self.joints)},
-            }
-            step1 = self.model.predict(values)
-            state2 = {f"q_prev.{j}": step1[f"q.{j}"] for j in self.joints}
-            state2.update(
-                {f"pos_prev.{o}": step1[f"pos.{o}"] for o in self.estimate if self.estimate[o] is not None}
-            )
-            _, dist2 = self._infer(state2, targets, k)
-            b2 = int(np.argmin(dist2))
-            if dist2[b2] < score - cfg.lookahead_margin:
-                action, mode, score = first[b2].astype(np.float64), "setup", float(dist2[b2])
-                predicted = {o: step1[f"pos.{o}"][b2].numpy().astype(np.float64) for o in targets}
-        return Decision(mode, action, dict(targets), predicted, score)
+        cfg = self.config.plan
+        init = None
+        if cfg.warm_start and self._sequence is not None:
+            init = np.concatenate([self._sequence[1:], self._sequence[-1:]])
+        elif self.config.servo and len(self.low) == len(
+            self.percept.q
+        ):  # start the search from holding still
+            init = np.tile(np.clip(self.percept.q, self.low, self.high), (cfg.horizon, 1))
+        p = plan(self.model, self.belief(), targets, cfg, seed=self._seed(), init=init, mode=mode)
+        self._sequence = p.sequence
+        return p
 
     def random_action(self) -> np.ndarray:
-        """A babbling action: (J,) servo targets, rad.
+        """A babbling action (A,): uniform in the bounds, or for servos a move around the joint angles."""
+        b = self.config.babble
+        if (
+            self.config.servo
+            and self.percept is not None
+            and self.rng.random() < b.local
+            and len(self.low) == len(self.percept.q)
+        ):
+            r = b.reach
+            return np.clip(self.percept.q + self.rng.uniform(-r, r, size=len(self.low)), self.low, self.high)
+        return self.rng.uniform(self.low, self.high)
 
-        Uniform over the joint ranges, or, with probability ``babble_local``, within
-        ``babble_reach`` rad of the current angles (small moves).
-        """
-        low, high = self.env.ctrl_low, self.env.ctrl_high
-        if self.percept is not None and self.rng.random() < self.config.babble_local:
-            r = self.config.babble_reach
-            return np.clip(self.percept.q + self.rng.uniform(-r, r, size=len(low)), low, high)
-        return self.rng.uniform(low, high)
+    def _hold(self) -> np.ndarray:
+        return self.percept.q.copy() if self.config.servo else np.zeros(len(self.low))
 
     def decide(self, mode: str) -> Decision:
-        """Choose a(t): ``"babble"`` (random), ``"curious"`` (curiosity target, Eq. 4.38) or ``"goal"``."""
+        """Choose a(t): ``"babble"`` (random), ``"curious"`` or ``"goal"`` (the goal, or the observed goals)."""
         if mode not in MODES:
             raise ValueError(f"mode {mode!r} unknown; expected one of {MODES}")
+        if self.percept is None:
+            raise ValueError("call reset() before decide()")
         if mode == "babble" or not self.fitted:
             return Decision("babble", self.random_action())
-        known = [o for o in self.config.objects if self.estimate.get(o) is not None]
+        known = [o for o in self.spec.object_names if self.estimate.get(o) is not None]
         if mode == "goal":
-            goal = {o: t for o, t in self.goal.items() if o in known}
-            if not goal:
-                return Decision("hold", self.percept.q.copy())
-            now = sum(float(np.linalg.norm(self.estimate[o] - t)) for o, t in goal.items())
-            if now <= self.config.goal_tolerance:
-                return Decision("hold", self.percept.q.copy(), goal)
-            d = self.plan(goal)
-            if d.objective is None or d.objective > now - self.config.min_progress:
-                return Decision("hold", self.percept.q.copy(), goal, d.predicted, d.objective)
-            return d
+            return self._goal(known)
         if not known:
             return Decision("babble", self.random_action())
+        c = self.config.curiosity
+        if c.method == "disagreement":
+            generator = torch.Generator().manual_seed(self._seed())
+            seq, score, _ = explore(
+                self.model, self.belief(), tuple(known), c, self.config.plan.scale, generator
+            )
+            if score < c.min_score:
+                return Decision("babble", self.random_action(), score=score)
+            mean, sd, _ = one_step(self.model, self.belief(), seq[0], tuple(known))
+            return Decision("curious", seq[0], step_mean=mean, step_sd=sd, score=score)
         o = known[self._target_index % len(known)]
         self._target_index += 1
         target = self.curiosity[o].sample(self.rng, self.estimate[o])
-        d = self.plan({o: target}, lookahead=False)
-        if np.linalg.norm(self.estimate[o] - target) - d.objective < self.config.min_progress:
-            return Decision("babble", self.random_action(), d.targets, d.predicted, d.objective)
-        return Decision("curious", d.action, d.targets, d.predicted, d.objective)
+        p = self.plan({o: target}, mode="curious")
+        self._sequence = None
+        if np.linalg.norm(self.estimate[o] - target) - p.objective < self.config.plan.min_progress:
+            return Decision("babble", self.random_action(), p.targets, p.predicted, p.objective)
+        return _decision(p)
 
-    # ------------------------------------------------------------------ acting
+    def _goal(self, known: list[str]) -> Decision:
+        goal = self.goal or dict(self.percept.goals)
+        goal = {o: t for o, t in goal.items() if o in known}
+        if not goal:
+            return Decision("hold", self._hold())
+        now = sum(float(np.linalg.norm(self.estimate[o] - t)) for o, t in goal.items())
+        cfg = self.config.plan
+        if self.config.servo and now <= cfg.goal_tolerance:
+            return Decision("hold", self._hold(), goal)
+        p = self.plan(goal)
+        if self.config.servo and p.objective > now - cfg.min_progress:
+            self._sequence = None
+            return Decision("hold", self._hold(), p.targets, p.predicted, p.objective)
+        return _decision(p)
+
+    # ------------------------------------------------------------------ act, learn
     def step(self, action: Any) -> Percept:
-        """Execute ``do(a)``, perceive, update the state estimate and record the transition."""
+        """Execute ``a``, perceive, update the estimate and record the transition."""
         if self.percept is None:
             raise ValueError("call reset() before step()")
-        env, prev, est_prev = self.env, self.percept, dict(self.estimate)
-        sim_state = env.get_state()
-        truth_prev = env.object_positions()
-        _, _, _, _, info = env.step(action)
-        ctrl = info["ctrl"]
-        self.clock += env.dt
+        a = np.clip(np.asarray(action, dtype=np.float64).reshape(-1), self.low, self.high)
+        prev, est_prev, before = self.percept, dict(self.estimate), dict(self.previous)
+        obs, _, terminated, truncated, info = self.env.step(a.astype(np.float32))
+        self.clock += self._dt
         self.steps += 1
         self.episode_steps += 1
-        new = self.perceive()
-        self.estimate = self.state_posterior(prev, est_prev, new, info["touch"])
+        self.done = bool(terminated or truncated)
+        new = self.senses.read(obs, info, self.clock, reference=self.estimate)
+        vel_prev = {
+            o: (None if est_prev[o] is None or before.get(o) is None else est_prev[o] - before[o])
+            for o in est_prev
+        }
+        self.estimate = self.estimator.update(
+            self.model if self.fitted else None, prev, est_prev, vel_prev, new, self._seed()
+        )
+        self.previous = est_prev
         self.percept = new
         self._visit()
-        truth = env.object_positions()
-        nan2 = np.full(2, np.nan)
-        objs = self.config.objects
-        pick = lambda ms: np.array([nan2 if ms[o] is None else ms[o].position for o in objs])  # noqa: E731
         self.history.append(
-            episode=self.episode,
-            act=ctrl,
-            q_prev=prev.q,
-            q=new.q,
-            hand_prev=prev.hand,
-            hand=new.hand,
-            touch=[info["touch"][env.objects.index(o)] for o in objs],
-            meas_prev=pick(prev.measurements),
-            meas=pick(new.measurements),
-            std=np.array([nan2 if new.measurements[o] is None else new.measurements[o].std for o in objs]),
-            est_prev=np.array([nan2 if est_prev[o] is None else est_prev[o] for o in objs]),
-            est=np.array([nan2 if self.estimate[o] is None else self.estimate[o] for o in objs]),
-            truth_prev=np.array([truth_prev[o][:2] for o in objs]),
-            truth=np.array([truth[o][:2] for o in objs]),
-            state=sim_state,
+            **transition(
+                self.history, self.episode, self.episode_steps == 1, a, prev, new, est_prev, self.estimate
+            )
         )
         return new
 
     def refit(self) -> dict[str, Any]:
-        """Refit the world model on the whole history (Eq. 4.33)."""
-        c = self.config
-        out = fit_world_model(
-            self.model,
-            self.history,
-            epochs=c.epochs,
-            batch_size=c.batch_size,
-            lr=c.lr,
-            min_sigma=c.min_sigma,
-            seed=self.seed + len(self.history),
-        )
+        """Refit the world model on the whole history (Eq. 4.33).
+
+        At the first fit with ``model.structure="discover"`` the learned sites' parents are learnt
+        first (:func:`pal.agent.graph.discover_parents`).
+        """
+        if not self.fitted and self.config.model.structure == "discover":
+            data = site_data(self.history, self.spec)
+            parents = discover_parents(
+                self.spec,
+                self.graph,
+                {k: v for k, v in data.items() if not k.startswith("meas.")},
+                seed=self.seed,
+            )
+            self.graph = build_graph(self.spec, (self.low, self.high), parents)
+            self.model = self._new_model(self.graph)
+        self.model, out = self.learner.refit(self.model, self.history, self.seed + len(self.history))
+        self.graph = self.model.graph
         self.fitted = True
-        self._blankets.clear()
+        self.estimator.forget()
         log.info("refit on %d transitions: %s", len(self.history), out["rows"])
         return out
 
@@ -424,15 +365,15 @@ class Agent:
     ) -> list[Decision]:
         """Run ``steps`` loop steps in ``mode`` and return their decisions.
 
-        A fitted model is refitted every ``refit_every`` steps (default ``config.refit_every``;
-        0 disables). Episodes restart every ``reset_every``.
+        A fitted model is refitted every ``refit_every`` steps (default ``config.learn.refit_every``;
+        0 disables). Episodes restart every ``reset_every`` steps and when the environment ends one.
         """
         check_int("steps", steps, minimum=0)
-        every = self.config.refit_every if refit_every is None else refit_every
+        every = self.config.learn.refit_every if refit_every is None else refit_every
         decisions = []
         for _ in tqdm(range(steps), desc=f"loop ({mode})", disable=not progress_bar, leave=False):
             limit = self.config.reset_every
-            if self.percept is None or (limit is not None and self.episode_steps >= limit):
+            if self.percept is None or self.done or (limit is not None and self.episode_steps >= limit):
                 self.reset()
             decision = self.decide(mode)
             percept = self.step(decision.action)

@@ -2,8 +2,8 @@
 
 The agent babbles; the pushing world model is fitted on the first ``1 - test_fraction`` of the
 transitions (perceived object positions, Eq. 4.33). For held-out recorded steps t-1 -> t it asks
-"where would the box be had the action been a' ?", with a' the executed servo targets moved by
-U(-delta, delta) rad per joint (``query``):
+"where would the box be had the action been a' ?", for ``query.alternatives`` actions a' per step:
+the executed servo targets moved by U(-delta, delta) rad per joint (``query``):
 
 - ``counterfactual``: :func:`inference.counterfactual` on the fully observed transition (actions,
   joint angles, sensed hand, touch, perceived box before and after): abduction of every residual
@@ -11,8 +11,10 @@ U(-delta, delta) rad per joint (``query``):
 - ``interventional``: the prediction under ``do(act = a')`` with expected residuals (no abduction);
 - ``factual``: where the box actually went (the answer "nothing would change").
 
-The ground truth is the simulator restored to the saved MuJoCo state before the step and stepped
-with a'; MuJoCo is deterministic, so this is exact. Steps count when the box moves more than
+The ground truth is the simulator restored to the saved MuJoCo state before the step (recorded
+from the environment's ``info``) and stepped with every a' of the step in one open-loop batch
+(:meth:`pal.sim.pushing.PushingEnv.replay`, ``mujoco.rollout``); MuJoCo is deterministic, so
+this is exact. A query counts when the box moves more than
 ``min_motion`` m in the factual or the counterfactual world (otherwise every answer is trivially
 "it stays"). Errors compare displacements over the step (answer minus the perceived position
 before it, against the true counterfactual position minus the true one before it), so the
@@ -34,7 +36,7 @@ import torch
 
 from inference import counterfactual
 from models import WorldModel
-from pal.agent import Agent, submodel
+from pal.agent import Agent, restrict
 from pal.agent.history import History
 from pal.checks import check_float, check_int
 from pal.experiments.pushing_setup import (
@@ -70,12 +72,14 @@ class QueryConfig:
     """Which counterfactuals are asked.
 
     Attributes:
-        count: held-out steps to ask about.
+        count: queries (step, a') to ask.
+        alternatives: actions a' per held-out step, replayed in one batch.
         delta: a' moves each executed servo target by U(-delta, delta), rad.
-        min_motion: a step counts when the box moves more than this in either world, m.
+        min_motion: a query counts when the box moves more than this in either world, m.
     """
 
-    count: int = 60
+    count: int = 240
+    alternatives: int = 8
     delta: float = 0.3
     min_motion: float = 0.005
 
@@ -83,6 +87,7 @@ class QueryConfig:
         check_float("delta", self.delta, 0.0, open_low=True)
         check_float("min_motion", self.min_motion, 0.0)
         check_int("count", self.count)
+        check_int("alternatives", self.alternatives)
 
 
 @dataclass(frozen=True)
@@ -106,10 +111,10 @@ class Config:
         check_float("test_fraction", self.test_fraction, 0.0, 1.0, open_low=True, open_high=True)
 
 
-QUICK = Config(setup=QUICK_SETUP, query=QueryConfig(count=5, min_motion=0.0))
+QUICK = Config(setup=QUICK_SETUP, query=QueryConfig(count=16, alternatives=4, min_motion=0.0))
 TINY = Config(
     setup=TINY_SETUP,
-    query=QueryConfig(count=2, min_motion=0.0),
+    query=QueryConfig(count=4, alternatives=2, min_motion=0.0),
     test_fraction=0.5,
 )
 
@@ -118,33 +123,30 @@ def _queries(
     agent: Agent, rows: np.ndarray, config: QueryConfig, seed: int
 ) -> list[tuple[int, np.ndarray, np.ndarray]]:
     """(row, a', true counterfactual box position) for informative held-out steps (module docstring)."""
-    env, history = agent.env, agent.history
+    env, history = agent.env.unwrapped, agent.history
     rng = np.random.default_rng(np.random.SeedSequence([seed, 73]))
     k = history.objects.index("box")
     act, states = history.array("act"), history.array("state")
     meas_prev, meas, truth_prev, truth = (
         history.array(f) for f in ("meas_prev", "meas", "truth_prev", "truth")
     )
-    out = []
+    out: list[tuple[int, np.ndarray, np.ndarray]] = []
     for row in rng.permutation(rows):
         if not (np.isfinite(meas_prev[row, k, 0]) and np.isfinite(meas[row, k, 0])):
             continue
-        alt = np.clip(
-            act[row] + rng.uniform(-config.delta, config.delta, size=act.shape[1]),
-            env.ctrl_low,
-            env.ctrl_high,
+        alts = np.clip(
+            act[row] + rng.uniform(-config.delta, config.delta, size=(config.alternatives, act.shape[1])),
+            agent.low,
+            agent.high,
         )
-        env.set_state(states[row])
-        env.step(alt)
-        true_cf = env.object_positions()["box"][:2].copy()
-        moved = max(
-            np.linalg.norm(true_cf - truth_prev[row, k]), np.linalg.norm(truth[row, k] - truth_prev[row, k])
-        )
-        if moved > config.min_motion:
-            out.append((int(row), alt, true_cf))
-        if len(out) == config.count:
+        true_cf = env.replay(states[row], alts)["box"][:, :2]
+        factual = np.linalg.norm(truth[row, k] - truth_prev[row, k])
+        for alt, cf in zip(alts, true_cf, strict=True):
+            if max(np.linalg.norm(cf - truth_prev[row, k]), factual) > config.min_motion:
+                out.append((int(row), alt, cf))
+        if len(out) >= config.count:
             break
-    return out
+    return out[: config.count]
 
 
 def _answers(model: WorldModel, history: History, queries: list, source: str) -> dict[str, np.ndarray]:
@@ -152,15 +154,15 @@ def _answers(model: WorldModel, history: History, queries: list, source: str) ->
     rows = np.array([r for r, _, _ in queries])
     alt = np.stack([a for _, a, _ in queries])
     true_cf = np.stack([t for _, _, t in queries])
-    box = submodel(model, ("box",))
+    box = restrict(model, ("box",))
     arm, objects = history.columns(source, rows)
     cols = {**arm, **objects["box"]}
     cols["meas.box"] = cols["pos.box"]
-    dtype = torch.get_default_dtype()
-    factual = {n: torch.as_tensor(v, dtype=dtype) for n, v in cols.items()}
-    do = {f"act.{j}": torch.as_tensor(alt[:, c : c + 1], dtype=dtype) for c, j in enumerate(history.joints)}
+    dtype = box.dtype
+    factual = {n: torch.as_tensor(cols[n], dtype=dtype) for n in box.graph.names}
+    do = {"act": torch.as_tensor(alt, dtype=dtype)}
     cf = counterfactual(box, factual, do)
-    roots = {n: factual[n] for n in box.graph.roots if not n.startswith("act.")}
+    roots = {n: factual[n] for n in box.graph.roots if n != "act"}
     answers = {
         "cf": cf.mean["pos.box"][0].numpy(),
         "interventional": box.predict({**roots, **do})["pos.box"].numpy(),
@@ -183,7 +185,12 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         raise ValueError(
             "no held-out step moved the box; babble longer (setup.babble_steps) or lower query.min_motion"
         )
-    metrics: dict[str, Any] = {"n": len(queries), "unit": "cm", "info": {"train_rows": int(train.size)}}
+    metrics: dict[str, Any] = {
+        "n": len(queries),
+        "steps": len({r for r, _, _ in queries}),
+        "unit": "cm",
+        "info": {"train_rows": int(train.size)},
+    }
     errors: dict[str, dict[str, np.ndarray]] = {}
     for key, source, _ in _MODELS:
         model, _ = fitted_model(agent, config.setup, config.seed, source, train)
@@ -227,8 +234,9 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             )
         ],
         notes=[
-            f"{len(queries)} held-out steps where the box moves more than {config.query.min_motion} m, with "
-            f"a' = a + U(-{config.query.delta}, {config.query.delta}) rad per joint.",
+            f"{len(queries)} queries on {metrics['steps']} held-out steps where the box moves more than "
+            f"{config.query.min_motion} m, with a' = a + U(-{config.query.delta}, {config.query.delta}) rad per joint, "
+            f"{config.query.alternatives} per step, replayed in one batch with mujoco.rollout.",
             "Errors compare the predicted box displacement with the simulator replayed from the saved state "
             "with a', cm.",
         ],

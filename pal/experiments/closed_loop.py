@@ -1,9 +1,9 @@
 """``pal loop`` (= ``pal experiment loop``): run the closed perception-action loop and film it.
 
-The run builds the pushing world (:class:`pal.sim.pushing.PushingEnv`) and an
-:class:`pal.agent.Agent`, babbles for ``babble`` steps, fits the world model, then runs the rest of
-the steps curiosity-driven (or towards a user goal for the box), refitting every
-``agent.refit_every`` steps. With ``video`` set, every step's camera frame is written there with
+The run builds the pushing world (:class:`pal.sim.pushing.PushingEnv`, its camera view in
+``info``) and an :class:`pal.agent.Agent` over it (:func:`pal.agent.pushing_spec`), babbles for
+``babble`` steps, fits the world model, then runs the rest of the steps curiosity-driven (or
+towards a user goal for the box), refitting every ``agent.learn.refit_every`` steps. With ``video`` set, every step's camera frame is written there with
 Π's detections and ids, the slots, the state estimates, the targets and the model's predicted
 outcomes overlaid (:mod:`pal.agent.video`). Its quick configuration is the loop of ``pal demo``.
 
@@ -22,7 +22,18 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pal.agent import Agent, AgentConfig, Decision, Percept
+from pal.agent import (
+    Agent,
+    AgentConfig,
+    CuriosityConfig,
+    Decision,
+    EstimateConfig,
+    LearnConfig,
+    ModelConfig,
+    Percept,
+    PlanConfig,
+    pushing_spec,
+)
 from pal.agent.curiosity import grid_occupancy
 from pal.agent.video import VideoRecorder, overlay
 from pal.checks import check_float, check_int
@@ -93,13 +104,12 @@ class Config:
 
 #: The agent of the demo's loop: a short fit, light inference, one episode, no refit.
 QUICK_AGENT = AgentConfig(
-    epochs=40,
+    model=ModelConfig(epochs=40, members=3),
+    estimate=EstimateConfig(steps=30, lr=0.05),
+    plan=PlanConfig(population=32, elites=4, iterations=2, refine_steps=10),
+    curiosity=CuriosityConfig(population=32, elites=4, iterations=2),
+    learn=LearnConfig(refit_every=1000),
     reset_every=None,
-    action_starts=8,
-    action_steps=30,
-    state_steps=30,
-    state_lr=0.05,
-    refit_every=1000,
 )
 QUICK = Config(steps=50, babble=36, agent=QUICK_AGENT)
 TINY = Config(
@@ -107,7 +117,12 @@ TINY = Config(
     babble=8,
     camera_size=(240, 180),
     agent=replace(
-        QUICK_AGENT, epochs=10, hidden=(16,), action_starts=4, action_steps=10, reset_every=6, refit_every=10
+        QUICK_AGENT,
+        model=ModelConfig(epochs=10, members=2, hidden=(16,), patience=None),
+        plan=PlanConfig(population=8, elites=2, iterations=1, refine_steps=3),
+        curiosity=CuriosityConfig(population=8, elites=2, iterations=1, influence_samples=4),
+        learn=LearnConfig(refit_every=10),
+        reset_every=6,
     ),
 )
 
@@ -119,7 +134,7 @@ def _frame(agent: Agent, decision: Decision | None, percept: Percept, step: int)
         percept.perception,
         percept.frame.K,
         percept.table_from_camera,
-        slots=agent.slots.bound,
+        slots=agent.senses.slots.bound,
         estimates=agent.estimate,
         targets=decision.targets if decision is not None else agent.goal,
         predicted=decision.predicted if decision is not None else None,
@@ -132,9 +147,10 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     """The closed loop: babble, fit, then curiosity-driven (or goal-directed) pushing, filmed."""
     babble = config.babble_steps
     cfg = config.agent
-    env = PushingEnv(camera_size=config.camera_size)
-    goal = None if config.goal is None else {cfg.objects[0]: np.asarray(config.goal, float)}
-    agent = Agent(env, cfg, seed=config.seed, goal=goal)
+    env = PushingEnv(camera_size=config.camera_size, camera=True)
+    spec = pushing_spec()
+    goal = None if config.goal is None else {spec.object_names[0]: np.asarray(config.goal, float)}
+    agent = Agent(env, spec, cfg, seed=config.seed, goal=goal)
     recorder = VideoRecorder(config.video, config.fps) if config.video is not None else None
     modes: Counter[str] = Counter()
     step = 0
@@ -160,11 +176,11 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         env.close()
     history = agent.history
     est, meas, truth = (history.array(f) for f in ("est", "meas", "truth"))
-    low, high = cfg.region
+    low, high = cfg.curiosity.region
     lost, coverage = {}, {}
-    for k, o in enumerate(cfg.objects):
+    for k, o in enumerate(spec.object_names):
         ok = np.isfinite(est[:, k, 0])
-        coverage[o] = grid_occupancy(est[ok, k], low, high, cfg.bins) if ok.any() else 0.0
+        coverage[o] = grid_occupancy(est[ok, k], low, high, cfg.curiosity.bins) if ok.any() else 0.0
         lost[o] = float(np.isnan(meas[:, k, 0]).mean())
     metrics = {
         "steps": len(history),
@@ -186,7 +202,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         ["video", metrics["video"]],
         ["video frames", metrics["video_frames"]],
     ]
-    objects = [[o, lost[o], coverage[o], fit_rows.get(o)] for o in cfg.objects]
+    objects = [[o, lost[o], coverage[o], fit_rows.get(o)] for o in spec.object_names]
     return Report(
         title="The closed perception-action loop: Π -> measurement sites -> world model -> action",
         metrics=metrics,
@@ -207,10 +223,10 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 "<=",
                 f"share of the frames in which perception lost the {o}",
             )
-            for o in cfg.objects
+            for o in spec.object_names
         ],
         notes=[
-            f"The arm pushes {' and '.join(cfg.objects)} for {metrics['steps']} steps (seed {config.seed}): "
+            f"The arm pushes {' and '.join(spec.object_names)} for {metrics['steps']} steps (seed {config.seed}): "
             f"{babble} babbling steps, then {'curiosity-driven' if goal is None else 'goal-directed'} steps.",
         ],
         figures={"paths": _paths_figure(history.objects, history.array("episode"), est, truth)},

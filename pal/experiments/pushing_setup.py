@@ -1,9 +1,10 @@
 """The protocol shared by experiments C1-C4: the pushing world, a babbling agent, one-step predictions.
 
-Every experiment starts the same way: an :class:`pal.agent.Agent` in the pushing world
-(:class:`pal.sim.pushing.PushingEnv`) babbles for ``babble_steps`` steps while it perceives (Π on
-the self-filtered RGB-D frames), so its history holds for every step the executed servo targets,
-the joint angles, the sensed hand and touch, the perceived object positions and, for evaluation
+Every experiment starts the same way: an :class:`pal.agent.Agent` over
+:class:`pal.sim.pushing.PushingEnv` (its camera view in ``info``, spec :func:`pal.agent.pushing_spec`)
+babbles for ``babble_steps`` steps while it perceives (Π on the self-filtered RGB-D frames), so its
+history holds for every step the executed servo targets, the joint angles, the sensed hand and
+touch, the perceived object positions and, copied from the environment's ``info`` for evaluation
 only, the true ones and the simulator state. Objects are put back every ``agent.reset_every`` steps.
 """
 
@@ -18,7 +19,17 @@ import numpy as np
 import torch
 
 from models import WorldModel
-from pal.agent import Agent, AgentConfig, build_world_model, fit_world_model
+from pal.agent import (
+    Agent,
+    AgentConfig,
+    CuriosityConfig,
+    EstimateConfig,
+    ModelConfig,
+    PlanConfig,
+    build_model,
+    fit_model,
+    pushing_spec,
+)
 from pal.agent.history import History
 from pal.checks import check_float, check_int
 from pal.sim.pushing import PushingEnv
@@ -59,8 +70,8 @@ class SetupConfig:
     Attributes:
         babble_steps: babbling steps that make the training history.
         camera_size: (width, height) of the RGB-D camera, pixels.
-        agent: the agent's settings: its fits (Eq. 4.33), inference, episodes (objects are put
-            back at seeded random places every ``agent.reset_every`` steps).
+        agent: the agent's settings: its model and fits (Eq. 4.33), inference, episodes
+            (objects are put back at seeded random places every ``agent.reset_every`` steps).
     """
 
     babble_steps: int = 3000
@@ -76,19 +87,17 @@ class SetupConfig:
         )
 
 
-#: The agent of the tiny runs: a small network fitted for a few epochs, light inference, short episodes.
+#: The agent of the tiny runs: small ensembles fitted for a few epochs, light inference, short episodes.
 TINY_AGENT = AgentConfig(
-    epochs=3,
-    hidden=(8,),
+    model=ModelConfig(members=2, hidden=(8,), epochs=3, patience=None),
+    estimate=EstimateConfig(steps=30, lr=0.05),
+    plan=PlanConfig(population=8, elites=2, iterations=1, refine_steps=3),
+    curiosity=CuriosityConfig(population=8, elites=2, iterations=1, influence_samples=4),
     reset_every=12,
-    state_steps=30,
-    state_lr=0.05,
-    action_steps=10,
-    action_starts=4,
 )
 #: Babbling of the tiny runs (a few seconds) and of the quick ones (``--quick``).
 TINY_SETUP = SetupConfig(babble_steps=24, agent=TINY_AGENT)
-QUICK_SETUP = SetupConfig(babble_steps=240, agent=AgentConfig(epochs=40))
+QUICK_SETUP = SetupConfig(babble_steps=240, agent=AgentConfig(model=ModelConfig(epochs=40)))
 
 
 def babbled_agent(config: SetupConfig, seed: int, *, progress_bar: bool = False) -> Agent:
@@ -99,8 +108,8 @@ def babbled_agent(config: SetupConfig, seed: int, *, progress_bar: bool = False)
         seed: the agent's master seed.
         progress_bar: show a tqdm bar over the babbling steps.
     """
-    env = PushingEnv(camera_size=config.camera_size)
-    agent = Agent(env, config.agent, seed=seed)
+    env = PushingEnv(camera_size=config.camera_size, camera=True)
+    agent = Agent(env, pushing_spec(), config.agent, seed=seed)
     start = time.perf_counter()
     agent.run(config.babble_steps, "babble", progress_bar=progress_bar)
     log.info("babbled %d steps in %.1f s", config.babble_steps, time.perf_counter() - start)
@@ -119,11 +128,11 @@ def split_rows(n: int, test_fraction: float) -> tuple[np.ndarray, np.ndarray]:
 def fitted_model(
     agent: Agent, config: SetupConfig, seed: int, source: str, rows: np.ndarray
 ) -> tuple[WorldModel, dict[str, int]]:
-    """A new pushing world model fitted on ``rows`` of the agent's history (Eq. 4.33, ``config.agent``'s schedule).
+    """A new world model of the agent's spec fitted on ``rows`` of its history (``config.agent.model``).
 
     Args:
-        agent: the agent whose history and environment are used.
-        config: the protocol (its ``agent`` config gives the model size and fit schedule).
+        agent: the agent whose history, spec and graph are used.
+        config: the protocol (its agent config gives the model and fit schedule).
         seed: seeds the model's initial weights and the fit.
         source: object positions from ``"perceived"`` (Π) or ``"truth"`` (the simulator).
         rows: indices of the history rows to fit on.
@@ -131,20 +140,10 @@ def fitted_model(
     Returns:
         ``(model, rows)``: ``rows`` counts the fitted transitions (``arm`` and per object).
     """
-    a = config.agent
-    model = build_world_model(agent.env, agent.history.objects, a.hidden, seed)
-    fitted = fit_world_model(
-        model,
-        agent.history,
-        source=source,
-        rows=rows,
-        epochs=a.epochs,
-        batch_size=a.batch_size,
-        lr=a.lr,
-        min_sigma=a.min_sigma,
-        seed=seed,
-    )
-    return model, fitted["rows"]
+    m = config.agent.model
+    model = build_model(agent.spec, agent.graph, m, seed=seed)
+    out = fit_model(model, agent.history, agent.spec, m, source=source, rows=rows, seed=seed)
+    return model, out["rows"]
 
 
 def predict_displacements(
@@ -152,33 +151,33 @@ def predict_displacements(
 ) -> dict[str, dict[str, np.ndarray]]:
     """One-step predictions of every object's displacement from the actions (Alg. 4.1, expected noise).
 
-    The model gets the executed servo targets, the joint angles before the step and the object
-    positions before it: perceived ones (``source="perceived"``) or true ones (``"truth"``).
-    Only rows where the object was perceived before the step are used, for both sources, so the
-    two are compared on the same transitions.
+    The model gets the executed servo targets, the joint angles and the sensed hand before the
+    step and the object positions before it: perceived ones (``source="perceived"``) or true
+    ones (``"truth"``); the chain is actions -> joints -> hand -> contact -> displacement. Only
+    rows where the object was perceived before the step are used, for both sources, so the two
+    are compared on the same transitions.
 
     Returns:
-        object -> ``{"predicted": (n, 2), "true": (n, 2), "rows": (n,), "touch": (n,)}``, with the
-        true displacement from the simulator, metres.
+        object -> ``{"predicted": (n, 2), "sd": (n, 2), "true": (n, 2), "rows": (n,), "touch": (n,)}``,
+        with the predictive sd of the displacement and the true displacement, metres.
     """
-    act, q_prev = history.array("act")[rows], history.array("q_prev")[rows]
+    act, q_prev, hand_prev = (history.array(k)[rows] for k in ("act", "q_prev", "hand_prev"))
     meas_prev, truth_prev, truth = (history.array(k)[rows] for k in ("meas_prev", "truth_prev", "truth"))
     touch = history.array("touch")[rows]
-    joints, objects = history.joints, history.objects
     out = {}
-    for k, o in enumerate(objects):
+    for k, o in enumerate(history.objects):
         ok = np.isfinite(meas_prev[:, k, 0])
-        values = {f"act.{j}": act[ok, c : c + 1] for c, j in enumerate(joints)}
-        values.update({f"q_prev.{j}": q_prev[ok, c : c + 1] for c, j in enumerate(joints)})
-        for kk, oo in enumerate(objects):
+        values = {"act": act[ok], "q_prev": q_prev[ok], "ee_prev": hand_prev[ok]}
+        for kk, oo in enumerate(history.objects):
             prev = meas_prev[ok, kk] if source == "perceived" else truth_prev[ok, kk]
             # another object's unseen position does not enter o's mechanisms; any finite value will do
             values[f"pos_prev.{oo}"] = np.where(np.isfinite(prev), prev, truth_prev[ok, kk])
-        pred = model.predict(
-            {n: torch.as_tensor(v, dtype=torch.get_default_dtype()) for n, v in values.items()}
-        )
+        tensors = {n: torch.as_tensor(v, dtype=model.dtype) for n, v in values.items()}
+        pred = model.predict(tensors)
+        scale = model.predict_scale(tensors)
         out[o] = {
             "predicted": pred[f"dpos.{o}"].numpy().astype(np.float64),
+            "sd": scale[f"dpos.{o}"].numpy().astype(np.float64),
             "true": truth[ok, k] - truth_prev[ok, k],
             "rows": np.asarray(rows)[ok],
             "touch": touch[ok, k],

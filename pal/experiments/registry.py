@@ -39,6 +39,7 @@ MODULES: tuple[str, ...] = (
     "pal.experiments.c2",
     "pal.experiments.c3",
     "pal.experiments.c4",
+    "pal.experiments.pusher",
     "pal.experiments.bench_counterfactual",
     "pal.experiments.bench_svi",
     "pal.experiments.bench_action",

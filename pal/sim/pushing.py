@@ -18,11 +18,17 @@ and the shipped arm (``assets/arm.xml``); neither file is changed:
   that it looks at the arm's workspace from ``camera_distance``.
 
 Senses: the gymnasium observation is the proprioception ``[q, dq/dt]`` of the two joints (as in
-:class:`~pal.sim.env.BabblingEnv`). ``info`` of every step adds ``hand`` (3,), the palm centre in
-table coordinates, metres (the agent's sense of where its hand is), and ``touch`` (n_objects,),
-the fraction of the step's physics sub-steps in which the arm touched each object (touch sensing).
-RGB-D comes from :meth:`PushingEnv.camera_frame`. Ground truth for evaluation only:
-:meth:`PushingEnv.object_positions`, :meth:`PushingEnv.object_poses`.
+:class:`~pal.sim.env.BabblingEnv`). ``info`` of every reset and step adds ``hand`` (3,), the palm
+centre in table coordinates, metres (the agent's sense of where its hand is), and ``touch``
+(n_objects,), the fraction of the step's physics sub-steps in which the arm touched each object
+(touch sensing). With ``camera=True`` it also carries the view: ``rgbd`` (:class:`pal.frames.RGBDFrame`),
+``table_from_camera`` (4, 4) (the calibrated camera pose) and ``self_mask`` (H, W) bool, the
+pixels of the agent's own body (what its self-model renders), so an agent needs nothing but
+``reset`` and ``step``. Ground truth, for evaluation only, is in ``info["truth"]`` (object name
+-> (3,) body centre, table frame, m) and ``info["state"]`` (the :meth:`get_state` vector after
+the step, from which it can be replayed), and in :meth:`PushingEnv.object_positions`,
+:meth:`PushingEnv.object_poses` and :meth:`PushingEnv.replay` (a batch of alternative actions
+from one saved state, with ``mujoco.rollout``).
 
 Frames: the *table frame* of :mod:`pal.sim.tabletop` (origin at the centre of the table top, z up,
 +y away from the camera). ``gymnasium.make("pal/Pushing-v0")`` builds the default world.
@@ -37,12 +43,14 @@ from typing import Any
 
 import gymnasium
 import mujoco
+import mujoco.rollout
 import numpy as np
 
 from pal.checks import check_int
+from pal.frames import RGBDFrame
 from pal.sim.bodies import LoadedModel, body_path
 from pal.sim.camera import Camera, CameraFrame
-from pal.sim.env import BabblingEnv
+from pal.sim.env import STATE_SPEC, BabblingEnv
 from pal.sim.tabletop import CAMERA, OBJECTS, RESTING_HEIGHT, tabletop_path, tabletop_spec
 
 __all__ = [
@@ -224,6 +232,7 @@ class PushingEnv(BabblingEnv):
         camera_size: (width, height) of :meth:`camera_frame`, pixels.
         camera_backend: :data:`pal.sim.camera.BACKENDS` entry.
         touch_every: physics steps between two contact checks for ``info["touch"]``.
+        camera: put the camera's view in every ``info`` (module docstring).
     """
 
     metadata: dict[str, Any] = {"render_modes": ["rgb_array"]}  # noqa: RUF012 - gymnasium's class attribute
@@ -239,6 +248,7 @@ class PushingEnv(BabblingEnv):
         camera_backend: str = "auto",
         touch_every: int = 5,
         render_mode: str | None = None,
+        camera: bool = False,
     ) -> None:
         objects = tuple(objects)
         if not objects:
@@ -260,6 +270,7 @@ class PushingEnv(BabblingEnv):
         self.touch_every = touch_every
         self.camera_size = (int(camera_size[0]), int(camera_size[1]))
         self.camera_backend = camera_backend
+        self.camera_info = bool(camera)
         self._camera: Camera | None = None
         m = self.model
         top = int(mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "table_top"))
@@ -351,13 +362,20 @@ class PushingEnv(BabblingEnv):
             done += n
             touch += self._touching()
             checks += 1
-        info = {
-            "ctrl": ctrl,
-            "time": float(self.data.time),
-            "hand": self.hand_position(),
-            "touch": touch / checks,
-        }
+        info = {"ctrl": ctrl, **self._senses(touch / checks)}
         return self._obs(), 0.0, False, False, info
+
+    def _senses(self, touch: np.ndarray) -> dict[str, Any]:
+        """The ``info`` entries of every reset and step (module docstring)."""
+        info: dict[str, Any] = {"time": float(self.data.time), "hand": self.hand_position(), "touch": touch}
+        if self.camera_info:
+            view = self.camera_frame()
+            info["rgbd"] = RGBDFrame(view.rgb, view.depth, view.K, view.time)
+            info["table_from_camera"] = self.table_from_camera(view)
+            info["self_mask"] = self.arm_mask(view)
+        info["truth"] = {k: v.copy() for k, v in self.object_positions().items()}
+        info["state"] = self.get_state()
+        return info
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -386,12 +404,7 @@ class PushingEnv(BabblingEnv):
             self.data.ctrl[self.actuator_ids] = q
             self._place(placements)
             mujoco.mj_forward(self.model, self.data)
-        info = {
-            "time": float(self.data.time),
-            "hand": self.hand_position(),
-            "touch": np.zeros(len(self.objects)),
-        }
-        return self._obs(), info
+        return self._obs(), self._senses(np.zeros(len(self.objects)))
 
     def _place(self, placements: dict[str, Any]) -> None:
         rng = self.np_random
@@ -440,6 +453,47 @@ class PushingEnv(BabblingEnv):
     def object_positions(self) -> dict[str, np.ndarray]:
         """Ground truth (3,) body centre of every object, table frame, metres."""
         return {k: v[:3, 3].copy() for k, v in self.object_poses().items()}
+
+    def replay(self, state: Any, actions: Any) -> dict[str, np.ndarray]:
+        """Where every object would be one step after ``state`` under each action (evaluation only).
+
+        The batch runs open loop with ``mujoco.rollout`` (the servo targets are held for the
+        step's ``frame_skip`` physics steps, as :meth:`step` holds them); the environment's own
+        state is not changed.
+
+        Args:
+            state: a :meth:`get_state` vector.
+            actions: (B, 2) servo targets, rad (clipped to the joint ranges as :meth:`step` does).
+
+        Returns:
+            object name -> (B, 3) body centre after the step, table frame, m.
+
+        Raises:
+            ValueError: a state of the wrong size or non-finite, or actions not (B, 2).
+        """
+        s = np.asarray(state, dtype=np.float64)
+        if s.shape != (self.state_size,) or not np.all(np.isfinite(s)):
+            raise ValueError(
+                f"state has shape {s.shape} or non-finite entries; expected a get_state() vector ({self.state_size},)"
+            )
+        a = np.asarray(actions, dtype=np.float64)
+        if a.ndim != 2 or a.shape[1] != len(JOINTS) or not np.all(np.isfinite(a)):
+            raise ValueError(
+                f"actions have shape {a.shape}; expected finite (B, {len(JOINTS)}) servo targets, rad"
+            )
+        m = self.model
+        scratch = mujoco.MjData(m)
+        mujoco.mj_setState(m, scratch, s, STATE_SPEC)
+        full = np.empty(mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+        mujoco.mj_getState(m, scratch, full, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        ctrl = np.tile(scratch.ctrl, (a.shape[0], 1))
+        ctrl[:, self.actuator_ids] = np.clip(a, self.ctrl_low, self.ctrl_high)
+        controls = np.repeat(ctrl[:, None, :], self.frame_skip, axis=1)
+        warm = np.tile(scratch.qacc_warmstart, (a.shape[0], 1))
+        states, _ = mujoco.rollout.rollout(m, scratch, full[None], controls, initial_warmstart=warm)
+        qpos = states[:, -1, 1 : 1 + m.nq]  # FULLPHYSICS: time, qpos, qvel, ...
+        origin = self.world_from_table[:3, 3]
+        return {n: qpos[:, adr : adr + 3] - origin for n, adr in self._object_qpos.items()}
 
     # ------------------------------------------------------------------ camera
     @property

@@ -1,34 +1,50 @@
-"""The closed loop (pal.agent): a seeded end-to-end run, lost objects, measurement sites, bad input."""
+"""The closed loop (pal.agent) on the pushing world: a seeded run, lost objects, measurement sites, history."""
 
 from dataclasses import replace
 from types import SimpleNamespace
 
+import gymnasium
 import numpy as np
 import pytest
 import torch
 
-import pal.agent.loop as agent_module
-from pal.agent import Agent, AgentConfig, candidate_actions
+import pal.agent.estimate as estimate_module
+from pal.agent import (
+    Agent,
+    AgentConfig,
+    CuriosityConfig,
+    EstimateConfig,
+    ModelConfig,
+    PlanConfig,
+    pushing_spec,
+)
 from pal.agent.curiosity import GridCuriosity, grid_occupancy
 from pal.agent.history import History
-from pal.agent.perception import Measurement, ObjectSlots, to_table
+from pal.agent.perception import ObjectSlots, to_table
 from pal.sim.pushing import PushingEnv
 
 TINY = AgentConfig(
-    epochs=3,
-    batch_size=64,
-    hidden=(8,),
-    state_steps=5,
-    action_steps=5,
-    action_starts=4,
+    model=ModelConfig(epochs=3, batch_size=64, hidden=(8,), members=2, patience=None),
+    estimate=EstimateConfig(steps=5),
+    plan=PlanConfig(population=8, elites=2, iterations=1, refine_steps=2),
+    curiosity=CuriosityConfig(population=8, elites=2, iterations=1, influence_samples=4),
     reset_every=None,
-    refit_every=1000,
 )
+
+
+class Sealed(gymnasium.Wrapper):
+    """Only the Gymnasium interface: the agent cannot reach the simulator's ground-truth methods."""
+
+    dt = 0.4
+
+    @property
+    def unwrapped(self):
+        return self
 
 
 @pytest.fixture(scope="module")
 def env():
-    e = PushingEnv()
+    e = PushingEnv(camera=True)
     yield e
     e.close()
 
@@ -36,14 +52,14 @@ def env():
 @pytest.fixture(scope="module")
 def fitted(env):
     """An agent that babbled 8 steps and fitted its world model."""
-    agent = Agent(env, TINY, seed=1)
+    agent = Agent(env, pushing_spec(), TINY, seed=1)
     agent.run(8, "babble")
     agent.refit()
     return agent
 
 
 def short_run(env, seed):
-    agent = Agent(env, TINY, seed=seed)
+    agent = Agent(Sealed(env), pushing_spec(), TINY, seed=seed)
     decisions = agent.run(4, "babble")
     agent.refit()
     decisions += agent.run(2, "curious")
@@ -52,120 +68,130 @@ def short_run(env, seed):
     return agent, decisions
 
 
-def test_seeded_loop_runs_end_to_end_and_repeats_exactly(env):
+def test_seeded_loop_runs_end_to_end_through_the_gymnasium_interface_and_repeats(env):
     a, da = short_run(env, 0)
     b, db = short_run(env, 0)
     assert len(a.history) == 7 and [d.mode for d in da[:4]] == ["babble"] * 4
-    assert {d.mode for d in da[4:6]} <= {"curious", "babble"} and da[6].mode in ("goal", "setup", "hold")
+    assert {d.mode for d in da[4:6]} <= {"curious", "babble"} and da[6].mode in ("goal", "hold")
     for x, y in zip(da, db, strict=True):
         np.testing.assert_array_equal(x.action, y.action)
     np.testing.assert_array_equal(a.history.array("est"), b.history.array("est"))
     arm, objects = a.history.columns()
     for cols in (arm, *objects.values()):
         assert all(np.isfinite(v).all() for v in cols.values())
-    # the truth is recorded for evaluation, and perception saw both objects near it
+    # the truth the environment reports in info is kept for evaluation, and perception saw both objects near it
     meas, truth = a.history.array("meas"), a.history.array("truth")
     seen = np.isfinite(meas[..., 0])
     assert seen.mean() > 0.5 and np.all(np.linalg.norm(meas[seen] - truth[seen], axis=-1) < 0.06)
+    assert a.history.array("state").shape == (7, env.state_size)
 
 
 def test_a_lost_object_is_unobserved_and_no_nan_reaches_the_model(fitted, monkeypatch):
-    agent = Agent(fitted.env, replace(TINY, state_steps=200), seed=1, model=fitted.model)
+    agent = Agent(
+        fitted.env,
+        pushing_spec(),
+        replace(TINY, estimate=EstimateConfig(steps=200)),
+        seed=1,
+        model=fitted.model,
+    )
+    agent.fitted = True
     agent.reset(seed=5)
     prev, est_prev = agent.percept, dict(agent.estimate)
     assert all(e is not None for e in est_prev.values())
     lost = replace(prev, measurements={**prev.measurements, "ball": None})
     seen = {}
-    real = agent_module.infer_state
+    real = estimate_module.infer_state
 
     def spy(model, observed, **kwargs):
         seen["observed"], seen["scale"] = observed, kwargs.get("measurement_scale")
         return real(model, observed, **kwargs)
 
-    monkeypatch.setattr(agent_module, "infer_state", spy)
-    est = agent.state_posterior(prev, est_prev, lost, np.zeros(2))
+    monkeypatch.setattr(estimate_module, "infer_state", spy)
+    est = agent.estimator.update(agent.model, prev, est_prev, {}, lost, seed=0)
     assert "meas.ball" not in seen["observed"] and "meas.box" in seen["observed"]
     assert set(seen["scale"]) == {"meas.box"}
     assert all(np.isfinite(np.asarray(v)).all() for v in seen["observed"].values())
     assert np.isfinite(est["ball"]).all() and np.isfinite(est["box"]).all()
     # unobserved: the ball's estimate is the model's prediction, not pulled anywhere by perception
-    blanket = agent._blanket(("box", "ball"))
-    pred = blanket.predict(
-        {
-            k: torch.as_tensor(np.asarray(v), dtype=torch.float32)
-            for k, v in seen["observed"].items()
-            if k in blanket.graph.roots
-        }
-    )
+    blanket = agent.estimator.blanket(agent.model, ("box", "ball"))
+    roots = {
+        k: torch.as_tensor(np.asarray(v), dtype=torch.float32)
+        for k, v in seen["observed"].items()
+        if k in blanket.graph.roots
+    }
+    pred = blanket.predict(roots)
     np.testing.assert_allclose(est["ball"], pred["pos.ball"][0].numpy(), atol=0.01)
-
-
-def test_history_drops_rows_with_missing_positions():
-    h = History(("shoulder", "elbow"), ("box", "ball"))
-    nan = np.full(2, np.nan)
-    for k in range(3):
-        ball = nan if k == 1 else np.array([0.1, 0.2])
-        h.append(
-            episode=0,
-            act=[0, 0],
-            q_prev=[0, 0],
-            q=[0, 0],
-            hand_prev=[0, 0, 0],
-            hand=[0, 0, 0],
-            touch=[0, 0],
-            meas_prev=[[0, 0], ball],
-            meas=[[0, 0], ball],
-            std=[[0.01, 0.01], ball],
-            est_prev=[[0, 0], [0, 0]],
-            est=[[0, 0], [0, 0]],
-            truth_prev=[[0, 0], [0, 0]],
-            truth=[[0, 0], [0, 0]],
-            state=np.zeros(4),
-        )
-    arm, objects = h.columns("perceived")
-    assert (
-        len(arm["act.shoulder"]) == 3
-        and len(objects["box"]["pos.box"]) == 3
-        and len(objects["ball"]["pos.ball"]) == 2
-    )
-    assert all(np.isfinite(v).all() for v in objects["ball"].values())
-    with pytest.raises(ValueError, match="missing fields"):
-        h.append(episode=0)
-
-
-def test_history_round_trips_through_npz(fitted, tmp_path):
-    path = fitted.history.save(tmp_path / "h.npz", metadata={"seed": 1})
-    loaded, meta = History.load(path)
-    assert (
-        meta["seed"] == 1 and loaded.objects == fitted.history.objects and len(loaded) == len(fitted.history)
-    )
-    np.testing.assert_array_equal(loaded.array("state"), fitted.history.array("state"))
-    np.testing.assert_array_equal(loaded.array("meas"), fitted.history.array("meas"))
 
 
 @pytest.mark.parametrize("std", [1e-4, 1.0])
 def test_measurement_sites_weigh_perception_by_its_uncertainty(fitted, std):
-    agent = Agent(fitted.env, replace(TINY, state_steps=200), seed=1, model=fitted.model)
+    agent = Agent(
+        fitted.env,
+        pushing_spec(),
+        replace(TINY, estimate=EstimateConfig(steps=200)),
+        seed=1,
+        model=fitted.model,
+    )
     agent.reset(seed=5)
     prev, est_prev = agent.percept, dict(agent.estimate)
     offset = np.array([0.02, -0.015])
     shifted = {
         o: replace(m, position=m.position + offset, std=np.full(2, std)) for o, m in prev.measurements.items()
     }
-    est = agent.state_posterior(prev, est_prev, replace(prev, measurements=shifted), np.zeros(2))
-    blanket = agent._blanket(("box", "ball"))
-    roots = {"hand_prev": prev.hand[None], "hand": prev.hand[None]}
-    roots.update({f"pos_prev.{o}": est_prev[o][None] for o in est_prev})
-    roots.update({f"contact.{o}": np.zeros((1, 1)) for o in est_prev})
-    pred = blanket.predict(
-        {k: torch.as_tensor(v, dtype=torch.float32) for k, v in roots.items() if k in blanket.graph.roots}
-    )
+    est = agent.estimator.update(agent.model, prev, est_prev, {}, replace(prev, measurements=shifted), seed=0)
+    blanket = agent.estimator.blanket(agent.model, ("box", "ball"))
+    roots = {}
+    for o in ("box", "ball"):
+        rel = prev.effector - np.append(est_prev[o], 0.0)
+        roots.update(
+            {
+                f"pos_prev.{o}": est_prev[o][None],
+                f"rel_prev.{o}": rel[None],
+                f"rel.{o}": rel[None],
+                f"contact.{o}": np.zeros((1, 1)),
+            }
+        )
+    pred = blanket.predict({k: torch.as_tensor(v, dtype=torch.float32) for k, v in roots.items()})
     for o in ("box", "ball"):
         if std < 0.01:  # a sharp measurement wins
             np.testing.assert_allclose(est[o], shifted[o].position, atol=0.004)
         else:  # a vague one is ignored: the model's prediction stays (within the short SVI's noise)
             p = pred[f"pos.{o}"][0].numpy()
             assert np.linalg.norm(est[o] - p) < 0.01 < np.linalg.norm(est[o] - shifted[o].position)
+
+
+def test_history_columns_drop_rows_with_missing_positions_and_round_trip(tmp_path):
+    h = History(("shoulder", "elbow"), ("box", "ball"), velocities=True, momentum=True)
+    nan = np.full(2, np.nan)
+    for k in range(3):
+        ball = nan if k == 1 else np.array([0.1, 0.2])
+        row = {f: np.zeros((2, 2)) for f in ("est_prev", "est", "truth_prev", "truth", "vel_prev", "std")}
+        row.update(
+            episode=0,
+            act=[0, 0],
+            q_prev=[0, 0],
+            q=[0.1, 0],
+            v_prev=[0, 0],
+            v=[1, 0],
+            hand_prev=[0, 0, 0],
+            hand=[0.01, 0, 0],
+        )
+        row.update(touch=[0, 0], meas_prev=[[0, 0], ball], meas=[[0, 0.01], ball], state=np.zeros(4))
+        h.append(**row)
+    arm, objects = h.columns("perceived")
+    assert (
+        len(arm["act"]) == 3 and len(objects["box"]["pos.box"]) == 3 and len(objects["ball"]["pos.ball"]) == 2
+    )
+    np.testing.assert_allclose(objects["box"]["rel.box"][0], [0.01, 0.0, 0.0])  # ee - [pos, 0]
+    np.testing.assert_allclose(arm["dq"][0], [0.1, 0.0]) and np.testing.assert_allclose(
+        arm["v"][0], [1.0, 0.0]
+    )
+    assert all(np.isfinite(v).all() for v in objects["ball"].values())
+    loaded, meta = History.load(h.save(tmp_path / "h.npz"))
+    assert loaded.options == h.options and meta["layout"]["momentum"] is True
+    np.testing.assert_array_equal(loaded.array("vel_prev"), h.array("vel_prev"))
+    with pytest.raises(ValueError, match="missing fields"):
+        h.append(episode=0)
 
 
 def test_slots_bind_by_size_then_follow_ids_and_rebind_lost_ones():
@@ -207,21 +233,24 @@ def test_grid_curiosity_prefers_unvisited_cells(rng):
         GridCuriosity((0, 0), (0, 1))
 
 
-def test_candidate_actions_stay_in_range(rng):
-    a = candidate_actions(np.zeros(2), np.array([-1.0, -2.0]), np.array([1.0, 0.1]), rng, 16)
-    assert a.shape == (16, 2) and np.all(a >= [-1.0, -2.0]) and np.all(a <= [1.0, 0.1])
+def test_density_curiosity_plans_towards_grid_targets(fitted):
+    config = replace(TINY, curiosity=replace(TINY.curiosity, method="density"))
+    agent = Agent(fitted.env, pushing_spec(), config, seed=2, model=fitted.model)
+    agent.reset(seed=3)
+    d = agent.decide("curious")
+    assert d.mode in ("curious", "babble") and len(d.targets) == 1 and d.objective is not None
 
 
 def test_bad_inputs(env, fitted):
     with pytest.raises(ValueError, match="epochs must be a positive int"):
-        AgentConfig(epochs=0)
-    with pytest.raises(ValueError, match="target_scale must be > 0"):
-        AgentConfig(target_scale=0.0)
-    with pytest.raises(ValueError, match="not in the environment"):
-        Agent(env, AgentConfig(objects=("boat",)))
+        ModelConfig(epochs=0)
+    with pytest.raises(ValueError, match="scale must be > 0"):
+        PlanConfig(scale=0.0)
+    with pytest.raises(ValueError, match="elites 9 exceed population 8"):
+        PlanConfig(population=8, elites=9)
     with pytest.raises(ValueError, match="call reset"):
-        Agent(env, TINY).plan({"box": [0.0, 0.1]})
-    with pytest.raises(ValueError, match="expected a finite \\(x, y\\)"):
+        Agent(env, pushing_spec(), TINY).plan({"box": [0.0, 0.1]})
+    with pytest.raises(ValueError, match="expected a finite \\(2,\\)"):
         fitted.plan({"box": [0.0, np.nan]})
     with pytest.raises(ValueError, match="unknown object"):
         fitted.plan({"boat": [0.0, 0.1]})
@@ -229,29 +258,7 @@ def test_bad_inputs(env, fitted):
         fitted.decide("dream")
     with pytest.raises(ValueError, match="steps must be a non-negative int"):
         fitted.run(-1)
-    with pytest.raises(ValueError, match="body_mask has shape"):
-        agent_module.self_filtered_frame(
-            np.zeros((4, 4, 3), np.uint8),
-            np.zeros((4, 4), np.float32),
-            np.eye(3),
-            0.0,
-            np.zeros((2, 2), bool),
-        )
     with pytest.raises(ValueError, match="seed must be a non-negative int"):
-        Agent(env, TINY, seed=-1)
-
-
-def test_a_visible_object_is_measured_and_a_hidden_one_is_not(env):
-    agent = Agent(env, TINY, seed=1)
-    agent.reset(seed=5)
-    assert all(m is not None for m in agent.percept.measurements.values())  # both seen: slots bound
-    pose = env.object_poses()["box"]
-    box = (pose[0, 3], pose[1, 3], np.degrees(np.arctan2(pose[1, 0], pose[0, 0])))
-    # the box stays where it is, the ball goes to the table's right edge, outside the camera's view
-    env.reset(seed=5, options={"objects": {"box": box, "ball": (0.40, -0.02, 0.0)}})
-    percept = agent.perceive()
-    m = percept.measurements["box"]
-    assert isinstance(m, Measurement) and m.position.shape == (2,) and m.std.shape == (2,)
-    assert np.isfinite(m.position).all() and np.all(m.std > 0) and m.obj_id == agent.slots.bound["box"]
-    assert np.linalg.norm(m.position - env.object_positions()["box"][:2]) < 0.03
-    assert percept.measurements["ball"] is None
+        Agent(env, pushing_spec(), TINY, seed=-1)
+    with pytest.raises(ValueError, match="spec must be an EnvSpec"):
+        Agent(env, TINY)

@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import json
+import struct
+import zipfile
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from pal.agent.history import FORMAT, History
-from pal.files import FileFormatError, read_npz
+from pal.files import FileFormatError, read_npz, write_npz
 from pal.perception.trajectory import Pose, PoseDiagnostics, Trajectory
 
 
@@ -35,6 +38,17 @@ def _history(n: int = 3) -> History:
             state=np.arange(4.0),
         )
     return h
+
+
+def _damage(path: Path, member: str, mask: int) -> None:
+    """Flip bits in the middle of one zip member's compressed data (which the zip CRC covers)."""
+    raw = bytearray(path.read_bytes())
+    with zipfile.ZipFile(path) as z:
+        info = z.getinfo(member)
+    name_len, extra_len = struct.unpack("<HH", raw[info.header_offset + 26 : info.header_offset + 30])
+    data = info.header_offset + 30 + name_len + extra_len
+    raw[data + info.compress_size // 2] ^= mask
+    path.write_bytes(bytes(raw))
 
 
 @dataclass(frozen=True)
@@ -70,9 +84,7 @@ def test_history_save_refuses_nan_metadata_and_reserved_keys(tmp_path):
 
 def test_a_damaged_history_raises_the_documented_error(tmp_path):
     path = _history().save(tmp_path / "h.npz")
-    raw = bytearray(path.read_bytes())
-    raw[len(raw) // 2] ^= 0x10
-    path.write_bytes(bytes(raw))
+    _damage(path, "act.npy", 0x10)
     with pytest.raises(FileFormatError, match=r"h\.npz"):
         History.load(path)
     np.savez(path, _meta=np.frombuffer(json.dumps({"joints": []}).encode(), np.uint8))  # the old layout
@@ -87,11 +99,20 @@ def test_trajectory_files_are_checked(tmp_path):
     path = traj.save(tmp_path / "t.npz", metadata={"object": "box", "seed": 2})
     back, meta = Trajectory.load(path)
     assert [p.source for p in back.poses] == ["estimated", "lost"] and meta["metadata"]["seed"] == 2
-    assert meta["format"] == "pal.trajectory/2" and "scipy" in meta["versions"]
-    raw = bytearray(path.read_bytes())
-    raw[len(raw) // 2] ^= 0x01
-    path.write_bytes(bytes(raw))
+    assert meta["format"] == "pal.trajectory/3" and "scipy" in meta["versions"]
+    _damage(path, "poses.npy", 0x01)
     with pytest.raises(FileFormatError, match="not a readable trajectory"):
         Trajectory.load(path)
+    # The previous format (no covariances, no rejected poses) still reads; an unknown one is refused.
+    old = {"timestamps": np.array([0.0]), "source": np.array([1], np.int8), "poses": np.eye(4)[None]}
+    diag = {"matches": 0, "pairs": 0, "inliers": 0, "rmse": None, "solver": "kabsch", "reason": ""}
+    diag |= {"snapshot": None, "attempts": 0}
+    write_npz(tmp_path / "v2.npz", old, {"metadata": {}, "diagnostics": [diag]}, format="pal.trajectory/2")
+    back, meta = Trajectory.load(tmp_path / "v2.npz")
+    assert meta["format"] == "pal.trajectory/2" and back.poses[0].covariance is None
+    np.testing.assert_array_equal(back.poses[0].camera_from_object, np.eye(4))
+    write_npz(tmp_path / "v9.npz", old, {"metadata": {}, "diagnostics": [diag]}, format="pal.trajectory/9")
+    with pytest.raises(FileFormatError, match="not a readable trajectory"):
+        Trajectory.load(tmp_path / "v9.npz")
     with pytest.raises(ValueError, match=r"trajectory metadata\['metadata'\]\['err'\] is inf"):
         traj.save(tmp_path / "u.npz", metadata={"err": float("inf")})

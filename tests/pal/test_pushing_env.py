@@ -152,3 +152,37 @@ def test_link_lengths_come_from_the_model_and_drive_the_kinematics(env):
         if q[1] <= 0:  # the elbow-flexed branch that inverse_kinematics returns
             np.testing.assert_allclose(inverse_kinematics(env, forward_kinematics(env, q)), q, atol=1e-6)
     env.set_state(saved)
+
+
+def test_info_carries_the_view_and_the_ground_truth_for_evaluation():
+    env = PushingEnv(camera=True, camera_size=(160, 120))
+    _, info = env.reset(seed=2)
+    assert info["rgbd"].rgb.shape == (120, 160, 3) and info["self_mask"].shape == (120, 160)
+    assert 0 < info["self_mask"].sum() < info["self_mask"].size and info["table_from_camera"].shape == (4, 4)
+    _, _, _, _, info = env.step(env.data.qpos[env.qpos_indices].copy())
+    for name, p in env.object_positions().items():
+        np.testing.assert_array_equal(info["truth"][name], p)
+    np.testing.assert_array_equal(info["state"], env.get_state())
+    env.close()
+
+
+def test_replay_runs_a_batch_of_alternatives_exactly_as_step_does(env):
+    env.reset(seed=1, options={"objects": {"box": (-0.12, 0.2, 0.0)}, "q": (-1.3, -2.3)})
+    env.step(np.array([-1.3, -0.05]))
+    state = env.get_state()
+    actions = np.array([[0.3, -0.05], [0.6, -0.05], [-1.0, -1.0], [5.0, 0.0]])  # the last is clipped
+    batch = env.replay(state, actions)
+    for k, a in enumerate(actions):
+        env.set_state(state)
+        env.step(np.clip(a, env.ctrl_low, env.ctrl_high))
+        for name, p in env.object_positions().items():
+            np.testing.assert_array_equal(batch[name][k], p)
+    env.set_state(state)
+    np.testing.assert_array_equal(env.get_state(), state)  # the environment's own state is untouched
+    assert (
+        np.linalg.norm(batch["box"][0, :2] - batch["box"][2, :2]) > 0.01
+    )  # different pushes, different outcomes
+    with pytest.raises(ValueError, match="expected finite \\(B, 2\\)"):
+        env.replay(state, np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="get_state\\(\\) vector"):
+        env.replay(state[:-1], actions)

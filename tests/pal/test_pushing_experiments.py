@@ -31,6 +31,12 @@ def test_c1_compares_perceived_and_ground_truth_models():
     st = m["structure"]
     assert len(st["edges"]) == st["preset_edges"] - len(st["missing"]) + len(st["extra"])
     assert st["rows"] <= m["info"]["train_rows"]
+    # the 90 % interval is scored on the held-out pushes, pooled over objects
+    cov = m["coverage"]
+    scored = [v["pushes"] for v in per.values() if v["interval_coverage"] is not None]
+    assert cov["pushes"] == sum(scored) and 0.0 <= cov["pooled"] <= 1.0
+    assert rep.target("push_interval_coverage_low").value == cov["pooled"]
+    assert rep.target("perceived_over_no_motion").value == pytest.approx(m["mse_perceived"] / m["mse_zero"])
     table = rep.tables[0]
     assert [r[0] for r in table.rows] == ["box", "ball", "mean"]
     assert any(t.title.startswith("Structure learning") for t in rep.tables)
@@ -49,10 +55,15 @@ def test_c2_inferred_actions_beat_random_babbling():
         m["random"]["final_err_cm_median"] / m["inferred"]["final_err_cm_median"]
     )
     assert rep.target("inferred_final_err_cm").value == m["inferred"]["final_err_cm_median"]
+    assert rep.target("inferred_below_scripted").value == pytest.approx(
+        m["scripted"]["final_err_cm_median"] / m["inferred"]["final_err_cm_median"]
+    )
     assert sum(m["inferred_modes"].values()) == c2.TINY.targets * c2.TINY.episode_steps
     lines = rep.figures["episodes"].axes[0].get_lines()
-    assert len(lines) == 3 * c2.TINY.targets + 1  # a trace per controller and goal, and the 2 cm line
+    assert len(lines) == 3 * c2.TINY.targets + 1  # a trace per controller and goal, and the target line
     assert len(lines[0].get_xdata()) == c2.TINY.episode_steps + 1
+    assert m["pushes"]["n"] == len(m["pushes"]["realized_cm"])
+    assert rep.figures["pushes"].axes[0].get_xlabel() == "realized displacement, cm"
     json.dumps(m, allow_nan=False)
 
 
@@ -75,11 +86,22 @@ def test_c3_counterfactuals_beat_the_interventional_answer():
 def test_c4_coverage_report_and_curve():
     rep = c4.run(c4.TINY)
     m = rep.metrics
-    assert m["seeds"] == [0] and m["curves"]["steps"] == [1, 2]
-    assert sum(m["curious_decisions"][0].values()) == c4.TINY.budget
+    assert m["seeds"] == [0, 1] and m["curves"]["steps"] == [1, 2]
+    assert all(sum(d.values()) == c4.TINY.budget for d in m["curious_decisions"])
     gain = m["coverage_at_budget"]["curiosity"] - m["coverage_at_budget"]["random"]
     assert rep.target("coverage_gain").value == pytest.approx(gain)
-    assert len(rep.figures["coverage"].axes[0].get_lines()) == 2
+    assert rep.target("contact_gain").value == pytest.approx(
+        m["contact_rate"]["curiosity"] - m["contact_rate"]["random"]
+    )
+    assert m["contact_rate"]["random"] == pytest.approx(np.mean(m["contact_per_seed"]["random"]))
+    for name in ("coverage", "contact"):
+        assert len(rep.figures[name].axes[0].get_lines()) == 2
+    assert (
+        c4.paired_test([0.3, 0.5, 0.4], [0.1, 0.2, 0.3])
+        < 0.05
+        < c4.paired_test([0.3, 0.1, 0.4], [0.1, 0.2, 0.3])
+    )
+    assert c4.paired_test([0.1], [0.0]) is None
     h = History(("shoulder", "elbow"), ("box",))
     for k in range(3):  # the box moves at step 1 only
         prev, now = np.array([[0.0, 0.1]]), np.array([[0.0, 0.1 + (0.1 if k == 1 else 0.0)]])
@@ -109,7 +131,7 @@ def test_loop_towards_a_goal_reports_its_run():
     rep = closed_loop.run(config)
     m = rep.metrics
     assert m["steps"] == 6 and m["babble_steps"] == 4 and m["video"] is None
-    assert sum(m["modes"].values()) == 2 and set(m["modes"]) <= {"goal", "setup", "hold"}
+    assert sum(m["modes"].values()) == 2 and set(m["modes"]) <= {"goal", "hold"}
     assert m["fit_rows"]["arm"] == 4 and m["episodes"] == 1
     assert {t.name for t in rep.targets} == {"lost_fraction.box", "lost_fraction.ball"}
     assert all(t.value == m["lost_fraction"][t.name.split(".")[1]] for t in rep.targets)

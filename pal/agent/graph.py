@@ -1,0 +1,377 @@
+"""The world model built from an :class:`~pal.agent.spec.EnvSpec`: a generalised pushing graph.
+
+Arm (J joints, A actions; ``v`` only with sensed velocities, ``ee`` only with an effector)::
+
+    act, q_prev [, v_prev] -> dq            joint motion over the step (learned)
+    q_prev, dq -> q                          q = q_prev + dq (fixed)
+    act, q_prev, v_prev -> v                 joint velocity after the step (learned)
+    q_prev, dq -> dee                        effector motion (learned kinematics)
+    ee_prev, dee -> ee                       ee = ee_prev + dee (fixed)
+
+Per object o (position d-D, m)::
+
+    ee_prev, pos_prev.o -> rel_prev.o        rel = ee - [pos, 0]: the effector relative to the
+    ee, pos_prev.o -> rel.o                  object (fixed), before and after the arm's move
+    rel_prev.o, rel.o -> contact.o           contact strength (learned; only with touch sensing)
+    [contact.o,] rel_prev.o, rel.o [, vel_prev.o] -> dpos.o      displacement (learned)
+    pos_prev.o, dpos.o -> pos.o              pos = pos_prev + dpos (fixed)
+    pos.o -> meas.o                          perceived position (measurement site, perceived objects)
+
+``vel_prev.o`` (the previous displacement) enters with ``spec.object_momentum``. The fixed
+relations are linear mechanisms with known coefficients (:meth:`models.LinearMechanism.from_coefficients`),
+so the learned mechanisms see the push in the object's frame of reference: a push learnt in one
+place applies everywhere. ``parents`` replaces the parent sets of learned sites (e.g. learnt
+with :func:`discover_parents`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import torch
+
+from inference import discover
+from models import (
+    CausalGraph,
+    EnsembleMechanism,
+    HeteroscedasticMechanism,
+    LinearMechanism,
+    MLPMechanism,
+    Role,
+    Variable,
+    WorldModel,
+)
+from pal.agent.config import ModelConfig
+from pal.agent.spec import EnvSpec
+
+__all__ = [
+    "FIXED_SIGMA",
+    "blanket",
+    "build_graph",
+    "build_model",
+    "discover_parents",
+    "learned_sites",
+    "restrict",
+]
+
+#: Residual sd of the fixed relations (q, ee, rel): they are definitions, not predictions.
+FIXED_SIGMA = 1e-4
+
+
+def _object_sites(spec: EnvSpec, o: str) -> list[Variable]:
+    d, e = spec.object(o).dim, spec.effector.dim
+    out = [
+        Variable(
+            f"pos_prev.{o}",
+            Role.OBSERVED,
+            d,
+            unit="m",
+            lag=1,
+            lag_of=f"pos.{o}",
+            description="position before the step",
+        )
+    ]
+    if spec.object_momentum:
+        out.append(
+            Variable(
+                f"vel_prev.{o}",
+                Role.OBSERVED,
+                d,
+                unit="m",
+                lag=1,
+                lag_of=f"dpos.{o}",
+                description="previous displacement",
+            )
+        )
+    out += [
+        Variable(
+            f"rel_prev.{o}", Role.LATENT, e, unit="m", description="effector relative to the object, before"
+        ),
+        Variable(
+            f"rel.{o}",
+            Role.LATENT,
+            e,
+            unit="m",
+            description="effector relative to the object, after the arm's move",
+        ),
+    ]
+    if spec.touch is not None:
+        out.append(Variable(f"contact.{o}", Role.LATENT, 1, unit="1", description="contact strength"))
+    out += [
+        Variable(f"dpos.{o}", Role.LATENT, d, unit="m", description="displacement over the step"),
+        Variable(f"pos.{o}", Role.LATENT, d, unit="m", description="position after the step"),
+    ]
+    if spec.object(o).perceived:
+        out.append(
+            Variable(
+                f"meas.{o}", Role.OBSERVED, d, unit="m", description="perceived position (measurement site)"
+            )
+        )
+    return out
+
+
+def _default_parents(spec: EnvSpec) -> dict[str, tuple[str, ...]]:
+    """The learned sites' parent sets of the module docstring."""
+    vel = ("v_prev",) if spec.velocities is not None else ()
+    out: dict[str, tuple[str, ...]] = {"dq": ("act", "q_prev", *vel)}
+    if vel:
+        out["v"] = ("act", "q_prev", "v_prev")
+    if spec.effector is not None:
+        out["dee"] = ("q_prev", "dq")
+    for o in spec.object_names:
+        contact = (f"contact.{o}",) if spec.touch is not None else ()
+        if contact:
+            out[f"contact.{o}"] = (f"rel_prev.{o}", f"rel.{o}")
+        momentum = (f"vel_prev.{o}",) if spec.object_momentum else ()
+        out[f"dpos.{o}"] = (*contact, f"rel_prev.{o}", f"rel.{o}", *momentum)
+    return out
+
+
+def _fixed_parents(spec: EnvSpec) -> dict[str, tuple[str, ...]]:
+    out: dict[str, tuple[str, ...]] = {"q": ("q_prev", "dq")}
+    if spec.effector is not None:
+        out["ee"] = ("ee_prev", "dee")
+    for o in spec.object_names:
+        out[f"rel_prev.{o}"] = ("ee_prev", f"pos_prev.{o}")
+        out[f"rel.{o}"] = ("ee", f"pos_prev.{o}")
+        out[f"pos.{o}"] = (f"pos_prev.{o}", f"dpos.{o}")
+        if spec.object(o).perceived:
+            out[f"meas.{o}"] = (f"pos.{o}",)
+    return out
+
+
+def learned_sites(spec: EnvSpec) -> tuple[str, ...]:
+    """The sites whose mechanisms are learned (Eq. 4.33), in topological order."""
+    return tuple(_default_parents(spec))
+
+
+def build_graph(
+    spec: EnvSpec, bounds: tuple[np.ndarray, np.ndarray], parents: Mapping[str, Sequence[str]] | None = None
+) -> CausalGraph:
+    """The graph of the module docstring.
+
+    Args:
+        spec: the environment's spec.
+        bounds: ``(low (A,), high (A,))`` action bounds (:func:`pal.agent.spec.check_env`).
+        parents: optional learned site -> parents, replacing the default parent sets.
+
+    Raises:
+        ValueError: ``parents`` names a site that is not learned, or the edited graph is not
+            admissible (a cycle, an edge into an action, see :class:`models.CausalGraph`).
+    """
+    j = len(spec.joints)
+    low, high = (tuple(float(x) for x in b) for b in bounds)
+    variables = [
+        Variable(
+            "act",
+            Role.ACTION,
+            len(spec.actions),
+            bounds=(low, high),
+            description="actions " + ", ".join(spec.actions),
+        ),
+        Variable(
+            "q_prev",
+            Role.OBSERVED,
+            j,
+            unit="rad",
+            lag=1,
+            lag_of="q",
+            description="joint angles before the step",
+        ),
+    ]
+    if spec.velocities is not None:
+        variables.append(
+            Variable(
+                "v_prev",
+                Role.OBSERVED,
+                j,
+                unit="rad/s",
+                lag=1,
+                lag_of="v",
+                description="joint velocities before",
+            )
+        )
+    variables += [
+        Variable("dq", Role.LATENT, j, unit="rad", description="joint motion over the step"),
+        Variable("q", Role.LATENT, j, unit="rad", description="joint angles after the step"),
+    ]
+    if spec.velocities is not None:
+        variables.append(
+            Variable("v", Role.LATENT, j, unit="rad/s", description="joint velocities after the step")
+        )
+    if spec.effector is not None:
+        e = spec.effector.dim
+        variables += [
+            Variable(
+                "ee_prev",
+                Role.OBSERVED,
+                e,
+                unit="m",
+                lag=1,
+                lag_of="ee",
+                description="effector before the step",
+            ),
+            Variable("dee", Role.LATENT, e, unit="m", description="effector motion over the step"),
+            Variable("ee", Role.LATENT, e, unit="m", description="effector after the step"),
+        ]
+    for o in spec.object_names:
+        variables += _object_sites(spec, o)
+    learned = _default_parents(spec)
+    given = dict(parents or {})
+    unknown = sorted(set(given) - set(learned))
+    if unknown:
+        raise ValueError(f"parents names {unknown}, which are not learned sites; learned: {list(learned)}")
+    learned.update({k: tuple(v) for k, v in given.items()})
+    edges = [(p, c) for c, ps in {**learned, **_fixed_parents(spec)}.items() for p in ps]
+    return CausalGraph(variables, edges)
+
+
+def _sum(dims: Sequence[int], signs: Sequence[float], out: int, sigma: float) -> LinearMechanism:
+    """``out = sum_k sign_k P_k x_k``, each parent padded with zeros (or cut) to ``out`` components."""
+    blocks = []
+    for d, s in zip(dims, signs, strict=True):
+        block = torch.zeros(out, d)
+        k = min(d, out)
+        block[:k, :k] = s * torch.eye(k)
+        blocks.append(block)
+    return LinearMechanism.from_coefficients(torch.cat(blocks, 1), sigma=sigma)
+
+
+def _fixed_mechanisms(spec: EnvSpec, graph: CausalGraph, position_sigma: float) -> dict[str, LinearMechanism]:
+    dim = lambda n: graph[n].dim  # noqa: E731
+    out = {"q": _sum([dim("q_prev"), dim("dq")], [1, 1], dim("q"), FIXED_SIGMA)}
+    if spec.effector is not None:
+        out["ee"] = _sum([dim("ee_prev"), dim("dee")], [1, 1], dim("ee"), FIXED_SIGMA)
+    for o in spec.object_names:
+        for rel, ee in ((f"rel_prev.{o}", "ee_prev"), (f"rel.{o}", "ee")):
+            out[rel] = _sum([dim(ee), dim(f"pos_prev.{o}")], [1, -1], dim(rel), FIXED_SIGMA)
+        out[f"pos.{o}"] = _sum(
+            [dim(f"pos_prev.{o}"), dim(f"dpos.{o}")], [1, 1], dim(f"pos.{o}"), position_sigma
+        )
+        if spec.object(o).perceived:
+            out[f"meas.{o}"] = _sum([dim(f"pos.{o}")], [1], dim(f"meas.{o}"), 0.01)
+    return out
+
+
+def build_model(
+    spec: EnvSpec,
+    graph: CausalGraph,
+    config: ModelConfig | None = None,
+    *,
+    mechanisms: Mapping[str, Any] | None = None,
+    seed: int = 0,
+) -> WorldModel:
+    """A :class:`models.WorldModel` over ``graph``: the fixed relations, and learned mechanisms.
+
+    Args:
+        spec: the environment's spec.
+        graph: from :func:`build_graph`.
+        config: ``kind`` (``"mlp"``, or ``"hetero"``: ``X ~ Normal(f(pa), sigma(pa))``), ensemble
+            size ``members`` per learned site, MLP widths ``hidden`` of the object sites and
+            ``arm_hidden`` of the arm sites (``dq``, ``v``, ``dee``), and ``position_sigma``, the
+            residual sd of ``pos = pos_prev + dpos`` (m).
+        mechanisms: optional learned site -> given :class:`models.Mechanism` (e.g. a known law).
+        seed: seeds every learned mechanism's initial weights (one stream per site).
+    """
+    c = config or ModelConfig()
+    kind, members, hidden, arm_hidden = c.kind, c.members, c.hidden, c.arm_hidden
+    generator = torch.Generator().manual_seed(seed)
+    mechs: dict[str, Any] = dict(_fixed_mechanisms(spec, graph, c.position_sigma))
+    arm = {"dq", "v", "dee"}
+    for site in learned_sites(spec):
+        if site not in graph:
+            continue
+        in_dim = sum(graph[p].dim for p in graph.parents(site))
+        width = (arm_hidden or hidden) if site in arm else hidden
+        out_dim = graph[site].dim
+
+        def make(
+            g: torch.Generator | None, i: int = in_dim, o: int = out_dim, w: tuple[int, ...] = width
+        ) -> Any:
+            if kind == "hetero":
+                return HeteroscedasticMechanism(i, o, hidden=w, seed=g)
+            return MLPMechanism(i, o, hidden=w, seed=g)
+
+        site_seed = torch.Generator().manual_seed(int(torch.randint(0, 2**62, (1,), generator=generator)))
+        mechs[site] = (
+            make(site_seed) if members == 1 else EnsembleMechanism.replicate(make, members, site_seed)
+        )
+    mechs.update(mechanisms or {})
+    return WorldModel(graph, mechs, seed=seed)
+
+
+def restrict(model: WorldModel, objects: Sequence[str]) -> WorldModel:
+    """The model without the sites of the other objects, a warm-started copy (objects do not act on each other here).
+
+    Raises:
+        ValueError: an object that is not in the model.
+    """
+    g = model.graph
+    slots = {n.split(".", 1)[1] for n in g.names if n.startswith("pos.")}
+    unknown = sorted(set(objects) - slots)
+    if unknown:
+        raise ValueError(f"objects {unknown} are not in the model; it has {sorted(slots)}")
+    names = [n for n in g.names if "." not in n or n.split(".", 1)[1] in set(objects)]
+    return model.with_graph(
+        CausalGraph([g[n] for n in names], [(p, c) for p, c in g.edges if p in names and c in names])
+    )
+
+
+def blanket(model: WorldModel, objects: Sequence[str]) -> WorldModel:
+    """The object sites of ``objects`` given the effector relations: a warm-started copy for state inference.
+
+    ``rel_prev.o``, ``rel.o`` (and ``contact.o``, ``vel_prev.o``) become observed roots: with the
+    effector sensed they are known, and they d-separate the arm sites from the object sites, so
+    the posterior over ``dpos.o`` and ``pos.o`` is that of the full program at a fraction of its sites.
+    """
+    g = model.graph
+    keep_prefix = ("pos_prev.", "vel_prev.", "rel_prev.", "rel.", "contact.", "dpos.", "pos.", "meas.")
+    names = [n for n in g.names if n.startswith(keep_prefix) and n.split(".", 1)[1] in set(objects)]
+    roots = {n for n in names if n.startswith(("rel_prev.", "rel.", "contact."))}
+    variables = [replace(g[n], role=Role.OBSERVED) if n in roots else g[n] for n in names]
+    edges = [(p, c) for p, c in g.edges if p in names and c in names and c not in roots]
+    return model.with_graph(CausalGraph(variables, edges))
+
+
+def discover_parents(
+    spec: EnvSpec, graph: CausalGraph, data: Mapping[str, np.ndarray], *, seed: int = 0, **kwargs: Any
+) -> dict[str, tuple[str, ...]]:
+    """Learn the parent sets of the learned sites with :func:`inference.discover`.
+
+    The fixed relations are known; the candidates of each learned site are the variables that
+    may cause it in time: tier 1 the actions and the state before the step, tier 2 the arm's
+    sites, tier 3 each object's relations, tier 4 the object sites.
+
+    Args:
+        spec: the environment's spec.
+        graph: from :func:`build_graph` (its learned edges are ignored).
+        data: name -> ``(N, dim)`` realized values of every variable of ``graph`` except the
+            measurement sites.
+        seed: seeds the search.
+        **kwargs: passed to :func:`inference.discover`.
+
+    Returns:
+        learned site -> parents, for :func:`build_graph`.
+    """
+    names = [n for n in graph.names if not n.startswith("meas.")]
+    fixed = _fixed_parents(spec)
+    roots = [n for n in names if graph[n].role is not Role.LATENT]
+    arm = [n for n in ("dq", "v", "dee", "q", "ee") if n in names]
+    rel = [n for n in names if n.startswith(("rel_prev.", "rel."))]
+    tiers = [roots, arm, rel, [n for n in names if n not in roots + arm + rel]]
+    required = [(p, c) for c, ps in fixed.items() if c in names for p in ps]
+    forbidden = [(p, c) for c in fixed if c in names for p in names if p not in fixed[c] and p != c]
+    result = discover(
+        [graph[n] for n in names],
+        {n: data[n] for n in names},
+        tiers=tiers,
+        required=required,
+        forbidden=forbidden,
+        seed=seed,
+        **kwargs,
+    )
+    learned = learned_sites(spec)
+    return {c: tuple(p for p in result.graph.parents(c)) for c in learned if c in result.graph}

@@ -1,0 +1,169 @@
+"""Learn: refit the world model on the history (Eq. 4.33), and revise it when its residuals persist (Eq. 4.50).
+
+:func:`fit_model` trains the learned sites of :mod:`pal.agent.graph`: the arm's on every row,
+each object's on the rows where both of its positions are known (NaN never reaches the fit), with
+a validation split and early stopping; homoscedastic sigmas are floored at ``min_sigma``.
+
+:class:`Learner` does that on a schedule and watches the model: after each refit an
+:class:`inference.ResidualMonitor` takes the standardised residuals of the newest rows (the
+reference scale of a site is its mean predictive sd on the training rows), and when it flags a
+mechanism :func:`inference.revise` proposes and tests structural revisions on the recent rows
+(a new parent, a regime split ...), keeping one only when it wins on held-out likelihood.
+:func:`inference.revise` scores homoscedastic single mechanisms; flagged heteroscedastic or
+ensemble sites are reported (``flagged``) but not revised.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+import torch
+
+from inference import ResidualMonitor, fit, revise
+from models import WorldModel
+from pal.agent.config import LearnConfig, ModelConfig
+from pal.agent.graph import learned_sites
+from pal.agent.history import History
+from pal.agent.spec import EnvSpec
+
+__all__ = ["Learner", "fit_model", "site_data"]
+
+log = logging.getLogger(__name__)
+
+
+def site_data(
+    history: History, spec: EnvSpec, source: str = "perceived", rows: Any = None
+) -> dict[str, np.ndarray]:
+    """Every variable of the graph on the rows where every object is known (``meas.o = pos.o``)."""
+    idx = np.arange(len(history))[rows if rows is not None else slice(None)]
+    prev_key, key = ("meas_prev", "meas") if source == "perceived" else ("truth_prev", "truth")
+    prev, now = history.array(prev_key)[idx], history.array(key)[idx]
+    ok = np.isfinite(prev).all((1, 2)) & np.isfinite(now).all((1, 2))
+    if history.momentum:
+        ok &= np.isfinite(history.array("vel_prev")[idx]).all((1, 2))
+    arm, objects = history.columns(source, idx[ok])
+    out = dict(arm)
+    for o, cols in objects.items():
+        out.update({k: v for k, v in cols.items() if k not in out})
+        if o in spec.perceived:
+            out[f"meas.{o}"] = cols[f"pos.{o}"]
+        if spec.touch is None:
+            out.pop(f"contact.{o}", None)
+    return out
+
+
+def fit_model(
+    model: WorldModel,
+    history: History,
+    spec: EnvSpec,
+    config: ModelConfig,
+    *,
+    source: str = "perceived",
+    rows: Any = None,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Fit every learned site on the history (module docstring).
+
+    Returns:
+        ``{"rows": {"arm": n, <object>: n ...}, "sites": [...]}``.
+    """
+    arm, objects = history.columns(source, rows)
+    known = lambda cols: {k: v for k, v in cols.items() if k in model.graph}  # noqa: E731
+    arm, objects = known(arm), {o: known(c) for o, c in objects.items()}
+    learned = [s for s in learned_sites(spec) if s in model.graph]
+    kw = {
+        "epochs": config.epochs,
+        "batch_size": config.batch_size,
+        "lr": config.lr,
+        "validation": config.validation,
+        "patience": config.patience,
+        "beta": config.beta,
+        "seed": seed,
+    }
+
+    def schedule(n: int) -> dict[str, Any]:
+        # too few rows to hold any out: train on all of them, every epoch
+        return kw if round(config.validation * n) >= 1 else {**kw, "validation": 0.0, "patience": None}
+
+    arm_sites = [s for s in learned if s in ("dq", "v", "dee")]
+    fit(model, arm, variables=arm_sites, **schedule(len(arm["act"])))
+    fitted = list(arm_sites)
+    for o, cols in objects.items():
+        sites = [s for s in learned if s.endswith(f".{o}")]
+        if len(cols[f"pos.{o}"]) < 4:
+            log.warning(
+                "object %r has %d usable transitions; its mechanisms stay unfitted", o, len(cols[f"pos.{o}"])
+            )
+            continue
+        fit(model, cols, variables=sites, **schedule(len(cols[f"pos.{o}"])))
+        fitted += sites
+    for name in fitted:
+        mech = model.mechanism(name)
+        if not mech.heteroscedastic:
+            mech.set_sigma(mech.sigma.detach().clamp_min(config.min_sigma))
+    return {
+        "rows": {"arm": len(arm["act"]), **{o: len(c[f"pos.{o}"]) for o, c in objects.items()}},
+        "sites": fitted,
+    }
+
+
+def _tolerance(model: WorldModel, data: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    """Mean predictive sd of every non-root on ``data``: the monitor's reference scales."""
+    values = {k: torch.as_tensor(v, dtype=model.dtype) for k, v in data.items()}
+    with torch.no_grad():
+        sd = model.predict_scale({r: values[r] for r in model.graph.roots})
+    return {n: s.mean(0).clamp_min(1e-6) for n, s in sd.items()}
+
+
+class Learner:
+    """Scheduled refits and structural revisions (module docstring).
+
+    Args:
+        spec: the environment's spec.
+        model: its settings (fit schedule).
+        config: the refit period and the monitor.
+    """
+
+    def __init__(self, spec: EnvSpec, model: ModelConfig, config: LearnConfig) -> None:
+        self.spec, self.model_config, self.config = spec, model, config
+        self.monitor: ResidualMonitor | None = None
+        self.revisions: list[dict[str, Any]] = []
+        self._seen = 0
+
+    def refit(self, model: WorldModel, history: History, seed: int) -> tuple[WorldModel, dict[str, Any]]:
+        """Refit on the whole history, then let the monitor judge the newest rows; returns the (revised) model."""
+        out = fit_model(model, history, self.spec, self.model_config, seed=seed)
+        if not self.config.monitor or len(history) < 8:
+            return model, out
+        data = site_data(history, self.spec)
+        if not data or len(next(iter(data.values()))) < 8:
+            return model, out
+        fresh = {k: v[-min(len(v), self.config.window) :] for k, v in data.items()}
+        if self.monitor is None:
+            self.monitor = ResidualMonitor(
+                model,
+                self.config.window,
+                tolerance=_tolerance(model, data),
+                threshold=self.config.threshold,
+                patience=self.config.patience,
+            )
+        levels = self.monitor.update(model, fresh)
+        out["residual_levels"] = levels
+        flagged = [v for v in self.monitor.flagged() if v in learned_sites(self.spec)]
+        out["flagged"] = flagged
+        # inference.revise scores candidates with one sigma per site: homoscedastic, single mechanisms only
+        flagged = [
+            v for v in flagged if not model.mechanism(v).heteroscedastic and model.mechanism(v).size == 1
+        ]
+        if flagged and self.config.revisions:
+            revised, log_ = revise(model, fresh, flagged, kinds=self.config.revisions, seed=seed)
+            accepted = [r.to_dict() for r in log_ if r.accepted]
+            self.revisions += accepted
+            out["revisions"] = [r.to_dict() for r in log_]
+            if accepted:
+                log.info("revised %s: %s", flagged, accepted)
+                model = revised
+                self.monitor = None
+        return model, out

@@ -1,0 +1,186 @@
+"""Plan: a pure function of the model, the belief and the targets (Alg. 4.2 over a horizon, MPC).
+
+:func:`plan` runs :func:`inference.infer_action` with the sampling planner (CEM / iCEM, then
+projected Adam) over ``H`` steps through :meth:`models.WorldModel.rollout`, for one unit whose
+state is the belief (the lag-1 roots: ``q_prev``, ``ee_prev``, ``pos_prev.o`` ...). The
+preference over the predicted trajectory is, per scored step,
+
+    log p = - sum_o [ c(pos.o - target_o) + w_e c(ee - pos.o) ] - w_a |act|^2 - w_m |act - q_prev|^2
+
+with ``c(x) = 0.5 |x|^2 / scale^2`` (Gaussian) or ``|x| / scale`` (distance), the effector term
+on its first d components, and the move term for position servos (actions in joint units). The agent executes the first action and plans again at the next
+step (model-predictive control), warm-started from the rest of the sequence. With
+``risk="mean"`` the cost is the expectation over the ensemble members (each on its own
+trajectory, as PETS propagates particles); with ``"disagreement"`` their spread on the target
+sites is weighed.
+
+The returned :class:`Plan` also carries the model's one-step prediction of every targeted
+object's displacement under the first action, with its predictive sd (aleatoric and epistemic)
+and each member's value: the intervals that the experiments hold against what happens.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from inference import SamplingConfig, infer_action
+from models import WorldModel
+from pal.agent.config import PlanConfig
+
+__all__ = ["Plan", "one_step", "plan", "preference"]
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A planned action sequence and what the model expects of it.
+
+    Attributes:
+        action: (A,) the first action.
+        sequence: (H, A) the whole planned sequence.
+        targets: object -> (d,) target, m.
+        predicted: object -> (d,) position at the horizon's end (the members' mean), m.
+        objective: predicted distance to the targets at the horizon's end, summed over objects, m.
+        step_mean, step_sd: object -> (d,) predicted displacement over the first step and its
+            predictive sd (aleatoric and epistemic), m.
+        mode: why it was chosen (``"goal"``, ``"curious"`` ...).
+    """
+
+    action: np.ndarray
+    sequence: np.ndarray
+    targets: dict[str, np.ndarray]
+    predicted: dict[str, np.ndarray]
+    objective: float
+    step_mean: dict[str, np.ndarray]
+    step_sd: dict[str, np.ndarray]
+    mode: str = "goal"
+
+
+def preference(
+    targets: Mapping[str, Tensor], config: PlanConfig, effector: bool
+) -> Callable[[Mapping[str, Tensor]], Tensor]:
+    """The log-preference of the module docstring: ``values (..., N, dim) -> (..., N)``."""
+
+    def cost(x: Tensor) -> Tensor:
+        if config.preference == "gaussian":
+            return 0.5 * (x / config.scale).pow(2).sum(-1)
+        return torch.sqrt(x.pow(2).sum(-1) + 1e-12) / config.scale
+
+    def log_p(values: Mapping[str, Tensor]) -> Tensor:
+        total: Tensor | float = 0.0
+        for o, t in targets.items():
+            pos = values[f"pos.{o}"]
+            total = total + cost(pos - t)
+            if effector and config.effector_weight:
+                total = total + config.effector_weight * cost(values["ee"][..., : pos.shape[-1]] - pos)
+        if config.action_weight:
+            total = total + config.action_weight * values["act"].pow(2).sum(-1)
+        if config.move_weight:
+            total = total + config.move_weight * (values["act"] - values["q_prev"]).pow(2).sum(-1)
+        return -total
+
+    return log_p
+
+
+def one_step(
+    model: WorldModel, belief: Mapping[str, np.ndarray], action: np.ndarray, objects: tuple[str, ...]
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """The model's prediction of each object's displacement under ``action`` from ``belief``.
+
+    Returns:
+        ``(mean, sd, members)``: object -> (d,) mean and predictive sd (total, m), and
+        (K, d) each member's mean.
+    """
+    dtype = model.dtype
+    values = {k: torch.as_tensor(np.asarray(v)[None], dtype=dtype) for k, v in belief.items()}
+    values["act"] = torch.as_tensor(np.asarray(action)[None], dtype=dtype)
+    mean = model.predict(values)
+    sd = model.predict_scale(values)
+    members = model.predict(values, members=True)
+    m = {o: mean[f"dpos.{o}"][0].numpy().astype(np.float64) for o in objects}
+    s = {o: sd[f"dpos.{o}"][0].numpy().astype(np.float64) for o in objects}
+    k = {o: members[f"dpos.{o}"][:, 0].numpy().astype(np.float64) for o in objects}
+    return m, s, k
+
+
+def plan(
+    model: WorldModel,
+    belief: Mapping[str, np.ndarray],
+    targets: Mapping[str, np.ndarray],
+    config: PlanConfig,
+    *,
+    seed: int,
+    init: np.ndarray | None = None,
+    mode: str = "goal",
+) -> Plan:
+    """Plan towards ``targets`` from ``belief`` (module docstring).
+
+    Args:
+        model: the world model (fixed).
+        belief: the lag-1 roots of the graph: name -> (dim,) current state estimate.
+        targets: object -> (d,) target position, m.
+        config: horizon, sampling, preference and risk.
+        seed: seeds the sampling stage.
+        init: optional (H, A) start of the search (a warm start), within the action bounds.
+        mode: recorded in the plan.
+
+    Raises:
+        ValueError: a target or belief entry that is missing or of the wrong shape (see
+            :func:`inference.infer_action`).
+    """
+    dtype = model.dtype
+    h = config.horizon
+    state = {
+        k: torch.as_tensor(np.asarray(v, dtype=np.float64)[None], dtype=dtype) for k, v in belief.items()
+    }
+    tgt = {o: torch.as_tensor(np.asarray(t, dtype=np.float64)[None], dtype=dtype) for o, t in targets.items()}
+    sampling = SamplingConfig(
+        population=config.population,
+        elites=config.elites,
+        iterations=config.iterations,
+        alpha=config.alpha,
+        noise_beta=config.noise_beta,
+        init_std=config.init_std,
+        refine_steps=config.refine_steps,
+    )
+    risk = {None: None, "mean": "mean", "disagreement": ("disagreement", config.risk_weight)}[config.risk]
+    start: object = "midpoint"
+    if init is not None:
+        a = torch.as_tensor(np.asarray(init, dtype=np.float64), dtype=dtype)
+        start = {"act": a[None] if h > 1 else a[:1]}
+    result = infer_action(
+        model,
+        state,
+        {f"pos.{o}": t for o, t in tgt.items()} if risk and risk[0] == "disagreement" else None,
+        log_preference=preference(tgt, config, "ee" in model.graph),
+        scale=config.scale,
+        steps=max(config.refine_steps, 1),
+        lr=config.lr,
+        init=start,
+        sampling=sampling,
+        horizon=h,
+        target_at=config.target_at,
+        risk=risk,
+        seed=seed,
+    )
+    acts = result.actions["act"][0].numpy().astype(np.float64).reshape(h, -1)
+    final = {o: result.predicted[f"pos.{o}"][0].reshape(-1, tgt[o].shape[-1])[-1].numpy() for o in tgt}
+    predicted = {o: v.astype(np.float64) for o, v in final.items()}
+    objective = float(
+        sum(np.linalg.norm(predicted[o] - np.asarray(targets[o], dtype=np.float64)) for o in tgt)
+    )
+    mean, sd, _ = one_step(model, belief, acts[0], tuple(tgt))
+    return Plan(
+        acts[0].copy(),
+        acts,
+        {o: np.asarray(t, np.float64) for o, t in targets.items()},
+        predicted,
+        objective,
+        mean,
+        sd,
+        mode,
+    )

@@ -1,0 +1,345 @@
+"""What the agent knows about an environment: which observation entries, or which perceived objects, are what.
+
+An :class:`EnvSpec` describes any ``gymnasium.Env`` with a ``Box`` action space in the roles the
+world model is built from (:mod:`pal.agent.graph`):
+
+- ``angles`` (J,) joint angles and optionally ``velocities`` (J,), from the observation;
+- ``effector`` (E,) the end effector's position, m, from the observation or an ``info`` entry;
+- ``objects``: each a named position (d,), m, read from the observation (state-based) or
+  perceived by Π in the camera frames that the environment puts in ``info`` (``camera``);
+  optionally with the position of its goal, from the observation;
+- ``touch`` (O,): the contact sensed with each object, from ``info``;
+- the actions: their names and bounds, from the action space (or given here).
+
+Each quantity is read by a :class:`Sensor`: observation indices, or an ``info`` key. A spec is
+checked when it is made (overlapping or negative indices, dims that disagree, missing camera)
+and against an environment by :func:`check_env` (indices out of range, an observation space
+of another shape, actions without finite bounds). :func:`pushing_spec` and :func:`pusher_spec`
+describe :class:`pal.sim.pushing.PushingEnv` and Gymnasium's ``Pusher-v5``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+from pal.checks import check_int
+
+__all__ = ["PUSHER_JOINTS", "EnvSpec", "ObjectSpec", "Sensor", "check_env", "pusher_spec", "pushing_spec"]
+
+#: Joint names of Gymnasium's Pusher-v5 arm (observation entries 0-6 and 7-13).
+PUSHER_JOINTS = (
+    "shoulder_pan",
+    "shoulder_lift",
+    "upper_arm_roll",
+    "elbow_flex",
+    "forearm_roll",
+    "wrist_flex",
+    "wrist_roll",
+)
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """Where one sensed quantity comes from: observation entries or an ``info`` entry.
+
+    Attributes:
+        obs: observation indices (in order), or empty.
+        info: an ``info`` key whose value is a ``(dim,)`` array, or None.
+        dim: the quantity's size; for ``obs`` it is ``len(obs)`` (0 means that).
+    """
+
+    obs: tuple[int, ...] = ()
+    info: str | None = None
+    dim: int = 0
+
+    def __post_init__(self) -> None:
+        obs = tuple(self.obs)
+        if bool(obs) == (self.info is not None):
+            raise ValueError(
+                f"a Sensor reads either observation indices or an info key, got obs={obs}, info={self.info!r}"
+            )
+        for i in obs:
+            check_int("observation index", i, minimum=0)
+        if len(set(obs)) != len(obs):
+            raise ValueError(f"observation indices {list(obs)} repeat an entry")
+        object.__setattr__(self, "obs", tuple(int(i) for i in obs))
+        if obs:
+            if self.dim not in (0, len(obs)):
+                raise ValueError(f"Sensor dim {self.dim} disagrees with its {len(obs)} observation indices")
+            object.__setattr__(self, "dim", len(obs))
+        else:
+            check_int(f"dim of info[{self.info!r}]", self.dim)
+
+    def read(self, observation: np.ndarray, info: Mapping[str, Any], what: str) -> np.ndarray:
+        """The quantity, float64 ``(dim,)``.
+
+        Raises:
+            ValueError: the info key is missing, or its value has another shape or is not finite.
+        """
+        if self.obs:
+            return np.asarray(observation, dtype=np.float64)[list(self.obs)]
+        if self.info not in info:
+            raise ValueError(
+                f"{what} is read from info[{self.info!r}], but the environment's info has {sorted(info)}"
+            )
+        value = np.asarray(info[self.info], dtype=np.float64).reshape(-1)
+        if value.shape != (self.dim,) or not np.all(np.isfinite(value)):
+            raise ValueError(f"{what}: info[{self.info!r}] is {value!r}; expected a finite ({self.dim},)")
+        return value
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """One object the agent models.
+
+    Attributes:
+        name: its slot name (world-model variables ``pos.<name>`` ...).
+        position: its sensor (state-based), or None: perceived by Π (table-plane x, y).
+        goal: optional sensor of its goal position (same dim), m.
+    """
+
+    name: str
+    position: Sensor | None = None
+    goal: Sensor | None = None
+
+    def __post_init__(self) -> None:
+        if (
+            not isinstance(self.name, str)
+            or not self.name
+            or "." in self.name
+            or self.name != self.name.strip()
+        ):
+            raise ValueError(
+                f"object name {self.name!r} must be a non-empty string without dots or spaces at its ends"
+            )
+        if self.goal is not None and self.goal.dim != self.dim:
+            raise ValueError(
+                f"goal of {self.name!r} has dim {self.goal.dim}, expected {self.dim} like its position"
+            )
+
+    @property
+    def perceived(self) -> bool:
+        """True when Π supplies the position."""
+        return self.position is None
+
+    @property
+    def dim(self) -> int:
+        """Size of the position: the sensor's, 2 for a perceived object (table plane)."""
+        return 2 if self.position is None else self.position.dim
+
+
+@dataclass(frozen=True)
+class EnvSpec:
+    """An environment in the roles of the world model (module docstring).
+
+    Attributes:
+        joints: joint names.
+        angles: sensor of the joint angles (J,), rad.
+        velocities: optional sensor of the joint velocities (J,), rad/s.
+        effector: optional sensor of the end effector position (E,), m.
+        objects: the modelled objects.
+        touch: optional ``info`` sensor of the contact with each object (O,), in [0, 1].
+        actions: action names; default ``joints`` (one per joint).
+        action_low, action_high: action bounds; default the action space's.
+        observation_dim: the observation size the spec is written for (checked against the env).
+        camera: ``info`` key of the RGB-D frame (:class:`pal.frames.RGBDFrame`) for perceived
+            objects; the frame's ``info`` also needs ``table_from_camera`` (4, 4) and
+            ``self_mask`` (H, W) bool (the agent's own body, from its self-model).
+        object_momentum: objects keep moving after a push (their previous displacement is a
+            parent of the next one).
+    """
+
+    joints: tuple[str, ...]
+    angles: Sensor
+    velocities: Sensor | None = None
+    effector: Sensor | None = None
+    objects: tuple[ObjectSpec, ...] = ()
+    touch: Sensor | None = None
+    actions: tuple[str, ...] = ()
+    action_low: tuple[float, ...] | None = None
+    action_high: tuple[float, ...] | None = None
+    observation_dim: int | None = None
+    camera: str | None = None
+    object_momentum: bool = False
+
+    def __post_init__(self) -> None:
+        joints = tuple(self.joints)
+        if not joints or len(set(joints)) != len(joints):
+            raise ValueError(f"joints {list(joints)} must be distinct names, at least one")
+        object.__setattr__(self, "joints", joints)
+        object.__setattr__(self, "objects", tuple(self.objects))
+        object.__setattr__(self, "actions", tuple(self.actions) or joints)
+        names = [o.name for o in self.objects]
+        if len(set(names)) != len(names):
+            raise ValueError(f"object names {names} repeat")
+        if self.angles.dim != len(joints):
+            raise ValueError(f"angles has dim {self.angles.dim}, expected {len(joints)} (one per joint)")
+        if self.velocities is not None and self.velocities.dim != len(joints):
+            raise ValueError(
+                f"velocities has dim {self.velocities.dim}, expected {len(joints)} (one per joint)"
+            )
+        if self.touch is not None and (self.touch.info is None or self.touch.dim != len(self.objects)):
+            raise ValueError(f"touch must be an info sensor of dim {len(self.objects)} (one per object)")
+        if any(o.perceived for o in self.objects):
+            if self.camera is None:
+                raise ValueError(
+                    f"objects {[o.name for o in self.objects if o.perceived]} are perceived; give the info key of the camera frames (camera=...)"
+                )
+            if self.effector is None:
+                raise ValueError(
+                    "perceived objects are pushed by the effector; give its sensor (effector=...)"
+                )
+        if self.objects and self.effector is None:
+            raise ValueError("objects are moved by the end effector; give its sensor (effector=...)")
+        for o in self.objects:
+            if o.position is not None and self.effector is not None and o.dim > self.effector.dim:
+                raise ValueError(
+                    f"object {o.name!r} has dim {o.dim}, more than the effector's {self.effector.dim}"
+                )
+        self._check_overlaps()
+        if (self.action_low is None) != (self.action_high is None):
+            raise ValueError(
+                "give both action_low and action_high, or neither (then the action space's are used)"
+            )
+        if self.action_low is not None:
+            low, high = (np.asarray(v, dtype=np.float64) for v in (self.action_low, self.action_high))
+            _check_bounds(low, high, self.actions, "the spec")
+            object.__setattr__(self, "action_low", tuple(low.tolist()))
+            object.__setattr__(self, "action_high", tuple(high.tolist()))
+        if self.observation_dim is not None:
+            check_int("observation_dim", self.observation_dim)
+
+    def sensors(self) -> dict[str, Sensor]:
+        """Role -> sensor of every sensed quantity (``"goal.<o>"``, ``"pos.<o>"`` for objects)."""
+        out = {"angles": self.angles}
+        for role in ("velocities", "effector", "touch"):
+            if getattr(self, role) is not None:
+                out[role] = getattr(self, role)
+        for o in self.objects:
+            if o.position is not None:
+                out[f"pos.{o.name}"] = o.position
+            if o.goal is not None:
+                out[f"goal.{o.name}"] = o.goal
+        return out
+
+    def _check_overlaps(self) -> None:
+        owner: dict[int, str] = {}
+        for role, sensor in self.sensors().items():
+            for i in sensor.obs:
+                if i in owner:
+                    raise ValueError(
+                        f"observation index {i} is given to both {owner[i]!r} and {role!r}; roles may not overlap"
+                    )
+                owner[i] = role
+
+    @property
+    def object_names(self) -> tuple[str, ...]:
+        """The object slot names."""
+        return tuple(o.name for o in self.objects)
+
+    @property
+    def perceived(self) -> tuple[str, ...]:
+        """Names of the objects that Π supplies."""
+        return tuple(o.name for o in self.objects if o.perceived)
+
+    def object(self, name: str) -> ObjectSpec:
+        """The :class:`ObjectSpec` called ``name``."""
+        for o in self.objects:
+            if o.name == name:
+                return o
+        raise ValueError(f"object {name!r} is not in the spec; objects are {list(self.object_names)}")
+
+
+def _check_bounds(low: np.ndarray, high: np.ndarray, names: tuple[str, ...], where: str) -> None:
+    if low.shape != (len(names),) or high.shape != (len(names),):
+        raise ValueError(
+            f"action bounds of {where} have shapes {low.shape} and {high.shape}, expected ({len(names)},) for actions {list(names)}"
+        )
+    bad = [
+        n
+        for n, lo, hi in zip(names, low, high, strict=True)
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi)
+    ]
+    if bad:
+        k = names.index(bad[0])
+        raise ValueError(
+            f"actions {bad} have no finite bounds in {where} (e.g. {bad[0]!r}: [{low[k]}, {high[k]}]); "
+            "the planner searches within the bounds: give action_low and action_high in the spec"
+        )
+
+
+def check_env(spec: EnvSpec, env: gymnasium.Env) -> tuple[np.ndarray, np.ndarray]:
+    """Check ``env`` against ``spec`` and return the action bounds ``(low (A,), high (A,))``.
+
+    Raises:
+        ValueError: a non-Box or not 1-D observation or action space, an observation of another
+            size than ``spec.observation_dim``, observation indices out of range, an action
+            space of another size than the spec's actions, or actions without finite bounds.
+    """
+    obs_space, act_space = env.observation_space, env.action_space
+    if not isinstance(obs_space, gymnasium.spaces.Box) or len(obs_space.shape) != 1:
+        raise ValueError(f"the observation space is {obs_space}; the agent reads a 1-D Box")
+    size = obs_space.shape[0]
+    if spec.observation_dim is not None and size != spec.observation_dim:
+        raise ValueError(
+            f"the observation space has shape {obs_space.shape}, but the spec is written for ({spec.observation_dim},)"
+        )
+    for role, sensor in spec.sensors().items():
+        out = [i for i in sensor.obs if i >= size]
+        if out:
+            raise ValueError(
+                f"the spec reads observation index {out[0]} for {role!r}, but the observation has {size} entries"
+            )
+    if not isinstance(act_space, gymnasium.spaces.Box) or act_space.shape != (len(spec.actions),):
+        raise ValueError(
+            f"the action space is {act_space}; the spec has {len(spec.actions)} actions {list(spec.actions)}"
+        )
+    if spec.action_low is not None:
+        low, high = np.asarray(spec.action_low), np.asarray(spec.action_high)
+    else:
+        low, high = (np.asarray(v, dtype=np.float64) for v in (act_space.low, act_space.high))
+        _check_bounds(low, high, spec.actions, "the action space")
+    return low.astype(np.float64), high.astype(np.float64)
+
+
+def pushing_spec(objects: tuple[str, ...] = ("box", "ball")) -> EnvSpec:
+    """:class:`pal.sim.pushing.PushingEnv` (with ``camera=True``): servo targets, sensed hand and touch, perceived objects.
+
+    Observation ``[q_shoulder, q_elbow, dq/dt ...]``; ``info`` has ``hand`` (3,) m, ``touch``
+    (n_objects,) and the camera frame (``rgbd``).
+    """
+    from pal.sim.pushing import JOINTS
+
+    return EnvSpec(
+        joints=tuple(JOINTS),
+        angles=Sensor(obs=(0, 1)),
+        effector=Sensor(info="hand", dim=3),
+        objects=tuple(ObjectSpec(o) for o in objects),
+        touch=Sensor(info="touch", dim=len(objects)),
+        observation_dim=4,
+        camera="rgbd",
+    )
+
+
+def pusher_spec() -> EnvSpec:
+    """Gymnasium's ``Pusher-v5``: seven torque-driven joints, the fingertip, the object and its goal.
+
+    Observation (23,): joint angles 0-6, joint velocities 7-13, fingertip 14-16, object 17-19,
+    goal 20-22 (centres of mass, m). The object slides on the table, with momentum; its goal
+    lies 4.8 cm lower (the goal marker's centre), so the object-goal distance never falls below
+    that. Actions: seven torques in [-2, 2].
+    """
+    return EnvSpec(
+        joints=PUSHER_JOINTS,
+        angles=Sensor(obs=tuple(range(7))),
+        velocities=Sensor(obs=tuple(range(7, 14))),
+        effector=Sensor(obs=(14, 15, 16)),
+        objects=(ObjectSpec("object", Sensor(obs=(17, 18, 19)), goal=Sensor(obs=(20, 21, 22))),),
+        observation_dim=23,
+        object_momentum=True,
+    )
