@@ -6,36 +6,49 @@ it, inside ``pyro.plate("units", N)``, passing ``data`` as ``obs=``.
 :class:`models.WorldModel` is the reference implementation.
 """
 
-from inference.action import ActionResult, gaussian_log_preference, infer_action
+from inference.action import ActionOptions, ActionResult, gaussian_log_preference, infer_action
 from inference.admissible import admissible_parents
 from inference.calibration import predictive_check
 from inference.context import active_subgraph, subgraph_model
 from inference.counterfactual import CounterfactualResult, abduct, counterfactual
 from inference.curiosity import CuriositySampler, normalized_entropy, occupancy
+from inference.diagnostics import Diagnostics, PoorPosteriorWarning
 from inference.discovery import DiscoveryResult, discover, shd
 from inference.ensemble import Ensemble
-from inference.fit import FitResult, fit
+from inference.fit import FitResult, FitSchedule, fit
 from inference.handlers import AbductNoise, Intervene, MeasurementScale, ReplayNoise
+from inference.importance import ImportanceOptions
 from inference.interventions import do, simulate
 from inference.metalearn import ResidualMonitor, Revision, revise
 from inference.planning import SamplingConfig
+from inference.program import Program
+from inference.quadrature import GridOptions
 from inference.rewire import RewireResult, rewire
 from inference.state import StateResult, infer_state
+from inference.svi_state import SVIOptions
 
 __all__ = [
     "AbductNoise",
+    "ActionOptions",
     "ActionResult",
     "CounterfactualResult",
     "CuriositySampler",
+    "Diagnostics",
     "DiscoveryResult",
     "Ensemble",
     "FitResult",
+    "FitSchedule",
+    "GridOptions",
+    "ImportanceOptions",
     "Intervene",
     "MeasurementScale",
+    "PoorPosteriorWarning",
+    "Program",
     "ReplayNoise",
     "ResidualMonitor",
     "Revision",
     "RewireResult",
+    "SVIOptions",
     "SamplingConfig",
     "StateResult",
     "abduct",

@@ -19,12 +19,16 @@ this is the thesis protocol, Adam from one start through the Pyro program.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import pyro
 import torch
+from pyro.poutine.runtime import _PYRO_STACK
 from torch import Tensor
 from tqdm import tqdm
 
@@ -38,8 +42,9 @@ from inference.action_objective import (
     scales,
 )
 from inference.frozen import frozen_parameters
-from inference.handlers import Intervene, ReplayNoise
+from inference.handlers import Intervene, ProgramMessenger, ReplayNoise
 from inference.planning import SamplingConfig, plan
+from inference.program import Program, as_program, check_active_handlers
 from models.checks import (
     check_bool,
     check_callable,
@@ -52,9 +57,9 @@ from models.checks import (
     describe,
 )
 from models.variables import Role
-from models.world import WorldModel, as_values, check_action_bounds, require_world_model
+from models.world import WorldModel, as_values, check_action_bounds
 
-__all__ = ["ActionResult", "SamplingConfig", "gaussian_log_preference", "infer_action"]
+__all__ = ["ActionOptions", "ActionResult", "SamplingConfig", "gaussian_log_preference", "infer_action"]
 
 log = logging.getLogger(__name__)
 
@@ -69,8 +74,8 @@ class ActionResult:
         predicted: name -> ``(N, dim)`` forward query Phi(s, a*, u) for every variable
             (``(N, H, dim)``, the simulated trajectory, with a horizon); the model's own
             prediction, also when a risk weighs its ensemble members.
-        loss: mean over units (and refined elites) of L_act at each Adam step, before the
-            update; length ``steps`` (the refinement's steps with sampling).
+        losses: mean over units (and refined elites) of L_act at each Adam step, before the
+            update; length ``num_steps`` (the refinement's steps with sampling); ``loss`` is an alias.
         final_loss: ``(N,)`` L_act(a*) per unit, with the risk term if any.
         search_loss: mean over units of the best candidate's loss after each sampling
             iteration (empty without sampling); never increasing.
@@ -78,9 +83,25 @@ class ActionResult:
 
     actions: dict[str, Tensor]
     predicted: dict[str, Tensor]
-    loss: tuple[float, ...]
+    losses: tuple[float, ...]
     final_loss: Tensor
     search_loss: tuple[float, ...] = ()
+
+    @property
+    def loss(self) -> tuple[float, ...]:
+        """Alias of :attr:`losses`."""
+        return self.losses
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible actions, predictions and losses."""
+        return {
+            "actions": {k: v.tolist() for k, v in self.actions.items()},
+            "predicted": {k: v.tolist() for k, v in self.predicted.items()},
+            "final_loss": self.final_loss.tolist(),
+            "num_steps": len(self.losses),
+            "losses_last": self.losses[-1] if self.losses else None,
+            "search_loss": list(self.search_loss),
+        }
 
 
 def _initial(
@@ -159,37 +180,92 @@ def _check_sampling(sampling: Any) -> SamplingConfig | None:
     return sampling
 
 
+@dataclass(frozen=True)
+class ActionOptions:
+    """How :func:`infer_action` scores and searches actions.
+
+    Attributes:
+        scale: Gaussian preference scale > 0 (targets' units), scalar or one per target;
+            also the unit of the disagreement term.
+        log_preference: optional callable ``predicted -> (N,)`` log-preference replacing
+            the Gaussian one (then ``targets`` may be None). With sampling, a horizon or a
+            risk it gets values with leading candidate axes ``(..., N, dim)`` and must
+            return ``(..., N)`` (broadcast like :func:`gaussian_log_preference`).
+        lr: Adam learning rate eta_act (thesis B2: 0.05).
+        init: ``"midpoint"`` (thesis B2), ``"random"`` or name -> ``(N, dim)`` within
+            bounds (with a horizon also ``(N, H, dim)``).
+        sampling: None (gradient only) or the sizes of the sampling stage. A model with a
+            discrete site downstream of the actions gets ``SamplingConfig()`` when None:
+            the argmax of a discrete site has no gradient.
+        horizon: planning steps H >= 1 through the rollout (Alg. 4.1).
+        target_at: with a horizon, ``"final"`` or ``"every"`` step.
+        risk: None, ``"mean"`` or ``("disagreement", w)`` over ensemble members.
+    """
+
+    scale: float | Mapping[str, float] = 1.0
+    log_preference: LogPreference | None = None
+    lr: float = 0.05
+    init: str | Mapping[str, Any] = "midpoint"
+    sampling: SamplingConfig | None = None
+    horizon: int = 1
+    target_at: str = "final"
+    risk: Risk = None
+
+
+#: Keywords of the earlier signature, accepted with a DeprecationWarning.
+_DEPRECATED = ("steps", "noise", *ActionOptions.__dataclass_fields__)
+
+
+def _legacy_options(
+    options: Any, deprecated: Mapping[str, Any], num_steps: int
+) -> tuple[ActionOptions, int, Any]:
+    unknown = sorted(k for k in deprecated if k not in _DEPRECATED)
+    if unknown:
+        raise TypeError(f"infer_action() got unexpected keyword arguments {unknown}")
+    if options is not None and not isinstance(options, ActionOptions):
+        raise ValueError(f"options must be an ActionOptions or None, got {describe(options)}")
+    options = options or ActionOptions()
+    fields = {k: v for k, v in deprecated.items() if k in ActionOptions.__dataclass_fields__}
+    if deprecated:
+        warnings.warn(
+            f"infer_action({', '.join(f'{k}=' for k in deprecated)}) is deprecated: pass num_steps=, "
+            "options=ActionOptions(...) and the residuals as ReplayNoise(noise)(model)",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+    if fields:
+        options = dataclasses.replace(options, **fields)
+    return options, deprecated.get("steps", num_steps), deprecated.get("noise")
+
+
 def infer_action(
-    model: WorldModel,
+    model: Any,
     state: Mapping[str, Any] | None,
     targets: Mapping[str, Any] | None = None,
     *,
     actions: Sequence[str] | None = None,
-    log_preference: LogPreference | None = None,
-    scale: float | Mapping[str, float] = 1.0,
-    steps: int = 200,
-    lr: float = 0.05,
-    init: str | Mapping[str, Any] = "midpoint",
-    noise: Mapping[str, Any] | None = None,
-    sampling: SamplingConfig | None = None,
-    horizon: int = 1,
-    target_at: str = "final",
-    risk: Risk = None,
+    num_steps: int = 200,
+    options: ActionOptions | None = None,
     seed: int = 0,
     progress_bar: bool = False,
+    **deprecated: Any,
 ) -> ActionResult:
     """Find actions whose predicted consequences match the targets (Alg. 4.2).
 
     Without ``sampling``, ``horizon`` and ``risk`` this is the thesis protocol: projected
     Adam from ``init`` through the Pyro program under ``do(actions)`` with residuals
-    replayed. Otherwise the loss of :mod:`inference.action_objective` is evaluated with the
-    torch twins :meth:`~models.WorldModel.predict` / :meth:`~models.WorldModel.rollout` of
-    that program: with ``sampling`` a CEM / iCEM stage (:mod:`inference.planning`) starts
-    from ``init`` (one member of the first population), projected Adam refines the best
+    replayed (expected residuals u-bar, or those of a ``ReplayNoise`` the program carries).
+    Otherwise the loss of :mod:`inference.action_objective` is evaluated with the torch twins
+    :meth:`~models.WorldModel.predict` / :meth:`~models.WorldModel.rollout` of that program
+    (or, for a program with handlers, the program itself over a candidate plate): with
+    ``sampling`` a CEM / iCEM stage (:mod:`inference.planning`) starts from ``init`` (one
+    member of the first population), projected Adam refines the best
     ``sampling.refine_elites`` elites, and each unit keeps its lowest-loss candidate.
 
     Args:
-        model: the world model (fixed).
+        model: the world model (fixed), or a program made from one (e.g.
+            ``ReplayNoise(abducted)(model)`` to plan with abducted residuals, or
+            ``do(model, ...)``); handlers entered with ``with`` act too.
         state: name -> ``(N, dim)`` current state estimate s(t) (e.g. ``q_prev``), and
             any actions that are held fixed (within their bounds); None if the graph has
             no other roots. With a horizon only roots: lag-1 ones are the initial values of
@@ -197,33 +273,13 @@ def infer_action(
         targets: name -> ``(N, dim)`` desired values of non-action variables; with the
             default Gaussian preference the loss is ``sum 0.5 ((Phi - target) / scale)^2``.
         actions: action variables to optimise (default: every action not in ``state``).
-        log_preference: optional callable ``predicted -> (N,)`` log-preference replacing
-            the Gaussian one (then ``targets`` may be None). With sampling, a horizon or a
-            risk it gets values with leading candidate axes ``(..., N, dim)`` and must
-            return ``(..., N)`` (broadcast like :func:`gaussian_log_preference`).
-        scale: Gaussian preference scale > 0 (targets' units), scalar or one per target;
-            also the unit of the disagreement term.
-        steps: Adam iterations K_act (thesis B2: 200); the refinement's unless
+        num_steps: Adam iterations K_act (thesis B2: 200); the refinement's unless
             ``sampling.refine_steps`` is set.
-        lr: Adam learning rate eta_act (thesis B2: 0.05).
-        init: ``"midpoint"`` (thesis B2), ``"random"`` or name -> ``(N, dim)`` within
-            bounds (with a horizon also ``(N, H, dim)``); the start of Adam, or the initial
-            mean of the sampling stage.
-        noise: name -> ``(N, dim)`` standardised residuals u (e.g. abducted) of variables
-            that are neither given nor optimised (with a horizon also ``(N, H, dim)``, one
-            per step); default: expected residuals u-bar (Alg. 4.2).
-        sampling: None (gradient only) or the sizes of the sampling stage.
-        horizon: planning steps H >= 1; H > 1 optimises ``(N, H, dim)`` action sequences
-            through the rollout (Alg. 4.1), which feeds each step's lag-0 predictions into
-            the next step's lag-1 slots.
-        target_at: with a horizon, ``"final"`` scores the targets on the last step only,
-            ``"every"`` sums the log-preference over all H steps (the same targets each step).
-        risk: None (the model's expected prediction), ``"mean"`` (expected loss over the
-            ensemble members of ``model.predict(..., members=True)``) or
-            ``("disagreement", w)`` (loss of the members' mean plus w times their variance
-            on the target sites in ``scale`` units; w < 0 is a bonus).
+        options: :class:`ActionOptions` (preference, lr, init, sampling, horizon, risk).
         seed: seeds ``init="random"`` and the sampling stage (local generator).
         progress_bar: show a tqdm bar over the Adam steps.
+        **deprecated: ``steps`` (use ``num_steps``), ``noise`` (use ``ReplayNoise``) and
+            the fields of :class:`ActionOptions` as keywords.
 
     Returns:
         :class:`ActionResult`. After each Adam step the actions are clipped to their
@@ -235,12 +291,20 @@ def infer_action(
             :func:`models.world.as_values`), fixed actions outside their bounds, unknown or
             non-action ``actions``, a bad scale, log-preference, optimiser argument,
             sampling config, horizon, target_at or risk, non-roots in the state with a
-            horizon, or a disagreement risk without targets.
+            horizon, a disagreement risk without targets, or a horizon or risk for a
+            program with handlers.
         FloatingPointError: the final loss is NaN or inf.
     """
-    model = require_world_model(model)
+    opts, num_steps, noise = _legacy_options(options, deprecated, num_steps)
+    scale, log_preference, lr, init = opts.scale, opts.log_preference, opts.lr, opts.init
+    sampling, horizon, target_at, risk = opts.sampling, opts.horizon, opts.target_at, opts.risk
+    steps = num_steps
+    program = as_program(model)
+    model = program.world
+    check_active_handlers(program.graph)
+    plain = not program.handlers and not any(isinstance(f, ProgramMessenger) for f in _PYRO_STACK)
     graph = model.graph
-    steps = check_int("steps", steps, minimum=1)
+    steps = check_int("num_steps", steps, minimum=1)
     lr = check_float("lr", lr, minimum=0.0, min_open=True)
     seed = check_seed("seed", seed)
     progress_bar = check_bool("progress_bar", progress_bar)
@@ -282,9 +346,21 @@ def infer_action(
             f"noise names {clash}, which are given in state or optimised; residuals are for the other variables"
         )
     generator = torch.Generator().manual_seed(seed)
+    downstream = set().union(*(graph.descendants(a) for a in actions))
+    if sampling is None and downstream & set(model.discrete):
+        log.info(
+            "infer_action: discrete sites %s follow the actions; using the sampling stage",
+            sorted(downstream & set(model.discrete)),
+        )
+        sampling = SamplingConfig()
+    if not plain and (horizon > 1 or risk_kind[0] is not None):
+        raise ValueError(
+            "a horizon or a risk plans through the torch twin of a plain WorldModel; pass the model "
+            "itself (fixed values in state, residuals as noise) instead of a program with handlers"
+        )
     if sampling is None and horizon == 1 and risk_kind[0] is None:
         return _through_program(
-            model,
+            program,
             evidence,
             fixed_acts,
             actions,
@@ -309,6 +385,21 @@ def infer_action(
             )
     if risk_kind[0] == "disagreement" and not tgt:
         raise ValueError("risk ('disagreement', w) needs targets: the sites whose member spread is weighed")
+    if not plain:
+        return _sampled_program(
+            program,
+            given,
+            actions,
+            eps,
+            log_preference,
+            n,
+            init,
+            sampling,
+            steps,
+            lr,
+            generator,
+            progress_bar,
+        )
     objective = ActionObjective(
         model,
         given,
@@ -338,8 +429,57 @@ def infer_action(
     return ActionResult(acts, predicted, history, final, search)
 
 
+def _sampled_program(
+    program: Program,
+    given: Mapping[str, Tensor],
+    actions: Sequence[str],
+    eps: Mapping[str, Tensor],
+    log_preference: LogPreference,
+    n: int,
+    init: str | Mapping[str, Any],
+    sampling: SamplingConfig | None,
+    steps: int,
+    lr: float,
+    generator: torch.Generator,
+    progress_bar: bool,
+) -> ActionResult:
+    """Sampling stage and Adam through a program with handlers: candidates are a plate of the program."""
+    model = program.world
+    graph = model.graph
+    fixed_acts = {k: v for k, v in given.items() if graph[k].role is Role.ACTION}
+    evidence = {k: v for k, v in given.items() if k not in fixed_acts}
+    dims = [graph[a].dim for a in actions]
+
+    def predict(a: Tensor) -> dict[str, Tensor]:
+        r = a.shape[0]
+        parts = dict(zip(actions, torch.split(a[:, :, 0], dims, dim=-1), strict=True))
+        run = Intervene({**fixed_acts, **parts})(ReplayNoise(eps, default="expected")(program))
+        with pyro.validation_enabled(False), pyro.plate("_candidates", r, dim=-2):
+            out = run(evidence, n)
+        return {k: v.expand(r, n, v.shape[-1]) for k, v in out.items()}
+
+    def objective(a: Tensor) -> Tensor:
+        return -log_preference(predict(a))
+
+    start = _initial(model, actions, n, init, generator)
+    start_t = torch.cat(list(start.values()), -1).unsqueeze(1)
+    low = torch.cat([model.bounds(a)[0] for a in actions])
+    high = torch.cat([model.bounds(a)[1] for a in actions])
+    with frozen_parameters(model):
+        best, history, search, final = plan(
+            objective, start_t, low, high, sampling, steps, lr, generator, progress_bar
+        )
+        with torch.no_grad():
+            predicted = {k: v[0] for k, v in predict(best[None]).items()}
+    if not torch.isfinite(final).all():
+        raise FloatingPointError("action inference produced a non-finite loss; check targets and scales")
+    parts = torch.split(best[:, 0], dims, dim=-1)
+    acts = {k: v.clone() for k, v in zip(actions, parts, strict=True)}
+    return ActionResult(acts, predicted, history, final, search)
+
+
 def _through_program(
-    model: WorldModel,
+    model: Any,
     evidence: Mapping[str, Tensor],
     fixed_acts: Mapping[str, Tensor],
     actions: Sequence[str],
@@ -353,8 +493,9 @@ def _through_program(
     progress_bar: bool,
 ) -> ActionResult:
     """The thesis protocol: projected Adam from one start through the program under do(actions)."""
-    params = {k: v.requires_grad_(True) for k, v in _initial(model, actions, n, init, generator).items()}
-    bounds = {k: model.bounds(k) for k in actions}
+    world = model.world
+    params = {k: v.requires_grad_(True) for k, v in _initial(world, actions, n, init, generator).items()}
+    bounds = {k: world.bounds(k) for k in actions}
     optim = torch.optim.Adam(list(params.values()), lr=lr)
 
     def forward() -> dict[str, Tensor]:
@@ -362,7 +503,7 @@ def _through_program(
         return program(evidence, n)
 
     history: list[float] = []
-    with frozen_parameters(model):
+    with frozen_parameters(world):
         for _ in tqdm(range(steps), desc="infer_action", disable=not progress_bar, leave=False):
             optim.zero_grad()
             per_unit = -_preference(log_preference, forward(), n)

@@ -38,6 +38,7 @@ __all__ = [
     "active_subgraph",
     "context_sensitivity",
     "local_sensitivity",
+    "refuse_categorical_parents",
     "subgraph_model",
     "target_relevance",
 ]
@@ -45,8 +46,32 @@ __all__ = [
 Edge = tuple[str, str]
 
 
+def refuse_categorical_parents(model: WorldModel, what: str, names: Sequence[str] | None = None) -> None:
+    """Refuse categorical parents with K > 2: f_i reads them one-hot, so d f_i / d x_j does not exist.
+
+    A Bernoulli parent (K = 2) enters f_i as its 0/1 code, and its derivative is that of
+    the code taken as a real number.
+
+    Raises:
+        ValueError: naming the categorical parents (among ``names``, default all) and K.
+    """
+    g = model.graph
+    bad = {
+        p: k
+        for p, k in model.discrete.items()
+        if k > 2 and g.children(p) and (names is None or p in names)
+    }
+    if bad:
+        raise ValueError(
+            f"{what} differentiates the mechanisms with respect to their parents, but the categorical "
+            f"parents {bad} (name: K) enter them one-hot and have no derivative; contextualise a model "
+            "without categorical parents of more than 2 categories (or condition on them: fix them with do)"
+        )
+
+
 def _values(model: WorldModel, values: Mapping[str, Any]) -> dict[str, Tensor]:
     require_world_model(model)
+    refuse_categorical_parents(model, "contextualisation")
     vals, _ = as_values(model.graph, values, what="context", dtype=model.dtype)
     missing = [v for v in model.graph.names if v not in vals]
     if missing:
@@ -120,6 +145,7 @@ def target_relevance(
         standardise: multiply by sd(x_j) / sd(targets) over the N units.
     """
     g = require_world_model(model).graph
+    refuse_categorical_parents(model, "target relevance")
     standardise = check_bool("standardise", standardise)
     targets = check_names("targets", targets, allow_empty=False)
     for t in targets:
@@ -218,7 +244,7 @@ def _clamped_mechanism(
     g = model.graph
     full = model.mechanism(child)
     parents = g.parents(child)
-    dims = {p: g[p].dim for p in parents}
+    dims = {p: model.parent_width(p) for p in parents}  # a categorical parent is read one-hot
 
     def fn(z: Tensor) -> Tensor:
         parts, start = {}, 0
@@ -248,13 +274,15 @@ def subgraph_model(model: WorldModel, sub: ActiveSubgraph) -> WorldModel:
     foreign = [v for v in g.names if v not in model.graph or model.graph[v] != g[v]]
     if foreign:
         raise ValueError(f"sub names variables {foreign} that are not variables of the model")
+    clamped_parents = sorted({p for fixed in sub.clamped.values() for p in fixed})
+    refuse_categorical_parents(model, "clamping pruned parents at their context mean", clamped_parents)
     mechs: dict[str, Mechanism] = {}
     for c in g.non_roots:
         if c in sub.clamped:
             mechs[c] = _clamped_mechanism(model, c, g.parents(c), sub.clamped[c])
         else:
             mechs[c] = model.mechanism(c)
-    out = WorldModel(g, mechs)
+    out = WorldModel(g, mechs, discrete={k: v for k, v in model.discrete.items() if k in g})
     out.copy_root_priors_from(model)
     out.provenance = {
         **model.provenance,

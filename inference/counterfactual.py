@@ -17,27 +17,56 @@ members, ``loc = mean_k m_k``, ``scale^2 = mean_k s_k^2 + mean_k (m_k - loc)^2``
 abducted and replayed exactly as that Normal: the member index is not a latent of the
 program, and no member is picked per unit.
 
+A discrete site (:mod:`models.discrete`) is the Gumbel-max SCM ``x = argmax_k (l_k(pa) + g_k)``
+(Oberst and Sontag 2019): abduction draws its ``(N, K)`` Gumbel noise from the exact posterior
+given the observed category (the top-down construction), and prediction takes the argmax
+under the counterfactual parents. Then S draws are made even when every variable is observed,
+and ``exact`` is False.
+
+The model may be a program: ``counterfactual(do(m, {...}), ...)`` or under handlers entered
+with ``with`` (an ``Intervene`` there holds in the factual and the counterfactual world; a
+``MeasurementScale`` sets the scale of its site in both). Latent sites are read from a trace of
+the factual program. ``posterior=`` takes a :class:`inference.StateResult` of the same program
+and evidence instead of inferring one; otherwise ``guide`` picks the method
+(:func:`inference.infer_state`; ``"auto"``: the exact grid when at most 2 continuous latent
+components per unit, else the mean-field guide).
+
 K scenarios and S posterior draws run as one batch of ``K * S * N`` units, so the cost is
-linear in K and S.
+linear in K and S. A plain :class:`models.WorldModel` with no handler active takes the fast
+path: only the descendants of the intervened sites are recomputed, with the torch twin
+:meth:`models.WorldModel.predict`.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import pyro
 import torch
+from pyro import poutine
+from pyro.poutine.runtime import _PYRO_STACK
 from torch import Tensor
 
-from inference.handlers import AbductNoise, Intervene, ReplayNoise
+from inference.handlers import AbductNoise, Intervene, ProgramMessenger, ReplayNoise
 from inference.interventions import action_bounds, check_interventions
-from inference.state import StateResult, infer_state, split_actions
-from models.checks import check_float, check_int, check_keywords, check_mapping, check_seed, describe
-from models.world import WorldModel, as_values, check_action_bounds, require_world_model
+from inference.program import Program, as_program, check_active_handlers, read_sites, same_graph
+from inference.quadrature import GridOptions, check_grid
+from inference.state import GUIDES, StateResult, infer_state, split_actions
+from models.checks import (
+    check_choice,
+    check_float,
+    check_int,
+    check_keywords,
+    check_mapping,
+    check_seed,
+    describe,
+)
+from models.world import WorldModel, as_values, check_action_bounds
 
-#: Keyword arguments of :func:`inference.infer_state` that ``state_kwargs`` may set.
+#: Keyword arguments of :func:`inference.infer_state` that the deprecated ``state_kwargs`` may set.
 STATE_KWARGS = (
     "measurement_scale",
     "guide",
@@ -59,9 +88,12 @@ class CounterfactualResult:
     """Counterfactual values under each scenario.
 
     Attributes:
-        samples: name -> ``(S, K, N, dim)``; S = 1 when the evidence was complete.
-        noise: name -> ``(S, N, dim)`` abducted standardised residuals.
-        exact: True when every variable was observed (no posterior was needed).
+        samples: name -> ``(S, K, N, dim)``; S = 1 when the evidence was complete and no
+            site is discrete.
+        noise: name -> ``(S, N, dim)`` abducted standardised residuals (``(S, N, K)``
+            Gumbel noise for a discrete site).
+        exact: True when every variable was observed and none is discrete (one draw
+            answers the query).
         posterior: the state posterior used for latent variables, else None.
     """
 
@@ -80,35 +112,75 @@ class CounterfactualResult:
         if not isinstance(name, str) or name not in self.samples:
             raise ValueError(f"unknown variable {name!r}; known: {list(self.samples)}")
         level = check_float("level", level, minimum=0.0, maximum=1.0, min_open=True, max_open=True)
-        q = torch.tensor([(1 - level) / 2, (1 + level) / 2])
+        q = torch.tensor([(1 - level) / 2, (1 + level) / 2], dtype=self.samples[name].dtype)
         lo, hi = torch.quantile(self.samples[name], q, dim=0)
         return lo, hi
 
+    def probability(self, name: str, code: float) -> Tensor:
+        """``P(name' = code)`` over the draws, ``(K, N)``, for a discrete (or any) site."""
+        if not isinstance(name, str) or name not in self.samples:
+            raise ValueError(f"unknown variable {name!r}; known: {list(self.samples)}")
+        code = check_float("code", code)
+        return (self.samples[name][..., 0] == code).to(self.samples[name].dtype).mean(0)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible summary: means and 90 % intervals per scenario, unit and site."""
+        out: dict[str, Any] = {"exact": self.exact, "num_samples": next(iter(self.samples.values())).shape[0]}
+        out["mean"] = {k: v.tolist() for k, v in self.mean.items()}
+        out["interval90"] = {k: [t.tolist() for t in self.interval(k)] for k in self.samples}
+        if self.posterior is not None:
+            out["posterior"] = self.posterior.to_dict()
+        return out
+
 
 def abduct(
-    model: WorldModel, values: Mapping[str, Tensor], n: int, interventions: Mapping[str, Any] | None = None
+    model: Any,
+    values: Mapping[str, Tensor],
+    n: int,
+    interventions: Mapping[str, Any] | None = None,
+    *,
+    seed: int = 0,
 ) -> dict[str, Tensor]:
     """Standardised residuals of every site given complete ``values`` (Eq. 4.43).
 
     Args:
-        model: the program.
+        model: a WorldModel or a program made from one.
         values: name -> ``(n, dim)`` for every variable (executed actions included).
         n: number of units.
         interventions: assignments in force in the factual world (their sites get eps 0).
+        seed: seeds the Gumbel posterior draws of discrete sites (a local generator).
 
     Returns:
-        name -> ``(n, dim)``.
+        name -> ``(n, dim)`` (``(n, K)`` Gumbel noise for a discrete site).
     """
-    model = require_world_model(model)
+    program = as_program(model)
     n = check_int("n", n, minimum=1)
-    values, _ = as_values(model.graph, values, n=n, what="values", dtype=model.dtype)
+    seed = check_seed("seed", seed)
+    world = program.world
+    values, _ = as_values(program.graph, values, n=n, what="values", dtype=world.dtype)
+    world.check_codes(values, "values")
     interventions = check_interventions(
-        model.graph, check_mapping("interventions", interventions, allow_none=True), model.dtype
+        program.graph,
+        check_mapping("interventions", interventions, allow_none=True),
+        world.dtype,
+        world.discrete,
     )
-    program = Intervene(interventions)(model) if interventions else model
+    return _abduct(program, values, n, interventions, torch.Generator().manual_seed(seed))
+
+
+def _abduct(
+    program: Program,
+    values: Mapping[str, Tensor],
+    n: int,
+    interventions: Mapping[str, Any],
+    generator: torch.Generator,
+) -> dict[str, Tensor]:
+    if interventions:
+        program = Intervene(interventions)(program)
+    abduction = AbductNoise(generator)
     # Inputs were checked by ``as_values``; Pyro's per-site argument validation only adds cost.
-    with AbductNoise() as abduction, torch.no_grad(), pyro.validation_enabled(False):
-        program({k: v for k, v in values.items() if not interventions or k not in interventions}, n)
+    with torch.no_grad(), pyro.validation_enabled(False):
+        abduction(program)({k: v for k, v in values.items() if k not in interventions}, n)
     return abduction.noise
 
 
@@ -125,22 +197,43 @@ def _combine(scenarios: Sequence[Mapping[str, Any]], n: int) -> dict[str, Callab
 
         def apply(natural: Tensor) -> Tensor:
             blocks = natural.reshape(k_total, n, natural.shape[-1]).unbind(0)
-            out = []
-            for spec, block in zip(specs, blocks, strict=True):
-                if spec is None:
-                    out.append(block)
-                elif callable(spec) and not isinstance(spec, Tensor):
-                    new = spec(block)
-                    if not isinstance(new, Tensor) or new.shape != block.shape:
-                        raise ValueError(
-                            f"shift intervention on {name!r} must return a tensor of shape {tuple(block.shape)}"
-                        )
-                    if not bool(torch.isfinite(new).all()):
-                        raise ValueError(f"shift intervention on {name!r} produced NaN or inf")
-                    out.append(new)
-                else:
-                    out.append(spec.expand_as(block))
-            return torch.cat(out, 0)
+            return torch.cat(
+                [_apply(name, spec, block) for spec, block in zip(specs, blocks, strict=True)], 0
+            )
+
+        return apply
+
+    return {name: site_fn(name) for name in names}
+
+
+def _apply(name: str, spec: Any, block: Tensor) -> Tensor:
+    """One scenario's assignment on its block of the batch (``None``: no intervention)."""
+    if spec is None:
+        return block
+    if callable(spec) and not isinstance(spec, Tensor):
+        new = spec(block)
+        if not isinstance(new, Tensor) or new.shape != block.shape:
+            raise ValueError(
+                f"shift intervention on {name!r} must return a tensor of shape {tuple(block.shape)}"
+            )
+        if not bool(torch.isfinite(new).all()):
+            raise ValueError(f"shift intervention on {name!r} produced NaN or inf")
+        return new
+    return spec.expand_as(block)
+
+
+def _stacked(scenarios: Sequence[Mapping[str, Any]]) -> dict[str, Callable[[Tensor], Tensor]]:
+    """One callable per intervened site acting on a ``(K, S, N, dim)`` batch (scenario axis first)."""
+    names = sorted({k for s in scenarios for k in s})
+
+    def site_fn(name: str) -> Callable[[Tensor], Tensor]:
+        specs = [s.get(name) for s in scenarios]
+
+        def apply(natural: Tensor) -> Tensor:
+            while natural.ndim < 4:  # (N, dim) or (S, N, dim) of a site the plates broadcast later
+                natural = natural.unsqueeze(0)
+            blocks = natural.expand(len(specs), *natural.shape[1:]).unbind(0)
+            return torch.stack([_apply(name, spec, block) for spec, block in zip(specs, blocks, strict=True)])
 
         return apply
 
@@ -169,41 +262,7 @@ def _replay_descendants(
     return model.predict(given, {k: noise[k] for k in affected})
 
 
-def counterfactual(
-    model: WorldModel,
-    factual: Mapping[str, Any],
-    interventions: Mapping[str, Any] | Sequence[Mapping[str, Any]],
-    *,
-    num_samples: int = 1000,
-    seed: int = 0,
-    state_kwargs: Mapping[str, Any] | None = None,
-) -> CounterfactualResult:
-    """What would have happened to each unit under other interventions.
-
-    Args:
-        model: the world model.
-        factual: name -> ``(N, dim)`` evidence from the factual world. Executed actions
-            are part of it and are treated as interventions of that world.
-        interventions: one scenario (a mapping name -> value, ``(N, dim)`` tensor or
-            shift callable) or a sequence of K scenarios evaluated in one batch.
-        num_samples: posterior draws S when some variables are latent.
-        seed: seed for the state posterior (forked RNG; the caller's RNG states are untouched).
-        state_kwargs: extra arguments for :func:`inference.infer_state` (keys in
-            :data:`STATE_KWARGS`).
-
-    Returns:
-        :class:`CounterfactualResult` with samples of shape ``(S, K, N, dim)``.
-
-    Raises:
-        ValueError: bad factual values (see :func:`models.world.as_values`), executed
-            actions outside their bounds, bad scenarios (see :func:`inference.do`), or bad
-            ``num_samples``, ``seed`` or ``state_kwargs``.
-    """
-    model = require_world_model(model)
-    graph = model.graph
-    num_samples = check_int("num_samples", num_samples, minimum=1)
-    seed = check_seed("seed", seed)
-    state_kwargs = check_keywords("state_kwargs", state_kwargs, STATE_KWARGS)
+def _scenarios(program: Program, interventions: Any, n: int) -> list[dict[str, Any]]:
     if isinstance(interventions, Mapping):
         scenarios = [interventions]
     elif isinstance(interventions, (list, tuple)):
@@ -217,43 +276,192 @@ def counterfactual(
     for k, sc in enumerate(scenarios):
         if not isinstance(sc, Mapping):
             raise ValueError(f"scenario {k} must be a mapping name -> value, got {describe(sc)}")
-    scenarios = [check_interventions(graph, s, model.dtype) for s in scenarios]
-    obs, n = as_values(graph, factual, what="factual", dtype=model.dtype)
-    if n is None:
-        raise ValueError("factual evidence is empty")
-    check_action_bounds(graph, obs, "factual")
-    for sc in scenarios:
+    world = program.world
+    out = [check_interventions(program.graph, s, world.dtype, world.discrete) for s in scenarios]
+    for sc in out:
         for name, spec in sc.items():
             if isinstance(spec, Tensor) and spec.ndim == 2 and spec.shape[0] != n:
                 raise ValueError(
                     f"intervention on {name!r} has {spec.shape[0]} rows, expected {n} (one per unit)"
                 )
-    evidence, acts = split_actions(model, obs)
-    latent = [v for v in graph.names if v not in obs]
-    posterior = None
-    if latent:
-        kwargs = {"num_samples": num_samples, "seed": seed, **state_kwargs}
-        posterior = infer_state(model, obs, **kwargs)
-        s = next(iter(posterior.samples.values())).shape[0]
-        world = {k: v.expand(s, *v.shape).reshape(s * n, -1) for k, v in evidence.items()}
-        world.update({k: posterior.samples[k].reshape(s * n, -1) for k in latent})
+    return out
+
+
+def _handlers_active() -> bool:
+    return any(isinstance(f, ProgramMessenger) for f in _PYRO_STACK)
+
+
+def _posterior(
+    program: Program,
+    obs: Mapping[str, Tensor],
+    evidence: Mapping[str, Tensor],
+    n: int,
+    latent: tuple[str, ...],
+    posterior: Any,
+    guide: str,
+    num_samples: int,
+    options: Any,
+    seed: int,
+    legacy: Mapping[str, Any],
+) -> StateResult:
+    """The given posterior (checked against the program and evidence) or a new one."""
+    if posterior is not None:
+        if not isinstance(posterior, StateResult):
+            raise ValueError(f"posterior must be a StateResult from infer_state, got {describe(posterior)}")
+        same_graph(program.graph, posterior.graph, "posterior")
+        if set(posterior.latent) != set(latent):
+            raise ValueError(
+                f"posterior is over {sorted(posterior.latent)}, but the latent sites of this program and "
+                f"evidence are {sorted(latent)}; infer it from the same program and factual evidence"
+            )
+        for k, v in evidence.items():
+            given = posterior.evidence.get(k)
+            if given is None or given.shape != v.shape or not torch.equal(given.to(v.dtype), v):
+                raise ValueError(
+                    f"posterior was inferred from other evidence for {k!r}; pass the factual values it was "
+                    "inferred from (no evidence counted twice: the posterior comes from the factual world)"
+                )
+        return posterior
+    if guide == "auto":
+        with torch.random.fork_rng():
+            torch.manual_seed(seed)
+            sites = read_sites(program, evidence, n)
+        try:
+            check_grid(sites, options if isinstance(options, GridOptions) else GridOptions())
+            guide = "grid"
+        except ValueError:
+            guide = "normal"
+    kwargs = {"guide": guide, "num_samples": num_samples, "seed": seed, "options": options, **legacy}
+    if options is not None and not isinstance(options, GUIDES[guide]):
+        kwargs.pop("options")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # the caller was warned once already
+        return infer_state(program, obs, **kwargs)
+
+
+def counterfactual(
+    model: Any,
+    factual: Mapping[str, Any],
+    interventions: Mapping[str, Any] | Sequence[Mapping[str, Any]],
+    *,
+    posterior: StateResult | None = None,
+    guide: str = "auto",
+    num_samples: int = 1000,
+    options: Any = None,
+    seed: int = 0,
+    **deprecated: Any,
+) -> CounterfactualResult:
+    """What would have happened to each unit under other interventions.
+
+    Args:
+        model: a WorldModel or a program made from one; handlers entered with ``with``
+            act in both worlds.
+        factual: name -> ``(N, dim)`` evidence from the factual world. Executed actions
+            are part of it and are treated as interventions of that world.
+        interventions: one scenario (a mapping name -> value, ``(N, dim)`` tensor or
+            shift callable) or a sequence of K scenarios evaluated in one batch.
+        posterior: a :class:`inference.StateResult` of the same program and factual
+            evidence to use for the latent sites (else one is inferred).
+        guide: the method when a posterior is inferred: ``"auto"`` or a key of
+            :data:`inference.state.GUIDES`.
+        num_samples: draws S (posterior draws, and Gumbel posterior draws of discrete sites).
+        options: the options of ``guide`` (see :func:`inference.infer_state`).
+        seed: seeds the posterior and the Gumbel draws (local generators, forked RNG).
+        **deprecated: ``state_kwargs=`` (keys in :data:`STATE_KWARGS`), replaced by
+            ``posterior=infer_state(...)``.
+
+    Returns:
+        :class:`CounterfactualResult` with samples of shape ``(S, K, N, dim)``.
+
+    Raises:
+        ValueError: a model that is not a WorldModel or program, bad factual values (see
+            :func:`models.world.as_values`; category codes out of range), executed actions
+            outside their bounds, bad scenarios (see :func:`inference.do`), a posterior of
+            another graph, latent sites or evidence, an unknown guide, or bad
+            ``num_samples``, ``seed`` or ``state_kwargs``.
+    """
+    program = as_program(model)
+    graph, world = program.graph, program.world
+    num_samples = check_int("num_samples", num_samples, minimum=1)
+    seed = check_seed("seed", seed)
+    guide = check_choice("guide", guide, ["auto", *sorted(GUIDES)])
+    unknown = sorted(k for k in deprecated if k != "state_kwargs")
+    if unknown:
+        raise TypeError(f"counterfactual() got unexpected keyword arguments {unknown}")
+    legacy = check_keywords("state_kwargs", deprecated.get("state_kwargs"), STATE_KWARGS)
+    if "state_kwargs" in deprecated:
+        warnings.warn(
+            "counterfactual(state_kwargs=) is deprecated: pass posterior=infer_state(program, factual, ...)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+    num_samples = legacy.pop("num_samples", num_samples)
+    seed = legacy.pop("seed", seed)
+    guide = legacy.pop("guide", "normal" if legacy and guide == "auto" else guide)
+    obs, n = as_values(graph, factual, what="factual", dtype=world.dtype)
+    if n is None:
+        raise ValueError("factual evidence is empty")
+    check_action_bounds(graph, obs, "factual")
+    world.check_codes(obs, "factual")
+    scenarios = _scenarios(program, interventions, n)
+    check_active_handlers(graph)
+    evidence, acts = split_actions(program, obs)
+    plain = not program.handlers and not _handlers_active() and not legacy.get("measurement_scale")
+    factual_program = Intervene(acts)(program) if acts else program
+    if plain:  # nothing can change the roles of the sites: they are the graph's
+        latent = tuple(v for v in graph.topological_order() if v not in obs)
     else:
-        s = 1
-        world = dict(evidence)
+        with torch.random.fork_rng():
+            torch.manual_seed(seed)
+            latent = read_sites(factual_program, evidence, n).latent
+    state = None
+    if latent or posterior is not None:
+        state = _posterior(
+            program, obs, evidence, n, latent, posterior, guide, num_samples, options, seed, legacy
+        )
+    discrete = bool(world.discrete)
+    s = state.num_samples if state is not None else (num_samples if discrete else 1)
+    generator = torch.Generator().manual_seed(seed)
+    if plain:  # draws only from the local generator
+        samples, noise = _fast(world, obs, evidence, acts, state, latent, scenarios, s, n, generator)
+    else:
+        with torch.random.fork_rng():  # nothing is drawn from it, but a handler might: keep it as it was
+            torch.manual_seed(seed)
+            samples, noise = _general(program, evidence, acts, state, latent, scenarios, s, n, generator)
+    return CounterfactualResult(samples, noise, exact=not latent and not discrete, posterior=state)
+
+
+def _fast(
+    model: WorldModel,
+    obs: Mapping[str, Tensor],
+    evidence: Mapping[str, Tensor],
+    acts: Mapping[str, Tensor],
+    state: StateResult | None,
+    latent: tuple[str, ...],
+    scenarios: list[dict[str, Any]],
+    s: int,
+    n: int,
+    generator: torch.Generator,
+) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
+    """A plain model: ``S * N`` rows, only the descendants of the intervened sites recomputed."""
+    graph = model.graph
+    world = {k: v.expand(s, *v.shape).reshape(s * n, -1) for k, v in evidence.items()}
+    if state is not None:
+        world.update({k: state.samples[k].reshape(s * n, -1) for k in latent})
     factual_acts = {k: v.expand(s, *v.shape).reshape(s * n, -1) for k, v in acts.items()}
-    noise = abduct(model, world, s * n, factual_acts)
+    noise = _abduct(Program(model), {**world, **factual_acts}, s * n, factual_acts, generator)
     changed = {k for sc in scenarios for k in sc}
     # Executed actions not re-set by a scenario keep their factual values; per-unit
     # values are tiled over the S posterior draws.
     k_total = len(scenarios)
-    scenarios = [
+    tiled_sc = [
         {
             **factual_acts,
             **{k: (v.repeat(s, 1) if isinstance(v, Tensor) and v.ndim == 2 else v) for k, v in sc.items()},
         }
         for sc in scenarios
     ]
-    assign = _combine(scenarios, s * n)
+    assign = _combine(tiled_sc, s * n)
     tiled = {k: v.repeat(k_total, 1) for k, v in noise.items()}
     affected = set().union(*(graph.descendants(k) for k in changed))
     if affected & changed:
@@ -270,4 +478,45 @@ def counterfactual(
         k: v.reshape(k_total, s, n, v.shape[-1]).transpose(0, 1).contiguous() for k, v in values.items()
     }
     noise_out = {k: v.reshape(s, n, v.shape[-1]) for k, v in noise.items()}
-    return CounterfactualResult(samples, noise_out, exact=not latent, posterior=posterior)
+    return samples, noise_out
+
+
+def _general(
+    program: Program,
+    evidence: Mapping[str, Tensor],
+    acts: Mapping[str, Tensor],
+    state: StateResult | None,
+    latent: tuple[str, ...],
+    scenarios: list[dict[str, Any]],
+    s: int,
+    n: int,
+    generator: torch.Generator,
+) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
+    """Any program: the draws and the scenarios are plates of the program's batch."""
+    graph = program.graph
+    factual = Intervene(acts)(program) if acts else program
+    draws = {k: state.samples[k] for k in latent} if state is not None else {}
+    abduction = AbductNoise(generator)
+    with torch.no_grad(), pyro.validation_enabled(False), pyro.plate("_draws", s, dim=-2):
+        poutine.condition(abduction(factual), data=draws)(evidence, n)
+    k_total = len(scenarios)
+    noise = {}
+    for name, eps in abduction.noise.items():
+        eps = eps.expand(s, n, eps.shape[-1])
+        noise[name] = eps
+    replay = {k: v.expand(k_total, *v.shape) for k, v in noise.items() if k not in acts}
+    assign = _stacked([{**acts, **sc} for sc in scenarios])
+    cf = Intervene(assign, bounds=action_bounds(graph, assign))(
+        ReplayNoise(replay, default="expected")(program)
+    )
+    with (
+        torch.no_grad(),
+        pyro.validation_enabled(False),
+        pyro.plate("_scenarios", k_total, dim=-3),
+        pyro.plate("_draws", s, dim=-2),
+    ):
+        values = cf(None, n)
+    samples = {
+        k: v.expand(k_total, s, n, v.shape[-1]).transpose(0, 1).contiguous() for k, v in values.items()
+    }
+    return samples, noise

@@ -56,6 +56,24 @@ def _grid(name: str, value: float | Sequence[float]) -> tuple[float, ...]:
     return tuple(check_float(f"{name}[{k}]", v, minimum=0.0, min_open=True) for k, v in enumerate(value))
 
 
+def _ridge(g: Tensor, rhs: Tensor, lams: Tensor, eye: Tensor) -> Tensor:
+    """``beta_r = (G + lam_r I)^-1 rhs`` for every penalty: ``(C, F, R, Dc)``.
+
+    Batched Cholesky factorisations; an eigendecomposition of G (eigenvalues clamped at 0)
+    when one of them fails in floating point.
+    """
+    c, f, dc = rhs.shape
+    r = lams.shape[0]
+    chol, info = torch.linalg.cholesky_ex(g[None] + lams[:, :, None, None] * eye)  # (R, C, F, F)
+    if bool(info.any()):
+        evals, evecs = torch.linalg.eigh(g)  # (C, F), (C, F, F)
+        proj = evecs.transpose(1, 2) @ rhs  # (C, F, Dc)
+        scaled = proj[:, :, None, :] / (evals.clamp_min(0)[:, :, None, None] + lams)  # (C, F, R, Dc)
+        return (evecs @ scaled.reshape(c, f, -1)).reshape(c, f, r, dc)
+    beta = torch.cholesky_solve(rhs.expand(r, c, f, dc), chol)  # (R, C, F, Dc)
+    return beta.permute(1, 2, 0, 3)
+
+
 class CrossFitScorer:
     """Batched cross-fitted random-feature ridge scores.
 
@@ -97,65 +115,102 @@ class CrossFitScorer:
         self.omega = torch.randn(d, features, generator=gen, dtype=torch.float64) / scale
         self.phase = 2 * math.pi * torch.rand(features, generator=gen, dtype=torch.float64)
         self.calls = 0
+        self._layouts: dict[str, tuple[Tensor, Tensor, list[int]]] = {}
 
-    def _design(self, rows: Tensor, parent_sets: Sequence[Sequence[str]], length: float) -> Tensor:
-        """``(C, n_i, F)`` features of the candidate sets (all of the same total dim)."""
+    def _layout(self, child: str) -> tuple[Tensor, Tensor, list[int]]:
+        """The child's evidence rows grouped by fold: ``(x rows, inverse order, fold sizes)``, cached."""
+        cached = self._layouts.get(child)
+        if cached is None:
+            rows = self.data.rows[child]
+            fold = self.fold[rows]
+            order = torch.argsort(fold, stable=True)
+            x = self.data.x[rows][order]
+            sizes = torch.bincount(fold, minlength=self.folds).tolist()
+            cached = (x, torch.argsort(order), sizes)
+            self._layouts[child] = cached
+        return cached
+
+    def _design(self, x: Tensor, parent_sets: Sequence[Sequence[str]], length: float, child: str) -> Tensor:
+        """``(C, n_i, 1 + F + Dc)`` rows ``[1, phi(x_P), y]`` of the candidate sets (all of one total dim).
+
+        The constant and the child's columns ride along so that one batched Gram matrix per
+        fold holds every sufficient statistic of the ridge fit.
+        """
         cols = [self.data.columns(p) for p in parent_sets]
         p = len(cols[0])
         if any(len(c) != p for c in cols):
             raise ValueError("candidate parent sets in one batch must have the same total dim")
-        n_i = int(rows.sum())
+        n_i = x.shape[0]
+        y = x[:, self.data.slices[child]]
+        f = p + (self.features if p else 0)
+        out = torch.empty(len(cols), n_i, 1 + f + y.shape[1], dtype=torch.float64)
+        out[..., 0] = 1.0
+        out[..., 1 + f :] = y
         if p == 0:
-            return torch.zeros(len(cols), n_i, 0, dtype=torch.float64)
+            return out
         idx = torch.tensor(cols)  # (C, p)
-        z = self.data.x[rows][:, idx].permute(1, 0, 2)  # (C, n_i, p)
-        if self.features == 0:
-            return z
-        w = self.omega[idx] / (length * math.sqrt(p))  # (C, p, M)
-        rff = math.sqrt(2.0 / self.features) * torch.cos(z @ w + self.phase)
-        return torch.cat([z, rff], -1)
+        z = x[:, idx].permute(1, 0, 2)  # (C, n_i, p)
+        out[..., 1 : 1 + p] = z
+        if self.features:
+            w = self.omega[idx] / (length * math.sqrt(p))  # (C, p, M)
+            rff = out[..., 1 + p : 1 + f]
+            torch.baddbmm(self.phase, z, w, out=rff)
+            rff.cos_().mul_(math.sqrt(2.0 / self.features))
+        return out
 
     def score(self, child: str, parent_sets: Sequence[Sequence[str]]) -> Tensor:
         """S_i(P) in nats for each candidate set: ``(C,)`` float64."""
         return self.residuals(child, parent_sets)[1]
 
     def residuals(self, child: str, parent_sets: Sequence[Sequence[str]]) -> tuple[Tensor, Tensor]:
-        """Out-of-fold residuals ``(C, n_i, dim)`` and scores ``(C,)`` of the candidate sets."""
+        """Out-of-fold residuals ``(C, n_i, dim)`` and scores ``(C,)`` of the candidate sets.
+
+        Each fold's ridge fit comes from sufficient statistics: one batched Gram matrix of
+        ``[1, Phi, y]`` per fold, a fold's training statistics are the total minus its own,
+        centred in closed form, and one eigendecomposition per fold solves the ridge systems
+        of every penalty.
+        """
         if not parent_sets:
             raise ValueError("give at least one candidate parent set")
         self.calls += len(parent_sets)
-        rows = self.data.rows[child]
-        y = self.data.x[rows][:, self.data.slices[child]]  # (n_i, Dc)
-        fold = self.fold[rows]
-        c, n_i = len(parent_sets), int(rows.sum())
-        lams = torch.tensor(self.ridge, dtype=torch.float64)
+        x, inverse, sizes = self._layout(child)
+        if min(sizes) < 1 or x.shape[0] - max(sizes) < 2:
+            small = next(k for k, s in enumerate(sizes) if s < 1 or x.shape[0] - s < 2)
+            raise ValueError(f"fold {small} of {child!r} is too small; give more rows or fewer folds")
+        y = x[:, self.data.slices[child]]  # (n_i, Dc)
+        c, n_i, dc = len(parent_sets), x.shape[0], y.shape[1]
+        bounds = [0, *torch.tensor(sizes).cumsum(0).tolist()]
+        blocks = [slice(bounds[k], bounds[k + 1]) for k in range(self.folds)]
+        lams = torch.tensor(self.ridge, dtype=torch.float64)[:, None]  # (R, 1)
         best_err = torch.full((c,), math.inf, dtype=torch.float64)
-        best = torch.empty(c, n_i, y.shape[1], dtype=torch.float64)
+        best = torch.empty(c, n_i, dc, dtype=torch.float64)
         for length in self.length if self.data.columns(parent_sets[0]) and self.features else self.length[:1]:
-            phi = self._design(rows, parent_sets, length)  # (C, n_i, F)
-            resid = torch.empty(len(lams), c, n_i, y.shape[1], dtype=torch.float64)
-            for k in range(self.folds):
-                tr, te = fold != k, fold == k
-                if int(tr.sum()) < 2 or int(te.sum()) < 1:
-                    raise ValueError(f"fold {k} of {child!r} is too small; give more rows or fewer folds")
-                y_mean = y[tr].mean(0)
-                if phi.shape[-1] == 0:
-                    resid[:, :, te] = y[te] - y_mean
+            aug = self._design(x, parent_sets, length, child)  # (C, n_i, 1 + F + Dc)
+            f = aug.shape[-1] - 1 - dc
+            phi = aug[..., 1 : 1 + f]
+            resid = torch.empty(len(self.ridge), c, n_i, dc, dtype=torch.float64)
+            eye = torch.eye(f, dtype=torch.float64)
+            gram = [aug[:, b].transpose(1, 2) @ aug[:, b] for b in blocks]  # (C, A, A) sums per fold
+            total = sum(gram)
+            for k, b in enumerate(blocks):
+                stats = total - gram[k]  # training rows of fold k: [[n, s^T, t^T], [s, S, T], ...]
+                n_tr = n_i - sizes[k]
+                y_mean = stats[:, 0, 1 + f :] / n_tr  # (C, Dc)
+                if not f:
+                    resid[:, :, b] = y[b] - y_mean[:, None, :]
                     continue
-                ptr, pte = phi[:, tr], phi[:, te]
-                p_mean = ptr.mean(1, keepdim=True)
-                ptr, pte = ptr - p_mean, pte - p_mean
-                evals, evecs = torch.linalg.eigh(ptr.transpose(1, 2) @ ptr)  # (C, F), (C, F, F)
-                proj = evecs.transpose(1, 2) @ (ptr.transpose(1, 2) @ (y[tr] - y_mean))  # (C, F, Dc)
-                test = pte @ evecs  # (C, n_te, F)
-                for r, lam in enumerate(lams):
-                    beta = proj / (evals.clamp_min(0) + lam)[..., None]
-                    resid[r, :, te] = (y[te] - y_mean) - test @ beta
+                m = stats[:, 0, 1 : 1 + f] / n_tr  # (C, F)
+                g = stats[:, 1 : 1 + f, 1 : 1 + f] - n_tr * m[:, :, None] * m[:, None, :]
+                rhs = stats[:, 1 : 1 + f, 1 + f :] - n_tr * m[:, :, None] * y_mean[:, None, :]  # (C, F, Dc)
+                beta = _ridge(g, rhs, lams, eye)  # (C, F, R, Dc)
+                offset = y_mean[:, None, :] - torch.einsum("cf,cfrd->crd", m, beta)  # (C, R, Dc)
+                fitted = (phi[:, b] @ beta.reshape(c, f, -1)).reshape(c, -1, len(self.ridge), dc)
+                resid[:, :, b] = (y[b][None, :, None, :] - offset[:, None] - fitted).permute(2, 0, 1, 3)
             err, pick = resid.pow(2).mean((2, 3)).min(0)  # (C,): best ridge per candidate
             better = err < best_err
             best_err = torch.where(better, err, best_err)
             best[better] = resid[pick, torch.arange(c)][better]
-        resid = best
+        resid = best[:, inverse]
         var = resid.pow(2).mean(1).clamp_min(self.floor)  # (C, Dc)
         score = -0.5 * n_i * (torch.log(2 * math.pi * var) + 1.0).sum(-1)
         return resid, score

@@ -29,20 +29,37 @@ its removal under even prior odds, judged on held-out rows.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
+import warnings
+from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
 from inference.admissible import StructureData, admissible_parents, as_variables
 from inference.crossfit import RepeatedScorer
+from inference.equivalence import CPDAG, compare_edges, cpdag
 from inference.search import Dag, LocalScores, hill_climb
-from models.checks import check_choice, check_edges, check_float, check_int, check_keywords, check_seed
+from models.checks import (
+    check_bool,
+    check_choice,
+    check_edges,
+    check_float,
+    check_int,
+    check_keywords,
+    check_seed,
+)
 from models.graph import CausalGraph
+from models.tables import as_table, is_table
 
-__all__ = ["DiscoveryResult", "discover", "shd", "sigmoid"]
+__all__ = ["DiscoveryOptions", "DiscoveryResult", "discover", "shd", "sigmoid"]
 
 #: Keyword arguments of :func:`inference.gated.select_parents` that ``gated`` may set.
 GATED_KWARGS = ("penalties", "hidden", "steps", "lr", "val_fraction")
@@ -53,11 +70,78 @@ SPARSIFIERS = ("none", "gated")
 
 
 @dataclass(frozen=True)
+class DiscoveryOptions:
+    """Search and scoring settings of :func:`discover`.
+
+    Attributes:
+        min_gain: smallest held-out gain (nats) for the search to add an edge.
+        prune_nats: edges with a smaller held-out log-likelihood ratio are removed (<= min_gain).
+        min_reverse: smallest held-out gain (nats) for the search to reverse an edge.
+        max_parents: optional cap on |pa_i| during the search.
+        max_moves: cap on the moves of each search phase.
+        sparsify: ``"none"`` or ``"gated"`` (group-lasso MLP selection from all admissible
+            parents consistent with the search order).
+        features: random Fourier features M of the held-out scorer (:class:`CrossFitScorer`).
+        ridge: ridge penalties on the feature weights to choose from.
+        folds: cross-fitting folds K >= 2.
+        length: RBF length scale(s) per sqrt(|P|) to choose from, in standard deviations.
+        floor: smallest residual variance, in standardised units.
+        repeats: average the score over this many fold splits and feature draws
+            (:class:`RepeatedScorer`); costs ``repeats`` times as much.
+        gated: keyword arguments for :func:`inference.gated.select_parents` (keys in
+            :data:`GATED_KWARGS`).
+        bootstrap: number B of random subsamples (without replacement) the whole search is
+            repeated on to measure edge stability; 0 for none. Costs B more searches.
+        subsample: fraction of the rows in each subsample, in (0, 1).
+    """
+
+    min_gain: float = 10.0
+    prune_nats: float = 5.0
+    min_reverse: float = 1.0
+    max_parents: int | None = None
+    max_moves: int = 10_000
+    sparsify: str = "none"
+    features: int = 64
+    ridge: float | Sequence[float] = (1e-3, 1e-2, 1e-1, 1.0)
+    folds: int = 2
+    length: float | Sequence[float] = (0.7, 2.0)
+    floor: float = 1e-6
+    repeats: int = 1
+    gated: Mapping[str, Any] | None = None
+    bootstrap: int = 0
+    subsample: float = 0.8
+
+    def __post_init__(self) -> None:
+        check_choice("sparsify", self.sparsify, SPARSIFIERS)
+        min_gain = check_float("min_gain", self.min_gain)
+        prune_nats = check_float("prune_nats", self.prune_nats)
+        check_float("min_reverse", self.min_reverse)
+        if not prune_nats <= min_gain:
+            raise ValueError(f"prune_nats ({prune_nats}) must be <= min_gain ({min_gain})")
+        if self.max_parents is not None:
+            check_int("max_parents", self.max_parents, minimum=1)
+        check_int("max_moves", self.max_moves, minimum=1)
+        check_int("repeats", self.repeats, minimum=1)
+        check_keywords("gated", self.gated, GATED_KWARGS)
+        check_int("bootstrap", self.bootstrap, minimum=0)
+        check_float("subsample", self.subsample, minimum=0.0, maximum=1.0, min_open=True, max_open=True)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible fields."""
+        out = dict(self.__dict__)
+        out["ridge"] = list(self.ridge) if isinstance(self.ridge, Sequence) else self.ridge
+        out["length"] = list(self.length) if isinstance(self.length, Sequence) else self.length
+        out["gated"] = dict(self.gated) if self.gated else None
+        return out
+
+
+@dataclass(frozen=True)
 class DiscoveryResult:
     """A learnt graph and its evidence.
 
     Attributes:
-        graph: the learnt :class:`CausalGraph`; every edge carries a confidence in (0.5, 1].
+        graph: the learnt :class:`CausalGraph`; every edge carries a confidence in (0.5, 1]:
+            sigmoid of its held-out log-likelihood ratio.
         log_ratio: edge -> held-out log-likelihood ratio Delta_ji (nats) against removing it.
         order: the topological order found by the search.
         history: the search moves, ``(move, parent, child, gain in nats)`` in the order
@@ -65,6 +149,14 @@ class DiscoveryResult:
         score: held-out log-likelihood of the final graph, nats (sum over variables).
         evaluations: candidate parent sets scored.
         seconds: wall time.
+        settings: the options and the intervened rows.
+        cpdag: the Markov equivalence class of :attr:`graph` under the background knowledge
+            (:func:`inference.equivalence.cpdag`): the edges the data cannot orient are undirected.
+        stability: ``(parent, child)`` -> fraction of the ``bootstrap`` subsamples whose
+            learnt graph has that directed edge (every edge found at least once); empty
+            without ``bootstrap``.
+        adjacency_stability: ``(a, b)`` (declaration order) -> fraction of subsamples with
+            an edge between a and b either way.
     """
 
     graph: CausalGraph
@@ -75,6 +167,9 @@ class DiscoveryResult:
     evaluations: int
     seconds: float
     settings: dict[str, Any] = field(default_factory=dict)
+    cpdag: CPDAG | None = None
+    stability: dict[tuple[str, str], float] = field(default_factory=dict)
+    adjacency_stability: dict[tuple[str, str], float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-compatible summary (graph JSON included)."""
@@ -86,9 +181,13 @@ class DiscoveryResult:
                     "child": c,
                     "confidence": self.graph.confidence[p, c],
                     "log_ratio": self.log_ratio[p, c],
+                    "stability": self.stability.get((p, c)),
                 }
                 for p, c in self.graph.edges
             ],
+            "cpdag": None if self.cpdag is None else self.cpdag.to_dict(),
+            "stability": [[p, c, v] for (p, c), v in self.stability.items()],
+            "adjacency_stability": [[a, b, v] for (a, b), v in self.adjacency_stability.items()],
             "order": list(self.order),
             "history": [list(h) for h in self.history],
             "score": self.score,
@@ -98,19 +197,29 @@ class DiscoveryResult:
         }
 
 
-def shd(
-    learnt: CausalGraph | Iterable[tuple[str, str]], truth: CausalGraph | Iterable[tuple[str, str]]
-) -> int:
-    """Structural Hamming distance: missing + extra edges, a reversed edge counting once.
+def shd(learnt: Any, truth: Any) -> int:
+    """Structural Hamming distance (:mod:`inference.equivalence` documents the counting).
+
+    DAG against DAG: missing + extra edges, a reversed edge counting once. When either side
+    is a :class:`inference.equivalence.CPDAG`, every pair whose state (absent, either
+    direction, undirected) differs counts 1, so an undirected edge against a directed one
+    counts 1. A reference given as ``(parent, child)`` pairs may be cyclic; a reference
+    2-cycle is matched by a learnt edge either way (:func:`inference.equivalence.compare_edges`).
 
     Args:
-        learnt: a graph or a sequence of ``(parent, child)`` name pairs.
-        truth: the reference graph, in the same forms.
+        learnt: a graph, a CPDAG or a sequence of ``(parent, child)`` name pairs.
+        truth: the reference, in the same forms.
     """
-    a = set(learnt.edges if isinstance(learnt, CausalGraph) else check_edges("learnt", learnt))
-    b = set(truth.edges if isinstance(truth, CausalGraph) else check_edges("truth", truth))
-    reversed_ = {(p, c) for p, c in a - b if (c, p) in b}
-    return len(a - b) + len(b - a) - len(reversed_)
+    if isinstance(learnt, CPDAG) or isinstance(truth, CPDAG):
+        a = learnt.states() if isinstance(learnt, CPDAG) else _states(learnt, "learnt")
+        b = truth.states() if isinstance(truth, CPDAG) else _states(truth, "truth")
+        return sum(a.get(k) != b.get(k) for k in set(a) | set(b))
+    return compare_edges(learnt, truth).shd
+
+
+def _states(graph: Any, what: str) -> dict[frozenset[str], Any]:
+    edges = graph.edges if isinstance(graph, CausalGraph) else check_edges(what, graph)
+    return {frozenset(e): tuple(e) for e in edges}
 
 
 def _prune(
@@ -151,91 +260,65 @@ def sigmoid(x: float) -> float:
     return e / (1.0 + e)
 
 
-def discover(
-    variables: CausalGraph | Sequence[Any],
-    data: Mapping[str, Any],
-    *,
-    intervened: Mapping[str, Any] | None = None,
-    tiers: Sequence[Sequence[str]] | None = None,
-    forbidden: Iterable[tuple[str, str]] = (),
-    required: Iterable[tuple[str, str]] = (),
-    min_gain: float = 10.0,
-    prune_nats: float = 5.0,
-    min_reverse: float = 1.0,
-    max_parents: int | None = None,
-    max_moves: int = 10_000,
-    sparsify: str = "none",
-    features: int = 64,
-    ridge: float | Sequence[float] = (1e-3, 1e-2, 1e-1, 1.0),
-    folds: int = 2,
-    length: float | Sequence[float] = (0.7, 2.0),
-    floor: float = 1e-6,
-    repeats: int = 1,
-    gated: Mapping[str, Any] | None = None,
-    seed: int = 0,
-) -> DiscoveryResult:
-    """Learn the parent sets of the world model from data.
+_DEPRECATED = tuple(f for f in DiscoveryOptions.__dataclass_fields__ if f not in ("bootstrap", "subsample"))
 
-    Args:
-        variables: a :class:`CausalGraph` (its edges are ignored) or a list of ``Variable``.
-        data: name -> ``(N, dim)`` values of every variable; each column is standardised
-            on its non-intervened rows before anything else.
-        intervened: name -> ``(N,)`` bool, True where the variable was set by ``do``;
-            those rows do not enter that variable's mechanism likelihood. Actions need no
-            mask: they are roots.
-        tiers: optional ordered groups of names; a parent must be in the same or an earlier
-            tier (:func:`admissible_parents`).
-        forbidden: ``(parent, child)`` edges that may not appear.
-        required: ``(parent, child)`` edges that must appear.
-        min_gain: smallest held-out gain (nats) for the search to add an edge.
-        prune_nats: edges with a smaller held-out log-likelihood ratio are removed.
-        min_reverse: smallest held-out gain (nats) for the search to reverse an edge.
-        max_parents: optional cap on |pa_i| during the search.
-        max_moves: cap on the moves of each search phase.
-        sparsify: ``"none"`` or ``"gated"`` (group-lasso MLP selection from all admissible
-            parents consistent with the search order).
-        features: random Fourier features M of the held-out scorer (:class:`CrossFitScorer`).
-        ridge: ridge penalties on the feature weights to choose from.
-        folds: cross-fitting folds K >= 2.
-        length: RBF length scale(s) per sqrt(|P|) to choose from, in standard deviations.
-        floor: smallest residual variance, in standardised units.
-        repeats: average the score over this many fold splits and feature draws
-            (:class:`RepeatedScorer`); costs ``repeats`` times as much.
-        gated: keyword arguments for :func:`inference.gated.select_parents`.
-        seed: seeds the folds, the random features and the gated MLPs.
 
-    Returns:
-        :class:`DiscoveryResult` whose graph carries an edge confidence.
+def _options(options: Any, deprecated: Mapping[str, Any]) -> DiscoveryOptions:
+    unknown = sorted(k for k in deprecated if k not in _DEPRECATED)
+    if unknown:
+        raise TypeError(f"discover() got unexpected keyword arguments {unknown}")
+    if options is None:
+        options = DiscoveryOptions()
+    if not isinstance(options, DiscoveryOptions):
+        raise ValueError(f"options must be a DiscoveryOptions, got {type(options).__name__}")
+    if deprecated:
+        warnings.warn(
+            f"discover({', '.join(f'{k}=' for k in deprecated)}) is deprecated: pass "
+            "options=DiscoveryOptions(...)",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+        options = dataclasses.replace(options, **deprecated)
+    return options
 
-    Raises:
-        ValueError: bad variables, data, masks or background knowledge (unknown names,
-            non-float columns, wrong shapes, NaN, fewer than 8 rows), or a setting of the
-            wrong type or range.
-    """
-    start = time.perf_counter()
-    sparsify = check_choice("sparsify", sparsify, SPARSIFIERS)
-    min_gain = check_float("min_gain", min_gain)
-    prune_nats = check_float("prune_nats", prune_nats)
-    min_reverse = check_float("min_reverse", min_reverse)
-    if not prune_nats <= min_gain:
-        raise ValueError(f"prune_nats ({prune_nats}) must be <= min_gain ({min_gain})")
-    if max_parents is not None:
-        max_parents = check_int("max_parents", max_parents, minimum=1)
-    max_moves = check_int("max_moves", max_moves, minimum=1)
-    seed = check_seed("seed", seed)
-    gated = check_keywords("gated", gated, GATED_KWARGS)
+
+def _inputs(variables: Any, data: Any) -> tuple[list[Any], Mapping[str, Any]]:
+    """The variables and name -> ``(N, dim)`` columns from the two forms of the first arguments."""
+    if data is None:
+        if isinstance(variables, CausalGraph) or (
+            isinstance(variables, Sequence) and not isinstance(variables, (str, bytes, np.ndarray))
+        ):
+            raise ValueError("data is missing: call discover(table) or discover(variables, data)")
+        table = as_table(variables)
+        return table.variables(), table.values
     vs = as_variables(variables)
-    required = set(check_edges("required", required))
-    allowed = admissible_parents(vs, tiers=tiers, forbidden=forbidden, required=required)
-    sdata = StructureData.build(vs, data, intervened)
+    if is_table(data):
+        table = as_table(data, keep={v.name for v in vs})
+        missing = [v.name for v in vs if v.name not in table]
+        if missing:
+            raise ValueError(f"the table has no columns for variables {missing}; columns: {list(table.names)}")
+        return vs, table.values
+    return vs, data
+
+
+def _search(
+    vs: Sequence[Any],
+    sdata: StructureData,
+    allowed: Mapping[str, tuple[str, ...]],
+    required: set[tuple[str, str]],
+    opts: DiscoveryOptions,
+    seed: int,
+    bar: Any,
+) -> tuple[CausalGraph, dict[tuple[str, str], float], tuple[str, ...], list[Any], float, int]:
+    """One search, sparsification and pruning on ``sdata``."""
     scorer = RepeatedScorer(
         sdata,
-        repeats=repeats,
-        features=features,
-        ridge=ridge,
-        folds=folds,
-        length=length,
-        floor=floor,
+        repeats=opts.repeats,
+        features=opts.features,
+        ridge=opts.ridge,
+        folds=opts.folds,
+        length=opts.length,
+        floor=opts.floor,
         seed=seed,
     )
     scores = LocalScores(scorer)
@@ -246,59 +329,141 @@ def discover(
         scores,
         allowed,
         dag,
-        min_gain=min_gain,
-        prune_nats=prune_nats,
-        min_reverse=min_reverse,
-        max_parents=max_parents,
+        min_gain=opts.min_gain,
+        prune_nats=opts.prune_nats,
+        min_reverse=opts.min_reverse,
+        max_parents=opts.max_parents,
         required=required,
-        max_moves=max_moves,
+        max_moves=opts.max_moves,
+        on_move=None if bar is None else lambda m: bar.set_description_str(f"discover: {m[0]} {m[1]} -> {m[2]}"),
     )
     order = dag.order()
     parents = {n: list(ps) for n, ps in dag.parents.items()}
-    if sparsify == "gated":
+    if opts.sparsify == "gated":
         from inference.gated import select_parents
 
         position = {n: k for k, n in enumerate(order)}
         candidates = {c: tuple(p for p in allowed[c] if position[p] < position[c]) for c in sdata.names}
-        chosen = select_parents(sdata, candidates, seed=seed, **gated)
+        chosen = select_parents(sdata, candidates, seed=seed, **dict(opts.gated or {}))
         parents = {
             c: sorted({*chosen[c], *(p for p, cc in required if cc == c)}, key=dag.index.__getitem__)
             for c in sdata.names
         }
-    ratios, total = _prune(scores, parents, dag.index, prune_nats, required)
+    ratios, total = _prune(scores, parents, dag.index, opts.prune_nats, required)
     edges = [(p, c) for c in sdata.names for p in parents[c]]
-    confidence = {e: sigmoid(ratios[e]) for e in edges}
-    graph = CausalGraph(vs, edges, confidence)
+    graph = CausalGraph(vs, edges, {e: sigmoid(ratios[e]) for e in edges})
+    return graph, {e: float(ratios[e]) for e in edges}, order, history, float(total), scorer.calls
+
+
+def discover(
+    variables: Any,
+    data: Any = None,
+    *,
+    intervened: Mapping[str, Any] | None = None,
+    tiers: Sequence[Sequence[str]] | None = None,
+    forbidden: Iterable[tuple[str, str]] = (),
+    required: Iterable[tuple[str, str]] = (),
+    options: DiscoveryOptions | None = None,
+    seed: int = 0,
+    progress_bar: bool = False,
+    **deprecated: Any,
+) -> DiscoveryResult:
+    """Learn the parent sets of the world model from data.
+
+    Two forms: ``discover(table)`` learns over every column of a table (a pandas
+    DataFrame, a :class:`models.tables.Table`, a mapping label -> ``(N,)`` array, or a
+    structured array), each an observed scalar variable named by the table's name rule
+    (:mod:`models.tables`); ``discover(variables, data)`` learns over given variables.
+
+    Args:
+        variables: a table (then ``data`` is None), a :class:`CausalGraph` (its edges are
+            ignored) or a list of ``Variable``.
+        data: name -> ``(N, dim)`` values of every variable, or a table holding a column
+            for each; each column is standardised on its non-intervened rows first.
+        intervened: name -> ``(N,)`` bool, True where the variable was set by ``do``;
+            those rows do not enter that variable's mechanism likelihood. Actions need no
+            mask: they are roots.
+        tiers: optional ordered groups of names; a parent must be in the same or an earlier
+            tier (:func:`admissible_parents`).
+        forbidden: ``(parent, child)`` edges that may not appear.
+        required: ``(parent, child)`` edges that must appear.
+        options: :class:`DiscoveryOptions` (search, scorer, stability subsamples).
+        seed: seeds the folds, the random features, the gated MLPs and the subsamples.
+        progress_bar: show tqdm bars over the search moves and the subsamples.
+        **deprecated: the fields of :class:`DiscoveryOptions` as keywords (``min_gain=``,
+            ``sparsify=``, ...), for one release.
+
+    Returns:
+        :class:`DiscoveryResult`: the DAG with edge confidences, its CPDAG, and with
+        ``options.bootstrap`` the edge stabilities.
+
+    Raises:
+        ValueError: bad variables, data, masks or background knowledge (unknown names,
+            non-float columns, wrong shapes, NaN, fewer than 8 rows), or a setting of the
+            wrong type or range.
+    """
+    start = time.perf_counter()
+    opts = _options(options, deprecated)
+    seed = check_seed("seed", seed)
+    progress_bar = check_bool("progress_bar", progress_bar)
+    vs, data = _inputs(variables, data)
+    required = set(check_edges("required", required))
+    allowed = admissible_parents(vs, tiers=tiers, forbidden=forbidden, required=required)
+    sdata = StructureData.build(vs, data, intervened)
+    bar = tqdm(desc="discover", disable=not progress_bar, leave=False, bar_format="{desc} [{elapsed}]")
+    try:
+        graph, ratios, order, history, total, calls = _search(vs, sdata, allowed, required, opts, seed, bar)
+    finally:
+        bar.close()
+    stability, adjacency = _stability(vs, sdata, allowed, required, opts, seed, progress_bar)
     seconds = time.perf_counter() - start
-    log.info(
-        "discover: %d edges over %d variables in %.2f s (%d sets scored)",
-        len(edges),
-        len(vs),
-        seconds,
-        scorer.calls,
-    )
+    log.info("discover: %d edges over %d variables in %.2f s (%d sets scored)", len(ratios), len(vs), seconds, calls)
     settings = {
-        "min_gain": min_gain,
-        "prune_nats": prune_nats,
-        "min_reverse": min_reverse,
-        "max_parents": max_parents,
-        "sparsify": sparsify,
-        "features": features,
-        "ridge": ridge,
-        "folds": folds,
-        "length": length,
-        "floor": floor,
-        "repeats": repeats,
+        **opts.to_dict(),
         "seed": seed,
         "intervened_rows": {k: int((~v).sum()) for k, v in sdata.rows.items() if not bool(v.all())},
     }
     return DiscoveryResult(
         graph,
-        {e: float(ratios[e]) for e in edges},
+        ratios,
         order,
         tuple(history),
-        float(total),
-        scorer.calls,
+        total,
+        calls,
         seconds,
         settings,
+        cpdag(graph, allowed=allowed, required=required),
+        stability,
+        adjacency,
+    )
+
+
+def _stability(
+    vs: Sequence[Any],
+    sdata: StructureData,
+    allowed: Mapping[str, tuple[str, ...]],
+    required: set[tuple[str, str]],
+    opts: DiscoveryOptions,
+    seed: int,
+    progress_bar: bool,
+) -> tuple[dict[tuple[str, str], float], dict[tuple[str, str], float]]:
+    """Edge and adjacency frequencies over ``opts.bootstrap`` subsamples of the rows."""
+    if not opts.bootstrap:
+        return {}, {}
+    n = sdata.n
+    m = max(8, round(opts.subsample * n))
+    gen = np.random.default_rng([seed, 0x5AB])
+    index = {name: i for i, name in enumerate(sdata.names)}
+    edges: Counter[tuple[str, str]] = Counter()
+    pairs: Counter[tuple[str, str]] = Counter()
+    for b in tqdm(range(opts.bootstrap), desc="discover: subsamples", disable=not progress_bar, leave=False):
+        rows = torch.from_numpy(np.sort(gen.choice(n, size=m, replace=False)))
+        sub = StructureData(sdata.names, sdata.x[rows], sdata.slices, {k: v[rows] for k, v in sdata.rows.items()})
+        graph = _search(vs, sub, allowed, required, opts, seed + 1 + b, None)[0]
+        edges.update(graph.edges)
+        pairs.update((p, c) if index[p] < index[c] else (c, p) for p, c in graph.edges)
+    key = lambda e: (index[e[1]], index[e[0]])  # noqa: E731
+    return (
+        {e: edges[e] / opts.bootstrap for e in sorted(edges, key=key)},
+        {e: pairs[e] / opts.bootstrap for e in sorted(pairs, key=key)},
     )

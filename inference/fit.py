@@ -22,18 +22,45 @@ site's NLL otherwise) has not improved for ``patience`` epochs and its best epoc
 restored. The members of an ensemble (:class:`models.EnsembleMechanism`) are trained on their
 own bootstrap resamples of the training rows, from a generator derived from ``seed``.
 
-The thesis protocol (§5.2.1) is ``fit(model, data, loss="mse", epochs=120, batch_size=2048,
-lr=0.01, validation=0.0)``: no held-out rows, sigma_i the RMS training residual, every
-epoch kept, the same random streams (split, minibatch order) as always; a test holds its
-numbers fixed.
+A discrete site (:mod:`models.discrete`) is trained by its cross-entropy ``-mean log p(x | pa)``
+(``"cross_entropy"``, reported in nats), with the same split and early stopping; a discrete
+root gets the training frequencies (plus 1/2 per category) as its prior.
+
+Sigma rules, reported per site in :attr:`FitResult.sigma_rule` and logged:
+``"validation"`` (RMS validation residual of the loc), ``"training"`` (RMS training residual,
+no split), ``"nll"`` (the sigma learned by the NLL, no split), ``"predicted"`` (a
+heteroscedastic scale head, trained by the NLL, no split), ``"recalibrated"`` (that head
+rescaled per component so that the validation residuals have ``mean(z^2) = 1``,
+:meth:`models.heteroscedastic.HeteroscedasticMechanism.recalibrate`; for an ensemble of K > 1
+the moment-matched site scale is rescaled the same way after its members,
+:meth:`models.ensemble.EnsembleMechanism.recalibrate`) and ``"none"`` (discrete sites).
+
+The default schedule (``schedule=None``, :meth:`FitSchedule.auto`) scales with the number of
+rows N so that it behaves from N = 200 to N = 10^6:
+
+    validation = 0.2 (N < 10 000) or 0.1,        n_train = N - round(validation * N)
+    batch_size = clip(n_train // 8, 32, 2048)    (at least 8 steps per epoch below 16 k rows)
+    epochs     = clip(ceil(10 000 / steps per epoch), 10, 500)      (~10 000 Adam steps)
+    patience   = max(5, epochs // 10),  lr = 0.01
+
+so small tables get many small steps and are stopped by the held-out rows (a plain minibatch
+schedule without them overfits: the noise sd shrinks towards 0), and large ones a few epochs
+of 2048-row batches. Below 20 rows there is no split and no early stopping.
+
+The thesis protocol (§5.2.1) is ``fit(model, data, loss="mse",
+schedule=FitSchedule(epochs=120, batch_size=2048, lr=0.01, validation=0.0))``: no held-out
+rows, sigma_i the RMS training residual, every epoch kept, the same random streams (split,
+minibatch order) as always; a test holds its numbers fixed.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import logging
 import math
 import time
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -42,7 +69,8 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from models.checks import check_bool, check_choice, check_float, check_int, check_names, check_seed
+from models.checks import check_bool, check_choice, check_float, check_int, check_names, check_seed, describe
+from models.discrete import DiscreteMechanism
 from models.ensemble import EnsembleMechanism
 from models.mechanisms import Mechanism
 from models.variables import Role
@@ -51,16 +79,18 @@ from models.world import WorldModel, as_values, require_world_model
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["FIT_KWARGS", "LOSSES", "FitResult", "fit"]
+__all__ = ["FIT_KWARGS", "LOSSES", "FitResult", "FitSchedule", "fit"]
 
 log = logging.getLogger(__name__)
 
 LOSSES = ("mse", "nll", "beta_nll")
 
-#: The keyword arguments of :func:`fit`; wrappers that forward ``**fit_kwargs`` check against it.
+#: The keyword arguments of :func:`fit` (including the deprecated schedule keywords); wrappers
+#: that forward ``**fit_kwargs`` check against it.
 FIT_KWARGS = (
     "variables",
     "loss",
+    "schedule",
     "beta",
     "epochs",
     "batch_size",
@@ -71,6 +101,60 @@ FIT_KWARGS = (
     "seed",
     "progress_bar",
 )
+
+#: Schedule keywords of the earlier signature, accepted with a DeprecationWarning.
+_SCHEDULE_KEYWORDS = ("beta", "epochs", "batch_size", "lr", "validation", "patience", "bootstrap")
+
+
+@dataclass(frozen=True)
+class FitSchedule:
+    """The training schedule of :func:`fit` (see the module docstring for :meth:`auto`).
+
+    Attributes:
+        epochs: the most passes over the training rows, >= 1.
+        batch_size: Adam minibatch rows, >= 1.
+        lr: Adam learning rate, > 0.
+        validation: share of rows held out (seeded), in [0, 1); 0 is the thesis protocol.
+        patience: stop a mechanism after this many epochs (>= 1) without a better
+            validation criterion and restore its best epoch; None keeps the last epoch.
+        bootstrap: train each member of an ensemble on its own bootstrap resample.
+        beta: the beta of ``"beta_nll"``, in [0, 1].
+    """
+
+    epochs: int = 120
+    batch_size: int = 2048
+    lr: float = 0.01
+    validation: float = 0.1
+    patience: int | None = None
+    bootstrap: bool = True
+    beta: float = 0.5
+
+    def __post_init__(self) -> None:
+        check_int("epochs", self.epochs, minimum=1)
+        check_int("batch_size", self.batch_size, minimum=1)
+        check_float("lr", self.lr, minimum=0.0, min_open=True)
+        check_float("validation", self.validation, minimum=0.0, maximum=1.0, max_open=True)
+        if self.patience is not None:
+            check_int("patience", self.patience, minimum=1)
+        check_bool("bootstrap", self.bootstrap)
+        check_float("beta", self.beta, minimum=0.0, maximum=1.0)
+
+    @classmethod
+    def auto(cls, n: int) -> FitSchedule:
+        """The default schedule for ``n`` rows (module docstring)."""
+        n = check_int("n", n, minimum=1)
+        if n < 20:
+            return cls(epochs=200, batch_size=max(n, 1), lr=0.01, validation=0.0, patience=None)
+        validation = 0.2 if n < 10_000 else 0.1
+        n_train = n - round(validation * n)
+        batch = int(min(2048, max(32, n_train // 8)))
+        steps = math.ceil(n_train / batch)
+        epochs = int(min(500, max(10, math.ceil(10_000 / steps))))
+        return cls(epochs, batch, 0.01, validation, max(5, epochs // 10))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible fields."""
+        return dataclasses.asdict(self)
 
 
 @dataclass(frozen=True)
@@ -95,6 +179,10 @@ class FitResult:
         losses: name -> the loss each mechanism was trained with.
         beta: the beta of ``"beta_nll"``.
         patience: the early-stopping patience (None: every epoch kept).
+        sigma_rule: name -> how the site's scale was set: ``"validation"``,
+            ``"training"``, ``"nll"``, ``"predicted"``, ``"recalibrated"`` or ``"none"`` (module docstring).
+        skipped: name -> why a non-root was not trained (fixed function, columns missing).
+        schedule: the schedule used.
     """
 
     train_loss: dict[str, tuple[float, ...]]
@@ -111,6 +199,27 @@ class FitResult:
     losses: dict[str, str] = field(default_factory=dict)
     beta: float = 0.5
     patience: int | None = None
+    sigma_rule: dict[str, str] = field(default_factory=dict)
+    skipped: dict[str, str] = field(default_factory=dict)
+    schedule: FitSchedule | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible summary: per-site losses, sigmas, rules and the schedule."""
+        return {
+            "trained": list(self.trained),
+            "losses": dict(self.losses),
+            "sigma": {k: list(v) for k, v in self.sigma.items()},
+            "sigma_rule": dict(self.sigma_rule),
+            "skipped": dict(self.skipped),
+            "best_epoch": dict(self.best_epoch),
+            "final_train_loss": {k: v[-1] for k, v in self.train_loss.items() if v},
+            "final_val_loss": {k: v[-1] for k, v in self.val_loss.items() if v},
+            "epochs": self.epochs,
+            "n_train": self.n_train,
+            "n_val": self.n_val,
+            "seconds": self.seconds,
+            "schedule": None if self.schedule is None else self.schedule.to_dict(),
+        }
 
     def plot(self) -> Figure:
         """Loss curves per mechanism (log scale), the kept epoch marked; returns the Figure."""
@@ -154,7 +263,13 @@ def _predicts_scale(mech: Mechanism) -> bool:
 
 
 def _member_loss(member: Mechanism, x: Tensor, y: Tensor, loss: str, beta: float) -> tuple[Tensor, Tensor]:
-    """``(training loss, residual)`` of one member on a batch, in standardised units."""
+    """``(training loss, residual)`` of one member on a batch, in standardised units.
+
+    For a discrete member the "residual" is the per-row cross-entropy ``(B, 1)`` (nats).
+    """
+    if isinstance(member, DiscreteMechanism):
+        nll = -member.distribution(x).log_prob(y)
+        return nll.mean(), nll.detach()[:, None].sqrt()
     if member.log_sigma is None:
         loc, scale = member.loc_scale(x)
     else:
@@ -171,7 +286,9 @@ def _member_loss(member: Mechanism, x: Tensor, y: Tensor, loss: str, beta: float
 
 
 def _site_nll(mech: Mechanism, x: Tensor, y: Tensor) -> float:
-    """Mean Gaussian NLL of the site ``Normal(loc(x), scale(x))`` at ``y``, nats per unit and dim."""
+    """Mean NLL of the site at ``y``, nats per unit and dim (Normal, or the categorical of a discrete site)."""
+    if isinstance(mech, DiscreteMechanism):
+        return float(-mech.distribution(x).log_prob(y).mean())
     loc, scale = mech.loc_scale(x)
     return float(-torch.distributions.Normal(loc, scale).log_prob(y).mean())
 
@@ -213,67 +330,50 @@ def fit(
     *,
     variables: Sequence[str] | None = None,
     loss: str | None = None,
-    beta: float = 0.5,
-    epochs: int = 120,
-    batch_size: int = 2048,
-    lr: float = 0.01,
-    validation: float = 0.1,
-    patience: int | None = None,
-    bootstrap: bool = True,
+    schedule: FitSchedule | None = None,
     seed: int = 0,
     progress_bar: bool = False,
+    **deprecated: Any,
 ) -> FitResult:
     """Train the local mechanisms (and their scales) of ``model`` in place.
 
-    See the module docstring for the losses, the validation split and early stopping.
+    See the module docstring for the losses, the validation split, early stopping, the
+    sigma rules and the default schedule.
 
     Args:
         model: the world model.
-        data: name -> ``(N, dim)`` realised values; every trained variable needs its own
-            column and its parents' columns.
+        data: name -> ``(N, dim)`` realised values (category codes for discrete sites);
+            every trained variable needs its own column and its parents' columns.
         variables: mechanisms to train; default every non-root whose columns are present
-            and whose mechanism is trainable (fixed :class:`models.FunctionMechanism`
-            mechanisms are left as they are).
+            and whose mechanism is trainable. Fixed :class:`models.FunctionMechanism`
+            mechanisms are never modified; :attr:`FitResult.skipped` says why a site was
+            left out.
         loss: ``"mse"`` (thesis §5.2.1), ``"nll"`` or ``"beta_nll"``; None picks ``"mse"``
-            for homoscedastic and ``"beta_nll"`` for heteroscedastic mechanisms.
-        beta: the beta of ``"beta_nll"``, in [0, 1] (default 0.5, Seitzer et al. 2022).
-        epochs: the most passes over the training rows (thesis: 120).
-        batch_size: Adam minibatch rows (thesis: 2048).
-        lr: Adam learning rate (thesis: 0.01).
-        validation: share of rows held out (seeded), in [0, 1); sigma_i is estimated on
-            them. 0 reproduces the thesis protocol (sigma from training residuals).
-        patience: stop a mechanism after this many epochs (>= 1) without a better
-            validation criterion and restore its best epoch; None trains every epoch and
-            keeps the last. Needs validation rows.
-        bootstrap: train each member of an ensemble of K > 1 on its own bootstrap
-            resample of the training rows.
+            for homoscedastic and ``"beta_nll"`` for heteroscedastic mechanisms. Discrete
+            sites always use their cross-entropy.
+        schedule: the :class:`FitSchedule`; None uses :meth:`FitSchedule.auto` for N rows.
         seed: seeds the split, the minibatch order and the bootstraps (local generators).
         progress_bar: show a tqdm bar over epochs.
+        **deprecated: ``epochs``, ``batch_size``, ``lr``, ``validation``, ``patience``,
+            ``bootstrap``, ``beta`` (use ``schedule=FitSchedule(...)``); given alone they
+            override the fields of ``FitSchedule()``.
 
     Returns:
-        :class:`FitResult`. Non-action roots present in ``data`` also get their Normal
-        prior set to the training rows' mean and sd.
+        :class:`FitResult`. Non-action roots present in ``data`` also get their prior set
+        from the training rows (Normal: mean and sd; discrete: frequencies).
 
     Raises:
         ValueError: a model that is not a :class:`WorldModel`, bad data (see
-            :func:`models.world.as_values`), fewer than 2 rows, unknown, root, fixed or
-            repeated ``variables``, no trainable mechanism, ``loss="mse"`` for a mechanism
-            that predicts its scale, or a bad schedule argument (type or range: ``beta``
-            outside [0, 1], ``validation`` outside [0, 1), ``patience`` < 1 or without
-            validation rows).
+            :func:`models.world.as_values`; category codes out of range), fewer than 2 rows,
+            unknown, root, fixed or repeated ``variables``, no trainable mechanism,
+            ``loss="mse"`` for a mechanism that predicts its scale, a schedule that is not a
+            FitSchedule, or a bad schedule argument (type or range: ``beta`` outside [0, 1],
+            ``validation`` outside [0, 1), ``patience`` < 1 or without validation rows).
         FloatingPointError: the training loss became NaN or inf.
     """
     model = require_world_model(model)
     if loss is not None:
         loss = check_choice("loss", loss, LOSSES)
-    beta = check_float("beta", beta, minimum=0.0, maximum=1.0)
-    epochs = check_int("epochs", epochs, minimum=1)
-    batch_size = check_int("batch_size", batch_size, minimum=1)
-    lr = check_float("lr", lr, minimum=0.0, min_open=True)
-    validation = check_float("validation", validation, minimum=0.0, maximum=1.0, max_open=True)
-    if patience is not None:
-        patience = check_int("patience", patience, minimum=1)
-    bootstrap = check_bool("bootstrap", bootstrap)
     seed = check_seed("seed", seed)
     progress_bar = check_bool("progress_bar", progress_bar)
     if variables is not None:
@@ -284,8 +384,21 @@ def fit(
         raise ValueError("data is empty; fit needs name -> (N, dim) columns")
     if n < 2:
         raise ValueError(f"fit needs at least 2 rows of data, got {n}")
+    model.check_codes(cols, "data")
+    schedule = _schedule(schedule, deprecated, n)
+    beta, epochs, batch_size, lr = schedule.beta, schedule.epochs, schedule.batch_size, schedule.lr
+    validation, patience, bootstrap = schedule.validation, schedule.patience, schedule.bootstrap
     targets = _select(model, cols, variables)
-    losses = {v: loss or ("beta_nll" if _predicts_scale(model.mechanism(v)) else "mse") for v in targets}
+    skipped = _skipped(model, cols, targets)
+    for v, why in skipped.items():
+        log.info("fit: %r not trained: %s", v, why)
+    discrete = {v for v in targets if isinstance(model.mechanism(v), DiscreteMechanism)}
+    losses = {
+        v: "cross_entropy"
+        if v in discrete
+        else loss or ("beta_nll" if _predicts_scale(model.mechanism(v)) else "mse")
+        for v in targets
+    }
     bad = [v for v in targets if losses[v] == "mse" and _predicts_scale(model.mechanism(v))]
     if bad:
         raise ValueError(
@@ -314,14 +427,19 @@ def fit(
             for _ in range(k)
         ]
 
+    categories = model.discrete
     for r in graph.roots:
         if r in cols and graph[r].role is not Role.ACTION:
+            if r in categories:
+                counts = torch.bincount(cols[r][train_idx, 0].long(), minlength=categories[r])
+                model.set_root_probs(r, counts.to(model.dtype) + 0.5)
+                continue
             loc, scale = _standardiser(cols[r][train_idx])
             model.set_root_prior(r, loc, scale)
 
     inputs, outputs = {}, {}
     for v in targets:
-        inputs[v] = torch.cat([cols[p] for p in graph.parents(v)], -1)
+        inputs[v] = model._parents(v, cols)  # categorical parents one-hot
         outputs[v] = cols[v]
         in_loc, in_scale = _standardiser(inputs[v][train_idx])
         out_loc, out_scale = _standardiser(outputs[v][train_idx])
@@ -374,6 +492,10 @@ def fit(
                 for v in active:
                     mech = model.mechanism(v)
                     x, y = inputs[v][val_idx], outputs[v][val_idx]
+                    if v in discrete:  # the validation criterion is the cross-entropy
+                        val_curves[v].append(_site_nll(mech, x, y))
+                        nll_curves[v].append(val_curves[v][-1])
+                        continue
                     val_curves[v].append(float(((y - mech(x)) ** 2).mean()))
                     if losses[v] != "mse":
                         nll_curves[v].append(_site_nll(mech, x, y))
@@ -396,7 +518,9 @@ def fit(
         model.mechanism(v).load_state_dict(state)
         best_epoch[v] = epoch_kept
     seconds = time.perf_counter() - start
-    sigma = _set_sigmas(model, targets, losses, inputs, outputs, val_idx, train_idx, rows)
+    sigma, sigma_rule = _set_sigmas(model, targets, losses, inputs, outputs, val_idx, train_idx, rows)
+    for v, rule in sigma_rule.items():
+        log.info("fit: sigma of %r from %s", v, _RULE_TEXT[rule])
     model.provenance = {
         **model.provenance,
         "fit": {
@@ -413,6 +537,7 @@ def fit(
             "n": n,
             "trained": list(targets),
             "best_epoch": dict(best_epoch),
+            "sigma_rule": dict(sigma_rule),
         },
     }
     return FitResult(
@@ -430,7 +555,54 @@ def fit(
         losses=losses,
         beta=beta,
         patience=patience,
+        sigma_rule=sigma_rule,
+        skipped=skipped,
+        schedule=schedule,
     )
+
+
+_RULE_TEXT = {
+    "validation": "the RMS residual on the validation rows",
+    "training": "the RMS residual on the training rows (no validation split)",
+    "nll": "the NLL fit (no validation split)",
+    "predicted": "its scale head, trained by the NLL",
+    "recalibrated": "its scale (the head's, or the ensemble's) rescaled to unit validation z-variance",
+    "none": "nothing: the site is discrete",
+}
+
+
+def _schedule(schedule: Any, deprecated: Mapping[str, Any], n: int) -> FitSchedule:
+    """The schedule: given, from the deprecated keywords over ``FitSchedule()``, or auto for n rows."""
+    unknown = sorted(k for k in deprecated if k not in _SCHEDULE_KEYWORDS)
+    if unknown:
+        raise TypeError(f"fit() got unexpected keyword arguments {unknown}")
+    if schedule is not None and not isinstance(schedule, FitSchedule):
+        raise ValueError(f"schedule must be a FitSchedule or None, got {describe(schedule)}")
+    if deprecated:
+        warnings.warn(
+            f"fit({', '.join(f'{k}=' for k in deprecated)}) is deprecated: pass schedule=FitSchedule(...)",
+            DeprecationWarning,
+            stacklevel=3,
+        )
+        base = schedule if schedule is not None else FitSchedule()
+        return dataclasses.replace(base, **deprecated)
+    return schedule if schedule is not None else FitSchedule.auto(n)
+
+
+def _skipped(model: WorldModel, cols: Mapping[str, Tensor], targets: Sequence[str]) -> dict[str, str]:
+    """Why each non-root outside ``targets`` was not trained."""
+    graph, out = model.graph, {}
+    for v in graph.non_roots:
+        if v in targets:
+            continue
+        missing = [c for c in (v, *graph.parents(v)) if c not in cols]
+        if not model.mechanism(v).trainable:
+            out[v] = f"its mechanism is a fixed {type(model.mechanism(v)).__name__}; it is left unchanged"
+        elif missing:
+            out[v] = f"data has no column for {missing}"
+        else:
+            out[v] = "not in variables"
+    return out
 
 
 def _set_sigmas(
@@ -442,7 +614,7 @@ def _set_sigmas(
     val_idx: Tensor,
     train_idx: Tensor,
     rows: Mapping[str, Sequence[Tensor | None]],
-) -> dict[str, tuple[float, ...]]:
+) -> tuple[dict[str, tuple[float, ...]], dict[str, str]]:
     """Set each homoscedastic member's sigma from residuals and report every site's sd.
 
     With validation rows, sigma is the RMS validation residual (whatever the loss);
@@ -450,11 +622,25 @@ def _set_sigmas(
     and the learned sigma otherwise.
     """
     out: dict[str, tuple[float, ...]] = {}
+    rules: dict[str, str] = {}
     with torch.no_grad():
         for v in targets:
             mech = model.mechanism(v)
+            if isinstance(mech, DiscreteMechanism):
+                rules[v] = "none"
+                continue
+            if mech.heteroscedastic and all(m.log_sigma is None for m in _members(mech)):
+                rules[v] = "recalibrated" if len(val_idx) else "predicted"
+            elif len(val_idx):
+                rules[v] = "validation"
+            else:
+                rules[v] = "training" if losses[v] == "mse" else "nll"
             for member, boot in zip(_members(mech), rows[v], strict=True):
                 if member.log_sigma is None:
+                    if len(val_idx):
+                        loc, scale = member.loc_scale(inputs[v][val_idx])
+                        z2 = ((outputs[v][val_idx] - loc) / scale).pow(2).mean(0)
+                        member.recalibrate(z2.sqrt().clamp_min(1e-6))
                     continue
                 if len(val_idx):
                     idx = val_idx
@@ -464,10 +650,14 @@ def _set_sigmas(
                     continue
                 resid = outputs[v][idx] - member(inputs[v][idx])
                 member.set_sigma(resid.pow(2).mean(0).sqrt().clamp_min(1e-6))
+            if isinstance(mech, EnsembleMechanism) and mech.size > 1 and len(val_idx):
+                loc, scale = mech.loc_scale(inputs[v][val_idx])
+                mech.recalibrate(((outputs[v][val_idx] - loc) / scale).pow(2).mean(0).sqrt().clamp_min(1e-6))
+                rules[v] = "recalibrated"
             if not mech.heteroscedastic:
                 out[v] = tuple(float(s) for s in mech.sigma.detach())
             else:
                 idx = val_idx if len(val_idx) else train_idx
                 scale = mech.loc_scale(inputs[v][idx])[1]
                 out[v] = tuple(float(s) for s in scale.pow(2).mean(0).sqrt())
-    return out
+    return out, rules

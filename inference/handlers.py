@@ -128,6 +128,14 @@ class ProgramMessenger(Messenger):
         return super().__call__(fn)
 
 
+def _outer_broadcast(eps: torch.Size, site: torch.Size) -> torch.Size | None:
+    """The common shape of noise and site when they differ only by leading (plate) dims; else None."""
+    k = min(len(eps), len(site))
+    if eps[len(eps) - k :] != site[len(site) - k :]:
+        return None
+    return eps if len(eps) >= len(site) else site
+
+
 def _fix(msg: Message, value: Tensor, flag: str) -> None:
     """Make the site deterministic at ``value``: Delta with zero log-density, not a latent."""
     fn = msg["fn"]
@@ -140,11 +148,17 @@ def _fix(msg: Message, value: Tensor, flag: str) -> None:
 def broadcast_intervention(value: Any, shape: torch.Size, name: str) -> Tensor:
     """Broadcast a hard intervention value to the site shape ``(..., N, dim)``.
 
-    Accepted: a scalar when dim is 1, a ``(dim,)`` vector (same for every unit), or
-    exactly the trailing shape ``(N, dim)``. Anything else raises.
+    Accepted: a scalar when dim is 1, a ``(dim,)`` vector (same for every unit), exactly
+    the trailing shape ``(N, dim)``, or ``(..., N, dim)`` with the leading dims of enclosing
+    plates. Anything else raises.
     """
     v = value if isinstance(value, Tensor) else as_float_tensor(value, f"intervention on {name!r}")
     dim = shape[-1]
+    if v.ndim > len(shape) and v.shape[v.ndim - len(shape) :] == shape:
+        # leading dims of outer plates (candidates, draws) that broadcast the site later
+        if not torch.isfinite(v).all():
+            raise ValueError(f"intervention on {name!r} contains NaN or inf")
+        return v
     if v.ndim == 0:
         ok = dim == 1
     elif v.ndim == 1:
@@ -293,9 +307,13 @@ class ReplayNoise(ProgramMessenger):
         if name in self.noise:
             eps = self.noise[name].to(loc.dtype)
             if eps.shape != loc.shape:
-                raise ValueError(
-                    f"replayed noise for {name!r} has shape {tuple(eps.shape)}, expected {tuple(loc.shape)}"
-                )
+                # outer plates (draws, scenarios) broadcast the site after this handler ran
+                shape = _outer_broadcast(eps.shape, loc.shape)
+                if shape is None:
+                    raise ValueError(
+                        f"replayed noise for {name!r} has shape {tuple(eps.shape)}, expected {tuple(loc.shape)}"
+                    )
+                loc, scale, eps = loc.expand(shape), scale.expand(shape), eps.expand(shape)
         elif self.default == "expected":
             # the mean: eps = 0 for the symmetric families, 1/2 for Uniform(low, high)
             eps = torch.full_like(loc, 0.5 if isinstance(_base(msg["fn"]), dist.Uniform) else 0.0)
@@ -309,10 +327,13 @@ class ReplayNoise(ProgramMessenger):
         if name in self.noise:
             eps = self.noise[name].to(logits.dtype)
             if eps.shape != logits.shape:
-                raise ValueError(
-                    f"replayed Gumbel noise for the discrete site {name!r} has shape {tuple(eps.shape)}, "
-                    f"expected {tuple(logits.shape)} (units, categories)"
-                )
+                shape = _outer_broadcast(eps.shape, logits.shape)
+                if shape is None:
+                    raise ValueError(
+                        f"replayed Gumbel noise for the discrete site {name!r} has shape {tuple(eps.shape)}, "
+                        f"expected {tuple(logits.shape)} (units, categories)"
+                    )
+                logits, eps = logits.expand(shape), eps.expand(shape)
         elif self.default == "expected":
             eps = torch.zeros_like(logits)  # zero Gumbel noise: the mode
         else:

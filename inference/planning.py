@@ -216,7 +216,9 @@ def projected_adam(
 
         a <- clip(a - eta * Adam(grad_a sum_{r,n} L(a)_{rn}), low, high)     ``steps`` times
 
-    The loss is a sum, so every candidate follows its own Adam trajectory.
+    The loss is a sum, so every candidate follows its own Adam trajectory. A loss without
+    a gradient (only discrete sites, an argmax, between the actions and the targets) stops
+    the refinement: the start is returned.
 
     Args:
         objective: ``a (R, N, H, D) -> L (R, N)``, differentiable in ``a``.
@@ -237,6 +239,8 @@ def projected_adam(
     for _ in tqdm(range(steps), desc="infer_action", disable=not progress_bar, leave=False):
         optim.zero_grad()
         loss = objective(params).sum()
+        if not loss.requires_grad:  # e.g. only discrete sites (argmax) follow the actions
+            break
         loss.backward()
         optim.step()
         with torch.no_grad():

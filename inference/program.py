@@ -12,7 +12,7 @@ intervened or discrete is read from a trace of the program actually run
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from contextlib import ExitStack
 from dataclasses import dataclass
 from typing import Any
@@ -23,13 +23,22 @@ from pyro import poutine
 from pyro.poutine.messenger import Messenger
 from pyro.poutine.runtime import _PYRO_STACK
 from pyro.poutine.subsample_messenger import _Subsample
+from torch import Tensor
 
 from models.checks import describe
 from models.discrete import CategoricalCode
 from models.graph import CausalGraph
 from models.world import WorldModel
 
-__all__ = ["Program", "SiteRoles", "as_program", "check_active_handlers", "read_sites", "same_graph"]
+__all__ = [
+    "Program",
+    "SiteRoles",
+    "as_program",
+    "check_active_handlers",
+    "log_joint",
+    "read_sites",
+    "same_graph",
+]
 
 
 class Program:
@@ -67,7 +76,9 @@ class Program:
         """This program under one more (outermost) handler."""
         return Program(self.world, (*self.handlers, messenger))
 
-    def __call__(self, data: Mapping[str, Any] | None = None, n: int | None = None) -> dict[str, torch.Tensor]:
+    def __call__(
+        self, data: Mapping[str, Any] | None = None, n: int | None = None
+    ) -> dict[str, torch.Tensor]:
         """Run the program: the model's ``forward(data, n)`` inside the handlers."""
         with ExitStack() as stack:
             for handler in reversed(self.handlers):
@@ -163,9 +174,10 @@ def _base(fn: Any) -> Any:
 def read_sites(program: Callable[..., Any], data: Mapping[str, Any], n: int) -> SiteRoles:
     """Run ``program(data, n)`` once in a trace and sort its sites (see :class:`SiteRoles`).
 
-    Latent sites are sampled with torch's global RNG: callers fork and seed it.
+    Latent sites are sampled with torch's global RNG inside a forked context, so the
+    caller's RNG stream (e.g. the SVI steps that follow) is the same as without this trace.
     """
-    with torch.no_grad(), pyro.validation_enabled(False):
+    with torch.no_grad(), pyro.validation_enabled(False), torch.random.fork_rng():
         trace = poutine.trace(program).get_trace(data, n)
     observed, intervened, latent, discrete, dims = [], [], [], {}, {}
     for name, site in trace.nodes.items():
@@ -183,3 +195,22 @@ def read_sites(program: Callable[..., Any], data: Mapping[str, Any], n: int) -> 
             if isinstance(base, CategoricalCode):
                 discrete[name] = base.categories
     return SiteRoles(tuple(observed), tuple(intervened), tuple(latent), discrete, dims)
+
+
+def log_joint(trace: Any, skip: Collection[str] = ()) -> Tensor | float:
+    """Sum of the log-densities of the variable sites of ``trace``: ``(..., N)``, or 0.0 without any.
+
+    Intervened and replayed sites (``Delta``), the sites in ``skip`` and the latent vectors
+    that joint autoguides replay into the model (``_Auto...``) are left out.
+    """
+    total: Tensor | float = 0.0
+    for name, site in trace.nodes.items():
+        if site["type"] != "sample" or name in skip or isinstance(site["fn"], _Subsample):
+            continue
+        if name.startswith("_Auto"):
+            continue
+        infer = site.get("infer") or {}
+        if infer.get("pal_intervened") or infer.get("pal_replayed"):
+            continue
+        total = total + site["fn"].log_prob(site["value"])
+    return total

@@ -15,7 +15,7 @@ and admissible. Local scores are cached by (child, parent set).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 from inference.crossfit import CrossFitScorer
 
@@ -137,8 +137,12 @@ def hill_climb(
     max_parents: int | None,
     required: set[tuple[str, str]],
     max_moves: int = 10_000,
+    on_move: Callable[[tuple[str, str, str, float]], None] | None = None,
 ) -> list[tuple[str, str, str, float]]:
-    """Run phases 1 and 2 in place on ``dag``; returns the moves ``(move, parent, child, gain)``."""
+    """Run phases 1 and 2 in place on ``dag``; returns the moves ``(move, parent, child, gain)``.
+
+    ``on_move`` is called with each move as it is taken (a progress display).
+    """
     history: list[tuple[str, str, str, float]] = []
 
     def additions(child: str) -> list[tuple[float, str, str, str]]:
@@ -163,6 +167,8 @@ def hill_climb(
             continue
         dag.add(p, c)
         history.append(("add", p, c, float(gain)))
+        if on_move is not None:
+            on_move(history[-1])
         add_gain[c] = additions(c)
 
     for _ in range(max_moves):  # phase 2: add / remove / reverse, best first
@@ -193,4 +199,6 @@ def hill_climb(
             dag.remove(p, c)
             dag.add(c, p)
         history.append((kind, p, c, float(gain)))
+        if on_move is not None:
+            on_move(history[-1])
     return history

@@ -1,36 +1,47 @@
-"""Variational state inference (thesis Eq. 4.41-4.42).
+"""State posteriors (thesis Eq. 4.41-4.42): p(z | x_obs) over the latent sites of a program.
 
-    q* = argmin_q  E_q[ log q(x_lat) - log p_M(x_obs, x_lat) ]
+The latent sites are read from a trace of the program actually run with the evidence: every
+variable site that is neither observed nor intervened on (by ``do``, by a handler entered
+with ``with``, or by executed actions in the evidence, which are applied as ``do``). Each
+unit of the plate gets its own posterior. The methods (``guide=``):
 
-over the latent sites, i.e. every variable that is neither observed nor intervened on,
-with SVI and an AutoNormal (default) or AutoMultivariateNormal guide. Each unit of the
-plate gets its own posterior.
+* ``"normal"``, ``"mvn"``, ``"flow"``: SVI with a mean-field, full-rank or normalizing-flow
+  guide (:mod:`inference.svi_state`); discrete latents summed by ``TraceEnum_ELBO``.
+* ``"importance"``: self-normalised importance sampling from the prior
+  (:mod:`inference.importance`).
+* ``"grid"``: exact quadrature for at most 2 continuous latent components per unit and a few
+  discrete ones (:mod:`inference.quadrature`).
+
+Every result carries :class:`inference.diagnostics.Diagnostics` (Pareto-k, effective sample
+size or grid edge mass); a :class:`inference.diagnostics.PoorPosteriorWarning` is issued when
+some units are flagged, e.g. when a Gaussian guide keeps only one of two modes.
 """
 
 from __future__ import annotations
 
+import copy
 import logging
-import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import pyro
-import pyro.distributions as dist
 import torch
-from pyro.infer import SVI, Trace_ELBO
-from pyro.infer.autoguide import AutoMultivariateNormal, AutoNormal
-from pyro.optim import ClippedAdam
+from pyro.poutine.runtime import _PYRO_STACK
 from torch import Tensor
-from tqdm import tqdm
 
+from inference.diagnostics import Diagnostics, PoorPosteriorWarning
 from inference.frozen import frozen_parameters
-from inference.handlers import Intervene, MeasurementScale
+from inference.handlers import Intervene, MeasurementScale, ProgramMessenger
+from inference.importance import ImportanceOptions, importance_posterior
 from inference.interventions import check_interventions
+from inference.program import Program, as_program, check_active_handlers, read_sites
+from inference.quadrature import GridOptions, grid_posterior
+from inference.svi_state import SVI_GUIDES, SVIOptions, svi_posterior
 from models.checks import (
     as_float_tensor,
     check_bool,
-    check_callable,
     check_choice,
     check_float,
     check_int,
@@ -40,142 +51,135 @@ from models.checks import (
 )
 from models.graph import CausalGraph
 from models.variables import Role
-from models.world import WorldModel, as_values, check_action_bounds, model_dtype
+from models.world import as_values, check_action_bounds
 
-__all__ = ["GUIDES", "StateResult", "infer_state"]
+__all__ = [
+    "GUIDES",
+    "GridOptions",
+    "ImportanceOptions",
+    "SVIOptions",
+    "StateResult",
+    "infer_state",
+    "split_actions",
+]
 
 log = logging.getLogger(__name__)
 
-GUIDES = {"normal": AutoNormal, "mvn": AutoMultivariateNormal}
+#: The posterior methods of :func:`infer_state` and the option type each takes.
+GUIDES: dict[str, type] = {
+    "normal": SVIOptions,
+    "mvn": SVIOptions,
+    "flow": SVIOptions,
+    "importance": ImportanceOptions,
+    "grid": GridOptions,
+}
 
-_Z1 = 0.8413447460685429  # Phi(1): (q(Phi(1)) - q(Phi(-1))) / 2 is the sd of a Normal marginal
+#: Keywords of the earlier signature, still accepted (with a DeprecationWarning) for one release.
+_DEPRECATED_SVI = ("lr", "lr_final", "num_particles", "init_scale")
+_DEPRECATED = ("interventions", "measurement_scale", *_DEPRECATED_SVI)
 
 
 @dataclass(frozen=True)
 class StateResult:
-    """Posterior over latent sites.
+    """Posterior over the latent sites of one program and evidence.
 
     Attributes:
-        latent: names of the inferred sites.
-        mean, sd: name -> ``(N, dim)`` posterior mean and standard deviation; exact for
-            the variational family on unconstrained sites, Monte Carlo otherwise.
+        latent: names of the inferred sites, in the order the program ran them.
+        mean, sd: name -> ``(N, dim)`` posterior mean and standard deviation (exact for the
+            grid, weighted for importance sampling, the guide's for SVI).
         samples: name -> ``(S, N, dim)`` posterior draws.
-        loss: -ELBO per unit at every SVI step.
-        guide: the fitted autoguide.
+        losses: -ELBO per unit at every SVI step (empty for importance and grid).
+        guide: the method, a key of :data:`GUIDES`.
+        diagnostics: the fit diagnostics.
+        graph: the program's graph (a counterfactual with ``posterior=`` checks it).
+        evidence: name -> ``(N, dim)`` the observed values it was inferred from.
+        autoguide: the fitted Pyro autoguide (SVI methods), else None.
         param_state: its parameters (``pyro.get_param_store().scope(param_state)``
-            restores them for further use of ``guide``).
+            restores them for further use of ``autoguide``).
     """
 
     latent: tuple[str, ...]
     mean: dict[str, Tensor]
     sd: dict[str, Tensor]
     samples: dict[str, Tensor]
-    loss: tuple[float, ...]
-    guide: Any = field(repr=False)
-    param_state: dict[str, Any] = field(repr=False)
+    losses: tuple[float, ...]
+    guide: str
+    diagnostics: Diagnostics
+    graph: CausalGraph = field(repr=False)
+    evidence: dict[str, Tensor] = field(default_factory=dict, repr=False)
+    autoguide: Any = field(default=None, repr=False)
+    param_state: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def loss(self) -> tuple[float, ...]:
+        """Alias of :attr:`losses`."""
+        return self.losses
+
+    @property
+    def num_samples(self) -> int:
+        """S, the draws per unit."""
+        return next(iter(self.samples.values())).shape[0]
 
     def interval(self, name: str, level: float = 0.9) -> tuple[Tensor, Tensor]:
         """Equal-tailed credible interval from the samples: two ``(N, dim)`` tensors."""
         level = check_float("level", level, minimum=0.0, maximum=1.0, min_open=True, max_open=True)
         if not isinstance(name, str) or name not in self.samples:
             raise ValueError(f"{name!r} is not a latent site; latent: {list(self.latent)}")
-        q = torch.tensor([(1 - level) / 2, (1 + level) / 2])
+        q = torch.tensor([(1 - level) / 2, (1 + level) / 2], dtype=self.samples[name].dtype)
         lo, hi = torch.quantile(self.samples[name], q, dim=0)
         return lo, hi
 
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible summary: means, sds, the last loss and the diagnostics."""
+        return {
+            "latent": list(self.latent),
+            "guide": self.guide,
+            "mean": {k: v.tolist() for k, v in self.mean.items()},
+            "sd": {k: v.tolist() for k, v in self.sd.items()},
+            "num_samples": self.num_samples,
+            "final_loss": self.losses[-1] if self.losses else None,
+            "num_steps": len(self.losses),
+            "diagnostics": self.diagnostics.to_dict(),
+        }
 
-def split_actions(
-    model: WorldModel, observed: Mapping[str, Tensor]
-) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
+
+def measurement_sites(program: Program) -> tuple[str, ...]:
+    """The sites of every MeasurementScale of ``program`` and of those entered with ``with``."""
+    frames = [*program.handlers, *_PYRO_STACK]
+    return tuple(n for f in frames if isinstance(f, MeasurementScale) for n in f.site_names())
+
+
+def split_actions(model: Any, observed: Mapping[str, Tensor]) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
     """Separate executed actions (applied as do, Eq. 4.30) from observed evidence: ``(evidence, actions)``."""
-    acts = {k: v for k, v in observed.items() if model.graph[k].role is Role.ACTION}
+    graph = model.graph
+    acts = {k: v for k, v in observed.items() if graph[k].role is Role.ACTION}
     evidence = {k: v for k, v in observed.items() if k not in acts}
     return evidence, acts
 
 
-def infer_state(
-    model: WorldModel,
-    observed: Mapping[str, Any],
-    *,
-    interventions: Mapping[str, Any] | None = None,
-    measurement_scale: Mapping[str, Tensor] | None = None,
-    guide: str = "normal",
-    num_steps: int = 500,
-    lr: float = 0.1,
-    lr_final: float = 0.001,
-    num_particles: int = 16,
-    num_samples: int = 1000,
-    init_scale: float = 0.1,
-    seed: int = 0,
-    progress_bar: bool = False,
-) -> StateResult:
-    """SVI posterior over the latent sites given the observed sites.
-
-    Args:
-        model: the world model (any Pyro program with a ``graph`` following the
-            :class:`models.WorldModel` call contract works).
-        observed: name -> ``(N, dim)`` evidence. Executed actions in it are applied as
-            ``do(action)``, not conditioned on.
-        interventions: extra ``do`` assignments (see :func:`inference.do`).
-        measurement_scale: observed measurement site -> per-unit sigma ``(N, dim)`` or
-            ``(dim,)`` replacing its learned sigma (:class:`inference.MeasurementScale`),
-            e.g. the uncertainty perception reports for each frame.
-        guide: ``"normal"`` (AutoNormal, mean field) or ``"mvn"`` (AutoMultivariateNormal).
-        num_steps: ClippedAdam steps.
-        lr: initial ClippedAdam learning rate.
-        lr_final: learning rate at the last step (geometric decay from ``lr``).
-        num_particles: vectorised ELBO particles per step.
-        num_samples: posterior draws S returned in ``samples``.
-        init_scale: initial guide scale, > 0.
-        seed: seeds Pyro's sampling (torch's RNG) inside a forked RNG context; the
-            caller's torch, numpy and Python RNG states are left as they were.
-        progress_bar: show a tqdm bar.
-
-    Returns:
-        :class:`StateResult`.
-
-    Raises:
-        ValueError: bad evidence (see :func:`models.world.as_values`), executed actions
-            outside their bounds, bad interventions or measurement scales, or a bad
-            optimiser argument (type or range).
-        FloatingPointError: the ELBO became NaN or inf.
-    """
-    check_callable("model", model)
-    graph = getattr(model, "graph", None)
-    if not isinstance(graph, CausalGraph):
-        raise ValueError(
-            f"model must be a WorldModel (or a program with a CausalGraph `graph`), got {describe(model)}"
+def _legacy(
+    program: Program, n: int, observed: Mapping[str, Tensor], deprecated: Mapping[str, Any]
+) -> tuple[Program, dict[str, Any]]:
+    """Apply the deprecated ``interventions=`` / ``measurement_scale=`` keywords by composition."""
+    unknown = sorted(k for k in deprecated if k not in _DEPRECATED)
+    if unknown:
+        raise TypeError(f"infer_state() got unexpected keyword arguments {unknown}")
+    if deprecated:
+        warnings.warn(
+            f"infer_state({', '.join(f'{k}=' for k in deprecated)}) is deprecated: compose the program "
+            "(do(model, ...), MeasurementScale(...)(model)) and pass SVIOptions as options=",
+            DeprecationWarning,
+            stacklevel=3,
         )
-    guide = check_choice("guide", guide, sorted(GUIDES))
-    num_steps = check_int("num_steps", num_steps, minimum=1)
-    num_particles = check_int("num_particles", num_particles, minimum=1)
-    num_samples = check_int("num_samples", num_samples, minimum=1)
-    lr = check_float("lr", lr, minimum=0.0, min_open=True)
-    lr_final = check_float("lr_final", lr_final, minimum=0.0, min_open=True)
-    init_scale = check_float("init_scale", init_scale, minimum=0.0, min_open=True)
-    seed = check_seed("seed", seed)
-    progress_bar = check_bool("progress_bar", progress_bar)
-    dtype = model_dtype(model)
-    obs, n = as_values(graph, observed, what="observed", dtype=dtype)
-    if n is None:
-        raise ValueError("observed is empty; state inference needs evidence")
-    check_action_bounds(graph, obs, "observed")
-    evidence, acts = split_actions(model, obs)
-    ivs = {
-        **acts,
-        **check_interventions(graph, check_mapping("interventions", interventions, allow_none=True), dtype),
-    }
-    both = sorted(set(evidence) & set(ivs))
-    if both:
-        raise ValueError(f"variables {both} are both observed and intervened on; pick one")
-    latent = tuple(v for v in graph.topological_order() if v not in evidence and v not in ivs)
-    if not latent:
-        raise ValueError("every variable is observed or intervened on; there is no latent site to infer")
-    program = Intervene(ivs)(model) if ivs else model
-    measurement_scale = check_mapping("measurement_scale", measurement_scale, allow_none=True)
-    if measurement_scale:
+    graph, dtype = program.graph, program.dtype
+    ivs = check_mapping("interventions", deprecated.get("interventions"), allow_none=True)
+    if ivs:
+        specs = check_interventions(graph, ivs, dtype, program.world.discrete)
+        program = Intervene(specs)(program)
+    scales_in = check_mapping("measurement_scale", deprecated.get("measurement_scale"), allow_none=True)
+    if scales_in:
         scales = {}
-        for name, raw in measurement_scale.items():
+        for name, raw in scales_in.items():
             graph.check_name(name, what="measurement site")
             scale = as_float_tensor(raw, f"measurement_scale[{name!r}]", dtype)
             if scale.ndim not in (1, 2) or scale.shape[-1] != graph[name].dim:
@@ -186,55 +190,130 @@ def infer_state(
             if scale.ndim == 2 and scale.shape[0] != n:
                 raise ValueError(f"measurement_scale[{name!r}] has {scale.shape[0]} rows, expected {n}")
             scales[name] = scale
-        unobserved = sorted(set(scales) - set(evidence))
+        unobserved = sorted(k for k in scales if k not in observed or graph[k].role is Role.ACTION)
         if unobserved:
             raise ValueError(f"measurement_scale names {unobserved}, which are not observed sites")
         program = MeasurementScale(scales)(program)
+    svi = {k: deprecated[k] for k in _DEPRECATED_SVI if k in deprecated}
+    return program, svi
 
+
+def _options(guide: str, options: Any, svi: Mapping[str, Any]) -> Any:
+    kind = GUIDES[guide]
+    if options is None:
+        options = kind()
+    if not isinstance(options, kind):
+        raise ValueError(f"guide={guide!r} takes options={kind.__name__}(...), got {describe(options)}")
+    if svi:
+        if kind is not SVIOptions:
+            raise ValueError(f"{sorted(svi)} are SVI settings; guide={guide!r} does not use them")
+        options = SVIOptions(**{**options.to_dict(), **svi})
+    return options
+
+
+def infer_state(
+    model: Any,
+    observed: Mapping[str, Any],
+    *,
+    guide: str = "normal",
+    num_steps: int = 500,
+    num_samples: int = 1000,
+    options: SVIOptions | ImportanceOptions | GridOptions | None = None,
+    seed: int = 0,
+    progress_bar: bool = False,
+    **deprecated: Any,
+) -> StateResult:
+    """Posterior over the latent sites given the observed sites.
+
+    Args:
+        model: a :class:`models.WorldModel` or a program made from one (``do(model, ...)``,
+            ``MeasurementScale(...)(model)``, ...). Handlers entered with ``with`` around the
+            call act too.
+        observed: name -> ``(N, dim)`` evidence (category codes for discrete sites).
+            Executed actions in it are applied as ``do(action)``, not conditioned on.
+        guide: the posterior method, a key of :data:`GUIDES` (module docstring).
+        num_steps: SVI steps (SVI guides only).
+        num_samples: posterior draws S returned in ``samples``.
+        options: :class:`SVIOptions`, :class:`ImportanceOptions` or :class:`GridOptions`,
+            matching ``guide``; None for the defaults.
+        seed: seeds the method (torch's RNG in a forked context and local generators); the
+            caller's torch, numpy and Python RNG states are left as they were.
+        progress_bar: show a tqdm bar over SVI steps.
+        **deprecated: ``interventions=`` (use ``do``), ``measurement_scale=`` (use
+            :class:`inference.MeasurementScale`), and ``lr``, ``lr_final``,
+            ``num_particles``, ``init_scale`` (use ``options=SVIOptions(...)``).
+
+    Returns:
+        :class:`StateResult`.
+
+    Raises:
+        ValueError: a model that is not a WorldModel or program, bad evidence (see
+            :func:`models.world.as_values`; also category codes out of range), executed
+            actions outside their bounds, an unknown guide, options of the wrong type,
+            sites both observed and intervened, no latent site, a grid over too many
+            latent components, or handlers naming unknown sites.
+        FloatingPointError: the ELBO became NaN or inf.
+    """
+    program = as_program(model)
+    graph = program.graph
+    guide = check_choice("guide", guide, sorted(GUIDES))
+    num_steps = check_int("num_steps", num_steps, minimum=1)
+    num_samples = check_int("num_samples", num_samples, minimum=1)
+    seed = check_seed("seed", seed)
+    progress_bar = check_bool("progress_bar", progress_bar)
+    dtype = program.dtype
+    obs, n = as_values(graph, observed, what="observed", dtype=dtype)
+    if n is None:
+        raise ValueError("observed is empty; state inference needs evidence")
+    check_action_bounds(graph, obs, "observed")
+    program.world.check_codes(obs, "observed")
+    program, svi = _legacy(program, n, obs, deprecated)
+    options = _options(guide, options, svi)
+    check_active_handlers(graph)
+    evidence, acts = split_actions(program, obs)
+    if acts:
+        program = Intervene(acts)(program)
     param_store = pyro.get_param_store()
-    # Pyro samples with torch's global RNG: fork it and seed inside, so the caller's
-    # state is restored afterwards (numpy's and Python's RNGs are never used).
-    with param_store.scope() as param_state, torch.random.fork_rng(), frozen_parameters(model):
+    with param_store.scope() as param_state, torch.random.fork_rng(), frozen_parameters(program.world):
         torch.manual_seed(seed)
-        auto = GUIDES[guide](program, init_scale=init_scale)
-        optim = ClippedAdam({"lr": lr, "lrd": (lr_final / lr) ** (1.0 / num_steps)})
-        elbo = Trace_ELBO(
-            num_particles=num_particles, vectorize_particles=num_particles > 1, max_plate_nesting=1
-        )
-        svi = SVI(program, auto, optim, elbo)
-        losses: list[float] = []
-        bar = tqdm(range(num_steps), desc="infer_state", disable=not progress_bar, leave=False)
-        for _ in bar:
-            loss = svi.step(evidence, n) / n
-            if not math.isfinite(loss):
-                raise FloatingPointError(
-                    f"ELBO became {loss} at step {len(losses)}; check that the evidence lies in the "
-                    "support of the model (e.g. within action bounds) or lower lr"
-                )
-            losses.append(loss)
-            if len(losses) % 50 == 0:
-                bar.set_postfix(loss=f"{loss:.4g}")
-        with torch.no_grad():
-            with pyro.plate("_posterior_samples", num_samples, dim=-2):
-                trace = pyro.poutine.trace(auto).get_trace(evidence, n)
-            samples = {k: trace.nodes[k]["value"].detach() for k in latent}
-            median = auto.median(evidence, n)
-            quant = auto.quantiles([1 - _Z1, _Z1], evidence, n)
-        mean, sd = {}, {}
-        for k in latent:
-            if _support_is_real(auto.prototype_trace.nodes[k]["fn"].support):
-                mean[k] = median[k].detach()
-                lo, hi = quant[k].detach()
-                sd[k] = (hi - lo) / 2
-            else:
-                mean[k] = samples[k].mean(0)
-                sd[k] = samples[k].std(0)
-    log.debug("infer_state: %d steps, final loss %.4g", num_steps, losses[-1])
-    return StateResult(latent, mean, sd, samples, tuple(losses), auto, param_state)
-
-
-def _support_is_real(support: Any) -> bool:
-    base = support
-    while hasattr(base, "base_constraint"):
-        base = base.base_constraint
-    return base is dist.constraints.real
+        generator = torch.Generator().manual_seed(seed)
+        sites = read_sites(program, evidence, n)
+        both = sorted(set(evidence) & set(sites.intervened))
+        if both:
+            raise ValueError(f"variables {both} are both observed and intervened on; pick one")
+        if not sites.latent:
+            raise ValueError("every variable is observed or intervened on; there is no latent site to infer")
+        unobserved = sorted(set(measurement_sites(program)) - set(evidence))
+        if unobserved:
+            raise ValueError(
+                f"MeasurementScale names {unobserved}, which are not observed sites; observed: {sorted(evidence)}"
+            )
+        if guide in SVI_GUIDES:
+            # autoguides trace the model inside poutine.block, which hides the handlers entered
+            # with ``with``: carry copies of them inside the program as well
+            outer = [copy.copy(f) for f in reversed(_PYRO_STACK) if isinstance(f, ProgramMessenger)]
+            if outer:
+                program = Program(program.world, (*program.handlers, *outer))
+            fitted = svi_posterior(
+                program, evidence, n, sites, guide, num_steps, num_samples, options, progress_bar, generator
+            )
+        elif guide == "importance":
+            fitted = importance_posterior(program, evidence, n, sites, num_samples, options, generator)
+        else:
+            fitted = grid_posterior(program, evidence, n, sites, num_samples, options, generator)
+    if not fitted.diagnostics.ok:
+        warnings.warn(fitted.diagnostics.message, PoorPosteriorWarning, stacklevel=2)
+    log.debug("infer_state(%s): %s", guide, fitted.diagnostics.message)
+    return StateResult(
+        sites.latent,
+        fitted.mean,
+        fitted.sd,
+        fitted.samples,
+        fitted.losses,
+        guide,
+        fitted.diagnostics,
+        graph,
+        dict(obs),
+        fitted.autoguide,
+        param_state if fitted.autoguide is not None else {},
+    )

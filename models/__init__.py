@@ -3,6 +3,7 @@
 Depends on torch, pyro and networkx only.
 """
 
+from models.discrete import BernoulliMechanism, CategoricalMechanism, DiscreteMechanism
 from models.ensemble import EnsembleMechanism
 from models.graph import CausalGraph
 from models.heteroscedastic import HeteroscedasticMechanism
@@ -13,7 +14,10 @@ from models.variables import Role, Variable
 from models.world import WorldModel
 
 __all__ = [
+    "BernoulliMechanism",
+    "CategoricalMechanism",
     "CausalGraph",
+    "DiscreteMechanism",
     "EnsembleMechanism",
     "FunctionMechanism",
     "HeteroscedasticMechanism",

@@ -100,7 +100,7 @@ class CategoricalCode(TorchDistribution):
         batch_shape = torch.Size(batch_shape)
         return CategoricalCode(self.logits.expand(*batch_shape, self.categories))
 
-    def sample(self, sample_shape: Any = torch.Size()) -> Tensor:
+    def sample(self, sample_shape: Any = ()) -> Tensor:
         """Codes ``(*sample_shape, ..., N, 1)`` drawn with torch's global RNG."""
         with torch.no_grad():
             idx = torch.distributions.Categorical(logits=self.logits).sample(torch.Size(sample_shape))
@@ -378,4 +378,3 @@ class CategoricalMechanism(DiscreteMechanism):
         else:
             mech._set_affine(w, b)
         return mech
-

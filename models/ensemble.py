@@ -4,10 +4,11 @@ Member k is a mechanism ``X = m_k(pa) + s_k(pa) * eps`` (homoscedastic or hetero
 The site is **the moment-matched Normal of the equally weighted member mixture**:
 
     loc(pa)     = (1/K) sum_k m_k(pa)
-    scale(pa)^2 = (1/K) sum_k s_k(pa)^2                  (aleatoric)
-                + (1/K) sum_k (m_k(pa) - loc(pa))^2      (epistemic: the members' disagreement)
+    scale(pa)^2 = c^2 (1/K) sum_k s_k(pa)^2              (aleatoric)
+                + c^2 (1/K) sum_k (m_k(pa) - loc(pa))^2  (epistemic: the members' disagreement)
 
-so ``X ~ Normal(loc(pa), scale(pa))`` stays an ordinary location-scale Pyro site: its
+with ``c`` = 1 until :func:`inference.fit` recalibrates the site on validation rows
+(:meth:`EnsembleMechanism.recalibrate`). So ``X ~ Normal(loc(pa), scale(pa))`` stays an ordinary location-scale Pyro site: its
 log-density, ``do``, abduction ``u = (x - loc(pa)) / scale(pa)`` and replay
 ``x' = loc(pa') + scale(pa') * u`` are exact for that Normal, with no member index to
 infer. The members themselves are exposed by :meth:`EnsembleMechanism.member_loc_scale`
@@ -26,6 +27,7 @@ import torch
 from torch import Tensor, nn
 
 from models.checks import check_int, describe
+from models.heteroscedastic import shift_log_scale
 from models.mechanisms import Mechanism, Seed, as_generator, make_mechanism
 
 __all__ = ["EnsembleMechanism", "member_seeds"]
@@ -85,6 +87,7 @@ class EnsembleMechanism(Mechanism):
         self.in_dim, self.out_dim = dims[0]
         self.members = nn.ModuleList(members)
         self.register_parameter("log_sigma", None)
+        self.register_buffer("log_scale_offset", torch.zeros(self.out_dim, dtype=members[0].out_loc.dtype))
 
     @classmethod
     def replicate(
@@ -176,13 +179,29 @@ class EnsembleMechanism(Mechanism):
         return loc, (aleatoric + epistemic).sqrt()
 
     def variance(self, parents: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """``(loc, aleatoric, epistemic)``: the mean, ``mean_k s_k^2`` and ``mean_k (m_k - loc)^2``.
+        """``(loc, aleatoric, epistemic)``: the mean, ``c^2 mean_k s_k^2`` and ``c^2 mean_k (m_k - loc)^2``.
 
-        All ``(..., out_dim)``; variances in the child's units squared.
+        ``c`` is the ensemble's recalibration factor (1 until :meth:`recalibrate`). All
+        ``(..., out_dim)``; variances in the child's units squared.
         """
         locs, scales = self.member_loc_scale(parents)
         loc = locs.mean(0)
-        return loc, scales.pow(2).mean(0), (locs - loc).pow(2).mean(0)
+        c2 = (2 * self.log_scale_offset).exp()
+        return loc, c2 * scales.pow(2).mean(0), c2 * (locs - loc).pow(2).mean(0)
+
+    def recalibrate(self, factor: Any) -> None:
+        """Multiply the site's scale (both variance terms) by ``factor`` ``(out_dim,)`` > 0, K > 1.
+
+        ``fit`` sets ``factor^2 = mean(z^2)`` over validation rows, ``z = (x - loc(pa)) / scale(pa)``:
+        members calibrated one by one over-cover together, because the mean of K members errs
+        less than each member. The members' own scales (``member_loc_scale``) are unchanged.
+
+        Raises:
+            ValueError: K = 1 (recalibrate the member), or a bad ``factor``.
+        """
+        if self.size == 1:
+            raise ValueError("an ensemble of 1 member has the member's scale; recalibrate members[0]")
+        shift_log_scale(self.log_scale_offset, factor)
 
     def penalty(self) -> Tensor:
         """The sum of the members' penalties."""

@@ -16,6 +16,11 @@ stays above ``lo`` and below ``lo + softplus(hi - lo)`` (``hi`` plus at most
 adds ``BOUND_PENALTY * sum(hi - lo)`` to the training loss (PETS uses 0.01), which pulls the
 bounds in to where the data needs them. The clamp keeps the scale away from 0 and inf, so the
 NLL stays finite.
+
+A head trained while its loc is still improving over-estimates the scale (the residuals it
+saw were larger than the final ones), so :func:`inference.fit` recalibrates it on the
+validation rows: ``s <- s + log c``, ``c^2 = mean(z^2)`` per component (:meth:`recalibrate`,
+stored in the state as ``log_scale_offset``).
 """
 
 from __future__ import annotations
@@ -42,6 +47,7 @@ __all__ = [
     "LOG_SCALE_BOUNDS",
     "HeteroscedasticMechanism",
     "check_log_scale_bounds",
+    "shift_log_scale",
     "soft_clamp",
 ]
 
@@ -55,6 +61,21 @@ def soft_clamp(s: Tensor, low: Tensor, high: Tensor) -> Tensor:
     """``low + softplus((high - softplus(high - s)) - low)``: s smoothly kept inside (low, high)."""
     s = high - F.softplus(high - s)
     return low + F.softplus(s - low)
+
+
+def shift_log_scale(offset: Tensor, factor: Any) -> None:
+    """Add ``log(factor)`` to the buffer ``offset`` ``(out_dim,)`` in place (a scale multiplied by ``factor``).
+
+    Raises:
+        ValueError: ``factor`` is not ``out_dim`` finite values > 0.
+    """
+    factor = torch.as_tensor(factor, dtype=offset.dtype).reshape(-1)
+    if factor.shape != offset.shape or not bool(torch.isfinite(factor).all() and (factor > 0).all()):
+        raise ValueError(
+            f"recalibration factor must be {offset.numel()} finite values > 0, got {factor.tolist()}"
+        )
+    with torch.no_grad():
+        offset.add_(factor.log())
 
 
 def check_log_scale_bounds(value: Any, name: str = "log_scale_bounds") -> tuple[float, float]:
@@ -154,13 +175,22 @@ class HeteroscedasticMechanism(Mechanism):
         else:
             self.register_buffer("log_scale_min", lo)
             self.register_buffer("log_scale_max", hi)
+        self.register_buffer("log_scale_offset", torch.zeros(self.out_dim))
 
     def _heads(self, parents: Tensor) -> tuple[Tensor, Tensor]:
-        """Standardised ``(m, s)`` (s clamped), each ``(..., out_dim)``."""
+        """Standardised ``(m, s)`` (s clamped, plus the recalibration offset), each ``(..., out_dim)``."""
         parents = self.check_input(parents)
         h = self.trunk((parents - self.in_loc) / self.in_scale)
         s = soft_clamp(self.log_scale_head(h), self.log_scale_min, self.log_scale_max)
-        return self.loc_head(h), s
+        return self.loc_head(h), s + self.log_scale_offset
+
+    def recalibrate(self, factor: Any) -> None:
+        """Multiply the predicted scale by ``factor`` ``(out_dim,)`` > 0 (variance scaling).
+
+        ``fit`` sets ``factor^2 = mean(z^2)`` over validation rows, ``z = (x - f(pa)) / sigma(pa)``,
+        so that the held-out standardised residuals have unit variance (Levi et al. 2022).
+        """
+        shift_log_scale(self.log_scale_offset, factor)
 
     def core(self, z: Tensor) -> Tensor:
         """The standardised loc m(z): ``(..., in_dim) -> (..., out_dim)``."""

@@ -68,6 +68,8 @@ _DISTS = ("pal", "torch", "pyro-ppl", "numpy", "networkx")
 _META = "__meta__"
 _DOC_KEYS = {"format", "versions", "meta", "checksum"}
 _MODEL_KEYS = {"graph", "graph_fingerprint", "mechanisms", "provenance"}
+#: name -> K of the discrete sites (models with discrete sites only).
+_OPTIONAL_KEYS = {"discrete"}
 _MAX_NPY_HEADER = 10_000
 #: What the zip and ``.npy`` parsers raise on damaged input (ast/tokenize parse ``.npy`` headers).
 _CORRUPT = (
@@ -296,8 +298,11 @@ def _read(path: str | os.PathLike[str], limits: ReadLimits) -> tuple[dict[str, A
     if _checksum(fmt, doc["versions"], doc["meta"], arrays) != doc["checksum"]:
         raise ModelFileError(f"{path}: checksum mismatch; its tensors or metadata were changed after saving")
     meta = doc["meta"]
-    if set(meta) != _MODEL_KEYS:
-        raise ModelFileError(f"{path}: metadata has keys {sorted(meta)}, expected {sorted(_MODEL_KEYS)}")
+    if not _MODEL_KEYS <= set(meta) <= _MODEL_KEYS | _OPTIONAL_KEYS:
+        raise ModelFileError(
+            f"{path}: metadata has keys {sorted(meta)}, expected {sorted(_MODEL_KEYS)} "
+            f"(and optionally {sorted(_OPTIONAL_KEYS)})"
+        )
     return {**meta, "format": fmt, "versions": doc["versions"]}, arrays
 
 
@@ -308,7 +313,8 @@ def save(
 
     Args:
         model: the world model; every mechanism must be serialisable (MLP, linear,
-            heteroscedastic, or an ensemble of those: :func:`models.mechanisms.mechanism_classes`),
+            heteroscedastic, Bernoulli, categorical, or an ensemble of the continuous ones:
+            :func:`models.mechanisms.mechanism_classes`); discrete sites are recorded,
             and every parameter finite.
         path: destination file (conventionally ``*.npz``).
         provenance: JSON-compatible extras, e.g. ``{"seed": 0, "config": {...}}`` (NaN/inf
@@ -352,6 +358,8 @@ def save(
         "mechanisms": mechs,
         "provenance": prov,
     }
+    if model.discrete:
+        meta["discrete"] = model.discrete
     try:
         meta = json.loads(_canonical(meta))  # exactly what load will parse
     except (TypeError, ValueError) as err:
@@ -412,7 +420,10 @@ def load(
             raise ModelFileError(f"{path}: tensor {key!r} has NaN/inf entries")
     try:
         mechs = {name: make_mechanism(cfg) for name, cfg in mech_cfgs.items()}
-        model = WorldModel(file_graph, mechs)
+        discrete = meta.get("discrete")
+        if discrete is not None and not isinstance(discrete, dict):
+            raise ModelFileError(f"{path}: 'discrete' must map site names to category counts")
+        model = WorldModel(file_graph, mechs, discrete=discrete)
         state = {k.removeprefix("state/"): torch.from_numpy(v.copy()) for k, v in arrays.items()}
         floats = {t.dtype for t in state.values() if t.is_floating_point()}
         if len(floats) == 1:

@@ -40,7 +40,13 @@ from models.checks import (
     check_names,
     describe,
 )
-from models.discrete import BernoulliMechanism, CategoricalCode, CategoricalMechanism, DiscreteMechanism, check_codes
+from models.discrete import (
+    BernoulliMechanism,
+    CategoricalCode,
+    CategoricalMechanism,
+    DiscreteMechanism,
+    check_codes,
+)
 from models.ensemble import EnsembleMechanism
 from models.forward import ForwardQueries, NoiseSpec
 from models.graph import CausalGraph
@@ -234,13 +240,15 @@ class WorldModel(PyroModule, ForwardQueries):
         return sum(self.parent_width(p) for p in self.graph.parents(name))
 
     def parent_width(self, name: str) -> int:
-        """Columns that ``name`` takes in its children's inputs: K for a categorical site with
-        K > 2 categories (one-hot), else its dim."""
+        """Columns that ``name`` takes in its children's inputs.
+
+        K for a categorical site with K > 2 categories (one-hot), else its dim.
+        """
         return _width(self.graph, self._categories, name)
 
     @property
     def discrete(self) -> dict[str, int]:
-        """name -> number of categories K of every discrete site (roots included)."""
+        """Name -> number of categories K of every discrete site (roots included)."""
         return dict(self._categories)
 
     def categories(self, name: str) -> int | None:
@@ -258,6 +266,22 @@ class WorldModel(PyroModule, ForwardQueries):
             k = self._categories.get(name)
             if k is not None and isinstance(v, Tensor):
                 check_codes(f"{what}[{name!r}]", v, k)
+
+    def probs(self, name: str, values: Mapping[str, Any]) -> Tensor:
+        """``(..., K)`` category probabilities of the discrete non-root ``name`` given its parents' values.
+
+        Raises:
+            ValueError: ``name`` is not a discrete non-root, or a parent value is missing.
+        """
+        mech = self.mechanism(name)
+        if not isinstance(mech, DiscreteMechanism):
+            raise ValueError(f"{name!r} is continuous; probs is for discrete sites ({sorted(self._categories)})")
+        values = check_mapping("values", values)
+        missing = [p for p in self.graph.parents(name) if p not in values]
+        if missing:
+            raise ValueError(f"probs of {name!r} needs values of its parents; missing {missing}")
+        vals = {p: as_float_tensor(values[p], f"values[{p!r}]", self.dtype) for p in self.graph.parents(name)}
+        return mech.distribution(self._parents(name, vals)).probs
 
     def set_root_probs(self, name: str, probs: Any) -> None:
         """Set the categorical prior of a discrete root: ``(K,)`` probabilities > 0 (renormalised)."""
@@ -342,7 +366,9 @@ class WorldModel(PyroModule, ForwardQueries):
         if not self.graph.is_root(name) or var.role is Role.ACTION:
             raise ValueError(f"{name!r} is not a non-action root; only those have a Normal prior")
         if name in self._categories:
-            raise ValueError(f"{name!r} is a discrete root; set its category probabilities with set_root_probs")
+            raise ValueError(
+                f"{name!r} is a discrete root; set its category probabilities with set_root_probs"
+            )
         loc_t, scale_t = (
             as_float_tensor(v, f"root prior {what} of {name!r}", self.dtype).detach().reshape(-1)
             for v, what in ((loc, "loc"), (scale, "scale"))
@@ -500,7 +526,11 @@ class WorldModel(PyroModule, ForwardQueries):
                 mechs[name] = copy.deepcopy(old)
                 outcome[name] = "kept"
                 continue
-            if any(self.parent_width(p) != graph[p].dim for p in (*self.graph.parents(name), *new_parents) if p in self.graph):
+            if any(
+                self.parent_width(p) != graph[p].dim
+                for p in (*self.graph.parents(name), *new_parents)
+                if p in self.graph
+            ):
                 outcome[name] = "new"  # one-hot parents: columns are not the graph's dims
                 continue
             rewired = rewire_mechanism(
@@ -547,7 +577,7 @@ def _default_mechanism(
 def _categories(
     graph: CausalGraph, discrete: Mapping[str, int] | None, given: Mapping[str, Mechanism]
 ) -> dict[str, int]:
-    """name -> K of every discrete site, from ``discrete`` and the given discrete mechanisms."""
+    """Name -> K of every discrete site, from ``discrete`` and the given discrete mechanisms."""
     out: dict[str, int] = {}
     for name, k in check_mapping("discrete", discrete, allow_none=True).items():
         graph.check_name(name, what="discrete site")
@@ -569,7 +599,9 @@ def _categories(
         if var.role is Role.ACTION:
             raise ValueError(f"{name!r} is an action; actions are continuous boxes and cannot be discrete")
         if var.dim != 1:
-            raise ValueError(f"discrete site {name!r} has dim {var.dim}; a discrete variable holds one code (dim 1)")
+            raise ValueError(
+                f"discrete site {name!r} has dim {var.dim}; a discrete variable holds one code (dim 1)"
+            )
     return {n: out[n] for n in graph.names if n in out}
 
 

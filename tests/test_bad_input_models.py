@@ -20,10 +20,15 @@ from inference import (
     CuriositySampler,
     DiscoveryResult,
     Ensemble,
+    FitSchedule,
+    GridOptions,
+    ImportanceOptions,
     Intervene,
     MeasurementScale,
+    Program,
     ReplayNoise,
     ResidualMonitor,
+    SVIOptions,
     abduct,
     active_subgraph,
     admissible_parents,
@@ -47,6 +52,8 @@ from inference.context import target_relevance
 from inference.design import choose_interventions, structure_uncertainty
 from inference.metalearn import SplitMechanism
 from models import (
+    BernoulliMechanism,
+    CategoricalMechanism,
     CausalGraph,
     EnsembleMechanism,
     FunctionMechanism,
@@ -1604,7 +1611,7 @@ CASES += [
     ),
     _c("inference.calibration", "no columns", lambda: predictive_check(xy_model(), {}), "data is empty"),
     # infer_state
-    _c("inference.infer_state", "model a str", lambda: infer_state("m", Z), "model must be callable"),
+    _c("inference.infer_state", "model a str", lambda: infer_state("m", Z), "model must be a WorldModel or a program"),
     _c(
         "inference.infer_state",
         "model without graph",
@@ -1621,8 +1628,8 @@ CASES += [
     _c(
         "inference.infer_state",
         "unknown guide",
-        lambda: infer_state(chain(), Z, guide="flow"),
-        "guide 'flow' unknown",
+        lambda: infer_state(chain(), Z, guide="flows"),
+        "guide 'flows' unknown",
     ),
     _c(
         "inference.infer_state",
@@ -2713,6 +2720,173 @@ CASES += [
         "seed must be a non-negative int",
     ),
     _c("inference.rewire", "data empty", lambda: rewire(finger(), finger_graph(), {}), "data is empty"),
+]
+
+
+def binary() -> WorldModel:
+    """X -> T (Bernoulli) -> Y, and X -> C (3 categories)."""
+    graph = CausalGraph(
+        [Variable(n, "observed") for n in "xtcy"], [("x", "t"), ("x", "c"), ("t", "y")]
+    )
+    return WorldModel(graph, seed=0, kind="linear", discrete={"t": 2, "c": 3})
+
+
+def bin_data(**cols: Any) -> dict[str, Any]:
+    return {"x": np.zeros((4, 1)), "t": np.ones((4, 1)), "c": np.full((4, 1), 2.0), "y": np.zeros((4, 1)), **cols}
+
+
+HALF = np.array([[0.0], [0.5], [1.0], [1.0]])
+THREE = np.full((4, 1), 3.0)
+
+CASES += [
+    # discrete sites
+    _c("models.WorldModel", "discrete unknown site", lambda: WorldModel(chain_graph(), discrete={"w": 2}), "discrete site 'w'"),
+    _c("models.WorldModel", "discrete K of 1", lambda: WorldModel(chain_graph(), discrete={"y": 1}), "number of categories"),
+    _c(
+        "models.WorldModel",
+        "discrete action",
+        lambda: WorldModel(finger_graph(), discrete={"act.finger": 2}),
+        "'act.finger' is an action",
+    ),
+    _c(
+        "models.WorldModel",
+        "discrete K disagrees with the mechanism",
+        lambda: WorldModel(chain_graph(), {"y": CategoricalMechanism(1, 3, seed=0)}, discrete={"y": 4}),
+        "discrete['y'] = 4 categories, but its mechanism has 3",
+    ),
+    _c(
+        "models.WorldModel",
+        "discrete with a continuous mechanism",
+        lambda: WorldModel(chain_graph(), {"y": LinearMechanism(1, seed=0)}, discrete={"y": 2}),
+        "its mechanism is a continuous LinearMechanism",
+    ),
+    _c("models.discrete", "categories of 1", lambda: CategoricalMechanism(1, 1), "categories must be an int >= 2, got 1"),
+    _c("models.discrete", "sigma of a Bernoulli", lambda: BernoulliMechanism(1, seed=0).sigma, "has no sigma"),
+    _c(
+        "models.WorldModel",
+        "Bernoulli observed with 0.5 (program)",
+        lambda: binary()(bin_data(t=HALF)),
+        "data['t'] has 1 values that are not 0 or 1 (a Bernoulli site) (first: 0.5 at index (1, 0))",
+    ),
+    _c(
+        "inference.fit",
+        "Bernoulli observed with 0.5",
+        lambda: fit(binary(), bin_data(t=HALF)),
+        "data['t'] has 1 values that are not 0 or 1",
+    ),
+    _c(
+        "inference.infer_state",
+        "Bernoulli observed with 0.5",
+        lambda: infer_state(binary(), {"x": HALF, "t": HALF}),
+        "observed['t'] has 1 values that are not 0 or 1",
+    ),
+    _c(
+        "inference.counterfactual",
+        "Bernoulli observed with 0.5",
+        lambda: counterfactual(binary(), bin_data(t=HALF), {"x": 0.0}),
+        "factual['t'] has 1 values that are not 0 or 1",
+    ),
+    _c(
+        "inference.counterfactual",
+        "categorical value outside range",
+        lambda: counterfactual(binary(), bin_data(c=THREE), {"x": 0.0}),
+        "factual['c'] has 4 values that are not an integer code 0 .. 2 (first: 3 at index (0, 0))",
+    ),
+    _c(
+        "inference.fit",
+        "categorical value outside range",
+        lambda: fit(binary(), bin_data(c=-THREE)),
+        "data['c'] has 4 values that are not an integer code 0 .. 2 (first: -3",
+    ),
+    _c(
+        "inference.do",
+        "categorical intervention outside range",
+        lambda: do(binary(), {"c": 3.0}),
+        "intervention on 'c' has 1 values that are not an integer code 0 .. 2",
+    ),
+    _c(
+        "inference.do",
+        "Bernoulli intervention of 0.5",
+        lambda: do(binary(), {"t": 0.5}),
+        "intervention on 't' has 1 values that are not 0 or 1",
+    ),
+    _c(
+        "inference.do",
+        "shift intervention leaves the categories",
+        lambda: simulate(binary(), 3, {"c": lambda c: c + 5}),
+        "intervention on 'c' has 3 values that are not an integer code 0 .. 2",
+    ),
+    _c(
+        "models.WorldModel",
+        "residuals of a discrete site",
+        lambda: binary().residuals({k: torch.as_tensor(v, dtype=torch.float32) for k, v in bin_data().items()}),
+        "residuals are not determined for the discrete sites ['t', 'c']",
+    ),
+    # posteriors and composition
+    _c("inference.infer_state", "guide unknown", lambda: infer_state(chain(), Z, guide="laplace"), "guide 'laplace' unknown; expected one of"),
+    _c(
+        "inference.infer_state",
+        "options of another guide",
+        lambda: infer_state(chain(), Z, guide="grid", options=SVIOptions()),
+        "guide='grid' takes options=GridOptions(...), got",
+    ),
+    _c(
+        "inference.infer_state",
+        "SVI keyword for importance sampling",
+        lambda: infer_state(chain(), Z, guide="importance", lr=0.1),
+        "['lr'] are SVI settings; guide='importance' does not use them",
+    ),
+    _c("inference.SVIOptions", "lr zero", lambda: SVIOptions(lr=0.0), "lr must be > 0"),
+    _c("inference.GridOptions", "max_dims 3", lambda: GridOptions(max_dims=3), "max_dims must be 1 or 2, got 3"),
+    _c("inference.ImportanceOptions", "too few particles", lambda: ImportanceOptions(num_particles=2), "num_particles must be an int >= 10, got 2"),
+    _c(
+        "inference.counterfactual",
+        "posterior of a program with a different graph",
+        lambda: counterfactual(
+            chain(),
+            {"x": torch.ones(1, 1), "z": Z["z"]},
+            {"x": 0.0},
+            posterior=infer_state(binary(), {"x": np.zeros((1, 1)), "y": np.zeros((1, 1))}, guide="grid"),
+        ),
+        "posterior was made for another graph",
+    ),
+    _c(
+        "inference.counterfactual",
+        "posterior not a StateResult",
+        lambda: counterfactual(chain(), {"x": torch.ones(1, 1), "z": Z["z"]}, {"x": 0.0}, posterior={"y": 1}),
+        "posterior must be a StateResult from infer_state",
+    ),
+    _c(
+        "inference.counterfactual",
+        "guide unknown",
+        lambda: counterfactual(chain(), Z, {"x": 0.0}, guide="exact"),
+        "guide 'exact' unknown",
+    ),
+    _c(
+        "inference.handlers",
+        "handler naming a site of another graph",
+        lambda: MeasurementScale({"q": torch.ones(1)})(chain()),
+        "MeasurementScale names ['q'], which are not sites of the program",
+    ),
+    _c(
+        "inference.Program",
+        "a Program of something else",
+        lambda: Program(lambda d, n: None),
+        "a Program wraps a WorldModel",
+    ),
+    _c(
+        "inference.fit",
+        "schedule a dict",
+        lambda: fit(xy_model(), xy(), schedule={"epochs": 1}),
+        "schedule must be a FitSchedule or None",
+    ),
+    _c("inference.FitSchedule", "validation 1", lambda: FitSchedule(validation=1.0), "validation must be >= 0 and < 1"),
+    _c(
+        "inference.infer_action",
+        "options a dict",
+        lambda: infer_action(finger(), FSTATE, {"q.finger": np.zeros((2, 1))}, options={"lr": 0.1}),
+        "options must be an ActionOptions or None",
+    ),
 ]
 
 RAW = (TypeError, KeyError, RuntimeError, AttributeError, IndexError, AssertionError, NotImplementedError)

@@ -306,6 +306,70 @@ CASES: dict[str, Callable[[Path], object]] = {
 }
 
 
+def _discrete_model() -> WorldModel:
+    graph = models.CausalGraph(
+        [models.Variable(n, "observed") for n in "xtcy"], [("x", "t"), ("x", "c"), ("t", "y"), ("c", "y")]
+    )
+    return WorldModel(
+        graph,
+        {"t": models.BernoulliMechanism(1, seed=0), "c": models.CategoricalMechanism(1, 3, hidden=(4,), seed=1)},
+        seed=2,
+        kind="linear",
+    )
+
+
+def _discrete_queries() -> None:
+    model = _discrete_model()
+    data = simulate(model, 40, seed=1)
+    fit(model, data, schedule=inference.FitSchedule(epochs=2, batch_size=8, validation=0.25, patience=1))
+    fit(model, data)  # the automatic schedule
+    model.sample(3, torch.Generator().manual_seed(0))
+    counterfactual(model, {k: v[:3] for k, v in data.items()}, {"x": 0.0}, num_samples=7)
+    counterfactual(model, {k: data[k][:3] for k in "xy"}, {"x": 0.0}, num_samples=7, guide="grid")
+    infer_state(model, {k: data[k][:2] for k in "xy"}, guide="normal", num_steps=3, num_samples=5)
+    abduct(model, {k: v[:2] for k, v in data.items()}, 2, seed=3)
+
+
+def _posteriors() -> None:
+    z = {"z": FACTUAL["z"]}
+    infer_state(_chain(), z, guide="grid", num_samples=5, options=inference.GridOptions(points=51, pilot=20))
+    infer_state(_chain(), z, guide="importance", num_samples=5, options=inference.ImportanceOptions(num_particles=50))
+    infer_state(_chain(), z, guide="flow", num_steps=3, num_samples=5, options=inference.SVIOptions(bins=4))
+    state = infer_state(_chain(), {"x": FACTUAL["x"], "z": FACTUAL["z"]}, guide="grid", num_samples=5)
+    counterfactual(_chain(), {"x": FACTUAL["x"], "z": FACTUAL["z"]}, {"x": 0.0}, posterior=state).to_dict()
+    state.to_dict()
+    state.diagnostics.to_dict()
+    isinstance(state.diagnostics, inference.Diagnostics)
+    isinstance(models.CategoricalMechanism(1, 3, seed=0), models.DiscreteMechanism)
+    issubclass(inference.PoorPosteriorWarning, UserWarning)
+
+
+def _composed() -> None:
+    program = inference.MeasurementScale({"z": torch.ones(1)})(do(_chain(), {"x": 1.0}))
+    assert isinstance(program, inference.Program)
+    infer_state(program, {"z": FACTUAL["z"]}, guide="grid", num_samples=4)
+    with inference.Intervene({"x": 1.0}):
+        infer_state(_chain(), {"z": FACTUAL["z"]}, num_steps=3, num_samples=4)
+        counterfactual(_chain(), {"z": FACTUAL["z"]}, {"y": 0.0}, num_samples=4)
+    infer_action(
+        inference.ReplayNoise({}, default="expected")(_finger()),
+        STATE,
+        TARGET,
+        num_steps=2,
+        options=inference.ActionOptions(init="random"),
+        seed=2,
+    )
+
+
+CASES.update(
+    {
+        "discrete sites: sample, fit, counterfactual, infer_state, abduct": lambda tmp: _discrete_queries(),
+        "posteriors: grid, importance, flow, posterior=": lambda tmp: _posteriors(),
+        "programs and handlers entered with with": lambda tmp: _composed(),
+    }
+)
+
+
 def _states() -> tuple[object, tuple, torch.Tensor]:
     return random.getstate(), np.random.get_state(), torch.get_rng_state()
 

@@ -35,7 +35,7 @@ from pyro.optim import ClippedAdam
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from inference.state import infer_state
+from inference.state import SVIOptions, infer_state
 from models.graph import CausalGraph
 from models.mechanisms import LinearMechanism
 from models.variables import Role, Variable
@@ -134,17 +134,14 @@ def _plain_svi(config: Config, data: dict[str, Tensor], num_steps: int) -> float
 
 
 def _ours(config: Config, model: WorldModel, data: dict[str, Tensor], num_steps: int) -> float:
-    result = infer_state(
-        model,
-        data,
-        num_steps=num_steps,
+    options = SVIOptions(
         lr=config.lr,
         lr_final=config.lr_final,
         num_particles=config.num_particles,
         init_scale=config.init_scale,
-        seed=config.seed,
     )
-    return result.loss[-1]
+    result = infer_state(model, data, num_steps=num_steps, options=options, seed=config.seed)
+    return result.losses[-1]
 
 
 @register(

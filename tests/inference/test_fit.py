@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from inference import fit
+from inference import FitSchedule, fit
 from models import CausalGraph, Variable, WorldModel, finger_graph
 
 
@@ -212,7 +212,9 @@ def test_beta_nll_recovers_a_heteroscedastic_scale(beta):
     with torch.no_grad():
         loc, scale = model.mechanism("y").loc_scale(x)
     torch.testing.assert_close(loc, torch.sin(x), atol=0.08, rtol=0)
-    torch.testing.assert_close(scale, 0.05 + 0.3 * x.abs(), atol=0.0, rtol=0.2)
+    # rtol 0.25: the head's shape error plus the validation recalibration (sd of mean z^2 on
+    # 1200 rows is about 4 %)
+    torch.testing.assert_close(scale, 0.05 + 0.3 * x.abs(), atol=0.0, rtol=0.25)
     assert len(r.val_nll["y"]) == len(r.val_loss["y"]) > 0
     assert r.sigma["y"][0] == pytest.approx(
         float(np.sqrt(np.mean((0.05 + 0.3 * np.abs(np.linspace(-2, 2))) ** 2))), rel=0.15
@@ -246,10 +248,18 @@ def test_each_member_trains_on_its_own_bootstrap():
     r = fit(boot, data, epochs=3, batch_size=100, seed=0)
     w = [m.net[0].weight for m in boot.mechanism("y").members]
     assert not torch.equal(w[0], w[1]) and not torch.equal(w[1], w[2])
-    # each member gets its own sigma from the validation rows; the site reports the mixture sd
-    sig = [float(m.sigma.detach()) for m in boot.mechanism("y").members]
+    # each member gets its own sigma from the validation rows; the site's moment-matched
+    # scale is then recalibrated on the same rows by one factor c
+    ens = boot.mechanism("y")
+    sig = [float(m.sigma.detach()) for m in ens.members]
     assert len(set(sig)) == 3
-    assert r.sigma["y"][0] >= float(np.sqrt(np.mean(np.square(sig)))) - 1e-6
+    assert r.sigma_rule["y"] == "recalibrated"
+    c = float(ens.log_scale_offset.exp())
+    x = torch.tensor([[-1.0], [0.3]])
+    with torch.no_grad():
+        locs = torch.stack([m(x) for m in ens.members])
+        expected = c * (torch.tensor(sig).pow(2).mean() + (locs - locs.mean(0)).pow(2).mean(0)).sqrt()
+        torch.testing.assert_close(ens.loc_scale(x)[1], expected, atol=1e-6, rtol=1e-5)
     again = twins()
     fit(again, data, epochs=3, batch_size=100, seed=0)
     for (k, a), (_, b) in zip(boot.state_dict().items(), again.state_dict().items(), strict=True):
@@ -294,3 +304,34 @@ def test_fit_leaves_function_mechanisms_alone():
     ):
         fit(only, nonlinear_data(50, 0), epochs=1)
     assert all(torch.equal(a, b) for a, b in zip(prior, only.root_priors.get("x"), strict=True))
+
+
+def test_a_predicted_scale_is_recalibrated_on_the_validation_rows():
+    """Y = 2 X + 0.01 U: the head, trained while its loc still improves, over-estimates the
+    scale (held-out coverage of the 90 % interval 0.97 without recalibration); rescaled so
+    that the validation residuals have mean(z^2) = 1, held-out coverage is within 0.85-0.95."""
+    rng = np.random.default_rng(0)
+    x = rng.uniform(-2, 2, (6000, 1))
+    rows = {"x": x, "y": 2 * x + 0.01 * rng.normal(size=(6000, 1))}
+    model = WorldModel(graph(), seed=0, kind="hetero", hidden=(32, 32))
+    r = fit(
+        model, rows, schedule=FitSchedule(beta=0.5, epochs=60, batch_size=256, lr=0.005, patience=10), seed=0
+    )
+    assert r.sigma_rule["y"] == "recalibrated"
+    mech = model.mechanism("y")
+    factor = float(mech.log_scale_offset.exp())
+    assert 0.3 < factor < 0.95  # the head's scale was too wide
+    xt = torch.tensor(rng.uniform(-2, 2, (4000, 1)), dtype=torch.float32)
+    yt = 2 * xt + 0.01 * torch.randn(4000, 1, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        loc, scale = mech.loc_scale(xt)
+    z = (yt - loc) / scale
+    assert 0.85 <= float((z.abs() < 1.6449).float().mean()) <= 0.95
+    assert 0.7 <= float(z.pow(2).mean()) <= 1.4
+    # the offset is state: a copy loaded from the state dict predicts the same scale
+    loaded = WorldModel(graph(), seed=5, kind="hetero", hidden=(32, 32))
+    loaded.load_state_dict(model.state_dict())
+    with torch.no_grad():
+        torch.testing.assert_close(loaded.mechanism("y").loc_scale(xt)[1], scale, atol=0.0, rtol=0.0)
+    with pytest.raises(ValueError, match=r"recalibration factor must be 1 finite values > 0, got \[0.0\]"):
+        mech.recalibrate(torch.zeros(1))

@@ -259,3 +259,24 @@ def test_an_ensemble_holding_a_function_cannot_be_saved(tmp_path):
     ):
         save(WorldModel(chain_graph(), {"y": ens}), tmp_path / "x.npz")
     assert not (tmp_path / "x.npz").exists()
+
+
+def test_a_model_with_discrete_sites_round_trips(tmp_path):
+    from models import BernoulliMechanism, CategoricalMechanism, CausalGraph, Variable, WorldModel, load, save
+
+    graph = CausalGraph([Variable(n, "observed") for n in "rtcy"], [("r", "t"), ("r", "c"), ("t", "y"), ("c", "y")])
+    model = WorldModel(
+        graph,
+        {"t": BernoulliMechanism(3, seed=0), "c": CategoricalMechanism(3, 4, hidden=(5,), seed=1)},
+        seed=2,
+        discrete={"r": 3},
+    )
+    model.set_root_probs("r", [0.2, 0.3, 0.5])
+    path = save(model, tmp_path / "discrete.npz")
+    back = load(path)
+    assert back.discrete == {"r": 3, "t": 2, "c": 4}
+    assert back.parent_dim("y") == 1 + 4
+    values = model.sample(50, torch.Generator().manual_seed(0))
+    again = back.sample(50, torch.Generator().manual_seed(0))
+    for k in values:
+        torch.testing.assert_close(values[k], again[k])
