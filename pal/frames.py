@@ -4,7 +4,10 @@
 (Eq. 4.8). :mod:`pal.sim` produces frames and :mod:`pal.perception` consumes them; both import
 this module and neither imports the other. Conventions (shared with :mod:`pal.sim.camera`):
 
-- ``rgb`` is (H, W, 3) uint8 in RGB channel order.
+- ``rgb`` is (H, W, 3) uint8 in **RGB** channel order (red first). OpenCV's ``imread`` returns
+  BGR: build such frames with :meth:`RGBDFrame.from_bgr`, or convert with
+  ``cv2.cvtColor(image, cv2.COLOR_BGR2RGB)``. Image files store RGB, and every reader of
+  :mod:`pal.perception` returns RGB.
 - ``depth`` is (H, W) float32, the z distance along the optical axis in metres.
   **0 marks an invalid pixel** (no return, out of range, unknown). NaN, inf and negative
   values are rejected at construction, so no NaN ever enters the pipeline.
@@ -15,6 +18,10 @@ this module and neither imports the other. Conventions (shared with :mod:`pal.si
   segmentation finds nothing. When the median valid depth exceeds
   :data:`MAX_PLAUSIBLE_DEPTH` (20 m), construction warns with :class:`DepthUnitsWarning`,
   naming the observed range and the fix.
+- A depth scale that is wrong by a constant factor (a Kinect's millimetres read as TUM's
+  1/5000 m units) leaves plausible-looking but wrong depth: :func:`check_depth_range` (called by
+  the readers with the scale they were given) warns when the range is implausible for an RGB-D
+  sensor and names the standard scale that would make it plausible.
 - ``labels`` (optional) is an (H, W) int32 ground-truth instance-id image (e.g. MuJoCo
   segmentation ids shifted so that 0 is background). Only the oracle segmenter and the
   evaluation read it.
@@ -32,9 +39,13 @@ import numpy as np
 
 __all__ = [
     "MAX_PLAUSIBLE_DEPTH",
+    "STANDARD_DEPTH_SCALES",
     "DepthUnitsWarning",
+    "EmptyDepthError",
     "RGBDFrame",
+    "TimestampOrderError",
     "backproject",
+    "check_depth_range",
     "check_depth_units",
     "check_intrinsics",
     "crop_intrinsics",
@@ -45,8 +56,93 @@ __all__ = [
 MAX_PLAUSIBLE_DEPTH = 20.0
 
 
+#: Depth scales (metres per stored unit) of common sensors and formats, by name.
+STANDARD_DEPTH_SCALES: dict[str, float] = {
+    "millimetres (Kinect, OpenNI, most 16-bit PNG/PGM)": 1e-3,
+    "TUM RGB-D (5000 units per metre)": 2e-4,
+    "0.1 mm (RealSense high-accuracy presets)": 1e-4,
+}
+#: The bulk of an RGB-D sensor's readings lies in this range, metres: structured-light and
+#: stereo sensors do not measure much closer than 0.3 m, and rarely report beyond 15 m.
+PLAUSIBLE_RANGE = (0.35, 15.0)
+
+
 class DepthUnitsWarning(UserWarning):
     """Depth values that are implausible for metres (probably millimetres or centimetres)."""
+
+
+class EmptyDepthError(ValueError):
+    """A depth image without a single valid pixel (all 0): a wrong file, scale or sensor failure."""
+
+
+class TimestampOrderError(ValueError):
+    """Frames out of time order: a timestamp earlier than the one before it."""
+
+
+def _range_problem(valid_m: np.ndarray) -> str:
+    """Why the valid depths (metres) are implausible for an RGB-D sensor ('' if they are not)."""
+    lo, hi = PLAUSIBLE_RANGE
+    near = float(np.mean(valid_m < lo))
+    p95 = float(np.percentile(valid_m, 95))
+    if near > 0.05:
+        return f"{near:.0%} of the valid pixels are closer than {lo:g} m"
+    if p95 > hi:
+        return f"5 % of the valid pixels are farther than {p95:.1f} m (more than {hi:g} m)"
+    return ""
+
+
+def check_depth_range(
+    units: np.ndarray, depth_scale: float, *, source: str = "depth", stacklevel: int = 2
+) -> bool:
+    """Warn if raw depth read with ``depth_scale`` gives a range implausible for an RGB-D sensor.
+
+    The bulk of the readings must lie in :data:`PLAUSIBLE_RANGE`: at most 5 % of the valid
+    pixels closer than 0.35 m and at most 5 % farther than 15 m. When the scale is implausible,
+    the warning names the range it gives and every standard scale of
+    :data:`STANDARD_DEPTH_SCALES` under which the range would be plausible.
+
+    Args:
+        units: (H, W) raw depth as stored (e.g. uint16); 0 = invalid.
+        depth_scale: the stated metres per unit (> 0).
+        source: what is being read, for the message (a file or directory name).
+        stacklevel: passed to :func:`warnings.warn`.
+
+    Returns:
+        True if the range is plausible (or there is no valid pixel).
+
+    Raises:
+        ValueError: ``depth_scale`` is not > 0.
+    """
+    if not depth_scale > 0:
+        raise ValueError(f"depth_scale is {depth_scale}, expected > 0 metres per unit")
+    raw = np.asarray(units)
+    valid = raw[raw > 0].astype(np.float64)
+    if valid.size == 0:
+        return True
+    if valid.size > 20000:  # a strided sample is enough for percentiles
+        valid = valid[:: valid.size // 20000]
+    problem = _range_problem(valid * depth_scale)
+    if not problem:
+        return True
+    fits = [
+        f"{name}: depth_scale={scale:g}"
+        for name, scale in STANDARD_DEPTH_SCALES.items()
+        if not _range_problem(valid * scale)
+    ]
+    median = float(np.median(valid)) * depth_scale
+    fix = (
+        "the range would be plausible with " + "; or ".join(fits)
+        if fits
+        else "no standard scale makes it plausible; check the sensor's documentation"
+    )
+    warnings.warn(
+        DepthUnitsWarning(
+            f"{source}: depth read with depth_scale={depth_scale:g} m per unit is implausible for an RGB-D "
+            f"sensor: {problem} (median {median:.3g} m). The scale is probably wrong: {fix}"
+        ),
+        stacklevel=stacklevel,
+    )
+    return False
 
 
 def check_depth_units(depth: np.ndarray, *, stacklevel: int = 2) -> bool:
@@ -209,6 +305,41 @@ class RGBDFrame:
                 raise ValueError(f"labels has dtype {labels.dtype}, expected an integer id image")
             object.__setattr__(self, "labels", _readonly(labels.astype(np.int32, copy=False)))
 
+    @classmethod
+    def from_bgr(
+        cls,
+        bgr: np.ndarray,
+        depth: np.ndarray,
+        K: np.ndarray,
+        timestamp: float,
+        labels: np.ndarray | None = None,
+    ) -> RGBDFrame:
+        """A frame from an image in OpenCV's BGR channel order (what ``cv2.imread`` returns).
+
+        Args:
+            bgr: (H, W, 3) uint8, blue first.
+            depth: (H, W) float32 metres, 0 = invalid.
+            K: (3, 3) intrinsics, pixels.
+            timestamp: s.
+            labels: optional (H, W) ground-truth instance ids.
+        """
+        image = np.asarray(bgr)
+        if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
+            raise ValueError(f"bgr has shape {image.shape} dtype {image.dtype}, expected (H, W, 3) uint8")
+        return cls(np.ascontiguousarray(image[..., ::-1]), depth, K, timestamp, labels)
+
+    def require_depth(self) -> None:
+        """Raise :class:`EmptyDepthError` if no pixel has a depth reading.
+
+        Raises:
+            EmptyDepthError: every depth pixel is 0 (invalid).
+        """
+        if not np.any(self.depth > 0):
+            raise EmptyDepthError(
+                f"the frame at t={self.timestamp:g} s has no valid depth pixel (all {self.height}x{self.width} "
+                "are 0): check the depth file, its depth_scale, and that depth is aligned with the colour image"
+            )
+
     @property
     def height(self) -> int:
         """Image height H, pixels."""
@@ -254,5 +385,10 @@ class RGBDFrame:
         return backproject(u, v, self.depth, self.K)
 
     def gray(self) -> np.ndarray:
-        """(H, W) uint8 luminance (OpenCV's RGB to gray weights)."""
-        return cv2.cvtColor(np.ascontiguousarray(self.rgb), cv2.COLOR_RGB2GRAY)
+        """(H, W) uint8 luminance (OpenCV's RGB to gray weights), read-only, computed once."""
+        cached = self.__dict__.get("_gray")
+        if cached is None:
+            cached = cv2.cvtColor(np.ascontiguousarray(self.rgb), cv2.COLOR_RGB2GRAY)
+            cached.flags.writeable = False
+            object.__setattr__(self, "_gray", cached)
+        return cached

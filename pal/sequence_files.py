@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from pal.files import FileFormatError, atomic_write_bytes, atomic_write_json, check_json, versions, write_npz
-from pal.frames import RGBDFrame
+from pal.frames import EmptyDepthError, RGBDFrame
 
 __all__ = [
     "FORMAT",
@@ -44,8 +44,10 @@ __all__ = [
     "SequenceError",
     "SequenceWriter",
     "atomic_write_png",
+    "check_timestamps",
     "decode_depth",
     "encode_depth",
+    "read_depth",
     "read_image",
     "read_text_rows",
 ]
@@ -102,8 +104,31 @@ def decode_depth(units: np.ndarray, scale: float) -> np.ndarray:
     return (units.astype(np.float32) * np.float32(scale)).astype(np.float32)
 
 
+def check_timestamps(timestamps: np.ndarray, source: str) -> np.ndarray:
+    """Check that frame times are finite and never decrease; returns them as (N,) float64 s.
+
+    Raises:
+        SequenceError: a non-finite timestamp, or one earlier than its predecessor (both named).
+    """
+    ts = np.asarray(timestamps, dtype=np.float64).reshape(-1)
+    bad = np.flatnonzero(~np.isfinite(ts))
+    if bad.size:
+        raise SequenceError(f"{source}: timestamp {ts[bad[0]]} of frame {int(bad[0])} is not finite")
+    back = np.flatnonzero(np.diff(ts) < 0)
+    if back.size:
+        k = int(back[0]) + 1
+        raise SequenceError(
+            f"{source}: timestamps are not monotonic: frame {k} at {ts[k]:.6f} s comes after frame {k - 1} "
+            f"at {ts[k - 1]:.6f} s; sort the frames by time"
+        )
+    return ts
+
+
 def read_image(path: Path, *, depth: bool = False) -> np.ndarray:
-    """Read a PNG: (H, W, 3) uint8 RGB, or with ``depth=True`` (H, W) uint16.
+    """Read an image file: (H, W, 3) uint8 RGB, or with ``depth=True`` (H, W) uint16.
+
+    Colour files (PNG, JPEG, ...) are converted from OpenCV's BGR to RGB; grey ones are
+    replicated to three channels. Depth files are 16-bit single-channel PNG or PGM.
 
     Raises:
         SequenceError: the file is missing, unreadable or has the wrong type.
@@ -128,6 +153,26 @@ def read_image(path: Path, *, depth: bool = False) -> np.ndarray:
     if image.dtype != np.uint8:
         raise SequenceError(f"{path} has dtype {image.dtype}; expected an 8-bit colour PNG")
     return image
+
+
+def read_depth(path: Path, scale: float) -> np.ndarray:
+    """Read a 16-bit depth image (PNG or PGM) as (H, W) float32 metres, 0 = invalid.
+
+    Args:
+        path: the file.
+        scale: metres per stored unit (> 0).
+
+    Raises:
+        SequenceError: the file is missing, unreadable or not 16-bit single-channel.
+        EmptyDepthError: no pixel has a reading (all 0).
+    """
+    units = read_image(path, depth=True)
+    if not units.any():
+        raise EmptyDepthError(
+            f"{path} has no valid depth pixel (all {units.shape[0]}x{units.shape[1]} are 0); it is not a "
+            "depth image of this recording, or the sensor failed on this frame"
+        )
+    return decode_depth(units, scale)
 
 
 class FrameSequence:
@@ -159,6 +204,14 @@ class FrameSequence:
     def __iter__(self) -> Iterator[RGBDFrame]:
         for i in range(len(self)):
             yield self.frame(i)
+
+    def camera_poses(self) -> np.ndarray:
+        """(N, 4, 4) camera-to-world poses of the frames, when the recording has them.
+
+        Raises:
+            SequenceError: this recording has no camera poses.
+        """
+        raise SequenceError(f"{self.path} has no camera poses")
 
 
 def atomic_write_png(path: str | os.PathLike[str], image: np.ndarray) -> Path:

@@ -31,12 +31,28 @@ from pal.perception.features import FeatureConfig
 from pal.perception.pose import PoseConfig
 from pal.sim.camera import BACKENDS
 from pal.sim.motions import MOTIONS
-from pal.sim.recording import RecordConfig, record
+from pal.sim.recording import Realism, RecordConfig, record
 from pal.sim.tabletop import scene_digest
 
-__all__ = ["QUICK_RUNS", "TINY_RUNS", "Config", "RunSet", "collect", "ensure_recording"]
+__all__ = ["QUICK_RUNS", "TINY_RUNS", "Config", "RunSet", "collect", "ensure_recording", "names"]
 
 log = logging.getLogger(__name__)
+
+
+#: The fields of a run set that are fields of its recordings.
+_RECORDING = ("fps", "width", "height", "depth_noise", "rgb_noise", "backend", "realism")
+
+
+def names(name: str, value: str | tuple[str, ...], known: list[str]) -> tuple[str, ...]:
+    """``value`` (one name or several) as a non-empty tuple of names from ``known``.
+
+    Raises:
+        ValueError: empty, or a name not in ``known`` (the field ``name`` and the choices named).
+    """
+    chosen = (value,) if isinstance(value, str) else tuple(value)
+    if not chosen or [v for v in chosen if v not in known]:
+        raise ValueError(f"{name} {list(chosen)} must be a non-empty list of {known}")
+    return chosen
 
 
 @dataclass(frozen=True)
@@ -54,6 +70,9 @@ class RunSet:
         rgb_noise: colour noise std, grey levels.
         data_dir: where recordings are kept and reused; None: a temporary directory.
         backend: camera backend (:data:`pal.sim.camera.BACKENDS`).
+        realism: the harder tabletop (occluding hand, a real sensor's depth quantisation and
+            holes, motion blur, lighting changes; :class:`pal.sim.recording.Realism`), or None
+            for the clean scene the earlier numbers were measured on (``--set runs.realism=null``).
     """
 
     motions: tuple[str, ...] = tuple(MOTIONS)
@@ -67,13 +86,10 @@ class RunSet:
     rgb_noise: float = 2.0
     data_dir: str | None = None
     backend: str = "auto"
+    realism: Realism | None = Realism()
 
     def __post_init__(self) -> None:
-        motions = (self.motions,) if isinstance(self.motions, str) else tuple(self.motions)
-        unknown = [m for m in motions if m not in MOTIONS]
-        if not motions or unknown:
-            raise ValueError(f"motions {list(motions)} must be a non-empty list of {sorted(MOTIONS)}")
-        object.__setattr__(self, "motions", motions)
+        object.__setattr__(self, "motions", names("motions", self.motions, sorted(MOTIONS)))
         check_int("per_motion", self.per_motion)
         check_float("fps", self.fps, 0.0, open_low=True)
         check_int("width", self.width, minimum=16)
@@ -86,16 +102,7 @@ class RunSet:
 
     def record_config(self, motion: str, run: int, seed: int) -> RecordConfig:
         """The recording of run ``run`` (0-based) of ``motion``: seed ``seed + run``."""
-        return RecordConfig(
-            motion,
-            seed=seed + run,
-            fps=self.fps,
-            width=self.width,
-            height=self.height,
-            depth_noise=self.depth_noise,
-            rgb_noise=self.rgb_noise,
-            backend=self.backend,
-        )
+        return RecordConfig(motion, seed=seed + run, **{k: getattr(self, k) for k in _RECORDING})
 
     def pipeline_config(self) -> PipelineConfig:
         """Π as the experiments run it: defaults, plus the chosen segmenter and features."""
@@ -110,8 +117,13 @@ class RunSet:
 
     def note(self, seed: int) -> str:
         """One sentence describing the run set, for a report's notes."""
+        scene = (
+            "the clean tabletop"
+            if self.realism is None
+            else "the harder tabletop (an occluding hand, quantised depth with holes, motion blur, lighting changes)"
+        )
         return (
-            f"{len(self.motions) * self.per_motion} simulated runs ({self.per_motion} per motion, seeds from {seed}) "
+            f"{len(self.motions) * self.per_motion} simulated runs on {scene} ({self.per_motion} per motion, seeds from {seed}) "
             f"at {self.width}x{self.height} and {self.fps:g} frames/s, depth noise {self.depth_noise * 1000:g} mm at 1 m, "
             f"segmenter {self.segmenter}, features {self.features}."
         )
@@ -149,7 +161,10 @@ def ensure_recording(config: RecordConfig, path: Path) -> RecordedSequence:
         try:
             seq = RecordedSequence(path)
             meta = seq.metadata
-            if meta.get("config") == want and meta.get("scene_sha256") == scene_digest(config.texture_seed):
+            occluder = config.realism is not None and config.realism.occluder
+            if meta.get("config") == want and meta.get("scene_sha256") == scene_digest(
+                config.texture_seed, occluder
+            ):
                 return seq
             log.info("%s was recorded with other settings; recording it again", path)
         except SequenceError as err:

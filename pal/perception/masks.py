@@ -92,9 +92,13 @@ class Mask:
         return out
 
     def centroid(self) -> tuple[float, float]:
-        """(u, v) mean pixel coordinate of the mask."""
-        ys, xs = np.nonzero(self.crop)
-        return float(xs.mean() + self.bbox[0]), float(ys.mean() + self.bbox[1])
+        """(u, v) mean pixel coordinate of the mask (computed once)."""
+        cached = self.__dict__.get("_centroid")
+        if cached is None:
+            ys, xs = np.nonzero(self.crop)
+            cached = (float(xs.mean() + self.bbox[0]), float(ys.mean() + self.bbox[1]))
+            object.__setattr__(self, "_centroid", cached)
+        return cached
 
     def region(self, x0: int, y0: int, x1: int, y1: int) -> np.ndarray:
         """The mask rendered inside an arbitrary box [x0, x1) x [y0, y1) (zeros elsewhere)."""

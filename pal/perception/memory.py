@@ -136,7 +136,7 @@ class Snapshot:
         features: keypoints (full-frame pixels) and descriptors, or None if never computed.
         anchor: (4, 4) object_from_camera at capture, or None.
         thumb: masked thumbnail for redundancy checks.
-        visual: (54,) visual descriptor.
+        visual: (54,) visual descriptor, computed when first needed (None until then).
     """
 
     index: int
@@ -150,7 +150,14 @@ class Snapshot:
     features: Features | None
     anchor: np.ndarray | None
     thumb: np.ndarray
-    visual: np.ndarray
+    visual: np.ndarray | None = None
+
+    def visual_vector(self) -> np.ndarray:
+        """The (54,) visual descriptor of the snapshot (computed once)."""
+        if self.visual is None:
+            object.__setattr__(self, "visual", visual_descriptor(self.rgb, self.mask))
+        assert self.visual is not None
+        return self.visual
 
     @property
     def area(self) -> int:
@@ -211,7 +218,6 @@ class Gallery:
             features=features,
             anchor=None if anchor is None else np.array(anchor, dtype=np.float64),
             thumb=thumbnail(rgb, mcrop, self.config.thumb_size),
-            visual=visual_descriptor(rgb, mcrop),
         )
         self._serial += 1
         return snap
@@ -256,6 +262,7 @@ class Gallery:
         features: Features | Callable[[], Features] | None,
         extractor: FeatureExtractor | None,
         anchor: np.ndarray | None = None,
+        novel: bool = False,
     ) -> AdmissionDecision:
         """Run the admission checks on one view and admit it if they pass.
 
@@ -267,6 +274,8 @@ class Gallery:
                 (then the feature-overlap check is skipped).
             extractor: matches features for the overlap check (required if features are given).
             anchor: (4, 4) object_from_camera to store with the snapshot, if the pose is known.
+            novel: the view is known not to be redundant (its features failed to match the
+                gallery): the redundancy checks (3.) are skipped.
         """
         cfg = self.config
         if mask.area < cfg.min_area:
@@ -278,7 +287,7 @@ class Gallery:
             return AdmissionDecision(False, "sharpness")
         if previous and sharp < cfg.rank_tolerance * max(previous):
             return AdmissionDecision(False, "rank")
-        recent = self.snapshots[-cfg.redundancy_window :]
+        recent = [] if novel else self.snapshots[-cfg.redundancy_window :]
         if recent:
             bx0, by0, bx1, by1 = _padded_bbox(frame, mask, cfg.margin)
             thumb = thumbnail(frame.rgb[by0:by1, bx0:bx1], mask.region(bx0, by0, bx1, by1), cfg.thumb_size)
@@ -300,7 +309,9 @@ class Gallery:
 
     def visual_descriptor(self) -> np.ndarray | None:
         """Mean 54-d descriptor over the gallery (Eq. 4.20); None when empty."""
-        return gallery_visual_descriptor([s.visual for s in self.snapshots]) if self.snapshots else None
+        return (
+            gallery_visual_descriptor([s.visual_vector() for s in self.snapshots]) if self.snapshots else None
+        )
 
 
 @dataclass
@@ -318,6 +329,12 @@ class ObjectRecord:
         centroids: recent (timestamp, (3,) centroid in metres) measurements.
         last_pose_diagnostics: diagnostics of the latest pose attempt.
         last_decision: latest admission decision.
+        world_pose: (timestamp s, (4, 4) world_from_object) of the latest estimated pose, or
+            None (world: the first frame's camera frame).
+        world_origin: (4, 4) world_from_object of the first estimated pose, or None.
+        moving: the object has moved in the world (it is no longer presumed static).
+        first_frame: index of the frame in which the object was born.
+        speed: world speed of the pose origin between its last two estimated poses, m/s.
     """
 
     obj_id: int
@@ -331,6 +348,11 @@ class ObjectRecord:
     centroids: deque[tuple[float, np.ndarray]] = field(default_factory=lambda: deque(maxlen=64))
     last_pose_diagnostics: PoseDiagnostics | None = None
     last_decision: AdmissionDecision | None = None
+    world_pose: tuple[float, np.ndarray] | None = None
+    world_origin: np.ndarray | None = None
+    moving: bool = False
+    first_frame: int = 0
+    speed: float = 0.0
 
 
 def _padded_bbox(frame: RGBDFrame, mask: Mask, margin: int) -> tuple[int, int, int, int]:

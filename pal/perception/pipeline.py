@@ -1,9 +1,18 @@
 """The perceptual pipeline Π (Eq. 4.5): RGB-D frame -> ŝ_vis(t), live or over a recorded sequence.
 
-Per frame: segmentation Σ (geometric or oracle) -> IoU/IoM association to memory (stable ids)
--> for each associated object: spatial descriptor, pose (optional) and EEMS admission ->
-missing objects get a ``lost`` (or flagged ``propagated``) pose sample -> relational layer ->
-scene descriptor (Table 5.6).
+Per frame: checks (time order, some valid depth) -> segmentation Σ (geometric or oracle) ->
+the frame's features, once -> the camera's own motion from the static background
+(:mod:`pal.perception.egomotion`) -> association to memory with masks predicted under that
+motion, appearance and the fragment rule (stable ids) -> for each associated object: spatial
+descriptor, pose (optional; world-frame gates and consistency with the camera's motion) and
+EEMS admission -> missing objects get a ``lost`` (or flagged ``propagated``) pose sample ->
+relational layer (grounded predicates in the support-plane frame, salience order) -> scene
+descriptor (Table 5.6). Each stage's time is in :attr:`PerceptionState.timings`.
+
+Bad input raises a specific error before any state changes: a frame that is not an
+:class:`RGBDFrame` (``TypeError``), a frame earlier than the previous one
+(:class:`~pal.frames.TimestampOrderError`; equal timestamps are allowed), a frame without a
+valid depth pixel (:class:`~pal.frames.EmptyDepthError`).
 
 Usage::
 
@@ -25,15 +34,20 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+import cv2
 import numpy as np
 
+from pal.frames import TimestampOrderError
+from pal.perception.egomotion import CameraMotion, EgoMotion, EgoMotionConfig
 from pal.perception.features import Features
 from pal.perception.filters import OneEuroConfig, OneEuroFilter
 from pal.perception.frames import RGBDFrame
 from pal.perception.kinematic import KinematicConfig, KinematicDescriptor, trajectory_descriptor
 from pal.perception.masks import Mask
 from pal.perception.memory import AdmissionConfig, AdmissionDecision, Gallery, ObjectRecord
+from pal.perception.plane import Plane
 from pal.perception.pose import PoseConfig, PoseEstimator, position_std
+from pal.perception.regions import metric_area
 from pal.perception.relations import RelationConfig, SceneRelations, scene_relations
 from pal.perception.scene import scene_descriptor
 from pal.perception.segmentation import GeometricSegmenter, OracleSegmenter, SegmentationConfig
@@ -57,6 +71,8 @@ class PipelineConfig:
         segmentation: geometric segmenter parameters.
         oracle_background_ids: label ids the oracle ignores (0 and e.g. the table).
         tracker: association parameters.
+        camera_motion: camera-motion estimation, or None for a camera known to be static
+            (no features are matched between frames then).
         admission: EEMS parameters.
         estimate_pose: run pose estimation (off: faster; no trajectories).
         pose: pose-estimation parameters.
@@ -68,13 +84,14 @@ class PipelineConfig:
             origin is a point fixed on the object, the centroid is that of the visible surface.
         smoothing: a 1€ filter on reported positions (reset when their source changes), or None.
         forget_after_s: drop records dead for longer than this, s (None: keep all).
-        seed: seeds every random choice (plane and Kabsch RANSAC).
+        seed: seeds every random choice (plane, camera-motion and pose RANSAC).
     """
 
     segmenter: Literal["geometric", "oracle"] = "geometric"
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
     oracle_background_ids: tuple[int, ...] = (0,)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    camera_motion: EgoMotionConfig | None = field(default_factory=EgoMotionConfig)
     admission: AdmissionConfig = field(default_factory=AdmissionConfig)
     estimate_pose: bool = True
     pose: PoseConfig = field(default_factory=PoseConfig)
@@ -140,6 +157,9 @@ class PerceptionState:
         scene: the Table 5.6 descriptor (JSON-compatible dict).
         relations: the relational layer, or None when disabled.
         timings: seconds spent per stage in this frame.
+        camera: the camera's motion since the previous frame (None when the camera is
+            configured static).
+        support: the support plane of this frame (None with the oracle segmenter or without one).
     """
 
     timestamp: float
@@ -148,6 +168,8 @@ class PerceptionState:
     scene: dict[str, Any]
     relations: SceneRelations | None
     timings: dict[str, float]
+    camera: CameraMotion | None = None
+    support: Plane | None = None
 
     def object(self, obj_id: int) -> ObjectState:
         """The state of object ``obj_id``; KeyError if it is not in this frame's state."""
@@ -165,10 +187,11 @@ class PerceptionState:
         }
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-compatible summary: scene descriptor, relations and timings."""
+        """JSON-compatible summary: scene descriptor, relations, camera motion and timings."""
         return {
             "scene": self.scene,
             "relations": None if self.relations is None else self.relations.to_dict(),
+            "camera": None if self.camera is None else self.camera.to_dict(),
             "timings": dict(self.timings),
         }
 
@@ -188,7 +211,7 @@ class Pipeline:
     def reset(self) -> None:
         """Forget everything; the next frame starts a new run (same seed, same results)."""
         cfg = self.config
-        seg_seed, pose_seed = np.random.SeedSequence(cfg.seed).spawn(2)
+        seg_seed, pose_seed, ego_seed = np.random.SeedSequence(cfg.seed).spawn(3)
         self.segmenter: GeometricSegmenter | OracleSegmenter
         if cfg.segmenter == "geometric":
             self.segmenter = GeometricSegmenter(cfg.segmentation, np.random.default_rng(seg_seed))
@@ -196,9 +219,15 @@ class Pipeline:
             self.segmenter = OracleSegmenter(cfg.oracle_background_ids, min_area=cfg.segmentation.min_area)
         self.tracker = Tracker(cfg.tracker)
         self.estimator = PoseEstimator(cfg.pose, np.random.default_rng(pose_seed))
+        self.egomotion = (
+            None
+            if cfg.camera_motion is None
+            else EgoMotion(cfg.camera_motion, np.random.default_rng(ego_seed))
+        )
         self.records: dict[int, ObjectRecord] = {}
         self.frame_count = 0
         self._filters: dict[int, tuple[str, OneEuroFilter]] = {}
+        self._last_time: float | None = None
 
     def run(self, frames: Iterable[RGBDFrame], progress_bar: bool = False) -> list[PerceptionState]:
         """Process a recorded sequence (any iterable of frames) offline; returns every state."""
@@ -218,18 +247,42 @@ class Pipeline:
         return trajectory_descriptor(self.records[obj_id].trajectory, config)
 
     def __call__(self, frame: RGBDFrame) -> PerceptionState:
-        """Process one frame (frames must come in non-decreasing timestamp order)."""
+        """Process one frame (frames must come in non-decreasing timestamp order).
+
+        Raises:
+            TypeError: ``frame`` is not an :class:`RGBDFrame`.
+            pal.frames.TimestampOrderError: ``frame`` is earlier than the previous frame.
+            pal.frames.EmptyDepthError: ``frame`` has no valid depth pixel.
+        """
         if not isinstance(frame, RGBDFrame):
             raise TypeError(f"Pipeline expects an RGBDFrame, got {type(frame).__name__}")
-        cfg = self.config
         t = frame.timestamp
+        if self._last_time is not None and t < self._last_time:
+            raise TimestampOrderError(
+                f"frame timestamp {t} s is earlier than the previous frame's {self._last_time} s; frames "
+                "must come in non-decreasing time order (equal timestamps are allowed)"
+            )
+        frame.require_depth()
+        self._last_time = t
+        cfg = self.config
         timings: dict[str, float] = {}
         clock = time.perf_counter()
         candidates = self.segmenter(frame)
         timings["segmentation"], clock = time.perf_counter() - clock, time.perf_counter()
-        observations = self.tracker.update(candidates, t)
-        timings["tracking"], clock = time.perf_counter() - clock, time.perf_counter()
         gray = frame.gray()
+        frame_features = None
+        if cfg.estimate_pose or self.egomotion is not None:
+            frame_features = self.estimator.extractor.detect(gray)
+        timings["features"], clock = time.perf_counter() - clock, time.perf_counter()
+        camera = None
+        if self.egomotion is not None and frame_features is not None:
+            camera = self.egomotion.update(
+                frame, frame_features, self._weights(frame, frame_features, candidates)
+            )
+        timings["camera_motion"], clock = time.perf_counter() - clock, time.perf_counter()
+        world = None if camera is None else camera.world_from_camera
+        observations = self.tracker.update(candidates, t, frame=frame, motion=camera)
+        timings["tracking"], clock = time.perf_counter() - clock, time.perf_counter()
         states: dict[int, ObjectState] = {}
         t_pose = t_mem = 0.0
         for obs in observations:
@@ -238,6 +291,7 @@ class Pipeline:
                 rec = ObjectRecord(
                     obs.track_id, Gallery(cfg.admission), t, t, obs.mask, obs.label, num_observations=0
                 )
+                rec.first_frame = self.frame_count
                 self.records[obs.track_id] = rec
             rec.last_updated, rec.last_mask, rec.label = t, obs.mask, obs.label
             rec.num_observations += 1
@@ -248,9 +302,16 @@ class Pipeline:
                 rec.centroids.append((t, spatial.centroid))
             pose: Pose | None = None
             c0 = time.perf_counter()
+            mask = obs.mask
+
+            def feats_of(mask: Mask = mask) -> Features:
+                if frame_features is None:
+                    return self.estimator.features(gray, mask)
+                return self.estimator.extractor.for_mask(frame_features, gray, mask)
+
             if cfg.estimate_pose:
-                feats = self.estimator.features(gray, obs.mask)
-                pose, decision = self.estimator.estimate(rec, frame, gray, obs.mask, feats)
+                feats = feats_of()
+                pose, decision = self.estimator.estimate(rec, frame, gray, obs.mask, feats, world)
                 c1 = time.perf_counter()
                 if decision is None:
                     decision = rec.gallery.consider(
@@ -259,18 +320,16 @@ class Pipeline:
                         obs.mask,
                         feats,
                         self.estimator.extractor,
-                        self.estimator.anchor_for(pose),
+                        self.estimator.anchor_for(pose, rec, world, camera is not None and camera.known),
+                        novel=not pose.is_valid and rec.gallery.canonical is not None,
                     )
                 rec.trajectory.append(pose)
                 rec.last_pose_diagnostics = pose.diagnostics
             else:
                 c1 = time.perf_counter()
-                mask = obs.mask
-
-                def lazy(mask: Mask = mask) -> Features:
-                    return self.estimator.features(gray, mask)
-
-                decision = rec.gallery.consider(frame, gray, obs.mask, lazy, self.estimator.extractor, None)
+                decision = rec.gallery.consider(
+                    frame, gray, obs.mask, feats_of, self.estimator.extractor, None
+                )
             t_pose += c1 - c0
             t_mem += time.perf_counter() - c1
             rec.last_decision = decision
@@ -307,6 +366,7 @@ class Pipeline:
                 tid, False, None, rec.label, None, None, pose, None, None, None, len(rec.gallery), None
             )
         self._forget(t)
+        support = getattr(self.segmenter, "last_plane", None)
         relations = None
         if cfg.relations is not None:
             histories = {}
@@ -322,6 +382,8 @@ class Pipeline:
                 {i: s.mask for i, s in states.items() if s.mask is not None},
                 histories,
                 cfg.relations,
+                support=support,
+                salience={i: self._salience(i, frame) for i in states},
             )
         timings["relations"], clock = time.perf_counter() - clock, time.perf_counter()
         self.frame_count += 1
@@ -337,7 +399,52 @@ class Pipeline:
                 raise RuntimeError(
                     f"internal error: object {o.obj_id} has a non-finite position {o.position} / std {o.position_std}"
                 )
-        return PerceptionState(t, self.frame_count - 1, objects, scene, relations, timings)
+        return PerceptionState(t, self.frame_count - 1, objects, scene, relations, timings, camera, support)
+
+    def _weights(self, frame: RGBDFrame, features: Features, candidates: list) -> np.ndarray:
+        """Camera-motion weight of each frame feature.
+
+        1 on the background, ``object_weight`` on objects, 0 where a moving track was last seen
+        (its pose moved in the world, or faster than 5 cm/s between its last two estimates; without
+        a pose, its surface moved 3 cm in the world).
+        Masks are grown by 8 pixels (at 640 columns): a corner on an object's silhouette moves
+        with the object, not with the background.
+        """
+        assert self.config.camera_motion is not None
+        w = np.ones(len(features))
+        if len(features) == 0:
+            return w
+        on = np.zeros(frame.shape, dtype=np.uint8)
+        for c in candidates:
+            x0, y0, x1, y1 = c.mask.bbox
+            on[y0:y1, x0:x1] |= c.mask.crop.view(np.uint8)
+        for tid, tr in self.tracker.tracks.items():
+            rec = self.records.get(tid)
+            posed = rec is not None and rec.world_pose is not None
+            if (posed and (rec.moving or rec.speed > 0.05)) or (not posed and tr.moving):  # type: ignore[union-attr]
+                x0, y0, x1, y1 = tr.mask.bbox
+                on[y0:y1, x0:x1][tr.mask.crop] = 2
+        r = max(1, round(8 * frame.width / 640))
+        on = cv2.dilate(on, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
+        kp = np.rint(features.keypoints).astype(np.int64)
+        u = np.clip(kp[:, 0], 0, frame.width - 1)
+        v = np.clip(kp[:, 1], 0, frame.height - 1)
+        cls = on[v, u]
+        w[cls == 1] = self.config.camera_motion.object_weight
+        w[cls == 2] = 0.0
+        return w
+
+    def _salience(self, tid: int, frame: RGBDFrame) -> float:
+        """Metric size (m²) x stability (fraction of frames seen since born) x trackedness (2 with a pose)."""
+        rec = self.records[tid]
+        tr = self.tracker.tracks.get(tid)
+        size = tr.size if tr is not None else 0.0
+        if size <= 0:
+            x0, y0, x1, y1 = rec.last_mask.bbox
+            size = metric_area(frame.depth[y0:y1, x0:x1], rec.last_mask.crop, frame.K[0, 0], frame.K[1, 1])
+        stability = min(1.0, rec.num_observations / max(self.frame_count - rec.first_frame + 1, 1))
+        tracked = 2.0 if rec.trajectory.num_valid > 0 else 1.0
+        return size * stability * tracked
 
     def _position(
         self, tid: int, frame: RGBDFrame, pose: Pose | None, spatial: SpatialDescriptor | None

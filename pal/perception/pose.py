@@ -1,7 +1,10 @@
 """Behaviour monitoring BM (Eq. 4.14-4.17): object pose from features matched to EEMS snapshots.
 
 **Canonical object frame.** The first view of an object with enough depth-backed features
-(``min_canonical_points``), area and sharpness defines its frame: origin at the median 3-D point
+(``min_canonical_points``) or, with the dense fit on, enough depth pixels (twice its
+``min_points``) on a surface that pins all six degrees of freedom (a box, not a ball:
+:func:`pal.perception.icp.geometric_condition`), and enough area and sharpness defines its
+frame: origin at the median 3-D point
 of that view's mask, axes parallel to the camera axes at that moment. That view becomes the
 canonical snapshot, anchored with ``object_from_camera = [I, -c0]``.
 
@@ -10,25 +13,44 @@ to ``max_snapshots`` anchored snapshots, those whose capture orientation is clos
 estimated one (newest first without one). Matches outside either mask are dropped. Matched
 snapshot keypoints are lifted to 3-D with their snapshot's depth in [``min_depth``,
 ``max_depth``] and mapped into the canonical frame through that snapshot's anchor, so the
-correspondences of all tried snapshots are fused into one set ``x_object <-> x_live``. With at
-least ``min_pairs`` pairs whose live keypoint also has depth, Kabsch inside RANSAC (threshold
-``ransac_threshold`` metres) gives ``camera_from_object`` directly; otherwise — or if that fit
-has too few inliers — PnP-RANSAC on the object-frame points and the live pixels (100
-iterations, 6 px, 0.99). Equivalently, per snapshot::
+correspondences of all tried snapshots are fused into one set ``x_object <-> x_live``.
+Equivalently, per snapshot::
 
     camera_from_object(t) = camera_live_from_camera_snap · inverse(anchor_snap)
 
-so the pose does not jump when the best-matching snapshot changes. A new snapshot is anchored with
-``inverse(camera_from_object(t))`` only when its pose came from Kabsch with at least
-``anchor_min_inliers`` inliers (see :meth:`PoseEstimator.anchor_for`). Anchors chain, so
-orientation error accumulates slowly as an object turns through views it never showed before
-(measured on the analytic box at 640x480 with ORB: median 1.6° over a 90° turn, 3.6° over 180°;
-SIFT roughly halves it at ~5x the feature cost).
+so the pose does not jump when the best-matching snapshot changes. ``camera_from_object`` is
+found by seeded RANSAC (:func:`pal.perception.pnp.pnp_ransac`) whose hypotheses are 3-point
+Kabsch fits of the pairs whose live keypoint has depth, 4-point AP3P solutions, and the pose
+the camera's motion predicts for a static object (with that prediction, the snapshots'
+features are also matched where it puts them, :func:`pal.perception.features.guided_matches`,
+which finds the matches a wide baseline hides from the ratio test); inliers are within
+``pnp_reprojection_px``
+(pixels at 640 columns), and the best hypothesis is refined by Levenberg-Marquardt on the
+reprojection error. Reprojection weighs the precise pixels, not the depth, whose noise grows
+with z² (:mod:`pal.perception.noise`); depth still supplies the hypotheses and a check.
 
-**Failures** are ``lost`` with a reason, or, if ``propagate_s > 0`` and the last two estimated
-poses are recent, ``propagated`` by constant velocity — flagged and never counted as valid. A
-fit implying a translation faster than ``max_speed`` or a turn faster than ``max_angular_speed``
-is rejected. Errors are raised, never swallowed.
+**Trust.** Every fit goes through the checks of :mod:`pal.perception.pose_checks` (inliers
+and their ratio, reprojection error, conditioning of its covariance, agreement with the live
+depth, speed in the world frame, and consistency with the camera's motion for an object
+presumed static). An accepted pose is ``estimated`` and carries its covariance (the canonical definition too:
+none in rotation, the depth noise and spread of its origin's median in translation); a failed one is
+``rejected`` with the failed checks in its diagnostics. A new snapshot is anchored with
+``inverse(camera_from_object(t))`` only when its pose was estimated with at least
+``anchor_min_inliers`` inliers (see :meth:`PoseEstimator.anchor_for`). Anchors chain, so
+orientation error accumulates slowly as an object turns through views it never showed before.
+
+**Dense fallback.** When the features give no accepted pose and the object has a predicted
+pose, :mod:`pal.perception.icp` aligns the surface and texture of its best snapshot with the
+live depth and grey levels (point-to-plane ICP plus photometric terms, started at the
+prediction). That pose has solver ``icp``; it is ``estimated`` only if enough of the surface
+agrees with the live depth (few points in free space), the residual is at the sensor's noise,
+the normal equations are well conditioned (no unobservable slide) and its covariance is
+precise (``icp.max_rotation_std_deg``, ``icp.max_translation_std``), and it passes the speed and
+static checks; otherwise it is ``rejected`` with the failed checks.
+
+**Failures** without a fit are ``lost`` with a reason, or, if ``propagate_s > 0`` and the last
+two estimated poses are recent, ``propagated`` by constant velocity — flagged and never counted
+as valid. Errors are raised, never swallowed.
 """
 
 from __future__ import annotations
@@ -36,15 +58,20 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pal.perception.features import FeatureConfig, FeatureExtractor, Features
-from pal.perception.frames import RGBDFrame, backproject
+from pal.perception.features import FeatureConfig, FeatureExtractor, Features, guided_matches
+from pal.perception.frames import RGBDFrame
+from pal.perception.icp import IcpConfig, IcpFit, geometric_condition, icp_fit, surface_points
 from pal.perception.masks import Mask
 from pal.perception.memory import AdmissionDecision, ObjectRecord, Snapshot
-from pal.perception.rigid import pnp_ransac, ransac_rigid, to_homogeneous
-from pal.perception.spatial import mask_points
+from pal.perception.noise import DepthNoise
+from pal.perception.pnp import pnp_ransac
+from pal.perception.pose_checks import Evidence, Limits, PoseChecks, check_fit, motion_between, sigmas
+from pal.perception.rigid import to_homogeneous
+from pal.perception.spatial import lift, mask_points
 from pal.perception.trajectory import Pose, PoseDiagnostics
 
 __all__ = ["PoseConfig", "PoseEstimator", "lift", "position_std"]
@@ -57,42 +84,47 @@ class PoseConfig:
     Attributes:
         features: feature detector/matcher settings (ORB default).
         min_depth, max_depth: depth accepted for lifting keypoints, metres.
-        ransac_threshold: Kabsch-RANSAC inlier distance, metres (1-2 cm).
-        ransac_iterations: Kabsch-RANSAC hypotheses.
-        min_pairs: 3-D/3-D pairs needed to try Kabsch (and 2-D/3-D pairs for PnP).
-        min_inliers: inliers needed to accept a fit.
-        min_inlier_ratio: inliers / pairs needed to accept a fit.
-        min_pnp_inliers: inliers needed to accept a PnP fit (2-D residuals over a small
-            object discriminate less than 3-D ones, so more are required).
-        pnp_iterations, pnp_reprojection_px, pnp_confidence: PnP-RANSAC fallback settings.
+        noise: the depth sensor's noise model (the depth check).
+        ransac_threshold: 3-D agreement tolerance of the depth check, metres (1-2 cm).
+        ransac_iterations: RANSAC hypotheses.
+        min_pairs: object-point/live-pixel pairs needed to try a fit.
+        pnp_reprojection_px: inlier threshold, pixels at 640 columns (scaled with the width).
+        pnp_confidence: RANSAC confidence.
         max_snapshots: snapshots tried per frame.
-        good_inliers: stop trying snapshots once a fit has this many inliers.
-        anchor_min_inliers: Kabsch inliers needed to anchor a new snapshot with the pose.
+        anchor_min_inliers: inliers needed to anchor a new snapshot with the pose.
         min_canonical_points: depth-backed keypoints needed to define the canonical frame.
-        max_speed: fits implying a faster translation since the last estimate are rejected, m/s.
+        max_speed: a faster translation in the world frame since the last estimate is
+            rejected, m/s ...
         max_angular_speed: ... or a faster rotation, rad/s.
         propagate_s: constant-velocity propagation horizon after the last estimate, s (0: off).
+        guide_px: with a predicted pose (the camera's motion applied to the last estimate),
+            snapshot features are also matched within this many pixels (at 640 columns) of
+            where the prediction puts them (binary features only) ...
+        guide_bits: ... at a Hamming distance of at most this many bits.
+        checks: the validity checks (:mod:`pal.perception.pose_checks`).
+        icp: the depth-only fit (:mod:`pal.perception.icp`) tried when the features give no
+            accepted pose and a predicted pose exists; None: off.
     """
 
     features: FeatureConfig = field(default_factory=FeatureConfig)
     min_depth: float = 0.1
-    max_depth: float = 5.0
+    max_depth: float = 6.0
+    noise: DepthNoise = DepthNoise()
     ransac_threshold: float = 0.015
     ransac_iterations: int = 128
     min_pairs: int = 6
-    min_inliers: int = 8
-    min_inlier_ratio: float = 0.3
-    min_pnp_inliers: int = 10
-    pnp_iterations: int = 100
-    pnp_reprojection_px: float = 6.0
+    pnp_reprojection_px: float = 4.0
     pnp_confidence: float = 0.99
     max_snapshots: int = 3
-    good_inliers: int = 30
     anchor_min_inliers: int = 12
-    min_canonical_points: int = 12
+    min_canonical_points: int = 8
     max_speed: float = 2.0
     max_angular_speed: float = 2.0 * math.pi
     propagate_s: float = 0.5
+    guide_px: float = 10.0
+    guide_bits: int = 64
+    checks: PoseChecks = PoseChecks()
+    icp: IcpConfig | None = field(default_factory=IcpConfig)
 
     def __post_init__(self) -> None:
         if not 0 < self.min_depth < self.max_depth:
@@ -101,9 +133,9 @@ class PoseConfig:
             raise ValueError(
                 f"ransac_threshold is {self.ransac_threshold} m; expected metres in (0, 0.1], e.g. 0.015"
             )
-        if self.min_pairs < 6 or self.min_inliers < 3 or self.min_pnp_inliers < 4:
+        if self.min_pairs < 6 or self.ransac_iterations < 1 or not self.pnp_reprojection_px > 0:
             raise ValueError(
-                f"min_pairs >= 6, min_inliers >= 3 and min_pnp_inliers >= 4 are required; got {self}"
+                f"min_pairs >= 6, ransac_iterations >= 1 and pnp_reprojection_px > 0 are required; got {self}"
             )
         if (
             self.max_snapshots < 1
@@ -116,40 +148,6 @@ class PoseConfig:
             )
 
 
-def lift(
-    points: np.ndarray,
-    depth: np.ndarray,
-    origin: tuple[int, int],
-    K: np.ndarray,
-    min_depth: float,
-    max_depth: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Lift pixels to 3-D with the depth at their nearest pixel.
-
-    Args:
-        points: (N, 2) full-frame pixel coordinates.
-        depth: (h, w) float32 metres, the frame's depth or a crop of it.
-        origin: (x0, y0) of ``depth`` in the full frame.
-        K: (3, 3) full-frame intrinsics.
-        min_depth: smallest depth accepted, metres.
-        max_depth: largest depth accepted, metres.
-
-    Returns:
-        ((N, 3) camera-frame points, zero where invalid; (N,) bool valid).
-    """
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    u = np.rint(pts[:, 0]).astype(np.int64) - origin[0]
-    v = np.rint(pts[:, 1]).astype(np.int64) - origin[1]
-    inside = (u >= 0) & (v >= 0) & (u < depth.shape[1]) & (v < depth.shape[0])
-    z = np.zeros(len(pts))
-    z[inside] = depth[v[inside], u[inside]]
-    valid = inside & (z >= min_depth) & (z <= max_depth)
-    out = np.zeros((len(pts), 3))
-    if valid.any():
-        out[valid] = backproject(pts[valid, 0], pts[valid, 1], z[valid], K)
-    return out, valid
-
-
 def _angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
     c = (np.trace(Ra.T @ Rb) - 1.0) / 2.0
     return float(np.arccos(np.clip(c, -1.0, 1.0)))
@@ -158,20 +156,22 @@ def _angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
 def position_std(pose: Pose, K: np.ndarray, floor: float = 0.002) -> np.ndarray | None:
     """Per-axis 1-sigma uncertainty (3,) of an *estimated* pose's position, metres.
 
-    Kabsch: ``sqrt(floor² + rmse² / max(inliers - 6, 1))`` on every axis. PnP: the pixel RMSE
-    converted to metres at the object's depth (``z · rmse / f``) on x and y, three times that
-    on z (depth is poorly constrained by PnP), same inlier scaling. The canonical definition
-    has only the floor. None for propagated or lost poses (never reported as positions).
+    From the pose's covariance (translation block) when it has one, floored at ``floor``;
+    otherwise the canonical definition's floor. None for propagated, rejected or lost poses
+    (never reported as positions).
     """
     if not pose.is_valid or pose.camera_from_object is None:
         return None
+    if pose.covariance is not None:
+        std = np.sqrt(np.clip(np.diag(pose.covariance)[3:], 0.0, None))
+        return np.sqrt(floor**2 + std**2)
     d = pose.diagnostics
     n = max(d.inliers - 6, 1)
-    if d.solver == "pnp" and d.rmse is not None:
-        z = max(float(pose.camera_from_object[2, 3]), 1e-3)
-        s = z * d.rmse / float(min(K[0, 0], K[1, 1])) / np.sqrt(n)
-        return np.sqrt(floor**2 + np.array([s, s, 3.0 * s]) ** 2)
     rmse = d.rmse or 0.0
+    if d.solver == "pnp":
+        z = max(float(pose.camera_from_object[2, 3]), 1e-3)
+        s = z * rmse / float(min(K[0, 0], K[1, 1])) / np.sqrt(n)
+        return np.sqrt(floor**2 + np.array([s, s, 3.0 * s]) ** 2)
     return np.full(3, np.sqrt(floor**2 + rmse**2 / n))
 
 
@@ -192,33 +192,94 @@ class PoseEstimator:
         """Features of the object ``mask`` in the (H, W) uint8 image ``gray``."""
         return self.extractor(gray, mask)
 
-    def anchor_for(self, pose: Pose) -> np.ndarray | None:
-        """object_from_camera with which a snapshot taken at this pose may be anchored, or None."""
+    def anchor_for(
+        self,
+        pose: Pose,
+        record: ObjectRecord | None = None,
+        world_from_camera: np.ndarray | None = None,
+        camera_known: bool = False,
+    ) -> np.ndarray | None:
+        """object_from_camera with which a snapshot taken at this pose may be anchored, or None.
+
+        An estimated pose with at least ``anchor_min_inliers`` inliers anchors its view. Without
+        one, the view of an object presumed static (not moving, estimated within
+        ``checks.static_horizon_s``) is anchored where the camera's motion puts it, when that
+        motion was measured (``camera_known``): a moving camera soon sees such an object from
+        where its old snapshots no longer match, and the new view keeps its pose measurable.
+        """
         d = pose.diagnostics
         if (
             pose.is_valid
             and pose.camera_from_object is not None
-            and d.solver == "kabsch"
+            and d.solver in ("kabsch", "pnp", "icp")
             and d.inliers >= self.config.anchor_min_inliers
         ):
             return np.linalg.inv(pose.camera_from_object)
+        if (
+            record is not None
+            and camera_known
+            and not pose.is_valid
+            and not record.moving
+            and record.world_pose is not None
+            and pose.timestamp - record.world_pose[0] <= self.config.checks.static_horizon_s
+        ):
+            W = np.eye(4) if world_from_camera is None else world_from_camera
+            return np.linalg.inv(np.linalg.inv(W) @ record.world_pose[1])
         return None
 
     def estimate(
-        self, record: ObjectRecord, frame: RGBDFrame, gray: np.ndarray, mask: Mask, feats: Features
+        self,
+        record: ObjectRecord,
+        frame: RGBDFrame,
+        gray: np.ndarray,
+        mask: Mask,
+        feats: Features,
+        world_from_camera: np.ndarray | None = None,
     ) -> tuple[Pose, AdmissionDecision | None]:
-        """The pose of ``record``'s object in ``frame``.
+        """The pose of ``record``'s object in ``frame``: from features, else from depth (ICP).
+
+        Args:
+            record: the object's record (gallery, trajectory, world-frame state).
+            frame: the current frame.
+            gray: its (H, W) uint8 luminance.
+            mask: the object's mask in this frame.
+            feats: the object's features in this frame.
+            world_from_camera: (4, 4) pose of the camera in the world (from the camera's
+                motion); None: the camera is static (identity).
 
         Returns:
             (pose, decision): ``decision`` is the admission of the canonical snapshot when this
             call defined the canonical frame, else None (the caller then runs the normal
             admission with :meth:`anchor_for`).
         """
+        pose, decision = self._estimate_features(record, frame, gray, mask, feats, world_from_camera)
+        if pose.source == "estimated" or self.config.icp is None or record.gallery.canonical is None:
+            return pose, decision
+        W = np.eye(4) if world_from_camera is None else np.asarray(world_from_camera, dtype=np.float64)
+        depth_pose = self._depth_pose(record, frame, mask, W, pose)
+        return (pose if depth_pose is None else depth_pose), decision
+
+    def _estimate_features(
+        self,
+        record: ObjectRecord,
+        frame: RGBDFrame,
+        gray: np.ndarray,
+        mask: Mask,
+        feats: Features,
+        world_from_camera: np.ndarray | None = None,
+    ) -> tuple[Pose, AdmissionDecision | None]:
+        """The feature-based pose (arguments and result as :meth:`estimate`)."""
         cfg = self.config
         t = frame.timestamp
+        W = np.eye(4) if world_from_camera is None else np.asarray(world_from_camera, dtype=np.float64)
         if record.gallery.canonical is None:
-            return self._define_canonical(record, frame, gray, mask, feats)
-        snaps = self._choose(record)
+            pose, decision = self._define_canonical(record, frame, gray, mask, feats)
+            if pose.is_valid and pose.camera_from_object is not None:
+                record.world_pose = (t, W @ pose.camera_from_object)
+                record.world_origin = record.world_pose[1]
+            return pose, decision
+        prior = None if record.world_pose is None else np.linalg.inv(W) @ record.world_pose[1]
+        snaps = self._choose(record, prior)
         if not snaps:
             return self._fallback(record, t, PoseDiagnostics(reason="no anchored snapshot")), None
         live_pts, live_valid = lift(
@@ -226,97 +287,189 @@ class PoseEstimator:
         )
         obj, live_idx, owner, has3d = [], [], [], []
         for snap in snaps:
-            pairs, ref_pts, ref_valid = self._correspond(snap, feats)
-            if len(pairs) == 0:
+            pairs, ref_pts, ref_valid = self._correspond(snap, feats, prior, frame)
+            if len(pairs) == 0 or snap.anchor is None:  # _choose only yields anchored snapshots
                 continue
             anchor = snap.anchor
-            if anchor is None:  # _choose only yields anchored snapshots
-                continue
             obj.append(ref_pts @ anchor[:3, :3].T + anchor[:3, 3])
             live_idx.append(pairs[:, 0])
             owner.append(np.full(len(pairs), snap.index))
             has3d.append(ref_valid)
         matches = int(sum(len(i) for i in live_idx))
-        if matches < cfg.min_pairs:
+        ok = np.concatenate(has3d) if has3d else np.zeros(0, dtype=bool)
+        n2 = int(ok.sum())
+        if n2 < cfg.min_pairs:
             diag = PoseDiagnostics(
                 matches=matches,
-                reason=f"{matches} matches inside the masks < {cfg.min_pairs}",
+                reason=f"{n2} matches inside the masks with snapshot depth < {cfg.min_pairs}",
                 attempts=len(snaps),
             )
             return self._fallback(record, t, diag), None
-        obj_pts, li, own, ref_ok = (
-            np.concatenate(obj),
-            np.concatenate(live_idx),
-            np.concatenate(owner),
-            np.concatenate(has3d),
+        obj_pts = np.concatenate(obj)[ok]
+        li = np.concatenate(live_idx)[ok]
+        own = np.concatenate(owner)[ok]
+        img = feats.keypoints[li].astype(np.float64)
+        live3d = np.where(live_valid[li, None], live_pts[li], np.nan)
+        n3 = int(live_valid[li].sum())
+        px = max(1.5, cfg.pnp_reprojection_px * frame.width / 640.0)
+        sigma_z, tol_z = self._depth_noise(live3d[:, 2])
+        fit = pnp_ransac(
+            obj_pts,
+            img,
+            frame.K,
+            rng=self.rng,
+            iterations=cfg.ransac_iterations,
+            reprojection_error=px,
+            confidence=cfg.pnp_confidence,
+            min_inliers=cfg.checks.min_inliers,
+            image_points_3d=live3d,
+            hypotheses=() if prior is None else (prior,),
+            depth_tolerance=tol_z,
+            depth_sigma=sigma_z,
         )
-        both = ref_ok & live_valid[li]
-        n3 = int(both.sum())
-        fit, solver, used, reason = None, "", np.zeros(0, dtype=np.int64), ""
-        if n3 >= cfg.min_pairs:
-            fit = ransac_rigid(
-                obj_pts[both],
-                live_pts[li[both]],
-                cfg.ransac_threshold,
-                self.rng,
-                iterations=cfg.ransac_iterations,
-                min_inliers=cfg.min_inliers,
-            )
-            if fit is not None and fit.num_inliers >= cfg.min_inlier_ratio * n3:
-                solver, used = "kabsch", own[both][fit.inliers]
-            else:
-                reason = f"kabsch: {0 if fit is None else fit.num_inliers} inliers of {n3} pairs"
-                fit = None
-        else:
-            reason = f"{n3} depth-backed pairs < {cfg.min_pairs}"
         if fit is None:
-            n2 = int(ref_ok.sum())
-            if n2 >= cfg.min_pairs:
-                fit = pnp_ransac(
-                    obj_pts[ref_ok],
-                    feats.keypoints[li[ref_ok]],
-                    frame.K,
-                    iterations=cfg.pnp_iterations,
-                    reprojection_error=cfg.pnp_reprojection_px,
-                    confidence=cfg.pnp_confidence,
-                    min_inliers=cfg.min_pnp_inliers,
-                )
-                if fit is not None and fit.num_inliers >= cfg.min_inlier_ratio * n2:
-                    solver, used = "pnp", own[ref_ok][fit.inliers]
-                else:
-                    reason += f"; pnp: {0 if fit is None else fit.num_inliers} inliers of {n2}"
-                    fit = None
-            else:
-                reason += f"; pnp: {n2} reference points with depth < {cfg.min_pairs}"
-        if fit is None:
-            diag = PoseDiagnostics(matches=matches, pairs=n3, reason=reason, attempts=len(snaps))
-            return self._fallback(record, t, diag), None
-        top = int(np.bincount(used - used.min()).argmax() + used.min())
-        T = fit.matrix()
-        diag = PoseDiagnostics(matches, n3, fit.num_inliers, fit.rmse, solver, "ok", top, len(snaps))
-        implausible = self._implausible(record, t, T)
-        if implausible:
             diag = PoseDiagnostics(
-                matches, n3, fit.num_inliers, fit.rmse, solver, f"rejected: {implausible}", top, len(snaps)
+                matches=matches,
+                pairs=n3,
+                reason=f"no fit with {cfg.checks.min_inliers} inliers among {n2} pairs",
+                attempts=len(snaps),
             )
             return self._fallback(record, t, diag), None
-        return Pose(t, "estimated", T, diag), None
+        sigma_z, tol_z = self._depth_noise(live3d[:, 2])
+        fit, notes, failed, moved = check_fit(
+            Evidence(frame, obj_pts, img, live3d, sigma_z, tol_z, px),
+            fit,
+            record,
+            prior,
+            W,
+            Limits(cfg.checks, cfg.noise, cfg.ransac_threshold, cfg.max_speed, cfg.max_angular_speed),
+        )
+        used = own[fit.inliers]
+        top = int(np.bincount(used - used.min()).argmax() + used.min()) if used.size else None
+        T = fit.matrix()
+        cov = fit.covariance
+        ratio = fit.num_inliers / n2
+        reason = "; ".join(notes) if notes else "ok"
+        if failed:
+            reason = "rejected: " + "; ".join(failed) + (f" ({reason})" if notes else "")
+        diag = PoseDiagnostics(
+            matches, n3, fit.num_inliers, fit.rmse, "pnp", reason, top, len(snaps), ratio, tuple(failed)
+        )
+        if failed:
+            return Pose(t, "rejected", T, diag), None
+        self._accept(record, T, W, t, moved)
+        return Pose(t, "estimated", T, diag, cov), None
 
-    def _implausible(self, record: ObjectRecord, t: float, T: np.ndarray) -> str:
-        """Why the motion from the last estimated pose to ``T`` is implausible ('' if it is not)."""
+    def _accept(self, record: ObjectRecord, T: np.ndarray, W: np.ndarray, t: float, moved: bool) -> None:
+        """Update the record's world-frame state with an accepted ``camera_from_object`` T."""
+        world = W @ T
+        if record.world_pose is not None and t > record.world_pose[0]:
+            record.speed = motion_between(record.world_pose[1], world)[0] / (t - record.world_pose[0])
+        record.world_pose = (t, world)
+        if record.world_origin is None:
+            record.world_origin = world
+        if moved or motion_between(record.world_origin, world)[0] > self.config.checks.moving_threshold:
+            record.moving = True
+
+    def _depth_pose(
+        self, record: ObjectRecord, frame: RGBDFrame, mask: Mask, W: np.ndarray, feature_pose: Pose
+    ) -> Pose | None:
+        """The ICP pose (:mod:`pal.perception.icp`) when the features gave none, or None.
+
+        It starts from the predicted pose (the camera's motion applied to the last world pose)
+        and uses the surface of the snapshot closest to it in orientation. It is ``estimated``
+        only if it passes :meth:`_depth_checks`, else ``rejected`` (when the features gave no
+        transform either) with the failed checks; None when there is no prediction or no fit.
+        """
         cfg = self.config
-        last = record.trajectory.last_valid(1)
-        if not last or last[0].camera_from_object is None:
-            return ""
-        prev = last[0].camera_from_object
-        dt = max(t - last[0].timestamp, 1e-6)
-        jump = float(np.linalg.norm(T[:3, 3] - prev[:3, 3]))
-        if jump > cfg.max_speed * dt + 2.0 * cfg.ransac_threshold:
-            return f"implausible jump of {jump:.3f} m in {dt:.3f} s"
-        turn = _angle(T[:3, :3], prev[:3, :3])
-        if turn > cfg.max_angular_speed * dt + math.radians(5.0):
-            return f"implausible turn of {math.degrees(turn):.1f} deg in {dt:.3f} s"
-        return ""
+        assert cfg.icp is not None
+        if record.world_pose is None:
+            return None
+        prior = np.linalg.inv(W) @ record.world_pose[1]
+        snaps = self._choose(record, prior)
+        if not snaps or snaps[0].anchor is None:
+            return None
+        snap = snaps[0]
+        pts, values, step = surface_points(
+            snap.depth,
+            snap.mask,
+            (snap.bbox[0], snap.bbox[1]),
+            snap.K,
+            cfg.icp.max_points,
+            (cfg.min_depth, cfg.max_depth),
+            cv2.cvtColor(np.ascontiguousarray(snap.rgb), cv2.COLOR_RGB2GRAY),
+            cfg.icp.blur_sigma,
+        )
+        model = pts @ snap.anchor[:3, :3].T + snap.anchor[:3, 3]
+        fit = icp_fit(model, prior, frame, mask, cfg.noise, cfg.icp, values, step)
+        if fit is None:
+            return None
+        t = frame.timestamp
+        failed = self._depth_checks(fit, record, prior, W, t)
+        before = feature_pose.diagnostics.reason
+        diag = PoseDiagnostics(
+            feature_pose.diagnostics.matches,
+            fit.visible,
+            fit.points,
+            fit.rmse,
+            "icp",
+            (f"rejected: {'; '.join(failed)} (depth fit; features: {before})" if failed else f"depth fit; features: {before}"),
+            snap.index,
+            1,
+            fit.agreement,
+            tuple(failed),
+        )
+        if failed:
+            if feature_pose.source == "rejected" or feature_pose.camera_from_object is not None:
+                return None  # keep the feature pose (rejected or propagated) and its reason
+            return Pose(t, "rejected", fit.T, diag)
+        self._accept(record, fit.T, W, t, False)
+        return Pose(t, "estimated", fit.T, diag, fit.covariance)
+
+    def _depth_checks(
+        self, fit: IcpFit, record: ObjectRecord, prior: np.ndarray, W: np.ndarray, t: float
+    ) -> list[str]:
+        """The failed checks of a depth fit: support, agreement, residual, geometry, speed, static."""
+        cfg, icp, chk = self.config, self.config.icp, self.config.checks
+        assert icp is not None
+        failed = []
+        if fit.points < icp.min_points:
+            failed.append(f"points: {fit.points} < {icp.min_points}")
+        if fit.agreement < icp.min_agreement:
+            failed.append(
+                f"agreement: {fit.agreement:.0%} of the visible surface agrees ({fit.free_space} points in free space)"
+            )
+        if fit.rmse_sigma > icp.max_rmse_sigma:
+            failed.append(f"residual: {fit.rmse_sigma:.1f} sigma_z > {icp.max_rmse_sigma:g}")
+        if fit.condition > icp.max_condition:
+            failed.append(f"geometry: condition {fit.condition:.0f} > {icp.max_condition:g} (a slide is unobservable)")
+        rot_std, t_std = sigmas(fit.covariance)
+        if rot_std > icp.max_rotation_std_deg or t_std > icp.max_translation_std:
+            failed.append(f"conditioning: std {rot_std:.1f} deg, {t_std:.3f} m")
+        if record.world_pose is not None:
+            t_last, last = record.world_pose
+            dt = max(t - t_last, 1e-6)
+            dist, turn = motion_between(last, W @ fit.T)
+            if dist > cfg.max_speed * dt + 3 * t_std + 2 * cfg.ransac_threshold:
+                failed.append(f"speed: {dist:.3f} m in {dt:.3f} s in the world frame")
+            if math.radians(turn) > cfg.max_angular_speed * dt + math.radians(5.0 + 3 * rot_std):
+                failed.append(f"speed: {turn:.1f} deg in {dt:.3f} s in the world frame")
+        recent = record.world_pose is not None and t - record.world_pose[0] <= chk.static_horizon_s
+        if not record.moving and recent:
+            dist, turn = motion_between(prior, fit.T)
+            if dist > chk.static_translation + 3 * t_std or turn > chk.static_rotation_deg + 3 * rot_std:
+                failed.append(f"static: {dist:.3f} m and {turn:.1f} deg from where the camera's motion puts a static object")
+        return failed
+
+    def _depth_noise(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-pair depth sigma and inlier tolerance, metres, at observed depths ``z`` (NaN: none).
+
+        The snapshot's depth is as noisy as the live one, so sigma is ``sqrt(2)`` times the
+        sensor's; the tolerance is ``3 sigma + ransac_threshold``.
+        """
+        zz = np.where(np.isfinite(z), z, 1.0)
+        sigma = np.sqrt(2.0) * self.config.noise.sigma(zz).astype(np.float64) + 1e-3
+        return sigma, 3.0 * sigma + self.config.ransac_threshold
 
     def _define_canonical(
         self, record: ObjectRecord, frame: RGBDFrame, gray: np.ndarray, mask: Mask, feats: Features
@@ -333,17 +486,24 @@ class PoseEstimator:
                 None,
                 PoseDiagnostics(reason=f"no canonical frame yet: mask area {mask.area} < {adm.min_area} px"),
             ), None
-        if n3d < cfg.min_canonical_points:
+        pts = mask_points(frame, mask, cfg.min_depth, cfg.max_depth)
+        dense = (
+            n3d < cfg.min_canonical_points
+            and cfg.icp is not None
+            and len(pts) >= 2 * cfg.icp.min_points
+            and geometric_condition(frame, mask, cfg.icp, cfg.noise) <= cfg.icp.max_condition
+        )
+        if n3d < cfg.min_canonical_points and not dense:
             return Pose(
                 t,
                 "lost",
                 None,
                 PoseDiagnostics(
                     matches=len(feats),
-                    reason=f"no canonical frame yet: {n3d} depth-backed features < {cfg.min_canonical_points}",
+                    reason=f"no canonical frame yet: {n3d} depth-backed features < {cfg.min_canonical_points}"
+                    + ("" if cfg.icp is None else " and a surface that depth alone cannot pin"),
                 ),
             ), None
-        pts = mask_points(frame, mask, cfg.min_depth, cfg.max_depth)
         c0 = np.median(pts, axis=0)
         anchor = to_homogeneous(np.eye(3), -c0)
         decision = record.gallery.set_canonical(frame, gray, mask, feats, anchor)
@@ -364,15 +524,25 @@ class PoseEstimator:
             snapshot=decision.snapshot,
             attempts=0,
         )
-        return Pose(t, "estimated", np.linalg.inv(anchor), diag), decision
+        # the frame is defined, not measured: no rotation uncertainty; the origin is a median of
+        # pts, as uncertain as the sensor's depth there and the points' spread allow
+        var = (np.var(pts, axis=0) / max(pts.shape[0], 1)) + float(cfg.noise.sigma(float(c0[2]))) ** 2
+        cov = np.diag(np.concatenate([np.full(3, 1e-10), var]))
+        return Pose(t, "estimated", np.linalg.inv(anchor), diag, cov), decision
 
-    def _choose(self, record: ObjectRecord) -> list[Snapshot]:
+    def _choose(self, record: ObjectRecord, prior: np.ndarray | None = None) -> list[Snapshot]:
+        """The anchored snapshots to match, the closest in orientation to ``prior`` first.
+
+        ``prior`` is the predicted pose; without it, the last estimated one; without either (or
+        on ties), the newest first.
+        """
         anchored = record.gallery.anchored()
         if not anchored:
             return []
         last = record.trajectory.last_valid(1)
-        if last and last[0].camera_from_object is not None:
-            R = last[0].camera_from_object[:3, :3]
+        ref = prior if prior is not None else (last[0].camera_from_object if last else None)
+        if ref is not None:
+            R = ref[:3, :3]
             # anchor = object_from_camera at capture, so its rotation transposed is camera_R_object then
             key = {s.index: _angle(s.anchor[:3, :3].T, R) for s in anchored}  # type: ignore[index]
             order = sorted(anchored, key=lambda s: (key[s.index], -s.index))
@@ -380,34 +550,51 @@ class PoseEstimator:
             order = sorted(anchored, key=lambda s: -s.index)
         return order[: self.config.max_snapshots]
 
-    def _correspond(self, snap: Snapshot, feats: Features) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Ratio-test matches with lifted snapshot keypoints: (pairs (M, 2), (M, 3), (M,) valid).
+    def _correspond(
+        self, snap: Snapshot, feats: Features, prior: np.ndarray | None = None, frame: RGBDFrame | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Matches with lifted snapshot keypoints: (pairs (M, 2), (M, 3), (M,) valid).
 
-        Pairs are (live index, snapshot index) inside both masks; the snapshot keypoints are
-        lifted to 3-D in the snapshot's camera frame, metres.
+        Pairs are (live index, snapshot index) inside both masks: ratio-test matches, and with a
+        predicted ``camera_from_object`` ``prior`` the guided matches (module docstring); the
+        snapshot keypoints are lifted to 3-D in the snapshot's camera frame, metres.
         """
+        cfg = self.config
         empty = np.zeros((0, 2), dtype=np.int64), np.zeros((0, 3)), np.zeros(0, dtype=bool)
         if snap.features is None or len(snap.features) < 2 or len(feats) < 1:
             return empty
-        pairs = self.extractor.match(feats, snap.features)
-        if len(pairs) == 0:
-            return empty
-        sk = snap.features.keypoints[pairs[:, 1]]
         x0, y0 = snap.bbox[0], snap.bbox[1]
+        sk = snap.features.keypoints
         u = np.rint(sk[:, 0]).astype(np.int64) - x0
         v = np.rint(sk[:, 1]).astype(np.int64) - y0
-        ok = (u >= 0) & (v >= 0) & (u < snap.mask.shape[1]) & (v < snap.mask.shape[0])
-        ok[ok] = snap.mask[v[ok], u[ok]]
-        pairs = pairs[ok]
-        ref_pts, ref_valid = lift(
-            snap.features.keypoints[pairs[:, 1]],
-            snap.depth,
-            (x0, y0),
-            snap.K,
-            self.config.min_depth,
-            self.config.max_depth,
-        )
-        return pairs, ref_pts, ref_valid
+        on = (u >= 0) & (v >= 0) & (u < snap.mask.shape[1]) & (v < snap.mask.shape[0])
+        on[on] = snap.mask[v[on], u[on]]
+        pts, valid = lift(sk, snap.depth, (x0, y0), snap.K, cfg.min_depth, cfg.max_depth)
+        pairs = self.extractor.match(feats, snap.features)
+        if prior is not None and frame is not None and feats.kind == "orb" and snap.anchor is not None:
+            ref = np.flatnonzero(on & valid)
+            cam = (pts[ref] @ snap.anchor[:3, :3].T + snap.anchor[:3, 3]) @ prior[:3, :3].T + prior[:3, 3]
+            front = cam[:, 2] > 1e-3
+            ref, cam = ref[front], cam[front]
+            if ref.size:
+                uv = cam[:, :2] / cam[:, 2:3] * np.array([frame.K[0, 0], frame.K[1, 1]]) + frame.K[:2, 2]
+                radius = cfg.guide_px * frame.width / 640.0
+                g = guided_matches(
+                    uv,
+                    snap.features.descriptors[ref],
+                    feats.keypoints,
+                    feats.descriptors,
+                    radius,
+                    cfg.guide_bits,
+                )
+                guided = np.stack([g[:, 1], ref[g[:, 0]]], axis=1)
+                taken = set(guided[:, 0].tolist())
+                rest = pairs[[int(a) not in taken for a in pairs[:, 0]]] if len(pairs) else pairs
+                pairs = np.concatenate([guided, rest.reshape(-1, 2)]).astype(np.int64)
+        if len(pairs) == 0:
+            return empty
+        pairs = pairs[on[pairs[:, 1]]]
+        return pairs, pts[pairs[:, 1]], valid[pairs[:, 1]]
 
     def missing(self, record: ObjectRecord, t: float, diag: PoseDiagnostics) -> Pose:
         """The pose sample of an object with no usable observation at ``t``: ``propagated`` or ``lost``.

@@ -1,28 +1,31 @@
-"""Scene composition parsing SCP (Eq. 4.21-4.22): pairwise relations, a scene graph and a scene vector.
+"""Scene composition parsing SCP (Eq. 4.21-4.22): pairwise relations, grounded predicates, a scene graph and vector.
 
-For every ordered pair (i, j) of objects:
+For the pairs of objects the spatial index selects (below):
 
 - **relative position**: ``displacement = μ_j - μ_i`` (3-D centroids, metres, camera frame),
   ``distance = |displacement|``, ``direction = displacement / distance``;
-- **topology** (symmetric, from masks and depth), the first that holds of:
-
-  - ``contained``: one mask lies (>= ``contain_fraction``) inside the other's pixels or filled
-    convex hull (e.g. an object in a bowl); ``container`` names the outer object;
-  - ``overlapping``: the masks share pixels, or one covers >= ``overlap_fraction`` of the other's
-    convex hull (e.g. partial occlusion);
-  - ``touching``: the masks are within ``touch_px`` pixels and the closest back-projected
-    points across that boundary are within ``touch_gap`` metres in 3-D (so objects merely
-    adjacent in the image but apart in depth are not touching);
-  - ``disjoint`` otherwise; None when either object has no mask this frame;
-
+- **topology** (symmetric, from masks and depth, tolerant of depth holes):
+  :func:`pal.perception.topology.topology`; None when either object has no mask this frame;
+- **grounded predicates** near, on, left-of, in-front-of and touching, graded in [0, 1] in
+  the support-plane frame from positions and their uncertainty
+  (:mod:`pal.perception.grounding`); ``on_support`` grades each object resting on the plane;
 - **kinematic synchrony**: over the last ``sync_window_s`` seconds of centroid measurements
   shared by both objects, the uncentred correlation of their finite-difference velocities
   ``Σ v_i·v_j / sqrt(Σ|v_i|² Σ|v_j|²)`` in [-1, 1] (1: moving together). None when both move
-  slower than ``min_speed`` (undefined) or fewer than 3 shared samples; 0.0 when only one moves.
+  slower than ``min_speed`` (undefined) or fewer than 3 distinct shared times; 0.0 when only one
+  moves. Repeated timestamps (two frames at the same time) count once, the last one.
+
+**Cost.** Relations are computed for each object's ``neighbours`` nearest objects in 3-D and
+in the image (k-d trees), not for every pair, so a frame of n objects costs O(n k log n): on a
+cluttered real frame of 30 fragments that is what keeps this layer at a few milliseconds.
+Other pairs are far apart: their predicates are graded on demand by
+:meth:`SceneRelations.grade` from the stored geometry.
 
 The relations export as a networkx ``DiGraph`` (object nodes, relation edges) and as a
-fixed-length vector (:func:`scene_vector_names` documents its layout; missing values are 0 with
-presence flags, never NaN).
+fixed-length vector whose slots are filled **by salience** (metric size, stability,
+trackedness; given by the pipeline), not by id, so background fragments do not crowd out the
+objects that matter (:func:`scene_vector_names` documents its layout; missing values are 0
+with presence flags, never NaN).
 """
 
 from __future__ import annotations
@@ -31,15 +34,30 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import cv2
 import networkx as nx
 import numpy as np
+from scipy.spatial import cKDTree
 
-from pal.perception.frames import RGBDFrame, backproject
-from pal.perception.masks import Mask, intersection_area
+from pal.checks import check_float, check_int
+from pal.perception.frames import RGBDFrame
+from pal.perception.grounding import (
+    PREDICATES,
+    GroundingConfig,
+    ObjectGeometry,
+    box_gap,
+    grade,
+    object_geometry,
+    on_support,
+    support_frame,
+    surface_gap,
+)
+from pal.perception.masks import Mask
+from pal.perception.plane import Plane
 from pal.perception.spatial import SpatialDescriptor
+from pal.perception.topology import TOPOLOGY, TopologyConfig, mask_hull, topology
 
 __all__ = [
+    "PREDICATES",
     "TOPOLOGY",
     "PairRelation",
     "RelationConfig",
@@ -50,8 +68,7 @@ __all__ = [
     "topology",
 ]
 
-TOPOLOGY: tuple[str, ...] = ("disjoint", "touching", "overlapping", "contained")
-_OBJ_FIELDS = ("present", "cx", "cy", "cz", "distance", "azimuth", "elevation")
+_OBJ_FIELDS = ("present", "cx", "cy", "cz", "distance", "azimuth", "elevation", "on_support")
 _PAIR_FIELDS = (
     "present",
     "dx",
@@ -61,35 +78,52 @@ _PAIR_FIELDS = (
     *(f"topo_{t}" for t in TOPOLOGY),
     "synchrony",
     "synchrony_defined",
+    *PREDICATES,
 )
 
 
 @dataclass(frozen=True)
 class RelationConfig:
-    """Relation thresholds (module docstring)."""
+    """Relation settings (module docstring).
 
-    touch_px: int = 2
-    touch_gap: float = 0.015
-    contain_fraction: float = 0.95
-    overlap_fraction: float = 0.05
+    Attributes:
+        topology: thresholds of the topological relation.
+        grounding: scales of the graded predicates.
+        sync_window_s: synchrony window, s.
+        min_speed: below this mean speed an object counts as still, m/s.
+        max_objects: object slots of :meth:`SceneRelations.vector` in the pipeline's state.
+        neighbours: each object is related to this many nearest objects (3-D and image).
+    """
+
+    topology: TopologyConfig = TopologyConfig()
+    grounding: GroundingConfig = GroundingConfig()
     sync_window_s: float = 1.0
     min_speed: float = 0.02
     max_objects: int = 8
+    neighbours: int = 3
 
     def __post_init__(self) -> None:
-        if self.touch_px < 1 or not self.touch_gap > 0 or not self.sync_window_s > 0 or self.min_speed < 0:
-            raise ValueError(
-                f"touch_px >= 1, touch_gap > 0, sync_window_s > 0 and min_speed >= 0 are required; got {self}"
-            )
-        if not 0 < self.overlap_fraction < self.contain_fraction <= 1 or self.max_objects < 1:
-            raise ValueError(
-                f"need 0 < overlap_fraction < contain_fraction <= 1 and max_objects >= 1; got {self}"
-            )
+        check_float("sync_window_s", self.sync_window_s, 0.0, open_low=True)
+        check_float("min_speed", self.min_speed, 0.0)
+        check_int("max_objects", self.max_objects)
+        check_int("neighbours", self.neighbours)
 
 
 @dataclass(frozen=True, eq=False)
 class PairRelation:
-    """Relations from object ``a`` to object ``b`` (None where evidence is missing)."""
+    """Relations from object ``a`` to object ``b`` (None where evidence is missing).
+
+    Attributes:
+        a, b: object ids.
+        displacement: (3,) ``μ_b - μ_a``, metres, camera frame.
+        distance: its norm, metres.
+        direction: its direction (unit).
+        topology: a label of :data:`TOPOLOGY`.
+        container: the containing object's id when ``contained``.
+        synchrony: velocity correlation in [-1, 1].
+        grades: ``{predicate: grade in [0, 1]}`` of :data:`PREDICATES` for (a, b), or None
+            without both objects' geometry.
+    """
 
     a: int
     b: int
@@ -99,6 +133,7 @@ class PairRelation:
     topology: str | None
     container: int | None
     synchrony: float | None
+    grades: dict[str, float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-compatible fields (arrays as lists, None kept)."""
@@ -111,63 +146,19 @@ class PairRelation:
             "topology": self.topology,
             "container": self.container,
             "synchrony": self.synchrony,
+            "grades": None if self.grades is None else dict(self.grades),
         }
 
 
-def _hull_fill(m: np.ndarray) -> np.ndarray:
-    pts = cv2.findNonZero(m.view(np.uint8))
-    out = np.zeros(m.shape, dtype=np.uint8)
-    cv2.fillConvexPoly(out, cv2.convexHull(pts), 1)
-    return out.view(bool)
-
-
-def topology(
-    frame: RGBDFrame, a: Mask, b: Mask, config: RelationConfig | None = None, ids: tuple[int, int] = (0, 1)
-) -> tuple[str, int | None]:
-    """Topological relation of two masks: (label in :data:`TOPOLOGY`, container id or None)."""
-    cfg = config or RelationConfig()
-    inter = intersection_area(a, b)
-    small, big = (a, b) if a.area <= b.area else (b, a)
-    big_id = ids[1] if big is b else ids[0]
-    if inter >= cfg.contain_fraction * small.area:
-        return "contained", big_id
-    r = cfg.touch_px
-    ax0, ay0, ax1, ay1 = a.bbox
-    bx0, by0, bx1, by1 = b.bbox
-    if ax0 >= bx1 + r or bx0 >= ax1 + r or ay0 >= by1 + r or by0 >= ay1 + r:
-        return "disjoint", None  # boxes (and so masks and hulls) too far apart to meet
-    x0 = max(0, min(a.bbox[0], b.bbox[0]) - r)
-    y0 = max(0, min(a.bbox[1], b.bbox[1]) - r)
-    x1 = min(frame.width, max(a.bbox[2], b.bbox[2]) + r)
-    y1 = min(frame.height, max(a.bbox[3], b.bbox[3]) + r)
-    ra, rb = a.region(x0, y0, x1, y1), b.region(x0, y0, x1, y1)
-    in_b = np.count_nonzero(ra & _hull_fill(rb)) / a.area
-    in_a = np.count_nonzero(rb & _hull_fill(ra)) / b.area
-    if in_b >= cfg.contain_fraction and in_b >= in_a:
-        return "contained", ids[1]
-    if in_a >= cfg.contain_fraction:
-        return "contained", ids[0]
-    if inter > 0 or max(in_a, in_b) >= cfg.overlap_fraction:
-        return "overlapping", None
-    kernel = np.ones((2 * r + 1, 2 * r + 1), np.uint8)
-    near_a = ra & cv2.dilate(rb.view(np.uint8), kernel).view(bool)
-    near_b = rb & cv2.dilate(ra.view(np.uint8), kernel).view(bool)
-    if not near_a.any() or not near_b.any():
-        return "disjoint", None
-    depth = frame.depth[y0:y1, x0:x1]
-
-    def points(sel: np.ndarray) -> np.ndarray:
-        vs, us = np.nonzero(sel & (depth > 0))
-        if vs.size > 200:
-            keep = np.linspace(0, vs.size - 1, 200).astype(np.int64)
-            vs, us = vs[keep], us[keep]
-        return backproject(us + x0, vs + y0, depth[vs, us], frame.K)
-
-    pa, pb = points(near_a), points(near_b)
-    if len(pa) == 0 or len(pb) == 0:
-        return "disjoint", None
-    gap = float(np.sqrt(((pa[:, None, :] - pb[None, :, :]) ** 2).sum(axis=2)).min())
-    return ("touching" if gap <= cfg.touch_gap else "disjoint"), None
+def _distinct(history: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The history with each timestamp once (the last sample of a repeated time), sorted."""
+    t, p = np.asarray(history[0], dtype=np.float64), np.asarray(history[1], dtype=np.float64).reshape(-1, 3)
+    if t.size < 2:
+        return t, p
+    rev = t[::-1]
+    _, first = np.unique(rev, return_index=True)  # first occurrence in reverse = last one
+    keep = (t.size - 1 - first)[np.argsort(t[t.size - 1 - first])]
+    return t[keep], p[keep]
 
 
 def synchrony(
@@ -178,8 +169,8 @@ def synchrony(
 ) -> float | None:
     """Velocity correlation of two (timestamps (N,), positions (N, 3)) histories (module docstring)."""
     cfg = config or RelationConfig()
-    ta, pa = history_a
-    tb, pb = history_b
+    ta, pa = _distinct(history_a)
+    tb, pb = _distinct(history_b)
     common, ia, ib = np.intersect1d(ta, tb, assume_unique=True, return_indices=True)
     recent = common >= now - cfg.sync_window_s
     common, ia, ib = common[recent], ia[recent], ib[recent]
@@ -200,9 +191,10 @@ def synchrony(
 def scene_vector_names(max_objects: int) -> list[str]:
     """Names of the :meth:`SceneRelations.vector` entries, in order.
 
-    Per object slot k (objects sorted by id)
-    ``obj{k}.{present,cx,cy,cz,distance,azimuth,elevation}``, then per slot pair k < l
-    ``pair{k}_{l}.{present,dx,dy,dz,distance,topo_*(4),synchrony,synchrony_defined}``.
+    Per object slot k (objects by decreasing salience)
+    ``obj{k}.{present,cx,cy,cz,distance,azimuth,elevation,on_support}``, then per slot pair
+    k < l ``pair{k}_{l}.{present,dx,dy,dz,distance,topo_*(4),synchrony,synchrony_defined,
+    near,on,left_of,in_front_of,touching}``.
     """
     names = [f"obj{k}.{f}" for k in range(max_objects) for f in _OBJ_FIELDS]
     names += [
@@ -221,22 +213,61 @@ class SceneRelations:
     Attributes:
         objects: ``{obj_id: spatial descriptor or None}`` (sorted by id).
         visible: ids with a mask this frame.
-        pairs: one :class:`PairRelation` per ordered pair (a != b).
+        pairs: one :class:`PairRelation` per ordered pair the spatial index selected.
+        geometry: per visible object its geometry in the support-plane frame (or None).
+        on_support: per object with geometry, the grade of resting on the support plane.
+        salience: per object, the salience that orders the vector's slots.
+        support_from_camera: (4, 4) camera coordinates to the support-plane frame.
+        config: the relation settings.
     """
 
     objects: dict[int, SpatialDescriptor | None]
     visible: frozenset[int]
     pairs: tuple[PairRelation, ...]
+    geometry: dict[int, ObjectGeometry | None]
+    on_support: dict[int, float]
+    salience: dict[int, float]
+    support_from_camera: np.ndarray
+    config: RelationConfig
+
+    def pair(self, a: int, b: int) -> PairRelation | None:
+        """The stored relation of (a, b), or None when the spatial index did not select it."""
+        return next((p for p in self.pairs if p.a == a and p.b == b), None)
+
+    def grade(self, predicate: str, a: int, b: int) -> float | None:
+        """Grade in [0, 1] of ``predicate(a, b)`` (one of :data:`PREDICATES`); None without geometry.
+
+        Computed from the stored geometry when the pair was not among the nearest ones.
+        """
+        if predicate not in PREDICATES:
+            raise ValueError(f"predicate {predicate!r} unknown; expected one of {PREDICATES}")
+        p = self.pair(a, b)
+        if p is not None and p.grades is not None:
+            return p.grades[predicate]
+        ga, gb = self.geometry.get(a), self.geometry.get(b)
+        if ga is None or gb is None:
+            return None
+        return grade(ga, gb, self.config.grounding)[predicate]
+
+    def order(self) -> list[int]:
+        """Object ids by decreasing salience (ties by id)."""
+        return sorted(self.objects, key=lambda i: (-self.salience.get(i, 0.0), i))
 
     def graph(self) -> nx.DiGraph:
         """The scene graph of this frame.
 
-        Nodes are object ids (attributes ``visible``, ``spatial`` dict or None); edges (a, b)
-        carry the pair's relation fields.
+        Nodes are object ids (attributes ``visible``, ``spatial`` dict or None, ``salience``,
+        ``on_support``); edges (a, b) carry the pair's relation fields.
         """
         g = nx.DiGraph()
         for oid, sp in self.objects.items():
-            g.add_node(oid, visible=oid in self.visible, spatial=None if sp is None else sp.to_dict())
+            g.add_node(
+                oid,
+                visible=oid in self.visible,
+                spatial=None if sp is None else sp.to_dict(),
+                salience=self.salience.get(oid, 0.0),
+                on_support=self.on_support.get(oid),
+            )
         for p in self.pairs:
             attrs = p.to_dict()
             del attrs["a"], attrs["b"]
@@ -246,16 +277,17 @@ class SceneRelations:
     def vector(self, max_objects: int = 8) -> np.ndarray:
         """Fixed-length vector (len ``len(scene_vector_names(max_objects))``), no NaN.
 
-        Objects fill slots in increasing id order; objects beyond ``max_objects`` are left out.
+        Objects fill slots by decreasing salience; objects beyond ``max_objects`` are left out.
         """
-        ids = sorted(self.objects)[:max_objects]
+        ids = self.order()[:max_objects]
         slot = {oid: k for k, oid in enumerate(ids)}
-        n_obj, n_pair = len(_OBJ_FIELDS), len(_PAIR_FIELDS)
-        obj = np.zeros((max_objects, n_obj))
+        obj = np.zeros((max_objects, len(_OBJ_FIELDS)))
         for oid in ids:
             sp = self.objects[oid]
             if sp is not None:
-                obj[slot[oid]] = [1.0, *sp.centroid, sp.distance, sp.azimuth, sp.elevation]
+                obj[slot[oid], :7] = [1.0, *sp.centroid, sp.distance, sp.azimuth, sp.elevation]
+            obj[slot[oid], 7] = self.on_support.get(oid, 0.0)
+        n_pair = len(_PAIR_FIELDS)
         pairs = {(k, m): np.zeros(n_pair) for k in range(max_objects) for m in range(k + 1, max_objects)}
         for p in self.pairs:
             if p.a in slot and p.b in slot and slot[p.a] < slot[p.b]:
@@ -267,15 +299,35 @@ class SceneRelations:
                     row[5 + TOPOLOGY.index(p.topology)] = 1.0
                 if p.synchrony is not None:
                     row[9], row[10] = p.synchrony, 1.0
+                if p.grades is not None:
+                    row[11:] = [p.grades[k] for k in PREDICATES]
         return np.concatenate([obj.ravel(), *[pairs[key] for key in sorted(pairs)]])
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-compatible layer: objects (keyed by str id), sorted visible ids and pairs."""
+        """JSON-compatible layer: objects (keyed by str id), visible ids, salience order, pairs."""
         return {
             "objects": {str(k): None if v is None else v.to_dict() for k, v in self.objects.items()},
             "visible": sorted(self.visible),
+            "order": self.order(),
+            "geometry": {str(k): None if v is None else v.to_dict() for k, v in self.geometry.items()},
+            "on_support": {str(k): v for k, v in self.on_support.items()},
             "pairs": [p.to_dict() for p in self.pairs],
         }
+
+
+def _neighbour_pairs(points: np.ndarray, k: int) -> set[tuple[int, int]]:
+    """Unordered index pairs (i < j) linking each point to its ``k`` nearest others."""
+    n = points.shape[0]
+    if n < 2:
+        return set()
+    kk = min(k + 1, n)
+    _, idx = cKDTree(points).query(points, k=kk)
+    out = set()
+    for i, row in enumerate(np.atleast_2d(idx)):
+        for j in row[1:]:
+            if j < n and j != i:
+                out.add((min(i, int(j)), max(i, int(j))))
+    return out
 
 
 def scene_relations(
@@ -285,44 +337,75 @@ def scene_relations(
     histories: Mapping[int, tuple[np.ndarray, np.ndarray]],
     config: RelationConfig | None = None,
     ids: Sequence[int] | None = None,
+    *,
+    support: Plane | None = None,
+    salience: Mapping[int, float] | None = None,
 ) -> SceneRelations:
-    """SCP (Eq. 4.22) over the given objects.
+    """SCP (Eq. 4.22) over the given objects (module docstring).
 
     Args:
-        frame: the current frame (depth for topology).
+        frame: the current frame (depth for topology and geometry).
         spatial: per object id, its spatial descriptor (None if unknown).
         masks: masks of the objects visible this frame.
         histories: per object id, recent (timestamps (N,), centroids (N, 3)).
         config: relation settings (default: ``RelationConfig()``).
         ids: objects to relate (default: the keys of ``spatial``).
+        support: the support plane (its frame grounds the predicates); None: camera frame.
+        salience: per object id, the salience ordering the vector (default: visible points).
     """
     cfg = config or RelationConfig()
     ids = sorted(spatial) if ids is None else sorted(ids)
+    S = support_frame(support)
+    geometry = {i: object_geometry(frame, masks[i], S, cfg.grounding) if i in masks else None for i in ids}
+    resting = {
+        i: on_support(g, cfg.grounding) for i, g in geometry.items() if g is not None and support is not None
+    }
+    if salience is None:
+        salience = {i: float(0 if spatial.get(i) is None else spatial[i].num_points) for i in ids}  # type: ignore[union-attr]
+    located = [i for i in ids if spatial.get(i) is not None]
+    selected: set[tuple[int, int]] = set()
+    if located:
+        cents = np.array([spatial[i].centroid for i in located])  # type: ignore[union-attr]
+        selected |= {(located[a], located[b]) for a, b in _neighbour_pairs(cents, cfg.neighbours)}
+    shown = [i for i in ids if i in masks]
+    if shown:
+        boxes = np.array(
+            [[(m.bbox[0] + m.bbox[2]) / 2, (m.bbox[1] + m.bbox[3]) / 2] for m in (masks[i] for i in shown)]
+        )
+        selected |= {(shown[a], shown[b]) for a, b in _neighbour_pairs(boxes, cfg.neighbours)}
     empty = (np.zeros(0), np.zeros((0, 3)))
-    topo: dict[tuple[int, int], tuple[str | None, int | None]] = {}
-    sync: dict[tuple[int, int], float | None] = {}
-    for k, a in enumerate(ids):
-        for b in ids[k + 1 :]:
-            topo[(a, b)] = (
-                topology(frame, masks[a], masks[b], cfg, (a, b))
-                if a in masks and b in masks
-                else (None, None)
-            )
-            sync[(a, b)] = synchrony(histories.get(a, empty), histories.get(b, empty), frame.timestamp, cfg)
+    hulls = {i: mask_hull(masks[i]) for i in {i for pair in selected for i in pair} if i in masks}
     pairs = []
-    for a in ids:
-        for b in ids:
-            if a == b:
-                continue
-            key = (min(a, b), max(a, b))
-            sa, sb = spatial.get(a), spatial.get(b)
+    for a, b in sorted(selected):
+        label, container = (
+            topology(frame, masks[a], masks[b], cfg.topology, (a, b), (hulls[a], hulls[b]))
+            if a in masks and b in masks
+            else (None, None)
+        )
+        ga, gb = geometry.get(a), geometry.get(b)
+        gap = None
+        if ga is not None and gb is not None:
+            far = box_gap(ga, gb)  # surfaces far apart cannot touch: their footprints' gap will do
+            gap = far if far > cfg.grounding.touch_gap + 0.05 else surface_gap(ga, gb)
+        sync = synchrony(histories.get(a, empty), histories.get(b, empty), frame.timestamp, cfg)
+        for x, y in ((a, b), (b, a)):
+            sx, sy = spatial.get(x), spatial.get(y)
             disp = dist = direc = None
-            if sa is not None and sb is not None:
-                disp = sb.centroid - sa.centroid
+            if sx is not None and sy is not None:
+                disp = sy.centroid - sx.centroid
                 dist = float(np.linalg.norm(disp))
                 direc = disp / dist if dist > 0 else np.zeros(3)
-            label, container = topo[key]
-            pairs.append(PairRelation(a, b, disp, dist, direc, label, container, sync[key]))
+            gx, gy = geometry.get(x), geometry.get(y)
+            grades = None if gx is None or gy is None else grade(gx, gy, cfg.grounding, gap)
+            pairs.append(PairRelation(x, y, disp, dist, direc, label, container, sync, grades))
+    pairs.sort(key=lambda p: (p.a, p.b))
     return SceneRelations(
-        {i: spatial.get(i) for i in ids}, frozenset(i for i in ids if i in masks), tuple(pairs)
+        {i: spatial.get(i) for i in ids},
+        frozenset(i for i in ids if i in masks),
+        tuple(pairs),
+        geometry,
+        resting,
+        {i: float(salience.get(i, 0.0)) for i in ids},
+        S,
+        cfg,
     )

@@ -2,13 +2,29 @@
 
 Two segmenters share the interface ``segmenter(frame) -> list[Candidate]``:
 
-- :class:`GeometricSegmenter` (default, no learned weights): fit the support plane by RANSAC
-  on a subsampled back-projection, keep valid pixels that rise more than ``min_height`` above
-  it, label its 4-connected components, split each at depth discontinuities (computed inside
-  the component's box only, which is what keeps 640x480 frames fast) and drop pieces below
-  ``min_area`` pixels. With ``track_plane`` the previous frame's plane is kept (refined by
-  least squares) while it still explains the sampled points as well as when it was fitted, so
-  RANSAC runs only when the support changes.
+- :class:`GeometricSegmenter` (default, no learned weights):
+
+  1. the valid depth is sampled on a regular pixel grid and the **support plane** chosen by a
+     prior (:mod:`pal.perception.support`): among the dominant planes (adaptive RANSAC with a
+     seeded generator), the one the most points rest on, within a tilt of the up direction;
+     large planes roughly perpendicular to it (walls) are *structure*;
+  2. **thresholds follow the sensor's noise model** (:mod:`pal.perception.noise`):
+     foreground pixels rise above the support by more than ``max(min_height, height_sigmas *
+     sigma_z(z))`` and less than ``max_height``, and lie off every structure plane;
+  3. invalid-depth gaps of up to ``hole_radius`` pixels between foreground pixels are
+     **bridged** (:func:`~pal.perception.regions.bridge_invalid`), then 4-connected components
+     are labelled;
+  4. each component is **cut** at depth discontinuities (``max(jump_min, jump_footprints * z /
+     fx, jump_sigmas * sigma_z)``) and, with ``split_colour``, at colour edges backed by a weak
+     depth step or a concave crease (:func:`~pal.perception.regions.colour_depth_edges`), so
+     touching objects separate; pieces below the size rule join their largest neighbour;
+  5. enclosed holes of invalid depth are **filled**, and pieces are kept when their visible
+     surface is at least ``min_size`` m² and ``min_extent`` m across (**metric size**, not
+     pixels; ``min_area`` pixels only drops specks).
+
+  With ``track_plane`` the previous frame's support (and structure) is kept, refined by least
+  squares, while it still explains the sampled points as well as when it was chosen, so the
+  planes are searched again only when the view changes.
 - :class:`OracleSegmenter`: one candidate per ground-truth id in ``frame.labels`` (e.g.
   MuJoCo segmentation), for ablations and evaluation.
 """
@@ -16,16 +32,27 @@ Two segmenters share the interface ``segmenter(frame) -> list[Candidate]``:
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from scipy import ndimage
 
+from pal.checks import check_float, check_int
 from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask
-from pal.perception.plane import Plane, fit_plane_ransac, plane_height, refit_plane
+from pal.perception.noise import DepthNoise
+from pal.perception.plane import Plane, plane_height, refit_plane
+from pal.perception.regions import (
+    bridge_invalid,
+    colour_depth_edges,
+    depth_discontinuities,
+    fill_invalid_holes,
+    merge_small,
+    metric_areas,
+)
+from pal.perception.support import SupportChoice, SupportConfig, choose_support
 
 __all__ = [
     "Candidate",
@@ -43,48 +70,71 @@ class Candidate:
     """One candidate instance (an element of Z̃(t), Eq. 4.8).
 
     Attributes:
-        mask: the instance mask (with its bounding box b̃_i).
+        mask: the instance mask (with its bounding box b̃_i); it may include pixels without
+            depth (filled holes).
         label: segmenter-side identifier l̃_i (the ground-truth id for the oracle, the
             component index for the geometric segmenter).
+        size: visible surface area, m² (0 when unknown, e.g. from the oracle).
     """
 
     mask: Mask
     label: int
+    size: float = 0.0
 
 
 @dataclass(frozen=True)
 class SegmentationConfig:
-    """Parameters of :class:`GeometricSegmenter`.
+    """Parameters of :class:`GeometricSegmenter` (module docstring).
 
     Attributes:
         min_depth, max_depth: valid depth range, metres.
-        plane_threshold: RANSAC inlier distance, metres.
-        plane_iterations: RANSAC hypotheses.
-        plane_samples: points the plane fit uses (random subset of a strided grid).
-        plane_stride: grid stride in pixels; None picks ``max(1, W // 160)``.
-        min_height: foreground pixels rise above the plane by more than this, metres.
-        max_height: and by less than this, metres (drops clutter far above the table).
+        noise: the depth sensor's noise model.
+        plane_threshold: plane inlier distance floor, metres ...
+        plane_sigmas: ... or this many noise sigmas when larger.
+        plane_iterations: the most RANSAC hypotheses per plane (adaptive below that).
+        plane_stride: sampling grid step, pixels; None picks ``max(1, W // 80)``.
+        support: how the support plane is chosen (prior, gravity hint, structure planes).
+        min_height: foreground rises above the support by more than this floor, metres ...
+        height_sigmas: ... or this many noise sigmas when larger.
+        max_height: and by less than this, metres.
         jump_min: depth-discontinuity threshold floor, metres.
-        jump_footprints: the threshold also scales with the pixel footprint ``z / fx``: it is
-            ``max(jump_min, jump_footprints * z / fx)``, so oblique surfaces are not cut.
-        min_area: minimum component area, pixels.
-        plane: a known support plane; when given, RANSAC is skipped.
-        track_plane: reuse the previous frame's plane while its inlier fraction on this frame's
-            sample stays at least ``track_tolerance`` times the fraction it was fitted with.
+        jump_footprints: the threshold also scales with the pixel footprint ``z / fx``, so
+            oblique surfaces are not cut ...
+        jump_sigmas: ... and with the noise, this many sigmas.
+        hole_radius: invalid gaps bridged between foreground pixels, pixels; None picks
+            ``max(1, round(3 W / 640))``.
+        split_colour: also cut at colour edges backed by depth evidence.
+        min_size: smallest visible surface kept, m².
+        min_extent: smallest 3-D extent kept (largest side of the points' box), metres.
+        min_area: pieces below this many pixels are specks, dropped before anything else.
+        range_fraction: pieces whose median depth exceeds this fraction of ``max_depth`` are
+            dropped: they are fragments of what lies beyond the range (far walls cut by it).
+        plane: a known support plane; when given, the planes are not searched.
+        track_plane: reuse the previous frame's planes while the support's inlier fraction on
+            this frame's sample stays at least ``track_tolerance`` times its fitted fraction.
         track_tolerance: see ``track_plane``, in (0, 1].
     """
 
     min_depth: float = 0.1
-    max_depth: float = 5.0
+    max_depth: float = 6.0
+    noise: DepthNoise = DepthNoise()
     plane_threshold: float = 0.01
-    plane_iterations: int = 100
-    plane_samples: int = 2000
+    plane_sigmas: float = 3.0
+    plane_iterations: int = 500
     plane_stride: int | None = None
+    support: SupportConfig = SupportConfig()
     min_height: float = 0.01
-    max_height: float = 1.0
+    height_sigmas: float = 3.0
+    max_height: float = 1.5
     jump_min: float = 0.02
     jump_footprints: float = 6.0
-    min_area: int = 150
+    jump_sigmas: float = 5.0
+    hole_radius: int | None = None
+    split_colour: bool = True
+    min_size: float = 0.0025
+    min_extent: float = 0.03
+    min_area: int = 20
+    range_fraction: float = 0.9
     plane: Plane | None = None
     track_plane: bool = True
     track_tolerance: float = 0.9
@@ -97,42 +147,28 @@ class SegmentationConfig:
                 raise ValueError(f"{name} is {getattr(self, name)}, expected > 0 metres")
         if self.max_height <= self.min_height:
             raise ValueError(f"max_height {self.max_height} must exceed min_height {self.min_height}")
-        if self.plane_iterations < 1 or self.plane_samples < 3 or self.min_area < 1:
-            raise ValueError("plane_iterations >= 1, plane_samples >= 3 and min_area >= 1 are required")
-        if self.plane_stride is not None and self.plane_stride < 1:
-            raise ValueError(f"plane_stride is {self.plane_stride}, expected >= 1 or None")
+        for name in (
+            "plane_sigmas",
+            "height_sigmas",
+            "jump_sigmas",
+            "jump_footprints",
+            "min_size",
+            "min_extent",
+        ):
+            check_float(name, getattr(self, name), 0.0)
+        check_int("plane_iterations", self.plane_iterations)
+        check_int("min_area", self.min_area)
+        check_float("range_fraction", self.range_fraction, 0.0, 1.0, open_low=True)
+        if self.plane_stride is not None:
+            check_int("plane_stride", self.plane_stride)
+        if self.hole_radius is not None:
+            check_int("hole_radius", self.hole_radius, minimum=0)
         if not 0 < self.track_tolerance <= 1:
             raise ValueError(f"track_tolerance is {self.track_tolerance}, expected in (0, 1]")
 
 
-def depth_discontinuities(depth: np.ndarray, threshold: np.ndarray | float) -> np.ndarray:
-    """Pixels on the far side of a depth jump between 4-neighbours.
-
-    Only the farther pixel of a jump is marked, so an occluding object keeps its full silhouette
-    and the occluded one loses a one-pixel rim along the occlusion boundary.
-
-    Args:
-        depth: (H, W) float32 metres.
-        threshold: scalar or (H, W) jump threshold, metres.
-
-    Returns:
-        (H, W) bool.
-    """
-    cut = np.zeros(depth.shape, dtype=bool)
-    thr = np.broadcast_to(np.asarray(threshold, dtype=np.float32), depth.shape)
-    dx = depth[:, 1:] - depth[:, :-1]
-    jump = np.abs(dx) > np.minimum(thr[:, 1:], thr[:, :-1])
-    cut[:, 1:] |= jump & (dx > 0)
-    cut[:, :-1] |= jump & (dx < 0)
-    dy = depth[1:, :] - depth[:-1, :]
-    jump = np.abs(dy) > np.minimum(thr[1:, :], thr[:-1, :])
-    cut[1:, :] |= jump & (dy > 0)
-    cut[:-1, :] |= jump & (dy < 0)
-    return cut
-
-
 class GeometricSegmenter:
-    """Support plane + connected components (module docstring).
+    """Support plane + connected components, cut at depth and colour edges (module docstring).
 
     Args:
         config: parameters.
@@ -141,84 +177,152 @@ class GeometricSegmenter:
     Attributes:
         last_plane: the support plane of the last frame (None before the first or if no plane
             could be fitted).
+        last_choice: the planes of the last search (support, structure, candidates, scores),
+            or None while tracked planes are reused.
     """
 
     def __init__(self, config: SegmentationConfig | None = None, rng: np.random.Generator | int = 0) -> None:
         self.config = config or SegmentationConfig()
         self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
         self.last_plane: Plane | None = None
+        self.last_structure: tuple[tuple[Plane, np.ndarray], ...] = ()
+        self.last_choice: SupportChoice | None = None
+        self._stride = 1
 
-    def fit_plane(self, frame: RGBDFrame) -> Plane | None:
-        """The support plane of ``frame`` (``config.plane`` if given); None with too few valid points."""
+    def _sample(self, frame: RGBDFrame) -> tuple[np.ndarray, np.ndarray, tuple[int, int], np.ndarray]:
+        """Valid depth on the sampling grid: (points (N, 3), cells (N, 2), grid shape, thresholds (N,))."""
         cfg = self.config
-        if cfg.plane is not None:
-            return cfg.plane
-        stride = cfg.plane_stride or max(1, frame.width // 160)
+        stride = cfg.plane_stride or max(1, frame.width // 80)
+        self._stride = stride
         sub = frame.depth[::stride, ::stride]
         vs, us = np.nonzero((sub > cfg.min_depth) & (sub < cfg.max_depth))
-        if vs.size < 3:
+        z = sub[vs, us]
+        pts = backproject(us * stride, vs * stride, z, frame.K)
+        thr = cfg.noise.threshold(z, cfg.plane_sigmas, cfg.plane_threshold).astype(np.float64)
+        return pts, np.stack([vs, us], axis=1), sub.shape, thr
+
+    def fit_plane(self, frame: RGBDFrame) -> Plane | None:
+        """The support plane of ``frame`` (``config.plane`` if given); None with too few valid points.
+
+        Also sets :attr:`last_structure` (walls) and :attr:`last_choice`.
+        """
+        cfg = self.config
+        if cfg.plane is not None:
+            self.last_structure, self.last_choice = (), None
+            return cfg.plane
+        pts, cells, shape, thr = self._sample(frame)
+        if pts.shape[0] < 3:
+            self.last_structure, self.last_choice = (), None
             return None
-        if vs.size > cfg.plane_samples:
-            pick = self.rng.choice(vs.size, size=cfg.plane_samples, replace=False)
-            vs, us = vs[pick], us[pick]
-        pts = backproject(us * stride, vs * stride, sub[vs, us], frame.K)
         prev = self.last_plane if cfg.track_plane else None
         if prev is not None:
-            inliers = np.abs(pts @ prev.normal + prev.offset) < cfg.plane_threshold
+            inliers = np.abs(pts @ prev.normal + prev.offset) < thr
             if inliers.sum() >= 3 and inliers.mean() >= cfg.track_tolerance * prev.inlier_fraction:
-                n, d = refit_plane(pts[inliers])
+                n, d = refit_plane(pts[inliers], 1.0 / thr[inliers] ** 2)
+                self.last_choice = None
                 return Plane(n, d, prev.inlier_fraction, int(pts.shape[0]))
-        return fit_plane_ransac(pts, cfg.plane_threshold, self.rng, iterations=cfg.plane_iterations)
+        choice = choose_support(pts, cells, shape, thr, self.rng, cfg.support)
+        self.last_choice = choice
+        self.last_structure = tuple(zip(choice.structure, choice.structure_cells, strict=True))
+        return choice.support
 
-    def _support(self, frame: RGBDFrame) -> np.ndarray:
-        """(H, W) bool: valid pixels between ``min_height`` and ``max_height`` above the plane."""
+    def _foreground(self, frame: RGBDFrame) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W) bool foreground (step 2 of the module docstring) and (H, W) float32 depth sigma."""
         cfg = self.config
         depth = frame.depth
         plane = self.fit_plane(frame)
         self.last_plane = plane
+        sigma = cfg.noise.sigma(depth)
         if plane is None:
             logger.debug("frame at t=%.3f s: too few valid depth pixels for a support plane", frame.timestamp)
-            return np.zeros(depth.shape, dtype=bool)
+            return np.zeros(depth.shape, dtype=bool), sigma
         height = plane_height(depth, frame.K, plane)
-        return (
+        fg = (
             (depth > cfg.min_depth)
             & (depth < cfg.max_depth)
-            & (height > cfg.min_height)
+            & (height > np.maximum(np.float32(cfg.min_height), np.float32(cfg.height_sigmas) * sigma))
             & (height < cfg.max_height)
         )
+        if self.last_structure:
+            thr = np.maximum(np.float32(cfg.plane_threshold), np.float32(cfg.plane_sigmas) * sigma)
+            s = self._stride
+            for wall, cells in self.last_structure:
+                region = cv2.dilate(cells.view(np.uint8), np.ones((3, 3), np.uint8))
+                region = np.repeat(np.repeat(region, s, axis=0), s, axis=1)[
+                    : depth.shape[0], : depth.shape[1]
+                ]
+                fg &= ~((np.abs(plane_height(depth, frame.K, wall)) < thr) & (region > 0))
+        return fg, sigma
 
-    def _pieces(self, frame: RGBDFrame, min_area: int) -> list[tuple[int, int, np.ndarray]]:
-        """Foreground pieces ``(x0, y0, crop)``: components of the support cut at depth jumps.
+    def _pieces(self, frame: RGBDFrame, keep_small: bool) -> list[tuple[int, int, np.ndarray, float]]:
+        """Foreground pieces ``(x0, y0, crop, size m²)`` (steps 3-5 of the module docstring).
 
-        Components smaller than ``min_area`` pixels are skipped before cutting.
+        With ``keep_small`` every piece is returned, whatever its size.
         """
         cfg = self.config
-        above = self._support(frame)
-        _, labels = cv2.connectedComponents(above.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
-        H, W = above.shape
-        scale = np.float32(cfg.jump_footprints / frame.K[0, 0])
+        depth = frame.depth
+        fg, sigma = self._foreground(frame)
+        invalid = depth <= 0
+        fx, fy = float(frame.K[0, 0]), float(frame.K[1, 1])
+        jump = self._jump(fx)(depth, sigma)
+        radius = cfg.hole_radius if cfg.hole_radius is not None else max(1, round(3 * frame.width / 640))
+        fg = bridge_invalid(fg, depth, radius, self._jump(fx))
+        cut = depth_discontinuities(depth, jump) & fg
+        if cfg.split_colour:
+            cut |= colour_depth_edges(frame.gray(), depth, sigma, fg)
+        n, labels = cv2.connectedComponents((fg & ~cut).view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
+        if n <= 1:
+            return []
+        # cut pixels join the piece next to them, then pieces below the size rule their neighbour
+        grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int32)
+        labels = np.where(fg & (labels == 0), grown, labels)
+        sizes = metric_areas(labels, n, depth, fx, fy)
+        if not keep_small and not (sizes[1:] >= cfg.min_size).all():
+            labels = merge_small(labels, sizes >= cfg.min_size)
+            sizes = metric_areas(labels, n, depth, fx, fy)
         pieces = []
-        for k, sl in enumerate(ndimage.find_objects(labels), start=1):
+        for j, sl in enumerate(ndimage.find_objects(labels), start=1):
             if sl is None:
                 continue
-            # one pixel of context around the component: jumps to its neighbours are seen
-            y0, y1 = max(sl[0].start - 1, 0), min(sl[0].stop + 1, H)
-            x0, x1 = max(sl[1].start - 1, 0), min(sl[1].stop + 1, W)
-            comp = labels[y0:y1, x0:x1] == k
-            if np.count_nonzero(comp) < min_area:
-                continue
-            d = frame.depth[y0:y1, x0:x1]
-            comp &= ~depth_discontinuities(d, np.maximum(np.float32(cfg.jump_min), d * scale))
-            _, sub = cv2.connectedComponents(comp.view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
-            for j, ssl in enumerate(ndimage.find_objects(sub), start=1):
-                if ssl is not None:
-                    pieces.append((x0 + ssl[1].start, y0 + ssl[0].start, sub[ssl] == j))
+            crop = fill_invalid_holes(labels[sl] == j, invalid[sl])
+            pieces.append((sl[1].start, sl[0].start, crop, float(sizes[j])))
         return pieces
 
+    def _jump(self, fx: float) -> Callable[..., np.ndarray]:
+        """The depth-discontinuity threshold (metres) as a function of depth (metres)."""
+        cfg = self.config
+
+        def jump(z: np.ndarray, sigma: np.ndarray | None = None) -> np.ndarray:
+            footprint = z * np.float32(cfg.jump_footprints / fx)
+            s = cfg.noise.sigma(z) if sigma is None else sigma
+            return np.maximum(
+                np.maximum(np.float32(cfg.jump_min), footprint), np.float32(cfg.jump_sigmas) * s
+            )
+
+        return jump
+
+    def _large_enough(self, frame: RGBDFrame, x0: int, y0: int, crop: np.ndarray, size: float) -> bool:
+        cfg = self.config
+        if int(np.count_nonzero(crop)) < cfg.min_area or size < cfg.min_size:
+            return False
+        h, w = crop.shape
+        z = frame.depth[y0 : y0 + h, x0 : x0 + w]
+        vs, us = np.nonzero(crop & (z > 0))
+        if vs.size < 3:
+            return False
+        if float(np.median(z[vs, us])) > cfg.range_fraction * cfg.max_depth:
+            return False
+        if vs.size > 200:
+            pick = np.linspace(0, vs.size - 1, 200).astype(np.int64)
+            vs, us = vs[pick], us[pick]
+        pts = backproject(us + x0, vs + y0, z[vs, us], frame.K)
+        lo, hi = np.percentile(pts, [2, 98], axis=0)
+        return float(np.max(hi - lo)) >= cfg.min_extent
+
     def foreground(self, frame: RGBDFrame) -> np.ndarray:
-        """(H, W) bool: valid pixels above the support plane, cut at depth discontinuities."""
+        """(H, W) bool: the pieces of the foreground, whatever their size (cuts removed, holes filled)."""
         out = np.zeros(frame.shape, dtype=bool)
-        for x0, y0, crop in self._pieces(frame, 1):
+        for x0, y0, crop, _ in self._pieces(frame, True):
             h, w = crop.shape
             out[y0 : y0 + h, x0 : x0 + w] |= crop
         return out
@@ -226,18 +330,15 @@ class GeometricSegmenter:
     def __call__(self, frame: RGBDFrame) -> list[Candidate]:
         """Candidates of ``frame`` in raster order of their first pixel, labelled 1, 2, ... in that order."""
         kept = []
-        for x0, y0, crop in self._pieces(frame, self.config.min_area):
+        for x0, y0, crop, size in self._pieces(frame, False):
+            if not self._large_enough(frame, x0, y0, crop, size):
+                continue
+            first = int(np.argmax(crop[0]))  # the top row of a tight crop is never empty
             area = int(np.count_nonzero(crop))
-            if area >= self.config.min_area:
-                first = int(np.argmax(crop[0]))  # the top row of a tight crop is never empty
-                kept.append(
-                    (
-                        (y0, x0 + first),
-                        Mask((x0, y0, x0 + crop.shape[1], y0 + crop.shape[0]), crop, frame.shape, area),
-                    )
-                )
+            mask = Mask((x0, y0, x0 + crop.shape[1], y0 + crop.shape[0]), crop, frame.shape, area)
+            kept.append(((y0, x0 + first), mask, size))
         kept.sort(key=lambda item: item[0])
-        return [Candidate(mask, k) for k, (_, mask) in enumerate(kept, start=1)]
+        return [Candidate(mask, k, size) for k, (_, mask, size) in enumerate(kept, start=1)]
 
 
 class OracleSegmenter:

@@ -2,8 +2,14 @@
 
 The ``pal`` layout and its writer are defined in :mod:`pal.sequence_files` (shared with
 :mod:`pal.sim.recording`); this module reads it as :class:`RecordedSequence`. The TUM RGB-D
-layout is read by :mod:`pal.perception.tum`; :func:`open_sequence` picks the reader from the
-directory's contents. The layout's names are re-exported here.
+layout is read by :mod:`pal.perception.tum`, folders of image files (``1.png`` +
+``1_depth.png``, or ``color/`` + ``depth/``) by :mod:`pal.perception.folders`;
+:func:`open_sequence` picks the reader from the directory's contents. The layout's names are
+re-exported here.
+
+Every reader returns RGB frames (channel order red, green, blue) with depth in metres, and
+none assumes a camera: the ``pal`` layout stores its intrinsics and depth scale, the others
+take them as arguments or from ``calibration.json`` (:mod:`pal.perception.calibration`).
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ import numpy as np
 
 from pal.files import FileFormatError, read_json, read_npz
 from pal.frames import RGBDFrame, check_intrinsics
+from pal.perception.folders import FolderSequence, find_folder_layout
 from pal.perception.tum import TUMSequence
 from pal.sequence_files import (
     FORMAT,
@@ -23,14 +30,17 @@ from pal.sequence_files import (
     FrameSequence,
     SequenceError,
     SequenceWriter,
+    check_timestamps,
     decode_depth,
     encode_depth,
+    read_depth,
     read_image,
     read_text_rows,
 )
 
 __all__ = [
     "FORMAT",
+    "FolderSequence",
     "FrameSequence",
     "RecordedSequence",
     "SequenceError",
@@ -125,16 +135,17 @@ class RecordedSequence(FrameSequence):
         rows = read_text_rows(path)
         if len(rows) != n or any(len(r) != 2 for r in rows):
             raise SequenceError(f"{path} has {len(rows)} '<index> <time>' rows, expected {n}")
-        ts = np.array([float(r[1]) for r in rows], dtype=np.float64)
-        if not np.all(np.isfinite(ts)):
-            raise SequenceError(f"{path} has non-finite timestamps")
-        return ts
+        try:
+            ts = np.array([float(r[1]) for r in rows], dtype=np.float64)
+        except ValueError as err:
+            raise SequenceError(f"{path}: a timestamp is not a number ({err})") from None
+        return check_timestamps(ts, str(path))
 
     def frame(self, index: int) -> RGBDFrame:
         """Frame ``index`` read from disk (with ground-truth labels if recorded); SequenceError if bad."""
         name = f"{index:06d}.png"
         rgb = read_image(self.path / "rgb" / name)
-        depth = decode_depth(read_image(self.path / "depth" / name, depth=True), self.depth_scale)
+        depth = read_depth(self.path / "depth" / name, self.depth_scale)
         labels = None
         if self.has_masks:
             labels = read_image(self.path / "gt" / "masks" / name, depth=True).astype(np.int32)
@@ -153,23 +164,44 @@ class RecordedSequence(FrameSequence):
         return self._gt[name], self._gt[f"{name}.valid"].astype(bool)
 
 
-def open_sequence(path: str | os.PathLike[str], **tum_options: Any) -> FrameSequence:
-    """Open a recorded sequence, ``pal`` layout or TUM RGB-D layout.
+def open_sequence(
+    path: str | os.PathLike[str],
+    *,
+    K: np.ndarray | None = None,
+    depth_scale: float | None = None,
+    fps: float | None = None,
+    **tum_options: Any,
+) -> FrameSequence:
+    """Open a recorded sequence: ``pal`` layout, TUM RGB-D lists, or a folder of image files.
 
     Args:
         path: the directory.
-        **tum_options: passed to :class:`pal.perception.tum.TUMSequence` for TUM directories.
+        K: (3, 3) intrinsics for TUM and folder layouts (None: read ``calibration.json``);
+            the ``pal`` layout stores its own and refuses another.
+        depth_scale: metres per depth unit for TUM and folder layouts (None: read
+            ``calibration.json``).
+        fps: frame rate of a folder without ``timestamps.txt``, frames/s.
+        **tum_options: passed to :class:`pal.perception.tum.TUMSequence` (``max_difference``).
 
     Raises:
-        SequenceError: the directory does not exist or matches neither layout.
+        SequenceError: the directory does not exist, matches no layout, or lacks its camera.
     """
     p = Path(path)
     if not p.is_dir():
         raise SequenceError(f"sequence directory {p} does not exist or is not a directory")
-    if (p / "sequence.json").is_file() or ((p / "rgb").is_dir() and not (p / "rgb.txt").is_file()):
+    if (p / "sequence.json").is_file():
+        if K is not None or depth_scale is not None:
+            raise SequenceError(
+                f"{p} is a pal sequence with its own intrinsics.json and depth scale; do not pass K or depth_scale"
+            )
         return RecordedSequence(p)
     if (p / "rgb.txt").is_file() and (p / "depth.txt").is_file():
-        return TUMSequence(p, **tum_options)
+        return TUMSequence(p, K=K, depth_scale=depth_scale, **tum_options)
+    if find_folder_layout(p) is not None:
+        return FolderSequence(p, K=K, depth_scale=depth_scale, fps=fps)
+    if (p / "rgb").is_dir():
+        return RecordedSequence(p)  # an incomplete pal sequence: its reader names what is missing
     raise SequenceError(
-        f"{p} is neither a pal sequence (sequence.json) nor a TUM RGB-D sequence (rgb.txt + depth.txt)"
+        f"{p} is neither a pal sequence (sequence.json), a TUM RGB-D sequence (rgb.txt + depth.txt), "
+        "nor a folder of frames (<stem>.png + <stem>_depth.png, or color/ + depth/)"
     )

@@ -10,7 +10,8 @@ From the object's mask and the aligned depth:
 - ``elevation``: ``atan2(-y, sqrt(x² + z²))``, rad, positive above it;
 - ``spread``: (3,) half inter-quartile range of the points per axis, metres — a crude
   half-extent of the visible surface, used as the centroid's uncertainty;
-- ``num_points``: valid depth pixels behind the estimate.
+- ``num_points``: valid depth pixels behind the estimate (a mask of more than 1500 pixels is
+  sampled on a regular grid of about 1500).
 """
 
 from __future__ import annotations
@@ -24,16 +25,64 @@ import numpy as np
 from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask
 
-__all__ = ["SpatialDescriptor", "mask_points", "spatial_descriptor"]
+__all__ = ["SpatialDescriptor", "lift", "mask_points", "spatial_descriptor"]
 
 
-def mask_points(frame: RGBDFrame, mask: Mask, min_depth: float = 0.1, max_depth: float = 5.0) -> np.ndarray:
-    """(M, 3) camera-frame points of the mask pixels with depth in [min_depth, max_depth], metres."""
+def mask_points(
+    frame: RGBDFrame,
+    mask: Mask,
+    min_depth: float = 0.1,
+    max_depth: float = 5.0,
+    max_points: int | None = None,
+) -> np.ndarray:
+    """(M, 3) camera-frame points of the mask pixels with depth in [min_depth, max_depth], metres.
+
+    With ``max_points``, a mask of more pixels is sampled on a regular pixel grid (every s-th
+    row and column, ``s = ceil(sqrt(area / max_points))``), so statistics of large masks cost
+    what those of small ones do.
+    """
     x0, y0, x1, y1 = mask.bbox
-    z = frame.depth[y0:y1, x0:x1]
-    sel = mask.crop & (z >= min_depth) & (z <= max_depth)
+    step = (
+        1 if max_points is None or mask.area <= max_points else int(np.ceil(np.sqrt(mask.area / max_points)))
+    )
+    z = frame.depth[y0:y1:step, x0:x1:step]
+    sel = mask.crop[::step, ::step] & (z >= min_depth) & (z <= max_depth)
     vs, us = np.nonzero(sel)
-    return backproject(us + x0, vs + y0, z[vs, us], frame.K)
+    return backproject(us * step + x0, vs * step + y0, z[vs, us], frame.K)
+
+
+def lift(
+    points: np.ndarray,
+    depth: np.ndarray,
+    origin: tuple[int, int],
+    K: np.ndarray,
+    min_depth: float,
+    max_depth: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Lift pixels to 3-D with the depth at their nearest pixel.
+
+    Args:
+        points: (N, 2) full-frame pixel coordinates.
+        depth: (h, w) float32 metres, the frame's depth or a crop of it.
+        origin: (x0, y0) of ``depth`` in the full frame.
+        K: (3, 3) full-frame intrinsics.
+        min_depth: smallest depth accepted, metres.
+        max_depth: largest depth accepted, metres.
+
+    Returns:
+        ((N, 3) camera-frame points, zero where invalid; (N,) bool valid).
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    u = np.rint(pts[:, 0]).astype(np.int64) - origin[0]
+    v = np.rint(pts[:, 1]).astype(np.int64) - origin[1]
+    inside = (u >= 0) & (v >= 0) & (u < depth.shape[1]) & (v < depth.shape[0])
+    z = np.zeros(len(pts))
+    z[inside] = depth[v[inside], u[inside]]
+    valid = inside & (z >= min_depth) & (z <= max_depth)
+    out = np.zeros((len(pts), 3))
+    if valid.any():
+        out[valid] = backproject(pts[valid, 0], pts[valid, 1], z[valid], K)
+    return out, valid
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,7 +112,7 @@ def spatial_descriptor(
     frame: RGBDFrame, mask: Mask, *, min_depth: float = 0.1, max_depth: float = 5.0, min_points: int = 3
 ) -> SpatialDescriptor | None:
     """The descriptor of one object; None when fewer than ``min_points`` pixels have valid depth."""
-    pts = mask_points(frame, mask, min_depth, max_depth)
+    pts = mask_points(frame, mask, min_depth, max_depth, max_points=1500)
     if pts.shape[0] < min_points:
         return None
     q25, c, q75 = np.percentile(pts, [25, 50, 75], axis=0)

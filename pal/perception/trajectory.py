@@ -6,7 +6,14 @@ Every pose carries its *source*:
   definition); the only poses counted as valid.
 - ``"propagated"``: predicted (constant velocity from the last two estimated poses), flagged
   and never counted as valid — the proof of concept stored such guesses as valid poses.
+- ``"rejected"``: a solver's fit that failed a validity check (too few inliers, reprojection
+  error, ill-conditioned, inconsistent with the camera's motion for an object presumed static,
+  too fast in the world frame); it carries the rejected transform and the reason, and is never
+  counted as valid.
 - ``"lost"``: no pose; ``camera_from_object`` is None.
+
+An estimated pose carries its covariance: (6, 6) over (rotation vector [rad], translation [m])
+of ``camera_from_object``, from the solver's Jacobian (:mod:`pal.perception.pnp`).
 
 A pose is the transform ``camera_from_object`` of the object's canonical frame (see
 :mod:`pal.perception.pose`) into the OpenCV camera frame: position in metres, orientation as a
@@ -17,7 +24,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
@@ -28,10 +35,11 @@ from pal.files import FileFormatError, check_json, read_npz, write_npz
 
 __all__ = ["SOURCES", "Pose", "PoseDiagnostics", "PoseSource", "Trajectory"]
 
-PoseSource = Literal["estimated", "propagated", "lost"]
+PoseSource = Literal["estimated", "propagated", "rejected", "lost"]
 #: Pose sources in the order of their integer codes on disk.
-SOURCES: tuple[str, ...] = ("lost", "estimated", "propagated")
-_FORMAT = "pal.trajectory/2"
+SOURCES: tuple[str, ...] = ("lost", "estimated", "propagated", "rejected")
+_FORMAT = "pal.trajectory/3"
+_OLD_FORMATS = ("pal.trajectory/2",)
 
 
 @dataclass(frozen=True)
@@ -45,9 +53,11 @@ class PoseDiagnostics:
         rmse: inlier RMSE: metres (``kabsch``), pixels (``pnp``); None without a fit.
         solver: ``"canonical"`` (frame definition), ``"kabsch"``, ``"pnp"``,
             ``"constant_velocity"`` (propagation) or None.
-        reason: human-readable outcome, e.g. why estimation failed.
+        reason: human-readable outcome, e.g. why estimation failed or was rejected.
         snapshot: index of the gallery snapshot that contributed most inliers, if any.
         attempts: snapshots tried.
+        inlier_ratio: inliers / pairs tried by the solver (None without a fit).
+        checks: the validity checks that failed (empty when accepted).
     """
 
     matches: int = 0
@@ -58,10 +68,23 @@ class PoseDiagnostics:
     reason: str = ""
     snapshot: int | None = None
     attempts: int = 0
+    inlier_ratio: float | None = None
+    checks: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-compatible dict (None stays null)."""
-        return asdict(self)
+        return {
+            "matches": self.matches,
+            "pairs": self.pairs,
+            "inliers": self.inliers,
+            "rmse": self.rmse,
+            "solver": self.solver,
+            "reason": self.reason,
+            "snapshot": self.snapshot,
+            "attempts": self.attempts,
+            "inlier_ratio": self.inlier_ratio,
+            "checks": list(self.checks),
+        }
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,15 +93,18 @@ class Pose:
 
     Attributes:
         timestamp: s.
-        source: ``"estimated"``, ``"propagated"`` or ``"lost"``.
+        source: ``"estimated"``, ``"propagated"``, ``"rejected"`` or ``"lost"``.
         camera_from_object: (4, 4) float64, or None when lost.
         diagnostics: how it was obtained.
+        covariance: (6, 6) covariance of (rotation vector rad, translation m) of an estimated
+            pose, or None.
     """
 
     timestamp: float
     source: PoseSource
     camera_from_object: np.ndarray | None
     diagnostics: PoseDiagnostics = PoseDiagnostics()
+    covariance: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -92,6 +118,16 @@ class Pose:
             if T.shape != (4, 4) or not np.all(np.isfinite(T)):
                 raise ValueError(f"camera_from_object must be a finite (4, 4) matrix, got shape {T.shape}")
             object.__setattr__(self, "camera_from_object", T)
+        if self.covariance is not None:
+            C = np.asarray(self.covariance, dtype=np.float64)
+            if C.shape != (6, 6) or not np.all(np.isfinite(C)):
+                raise ValueError(f"covariance must be a finite (6, 6) matrix, got shape {C.shape}")
+            object.__setattr__(self, "covariance", C)
+
+    @property
+    def std(self) -> np.ndarray | None:
+        """(6,) 1-sigma of (rotation vector rad, translation m), or None without a covariance."""
+        return None if self.covariance is None else np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
 
     @property
     def is_valid(self) -> bool:
@@ -155,20 +191,26 @@ class Trajectory:
         return ts, Ts
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """Columnar arrays of all samples: ``timestamps``, ``source`` and ``poses``.
+        """Columnar arrays of all samples: ``timestamps``, ``source``, ``poses``, ``covariance``.
 
         ``timestamps`` (N,) s, ``source`` (N,) int8 codes into :data:`SOURCES`, ``poses``
-        (N, 4, 4) camera_from_object (zeros where lost).
+        (N, 4, 4) camera_from_object (zeros where lost), ``covariance`` (N, 6, 6) (zeros where
+        none) and ``has_covariance`` (N,) bool.
         """
         n = len(self.poses)
         poses = np.zeros((n, 4, 4))
+        cov = np.zeros((n, 6, 6))
         for k, p in enumerate(self.poses):
             if p.camera_from_object is not None:
                 poses[k] = p.camera_from_object
+            if p.covariance is not None:
+                cov[k] = p.covariance
         return {
             "timestamps": np.array([p.timestamp for p in self.poses], dtype=np.float64),
             "source": np.array([SOURCES.index(p.source) for p in self.poses], dtype=np.int8),
             "poses": poses,
+            "covariance": cov,
+            "has_covariance": np.array([p.covariance is not None for p in self.poses], dtype=bool),
         }
 
     def save(self, path: str | os.PathLike[str], metadata: Mapping[str, Any] | None = None) -> Path:
@@ -193,10 +235,15 @@ class Trajectory:
         Raises:
             FileFormatError: the file is missing, corrupted, not a trajectory, or inconsistent.
         """
-        try:
-            f = read_npz(path, format=_FORMAT)
-        except FileFormatError as err:
-            raise FileFormatError(f"not a readable trajectory: {err}") from err
+        f = None
+        for fmt in (_FORMAT, *_OLD_FORMATS):
+            try:
+                f = read_npz(path, format=fmt)
+                break
+            except FileFormatError as err:
+                error = err
+        if f is None:
+            raise FileFormatError(f"not a readable trajectory: {error}") from error
         arrays, diags = f.arrays, f.meta.get("diagnostics")
         n = len(arrays.get("timestamps", ()))
         ok = (
@@ -211,12 +258,16 @@ class Trajectory:
         if not ok:
             raise FileFormatError(f"{path}: the trajectory arrays and diagnostics are inconsistent")
         traj = Trajectory()
+        cov = arrays.get("covariance", np.zeros((n, 6, 6)))
+        has = arrays.get("has_covariance", np.zeros(n, dtype=bool))
         try:
-            for t, code, T, diag in zip(
-                arrays["timestamps"], arrays["source"], arrays["poses"], diags, strict=True
+            for k, (t, code, T, diag) in enumerate(
+                zip(arrays["timestamps"], arrays["source"], arrays["poses"], diags, strict=True)
             ):
                 src = SOURCES[int(code)]
-                pose = Pose(float(t), src, None if src == "lost" else T, PoseDiagnostics(**diag))  # type: ignore[arg-type]
+                d = PoseDiagnostics(**{**diag, "checks": tuple(diag.get("checks", ()))})
+                C = cov[k] if bool(has[k]) else None
+                pose = Pose(float(t), src, None if src == "lost" else T, d, C)  # type: ignore[arg-type]
                 traj.append(pose)
         except (TypeError, ValueError) as err:
             raise FileFormatError(f"{path}: invalid pose sample ({err})") from err

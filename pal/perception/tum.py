@@ -1,9 +1,14 @@
 """Reader of the TUM RGB-D benchmark layout (Sturm et al., 2012).
 
 A TUM sequence directory holds ``rgb.txt`` and ``depth.txt`` (lines ``<timestamp> <file>``,
-``#`` comments), the images they name (8-bit colour PNG; 16-bit depth PNG with 5000 units
-per metre, 0 = invalid) and optionally ``groundtruth.txt`` (``t tx ty tz qx qy qz qw``, the
-camera pose in the motion-capture world).
+``#`` comments), the images they name (8-bit colour PNG; 16-bit depth PNG, TUM's files with
+5000 units per metre, 0 = invalid) and optionally ``groundtruth.txt`` (``t tx ty tz qx qy qz
+qw``, the camera pose in the motion-capture world).
+
+The camera is not assumed: pass ``K`` and ``depth_scale`` (e.g. ``FREIBURG2_K`` and
+``TUM_DEPTH_SCALE`` for a freiburg2 sequence), or put them in ``calibration.json`` next to the
+lists (:mod:`pal.perception.calibration`). The first depth image is checked against the
+stated scale (:func:`pal.frames.check_depth_range`).
 
 RGB and depth images are associated as in TUM's ``associate.py``: every pair within
 ``max_difference`` seconds is a candidate, and pairs are taken greedily by increasing time
@@ -17,13 +22,34 @@ from pathlib import Path
 
 import numpy as np
 
-from pal.frames import RGBDFrame, check_intrinsics
-from pal.sequence_files import FrameSequence, SequenceError, decode_depth, read_image, read_text_rows
+from pal.frames import RGBDFrame, check_depth_range
+from pal.perception.calibration import intrinsics_matrix, resolve_calibration
+from pal.perception.folders import pose_matrices
+from pal.sequence_files import (
+    FrameSequence,
+    SequenceError,
+    check_timestamps,
+    read_depth,
+    read_image,
+    read_text_rows,
+)
 
-__all__ = ["FREIBURG_DEFAULT_K", "TUM_DEPTH_SCALE", "TUMSequence", "associate"]
+__all__ = [
+    "FREIBURG1_K",
+    "FREIBURG2_K",
+    "FREIBURG3_K",
+    "FREIBURG_DEFAULT_K",
+    "TUM_DEPTH_SCALE",
+    "TUMSequence",
+    "associate",
+]
 
-#: TUM's default ("ROS default") intrinsics of the Kinect at 640x480, pixels.
-FREIBURG_DEFAULT_K = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
+#: TUM's "ROS default" intrinsics of a Kinect at 640x480, pixels (for when the sensor is unknown).
+FREIBURG_DEFAULT_K = intrinsics_matrix(525.0, 525.0, 319.5, 239.5)
+#: Calibrated intrinsics of the three TUM cameras (freiburg1, 2, 3), pixels.
+FREIBURG1_K = intrinsics_matrix(517.3, 516.5, 318.6, 255.3)
+FREIBURG2_K = intrinsics_matrix(520.9, 521.0, 325.1, 249.7)
+FREIBURG3_K = intrinsics_matrix(535.4, 539.2, 320.1, 247.6)
 #: TUM depth PNGs store 5000 units per metre.
 TUM_DEPTH_SCALE = 1.0 / 5000.0
 
@@ -80,13 +106,14 @@ class TUMSequence(FrameSequence):
 
     Args:
         path: the directory with ``rgb.txt`` and ``depth.txt``.
-        K: (3, 3) intrinsics; default :data:`FREIBURG_DEFAULT_K` (TUM's recommendation when
-            the sequence's calibration is unknown; fr1/fr2/fr3 have their own values).
-        depth_scale: metres per depth unit, default 1/5000.
+        K: (3, 3) intrinsics (e.g. :data:`FREIBURG2_K`); None: read from ``calibration.json``.
+        depth_scale: metres per depth unit (:data:`TUM_DEPTH_SCALE` for TUM's files); None:
+            read from ``calibration.json``.
         max_difference: RGB-depth association tolerance, s.
 
     Raises:
-        SequenceError: missing or malformed lists, or no RGB image has a depth partner.
+        SequenceError: missing or malformed lists, timestamps out of order, intrinsics or depth
+            scale neither given nor in ``calibration.json``, or no RGB image has a depth partner.
     """
 
     def __init__(
@@ -94,30 +121,37 @@ class TUMSequence(FrameSequence):
         path: str | os.PathLike[str],
         *,
         K: np.ndarray | None = None,
-        depth_scale: float = TUM_DEPTH_SCALE,
+        depth_scale: float | None = None,
         max_difference: float = 0.02,
     ) -> None:
         self.path = Path(path)
         if not self.path.is_dir():
             raise SequenceError(f"sequence directory {self.path} does not exist or is not a directory")
-        self.K = check_intrinsics(FREIBURG_DEFAULT_K if K is None else K)
-        if not depth_scale > 0:
-            raise ValueError(f"depth_scale is {depth_scale}, expected > 0 metres per unit")
-        self.depth_scale = float(depth_scale)
+        calib = resolve_calibration(
+            self.path,
+            K,
+            depth_scale,
+            scale_hint="The TUM RGB-D benchmark's files use TUM_DEPTH_SCALE (1/5000).",
+        )
+        self.K, self.depth_scale = calib.K, calib.depth_scale
         rgb_t, rgb_f = _read_list(self.path / "rgb.txt")
         depth_t, depth_f = _read_list(self.path / "depth.txt")
+        check_timestamps(rgb_t, str(self.path / "rgb.txt"))
+        check_timestamps(depth_t, str(self.path / "depth.txt"))
         pairs = associate(rgb_t, depth_t, max_difference)
         if not pairs:
             raise SequenceError(f"{self.path}: no RGB image has a depth image within {max_difference} s")
         self.timestamps = np.array([rgb_t[i] for i, _ in pairs])
         self._files = [(rgb_f[i], depth_f[j]) for i, j in pairs]
         self.depth_timestamps = np.array([depth_t[j] for _, j in pairs])
+        first = self.path / self._files[0][1]
+        check_depth_range(read_image(first, depth=True), self.depth_scale, source=str(first), stacklevel=3)
 
     def frame(self, index: int) -> RGBDFrame:
         """RGB image ``index`` with its associated depth image; SequenceError if they differ in size."""
         rgb_file, depth_file = self._files[index]
         rgb = read_image(self.path / rgb_file)
-        depth = decode_depth(read_image(self.path / depth_file, depth=True), self.depth_scale)
+        depth = read_depth(self.path / depth_file, self.depth_scale)
         if rgb.shape[:2] != depth.shape:
             raise SequenceError(
                 f"{rgb_file} is {rgb.shape[:2]} but {depth_file} is {depth.shape}; TUM images must be aligned"
@@ -142,3 +176,17 @@ class TUMSequence(FrameSequence):
         for i, j in associate(self.timestamps, data[:, 0], max_difference):
             out[i], valid[i] = data[j, 1:], True
         return out, valid
+
+    def camera_poses(self, max_difference: float = 0.02) -> np.ndarray:
+        """(N, 4, 4) camera-to-world poses from ``groundtruth.txt`` at the frame timestamps.
+
+        Raises:
+            SequenceError: no ground truth, or a frame without a ground-truth pose within
+                ``max_difference`` seconds.
+        """
+        rows, valid = self.groundtruth(max_difference)
+        if not valid.all():
+            raise SequenceError(
+                f"{self.path / 'groundtruth.txt'}: frame {int(np.argmin(valid))} has no pose within {max_difference} s"
+            )
+        return pose_matrices(rows, str(self.path / "groundtruth.txt"))

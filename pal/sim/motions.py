@@ -20,6 +20,10 @@ camera; rotations: counter-clockwise seen from above), so that each motion is on
 camera-frame motion space. Every motion holds still for ``hold_start`` s, then follows a minimum-jerk profile
 ``s(τ) = 10τ³ - 15τ⁴ + 6τ⁵``, then holds still for ``hold_end`` s. Poses are exact: they are the
 ground truth the recordings store.
+
+:func:`occluder_path` adds a hand that reaches in from the right while the object moves,
+hovers between the camera and the moved object (hiding part of it), and withdraws: the
+occluder of the harder tabletop (:mod:`pal.sim.recording`).
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ from scipy.spatial.transform import Rotation
 
 from pal.sim.tabletop import BALL_RADIUS, OBJECTS, RESTING_HEIGHT
 
-__all__ = ["MOTIONS", "Motion", "Script", "script"]
+__all__ = ["MOTIONS", "Motion", "Script", "occluder_path", "script"]
 
 
 @dataclass(frozen=True)
@@ -224,3 +228,33 @@ def script(
         )
     params["parked"] = {k: v[0, :3, 3].tolist() for k, v in poses.items() if k != obj}
     return Script(motion, int(seed), float(fps), t, poses, params)
+
+
+def occluder_path(run: Script, seed: int = 0) -> tuple[np.ndarray, dict[str, Any]]:
+    """The occluding hand's ``table_from_occluder`` poses (N, 4, 4) for a run, and their parameters.
+
+    The hand (palm down, forearm towards +x, out of view on the right) enters during
+    [0.2, 0.4] of the run with a minimum-jerk profile, hovers above and in front of the moved
+    object (beside it towards the camera, 16-19 cm above the table (above the tallest object, the boat's funnel at 11 cm), its palm 0-4 cm in front of the
+    object's centre and 5-9 cm to its right: the fingers cover part of the object) until 0.65 of
+    the run, following it, and leaves by
+    0.85. The seed draws the height, the offsets and a slight tilt.
+
+    Args:
+        run: the scripted run (its moved object's path is followed).
+        seed: seed of the hand's path parameters.
+    """
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x0CC1]))
+    n = len(run)
+    tau = np.arange(n) / max(n - 1, 1)
+    height = float(rng.uniform(0.16, 0.19))
+    front = float(rng.uniform(0.0, 0.04))
+    side = float(rng.uniform(0.05, 0.09))
+    tilt = float(rng.uniform(-10.0, 10.0))
+    target = run.poses[run.object][:, :2, 3] + np.array([side, -front])
+    away = target + np.array([0.55, 0.0])
+    reach = _min_jerk((tau - 0.2) / 0.2) - _min_jerk((tau - 0.65) / 0.2)
+    xy = away + reach[:, None] * (target - away)
+    R = Rotation.from_euler("zy", [tilt, -8.0], degrees=True).as_matrix()
+    poses = _pose(xy[:, 0], xy[:, 1], height, np.broadcast_to(R, (n, 3, 3)))
+    return poses, {"height_m": height, "front_m": front, "side_m": side, "yaw_deg": tilt}

@@ -1,5 +1,11 @@
 """The tabletop scene (``assets/tabletop.xml``): a table, an oblique overhead camera, a box, a boat, a ball.
 
+With ``occluder=True`` the scene also holds an occluding hand and forearm
+(:data:`OCCLUDER`): a free body of capsules and a palm in skin colour, without collisions,
+that scripted motions move over the objects (:func:`pal.sim.motions.occluder_path`); its
+ground-truth instance id is :data:`OCCLUDER_LABEL`. :meth:`Tabletop.set_lighting` scales the
+scene's lights (lighting changes of the harder tabletop, :mod:`pal.sim.recording`).
+
 The scene is built as a ``mujoco.MjSpec`` so that it can be composed: :func:`tabletop_spec`
 returns the uncompiled spec (with the procedural textures and hull mesh of
 :mod:`pal.sim.tabletop_assets` attached as in-memory files), optionally without some of the
@@ -36,6 +42,8 @@ __all__ = [
     "CAMERA",
     "OBJECTS",
     "OBJECT_LABELS",
+    "OCCLUDER",
+    "OCCLUDER_LABEL",
     "RESTING_HEIGHT",
     "Tabletop",
     "load_tabletop",
@@ -54,6 +62,44 @@ RESTING_HEIGHT: dict[str, float] = {"box": 0.04, "boat": 0.0, "ball": 0.04}
 BALL_RADIUS = 0.04
 #: The camera of the scene.
 CAMERA = "overhead"
+#: Body name of the occluding hand and forearm (``occluder=True``).
+OCCLUDER = "occluder"
+#: Its ground-truth instance id.
+OCCLUDER_LABEL = 4
+_SKIN = (0.86, 0.66, 0.54, 1.0)
+
+
+def _add_occluder(spec: mujoco.MjSpec) -> None:
+    """A hand and forearm, palm down, fingers towards -x, forearm along +x from the wrist (body frame)."""
+    body = spec.worldbody.add_body(name=OCCLUDER, pos=[0.0, 0.0, 1.5])
+    body.add_freejoint(name=OCCLUDER)
+    geom = {"contype": 0, "conaffinity": 0, "rgba": list(_SKIN), "mass": 0.05}
+    cap, box = mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_BOX
+    body.add_geom(
+        name="occluder_forearm",
+        type=cap,
+        size=[0.032, 0.13, 0],
+        pos=[0.16, 0, 0.01],
+        euler=[0, 90, 0],
+        **geom,
+    )
+    body.add_geom(name="occluder_palm", type=box, size=[0.045, 0.042, 0.014], pos=[0.0, 0, 0], **geom)
+    for k, dy in enumerate((-0.03, -0.01, 0.01, 0.03)):
+        body.add_geom(
+            name=f"occluder_finger{k}",
+            type=cap,
+            size=[0.009, 0.028, 0],
+            pos=[-0.07, dy, -0.004],
+            euler=[0, 90, 0],
+            **geom,
+        )
+    body.add_geom(
+        name="occluder_thumb",
+        type=cap,
+        size=[0.01, 0, 0],
+        fromto=[-0.01, -0.04, -0.006, -0.05, -0.068, -0.006],
+        **geom,
+    )
 
 
 def tabletop_path() -> Path:
@@ -61,21 +107,26 @@ def tabletop_path() -> Path:
     return Path(str(resources.files("pal.sim").joinpath("assets", "tabletop.xml")))
 
 
-def scene_digest(texture_seed: int = 0) -> str:
-    """SHA-256 of the scene's MJCF text and generated assets (provenance of recordings)."""
+def scene_digest(texture_seed: int = 0, occluder: bool = False) -> str:
+    """SHA-256 of the scene's MJCF text and generated assets, and the occluder (provenance of recordings)."""
     h = hashlib.sha256(tabletop_path().read_bytes())
+    if occluder:
+        h.update(b"occluder/2")  # bump when the occluder's geometry changes
     for name, blob in sorted(generate_assets(texture_seed).items()):
         h.update(name.encode())
         h.update(blob)
     return h.hexdigest()
 
 
-def tabletop_spec(objects: Sequence[str] = OBJECTS, texture_seed: int = 0) -> mujoco.MjSpec:
+def tabletop_spec(
+    objects: Sequence[str] = OBJECTS, texture_seed: int = 0, occluder: bool = False
+) -> mujoco.MjSpec:
     """The scene as an uncompiled ``MjSpec`` (see the module docstring).
 
     Args:
         objects: the objects to keep, a subset of :data:`OBJECTS`.
         texture_seed: seed of the procedural textures.
+        occluder: add the occluding hand and forearm (:data:`OCCLUDER`).
 
     Raises:
         ValueError: an unknown or repeated object name.
@@ -89,6 +140,8 @@ def tabletop_spec(objects: Sequence[str] = OBJECTS, texture_seed: int = 0) -> mu
     for name in OBJECTS:
         if name not in names:
             spec.delete(spec.body(name))
+    if occluder:
+        _add_occluder(spec)
     return spec
 
 
@@ -100,17 +153,35 @@ class Tabletop:
         model, data: the compiled model and its data.
         objects: the objects present.
         world_from_table: (4, 4) pose of the table frame in the world.
+        occluder: whether the occluding hand (:data:`OCCLUDER`) is in the scene.
     """
 
     model: mujoco.MjModel
     data: mujoco.MjData
     objects: tuple[str, ...]
     world_from_table: np.ndarray
+    occluder: bool = False
+
+    def __post_init__(self) -> None:
+        self._light_base = (
+            np.array(self.model.light_diffuse, dtype=np.float64),
+            np.array(self.model.vis.headlight.diffuse, dtype=np.float64),
+            np.array(self.model.vis.headlight.ambient, dtype=np.float64),
+        )
 
     def _body(self, name: str) -> int:
-        if name not in self.objects:
+        if name not in self.objects and not (self.occluder and name == OCCLUDER):
             raise ValueError(f"object {name!r} is not in this scene; it has {list(self.objects)}")
         return int(mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, name))
+
+    def set_lighting(self, gain: float) -> None:
+        """Scale every light (the sun and the headlight) by ``gain`` (1: as in the MJCF), > 0."""
+        if not gain > 0:
+            raise ValueError(f"lighting gain is {gain}, expected > 0")
+        lights, head_diffuse, head_ambient = self._light_base
+        self.model.light_diffuse[:] = np.clip(lights * gain, 0.0, 1.0)
+        self.model.vis.headlight.diffuse[:] = np.clip(head_diffuse * gain, 0.0, 1.0)
+        self.model.vis.headlight.ambient[:] = np.clip(head_ambient * gain, 0.0, 1.0)
 
     def set_pose(self, name: str, table_from_object: np.ndarray) -> None:
         """Place an object: writes its free joint's ``qpos`` (call :meth:`forward` or render after).
@@ -150,10 +221,12 @@ class Tabletop:
         return Camera(self.model, self.data, CAMERA, width=width, height=height, backend=backend)
 
     def labels(self, frame: CameraFrame) -> np.ndarray:
-        """(H, W) int32 ground-truth instance ids of a rendered view: :data:`OBJECT_LABELS`, 0 elsewhere."""
+        """(H, W) int32 ground-truth instance ids of a view: :data:`OBJECT_LABELS`, the occluder's, 0 elsewhere."""
         lut = np.zeros(self.model.nbody + 1, np.int32)  # index body id + 1; -1 (background) -> 0
         for name in self.objects:
             lut[self._body(name) + 1] = OBJECT_LABELS[name]
+        if self.occluder:
+            lut[self._body(OCCLUDER) + 1] = OCCLUDER_LABEL
         return lut[frame.body_segmentation + 1]
 
     def camera_from_objects(self, frame: CameraFrame) -> dict[str, np.ndarray]:
@@ -162,9 +235,11 @@ class Tabletop:
         return {name: camera_from_world @ self.world_from_object(name) for name in self.objects}
 
 
-def load_tabletop(objects: Sequence[str] = OBJECTS, texture_seed: int = 0) -> Tabletop:
+def load_tabletop(
+    objects: Sequence[str] = OBJECTS, texture_seed: int = 0, occluder: bool = False
+) -> Tabletop:
     """Compile the scene (:func:`tabletop_spec`) and place the objects at their XML poses."""
-    spec = tabletop_spec(objects, texture_seed)
+    spec = tabletop_spec(objects, texture_seed, occluder)
     model = spec.compile()
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
@@ -174,4 +249,4 @@ def load_tabletop(objects: Sequence[str] = OBJECTS, texture_seed: int = 0) -> Ta
     world_from_table = np.eye(4)
     world_from_table[:3, :3] = R
     world_from_table[:3, 3] = data.geom_xpos[top] + R[:, 2] * half
-    return Tabletop(model, data, tuple(n for n in OBJECTS if n in objects), world_from_table)
+    return Tabletop(model, data, tuple(n for n in OBJECTS if n in objects), world_from_table, occluder)

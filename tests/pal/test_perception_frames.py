@@ -17,7 +17,7 @@ from pal.perception.sequence import (
     open_sequence,
 )
 from pal.perception.synthetic import Box, SyntheticCamera
-from pal.perception.tum import FREIBURG_DEFAULT_K, TUMSequence, associate
+from pal.perception.tum import FREIBURG2_K, FREIBURG_DEFAULT_K, TUM_DEPTH_SCALE, TUMSequence, associate
 
 K = np.array([[100.0, 0.0, 31.5], [0.0, 100.0, 23.5], [0.0, 0.0, 1.0]])
 
@@ -187,16 +187,29 @@ def test_tum_layout_with_association_scale_and_intrinsics(tmp_path):
     (d / "rgb.txt").write_text("\n".join(rgb_lines) + "\n")
     (d / "depth.txt").write_text("\n".join(depth_lines) + "\n")
     (d / "groundtruth.txt").write_text("# t tx ty tz qx qy qz qw\n1.001 1 2 3 0 0 0 1\n1.034 4 5 6 0 0 0 1\n")
-    seq = open_sequence(d)
+    with pytest.raises(SequenceError, match="intrinsics are unknown.*no default camera"):
+        open_sequence(d)  # no silent default camera
+    with pytest.raises(SequenceError, match="depth scale is unknown.*TUM_DEPTH_SCALE"):
+        open_sequence(d, K=FREIBURG2_K)
+    seq = open_sequence(d, K=FREIBURG2_K, depth_scale=TUM_DEPTH_SCALE)
     assert isinstance(seq, TUMSequence) and len(seq) == 3
-    assert np.allclose(seq.K, FREIBURG_DEFAULT_K)
+    assert np.allclose(seq.K, FREIBURG2_K)
     f = seq[2]
     assert f.depth[0, 0] == pytest.approx(3.0) and f.rgb[0, 0, 0] == 20
     assert f.timestamp == pytest.approx(1.066)
     gt, valid = seq.groundtruth()
     assert valid.tolist() == [True, True, False] and gt[1, :3].tolist() == [4, 5, 6]
-    custom = TUMSequence(d, K=K)
-    assert np.allclose(custom.K, K)
+    (d / "calibration.json").write_text(
+        json.dumps({"fx": 100, "fy": 100, "cx": 31.5, "cy": 23.5, "depth_scale": 2e-4})
+    )
+    custom = TUMSequence(d)  # the calibration file next to the lists
+    assert np.allclose(custom.K, K) and custom.depth_scale == pytest.approx(2e-4)
+    assert np.allclose(TUMSequence(d, K=FREIBURG_DEFAULT_K).K, FREIBURG_DEFAULT_K)  # arguments win
+    with pytest.raises(SequenceError, match="not found|has no pose within"):
+        custom.camera_poses()
+    (d / "rgb.txt").write_text("1.066000 rgb/1.066000.png\n1.000000 rgb/1.000000.png\n")
+    with pytest.raises(SequenceError, match="not monotonic: frame 1 at 1.000000 s comes after frame 0"):
+        TUMSequence(d)
     (d / "depth.txt").write_text("# nothing\n")
     with pytest.raises(SequenceError, match="lists no images"):
         TUMSequence(d)

@@ -16,6 +16,7 @@ from pal.perception.relations import RelationConfig, scene_relations, scene_vect
 from pal.perception.scene import OBJECT_KEYS, SCENE_KEYS
 from pal.perception.spatial import spatial_descriptor
 from pal.perception.synthetic import Box, Sphere, SyntheticCamera
+from pal.perception.topology import TopologyConfig
 
 K = np.array([[200.0, 0.0, 49.5], [0.0, 200.0, 39.5], [0.0, 0.0, 1.0]])
 
@@ -48,7 +49,24 @@ def test_topology_from_masks_and_depth():
     assert topology(flat(), Mask.from_full(ring), Mask.from_full(inner), ids=(9, 5)) == ("contained", 9)
     cup = box(10, 60, 10, 60) & ~box(20, 50, 10, 50)  # a U open at the top
     half_in = box(25, 45, 0, 25)
-    assert topology(flat(), Mask.from_full(half_in), Mask.from_full(cup)) == ("overlapping", None)
+    # half inside the U's hull but neither touching nor in front of it: a hull alone never overlaps
+    assert topology(flat(), Mask.from_full(half_in), Mask.from_full(cup)) == ("disjoint", None)
+    in_front = box(25, 45, 0, 25) | box(20, 50, 22, 25)  # now adjacent to the U's arms ...
+    assert topology(flat(1.3, cup), Mask.from_full(in_front), Mask.from_full(cup)) == ("overlapping", None)
+    # ... and 30 cm in front of it: an occlusion. Behind it instead, it occludes nothing
+    assert topology(flat(1.3, in_front), Mask.from_full(in_front), Mask.from_full(cup)) == ("disjoint", None)
+    # a band of missing depth between two touching objects does not separate them
+    gap = box(30, 34, 20, 40)
+    a2, b2 = box(10, 30, 20, 40), box(34, 54, 20, 40)
+    d = np.ones((80, 100), np.float32)
+    d[gap] = 0.0
+    f = RGBDFrame(np.zeros((80, 100, 3), np.uint8), d, K, 0.0)
+    wide = TopologyConfig(hole_px=32)  # 5 px at this 100-px-wide frame
+    assert topology(f, Mask.from_full(a2), Mask.from_full(b2), wide) == ("touching", None)
+    assert topology(f, Mask.from_full(a2), Mask.from_full(b2), TopologyConfig(hole_px=0)) == (
+        "disjoint",
+        None,
+    )
 
 
 def test_kinematic_synchrony():
@@ -67,22 +85,28 @@ def test_relations_graph_and_fixed_length_vector():
     f = flat()
     masks = {1: Mask.from_full(a), 2: Mask.from_full(b)}
     spatial = {1: spatial_descriptor(f, masks[1]), 2: spatial_descriptor(f, masks[2]), 3: None}
-    rel = scene_relations(f, spatial, masks, {}, RelationConfig())
-    assert len(rel.pairs) == 6 and rel.visible == {1, 2}
-    p12 = next(p for p in rel.pairs if (p.a, p.b) == (1, 2))
-    assert p12.topology == "touching" and p12.distance == pytest.approx(0.1, abs=0.01)
+    rel = scene_relations(f, spatial, masks, {}, RelationConfig(), salience={1: 0.5, 2: 2.0, 3: 0.0})
+    assert len(rel.pairs) == 2 and rel.visible == {1, 2}  # object 3 has no position: no neighbour
+    p12 = rel.pair(1, 2)
+    assert p12 is not None and p12.topology == "touching" and p12.distance == pytest.approx(0.1, abs=0.01)
     assert np.allclose(p12.direction, [1, 0, 0], atol=0.01) and p12.synchrony is None
-    p13 = next(p for p in rel.pairs if (p.a, p.b) == (1, 3))
-    assert p13.displacement is None and p13.topology is None
+    # grounded predicates, in the camera-up frame without a support plane: 1 is left of 2, touching
+    assert p12.grades is not None and p12.grades["left_of"] > 0.9 and p12.grades["touching"] > 0.75
+    assert rel.grade("left_of", 2, 1) < 0.1 and rel.grade("near", 1, 2) > 0.9
+    assert rel.grade("near", 1, 3) is None and rel.pair(1, 3) is None
+    with pytest.raises(ValueError, match="predicate 'under' unknown"):
+        rel.grade("under", 1, 2)
     g = rel.graph()
-    assert isinstance(g, nx.DiGraph) and g.number_of_nodes() == 3 and g.number_of_edges() == 6
+    assert isinstance(g, nx.DiGraph) and g.number_of_nodes() == 3 and g.number_of_edges() == 2
     assert g.nodes[3]["spatial"] is None and g.edges[1, 2]["topology"] == "touching"
+    assert rel.order() == [2, 1, 3]  # by salience, not by id
     v = rel.vector(4)
-    assert v.shape == (len(scene_vector_names(4)),) == (4 * 7 + 6 * 11,)
+    assert v.shape == (len(scene_vector_names(4)),) == (4 * 8 + 6 * 16,)
     assert np.all(np.isfinite(v))
     names = scene_vector_names(4)
     assert v[names.index("obj2.present")] == 0.0 and v[names.index("pair0_1.topo_touching")] == 1.0
-    assert v[names.index("obj0.cz")] == pytest.approx(1.0)
+    assert v[names.index("obj0.cx")] == pytest.approx(spatial[2].centroid[0])  # slot 0: the most salient
+    assert v[names.index("pair0_1.left_of")] == pytest.approx(rel.grade("left_of", 2, 1))
     json.dumps(rel.to_dict(), allow_nan=False)
 
 

@@ -156,8 +156,8 @@ def test_the_plane_is_tracked_and_refitted_when_the_support_changes(monkeypatch)
     import pal.perception.segmentation as segmentation
 
     calls = []
-    real = segmentation.fit_plane_ransac
-    monkeypatch.setattr(segmentation, "fit_plane_ransac", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = segmentation.choose_support
+    monkeypatch.setattr(segmentation, "choose_support", lambda *a, **k: calls.append(1) or real(*a, **k))
     cam = SyntheticCamera(160, 120)
     f = scene(cam)
     seg = GeometricSegmenter(SegmentationConfig(min_area=30), rng=0)

@@ -86,3 +86,23 @@ def test_pal_record_command(tmp_path, capsys):
     capsys.readouterr()
     assert main(["record", "--motion", "ball-bounce", "--out", str(tmp_path / "x")]) == 2
     assert "unknown motion 'ball-bounce'" in capsys.readouterr().err
+
+
+def test_the_harder_tabletop_has_holes_blur_lighting_and_a_hand():
+    from pal.sim.recording import Realism
+    from pal.sim.tabletop import OCCLUDER_LABEL
+
+    clean = list(render_run(RecordConfig("box-translation", seed=1, **TINY, rgb_noise=0.0)))
+    hard = list(render_run(RecordConfig("box-translation", seed=1, **TINY, rgb_noise=0.0, realism=Realism())))
+    assert len(hard) == len(clean)
+    k = len(hard) // 2
+    c, h = clean[k].frame, hard[k].frame
+    assert (h.labels == OCCLUDER_LABEL).any() and not (c.labels == OCCLUDER_LABEL).any()
+    valid = c.depth > 0
+    assert (h.depth[valid] == 0).mean() > 0.003  # shadows, edge and random dropouts
+    z = h.depth[h.depth > 0]
+    step = np.diff(np.unique(1.0 / z.astype(np.float64)))
+    assert step.min() > 0.5 * Realism().disparity_step  # quantised in disparity
+    assert not np.array_equal(c.rgb, h.rgb)  # the hand, the blur and the lighting change the colour
+    with pytest.raises(ValueError, match="dropout"):
+        Realism(dropout=2.0)

@@ -137,3 +137,33 @@ def test_bad_motion_requests_raise():
         RecordConfig("ball-roll", width=8)
     with pytest.raises(ValueError, match="must be >= 0"):
         RecordConfig("ball-roll", depth_noise=-0.1)
+
+
+def test_the_occluder_reaches_over_the_moved_object_and_withdraws():
+    from pal.sim.motions import occluder_path
+    from pal.sim.tabletop import OCCLUDER, OCCLUDER_LABEL
+
+    run = script("box-translation", 2, fps=10.0)
+    hand, params = occluder_path(run, 2)
+    again, _ = occluder_path(run, 2)
+    assert hand.shape == (len(run), 4, 4) and np.array_equal(hand, again)  # seeded
+    assert 0.16 <= params["height_m"] <= 0.19 and np.allclose(hand[:, 2, 3], params["height_m"])
+    box = run.poses["box"][:, :2, 3]
+    gap = np.linalg.norm(hand[:, :2, 3] - box, axis=1)
+    k = len(run) // 2
+    assert gap[0] > 0.5 and gap[-1] > 0.5 and gap[k] < 0.12  # away, over the box, away again
+    scene = load_tabletop(occluder=True)
+    assert scene.occluder and mujoco.mj_name2id(scene.model, mujoco.mjtObj.mjOBJ_BODY, OCCLUDER) >= 0
+    scene.set_pose(OCCLUDER, hand[k])
+    scene.forward()
+    with scene.camera(160, 120, "raycast") as cam:
+        view = cam.render()
+    labels = scene.labels(view)
+    assert (labels == OCCLUDER_LABEL).sum() > 50 and (labels == 1).sum() > 50
+    base = float(scene.model.light_diffuse[0, 0])
+    scene.set_lighting(0.5)
+    assert float(scene.model.light_diffuse[0, 0]) == pytest.approx(0.5 * base)
+    with pytest.raises(ValueError, match="lighting gain"):
+        scene.set_lighting(0.0)
+    with pytest.raises(ValueError, match="not in this scene"):
+        load_tabletop().set_pose(OCCLUDER, np.eye(4))

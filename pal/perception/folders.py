@@ -1,0 +1,210 @@
+"""Folders of RGB-D image files: paired files (``1.png`` + ``1_depth.png``) or ``color/`` + ``depth/``.
+
+Two layouts are read as one :class:`FolderSequence`:
+
+- **paired**: ``<stem>.<ext>`` colour images next to ``<stem>_depth.png`` (or ``.pgm``) depth
+  images in one directory, e.g. ``1.png`` and ``1_depth.png``;
+- **subfolders**: ``color/<stem>.<ext>`` (or ``rgb/``) and ``depth/<stem>.png|.pgm`` with the
+  same stems, e.g. ``color/1.png`` and ``depth/1.pgm``.
+
+Frames are ordered by stem (numerically when every stem is an integer). Colour files are
+8-bit (PNG, JPEG, ...), read as RGB; depth files are 16-bit PNG or binary PGM (0 = invalid),
+scaled by ``depth_scale`` metres per unit.
+
+The camera is never assumed: intrinsics and depth scale come from the arguments or from
+``calibration.json`` next to the frames (:mod:`pal.perception.calibration`). Timestamps come
+from ``timestamps.txt`` (``<stem> <seconds>`` rows) when present, else from ``fps``
+(``index / fps``); without either the reader raises. Camera poses, when the folder has them,
+are read from ``pose.txt`` (one ``tx ty tz qx qy qz qw`` row per frame, camera-to-world, the
+convention of the TUM ground truth) by :meth:`FolderSequence.camera_poses`.
+
+On opening, the first depth image is checked against the stated scale
+(:func:`pal.frames.check_depth_range` warns when the range is implausible and names the fix).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from pal.frames import RGBDFrame, check_depth_range
+from pal.perception.calibration import resolve_calibration
+from pal.sequence_files import (
+    FrameSequence,
+    SequenceError,
+    check_timestamps,
+    read_depth,
+    read_image,
+    read_text_rows,
+)
+
+__all__ = ["COLOR_EXTENSIONS", "DEPTH_EXTENSIONS", "FolderSequence", "find_folder_layout", "pose_matrices"]
+
+#: Colour image file extensions, lower case.
+COLOR_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".tif", ".tiff")
+#: Depth image file extensions (16-bit), lower case.
+DEPTH_EXTENSIONS = (".png", ".pgm")
+_DEPTH_SUFFIX = "_depth"
+
+
+def _files(directory: Path, extensions: tuple[str, ...]) -> dict[str, Path]:
+    return {p.stem: p for p in sorted(directory.iterdir()) if p.is_file() and p.suffix.lower() in extensions}
+
+
+def _order(stems: list[str]) -> list[str]:
+    if all(s.lstrip("-").isdigit() for s in stems):
+        return sorted(stems, key=int)
+    return sorted(stems)
+
+
+def find_folder_layout(path: Path) -> tuple[str, list[tuple[str, Path, Path]]] | None:
+    """The folder layout of ``path`` and its ``(stem, colour file, depth file)`` frames, or None.
+
+    Returns:
+        ``("subfolders" | "paired", frames)`` in frame order, or None when ``path`` holds
+        neither layout.
+    """
+    for color_dir in ("color", "rgb"):
+        if (path / color_dir).is_dir() and (path / "depth").is_dir():
+            color = _files(path / color_dir, COLOR_EXTENSIONS)
+            depth = _files(path / "depth", DEPTH_EXTENSIONS)
+            common = _order(sorted(set(color) & set(depth)))
+            if common:
+                return "subfolders", [(s, color[s], depth[s]) for s in common]
+    files = _files(path, COLOR_EXTENSIONS)
+    depth = {s[: -len(_DEPTH_SUFFIX)]: p for s, p in files.items() if s.endswith(_DEPTH_SUFFIX)}
+    depth.update(
+        {s[: -len(_DEPTH_SUFFIX)]: p for s, p in _files(path, (".pgm",)).items() if s.endswith(_DEPTH_SUFFIX)}
+    )
+    color = {s: p for s, p in files.items() if not s.endswith(_DEPTH_SUFFIX) and s in depth}
+    if color:
+        return "paired", [(s, color[s], depth[s]) for s in _order(list(color))]
+    return None
+
+
+def pose_matrices(values: np.ndarray, source: str) -> np.ndarray:
+    """(N, 4, 4) camera-to-world transforms from (N, 7) ``tx ty tz qx qy qz qw`` rows (metres).
+
+    Raises:
+        SequenceError: not (N, 7), a non-finite value or a zero quaternion (the row is named).
+    """
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] != 7:
+        raise SequenceError(f"{source}: poses have shape {v.shape}, expected (N, 7) 'tx ty tz qx qy qz qw'")
+    bad = np.flatnonzero(~np.all(np.isfinite(v), axis=1) | (np.linalg.norm(v[:, 3:], axis=1) < 1e-9))
+    if bad.size:
+        raise SequenceError(f"{source}: pose row {int(bad[0]) + 1} {v[bad[0]].tolist()} is not a valid pose")
+    out = np.tile(np.eye(4), (v.shape[0], 1, 1))
+    out[:, :3, :3] = Rotation.from_quat(v[:, 3:]).as_matrix()
+    out[:, :3, 3] = v[:, :3]
+    return out
+
+
+class FolderSequence(FrameSequence):
+    """A folder of colour and depth image files (module docstring).
+
+    Args:
+        path: the directory.
+        K: (3, 3) intrinsics, pixels; None: read from ``calibration.json``.
+        depth_scale: metres per depth unit; None: read from ``calibration.json``.
+        fps: frame rate for timestamps ``index / fps`` when there is no ``timestamps.txt``.
+
+    Attributes:
+        layout: ``"paired"`` or ``"subfolders"``.
+        stems: the frames' file stems, in frame order.
+        depth_scale: metres per depth unit.
+
+    Raises:
+        SequenceError: not a folder of frames, no intrinsics or depth scale, no timestamps,
+            malformed ``timestamps.txt`` or non-monotonic timestamps.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        K: np.ndarray | None = None,
+        depth_scale: float | None = None,
+        fps: float | None = None,
+    ) -> None:
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise SequenceError(f"sequence directory {self.path} does not exist or is not a directory")
+        found = find_folder_layout(self.path)
+        if found is None:
+            raise SequenceError(
+                f"{self.path} holds no colour/depth image pairs: expected <stem>.png with <stem>_depth.png, "
+                "or color/<stem>.png with depth/<stem>.png|.pgm"
+            )
+        self.layout, frames = found
+        calib = resolve_calibration(self.path, K, depth_scale, fps)
+        self.K, self.depth_scale, self.calibration_source = calib.K, calib.depth_scale, calib.source
+        self.stems = [s for s, _, _ in frames]
+        self._files = [(c, d) for _, c, d in frames]
+        self.timestamps = self._timestamps(calib.fps)
+        check_depth_range(
+            read_image(self._files[0][1], depth=True),
+            self.depth_scale,
+            source=str(self._files[0][1]),
+            stacklevel=3,
+        )
+
+    def _timestamps(self, fps: float | None) -> np.ndarray:
+        path = self.path / "timestamps.txt"
+        if path.is_file():
+            rows = read_text_rows(path)
+            stamps = {r[0]: r[1] for r in rows if len(r) == 2}
+            missing = [s for s in self.stems if s not in stamps]
+            if missing or len(stamps) != len(rows):
+                raise SequenceError(
+                    f"{path}: expected one '<stem> <seconds>' row per frame; no time for {missing[:5]}"
+                )
+            try:
+                ts = np.array([float(stamps[s]) for s in self.stems])
+            except ValueError as err:
+                raise SequenceError(f"{path}: a timestamp is not a number ({err})") from None
+            return check_timestamps(ts, str(path))
+        if fps is None:
+            raise SequenceError(
+                f'{self.path} has no timestamps.txt; pass fps= (frames/s) or add "fps" to calibration.json, '
+                "or write timestamps.txt with one '<stem> <seconds>' row per frame"
+            )
+        return np.arange(len(self.stems), dtype=np.float64) / fps
+
+    def frame(self, index: int) -> RGBDFrame:
+        """Frame ``index``: the colour file as RGB, the depth file in metres.
+
+        Raises:
+            SequenceError: a file is missing or unreadable, or colour and depth differ in size.
+            pal.frames.EmptyDepthError: the depth image has no valid pixel.
+        """
+        color_file, depth_file = self._files[index]
+        rgb = read_image(color_file)
+        depth = read_depth(depth_file, self.depth_scale)
+        if rgb.shape[:2] != depth.shape:
+            raise SequenceError(
+                f"{color_file.name} is {rgb.shape[1]}x{rgb.shape[0]} but {depth_file.name} is "
+                f"{depth.shape[1]}x{depth.shape[0]}; colour and depth must be registered at the same size"
+            )
+        return RGBDFrame(rgb=rgb, depth=depth, K=self.K, timestamp=float(self.timestamps[index]))
+
+    def camera_poses(self) -> np.ndarray:
+        """(N, 4, 4) camera-to-world poses from ``pose.txt``, one row per frame.
+
+        Raises:
+            SequenceError: the folder has no ``pose.txt``, or it has another number of rows.
+        """
+        path = self.path / "pose.txt"
+        if not path.is_file():
+            raise SequenceError(f"{self.path} has no camera poses (pose.txt)")
+        rows = read_text_rows(path)
+        if len(rows) != len(self):
+            raise SequenceError(f"{path} has {len(rows)} rows, expected one per frame ({len(self)})")
+        try:
+            values = np.array(rows, dtype=np.float64)
+        except ValueError:
+            raise SequenceError(f"{path}: expected rows of 7 numbers 'tx ty tz qx qy qz qw'") from None
+        return pose_matrices(values, str(path))

@@ -1,0 +1,387 @@
+"""RGB-D PnP-RANSAC with a seeded generator, prior hypotheses, joint refinement and covariance.
+
+:func:`pnp_ransac` (Eq. 4.15-4.16) estimates ``x_cam = R x_ref + t`` from 3-D reference points
+and their 2-D observations, and the observations' depth where it exists. Its minimal samples
+come from the caller's generator (OpenCV's ``solvePnPRansac`` draws from OpenCV's global
+generator, so its result would depend on the calls made before it): each hypothesis is a
+4-point AP3P solution, or, when the observed points have depth too, a vectorised 3-point
+Kabsch fit of the 3-D pairs (cheap and many). The caller may add *prior hypotheses* (no motion,
+constant velocity, the pose the camera motion predicts), scored like the others. A pair is an
+inlier when it reprojects within ``reprojection_error`` pixels and, if the observation has
+depth, its predicted depth is within ``depth_tolerance``.
+
+The best hypothesis is refined by :func:`refine_pose`: Gauss-Newton on the joint residuals
+``(u - û) / sigma_px``, ``(v - v̂) / sigma_px`` and, where the observation has depth,
+``(z - ẑ) / sigma_z`` (sigma_z from the sensor's noise model), re-selecting the inliers
+twice. Pixels constrain the pose across the view, depth along it: near, precise depth pins the
+pose like a 3-D fit; far, noisy depth weighs little. Its covariance is ``s² (J^T J)^-1`` over
+the perturbation ``R <- exp(w) R``, ``t <- t + d`` (rotation vector w in rad about the camera
+origin, translation d of the reference origin in m), ``s²`` the residuals' variance factor.
+
+:func:`reprojection_errors` scores any transform on pairs; :func:`pose_covariance` gives the
+covariance of a 2-D fit alone, :func:`point_covariance` that of a 3-D fit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from pal.perception.rigid import RigidFit, kabsch
+
+__all__ = [
+    "RgbdFit",
+    "pnp_ransac",
+    "point_covariance",
+    "pose_covariance",
+    "refine_pose",
+    "reprojection_errors",
+]
+
+
+@dataclass(frozen=True, eq=False)
+class RgbdFit(RigidFit):
+    """A :class:`~pal.perception.rigid.RigidFit` with its covariance.
+
+    Attributes:
+        covariance: (6, 6) over (rotation vector rad, translation m), or None when singular.
+        depth_inliers: inliers whose observation had depth.
+    """
+
+    covariance: np.ndarray | None = None
+    depth_inliers: int = 0
+
+
+def _project(R: np.ndarray, t: np.ndarray, obj: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels (..., N, 2) and depths (..., N) of ``R obj + t``; R (..., 3, 3), t (..., 3)."""
+    cam = np.matmul(obj, np.swapaxes(R, -1, -2)) + t[..., None, :]
+    z = cam[..., 2]
+    zs = np.where(z > 1e-9, z, 1e-9)
+    u = K[0, 0] * cam[..., 0] / zs + K[0, 1] * cam[..., 1] / zs + K[0, 2]
+    v = K[1, 1] * cam[..., 1] / zs + K[1, 2]
+    return np.stack([u, v], axis=-1), z
+
+
+def reprojection_errors(T: np.ndarray, obj: np.ndarray, img: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(N,) pixel distance between ``project(T obj)`` and ``img``; inf behind the camera.
+
+    Args:
+        T: (4, 4) ``camera_from_reference``.
+        obj: (N, 3) reference points, metres.
+        img: (N, 2) observed pixels.
+        K: (3, 3) intrinsics.
+    """
+    uv, z = _project(T[:3, :3], T[:3, 3], np.asarray(obj, float), np.asarray(K, float))
+    err = np.linalg.norm(uv - img, axis=-1)
+    return np.where(z > 1e-6, err, np.inf)
+
+
+def _refine(
+    obj: np.ndarray, img: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    rvec, _ = cv2.Rodrigues(R)
+    rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, None, rvec, t.reshape(3, 1).copy())
+    return cv2.Rodrigues(rvec)[0], tvec.ravel()
+
+
+def pnp_ransac(
+    object_points: np.ndarray,
+    image_points: np.ndarray,
+    K: np.ndarray,
+    *,
+    rng: np.random.Generator | int = 0,
+    iterations: int = 200,
+    reprojection_error: float = 6.0,
+    confidence: float = 0.99,
+    min_inliers: int = 6,
+    image_points_3d: np.ndarray | None = None,
+    hypotheses: Sequence[np.ndarray] = (),
+    weights: np.ndarray | None = None,
+    depth_tolerance: np.ndarray | float | None = None,
+    depth_sigma: np.ndarray | float | None = None,
+) -> RgbdFit | None:
+    """Seeded PnP-RANSAC (module docstring).
+
+    Args:
+        object_points: (N, 3) points in the reference frame, metres.
+        image_points: (N, 2) their observed pixels in the current image.
+        K: (3, 3) intrinsics of the current image.
+        rng: generator (or seed) of the minimal samples.
+        iterations: the most random hypotheses (adaptive below that).
+        reprojection_error: inlier threshold, pixels.
+        confidence: RANSAC confidence, in (0, 1).
+        min_inliers: fewer inliers than this -> None.
+        image_points_3d: optional (N, 3) current camera-frame points with NaN rows where the
+            observation has no depth: 3-point Kabsch hypotheses are drawn from the pairs with
+            depth.
+        hypotheses: prior (4, 4) ``camera_from_reference`` transforms scored with the others.
+        weights: optional (N,) non-negative weights of the pairs in the inlier score.
+        depth_tolerance: largest depth disagreement of an inlier with depth, metres (scalar or
+            (N,)); None: depth does not gate inliers.
+        depth_sigma: depth noise of the observations, metres (scalar or (N,)), for the joint
+            refinement; None: pixels only.
+
+    Returns:
+        ``x_cam = R x_ref + t`` with inliers, the reprojection RMSE in pixels and the
+        covariance, or None.
+    """
+    obj = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 3)
+    img = np.ascontiguousarray(image_points, dtype=np.float64).reshape(-1, 2)
+    K = np.asarray(K, dtype=np.float64)
+    n = obj.shape[0]
+    if img.shape[0] != n:
+        raise ValueError(f"{n} object points but {img.shape[0]} image points")
+    if n < max(6, min_inliers):
+        return None
+    gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    w = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64)
+    live_z = np.full(n, np.nan)
+    if image_points_3d is not None:
+        live_z = np.asarray(image_points_3d, dtype=np.float64)[:, 2]
+    tol = np.full(n, np.inf)
+    if depth_tolerance is not None:
+        tol = np.where(np.isfinite(live_z), np.broadcast_to(np.asarray(depth_tolerance, float), (n,)), np.inf)
+    Rs = [np.asarray(T, float)[:3, :3] for T in hypotheses]
+    ts = [np.asarray(T, float)[:3, 3] for T in hypotheses]
+    tried = 0
+    if image_points_3d is not None:
+        live = np.asarray(image_points_3d, dtype=np.float64)
+        both = np.flatnonzero(np.all(np.isfinite(live), axis=1))
+        if both.size >= 3:
+            a = gen.integers(0, both.size, (min(iterations, 96), 3))
+            ok = (a[:, 0] != a[:, 1]) & (a[:, 1] != a[:, 2]) & (a[:, 0] != a[:, 2])
+            idx = both[a[ok]]
+            if idx.shape[0]:
+                R3, t3 = kabsch(obj[idx], live[idx])
+                Rs.extend(R3)
+                ts.extend(t3)
+                tried = int(idx.shape[0])
+    best: dict = {"score": -1.0, "fit": None, "fraction": 0.0}
+
+    def score() -> int:
+        """Score the pending hypotheses; returns the hypotheses needed for ``confidence``."""
+        if Rs:
+            uv, z = _project(np.array(Rs), np.array(ts), obj, K)
+            inl = (np.linalg.norm(uv - img, axis=-1) < reprojection_error) & (z > 1e-6)
+            inl &= ~(np.abs(z - live_z) > tol)  # NaN (no depth) never disqualifies
+            scores = inl @ w
+            k = int(np.argmax(scores))
+            if scores[k] > best["score"]:
+                best.update(score=float(scores[k]), fit=(Rs[k], ts[k]), fraction=float(inl[k].mean()))
+            Rs.clear()
+            ts.clear()
+        frac = best["fraction"]
+        if frac >= 1.0:
+            return 0
+        if frac <= 0.0:
+            return iterations
+        return min(iterations, int(np.ceil(np.log(1 - confidence) / np.log(1 - frac**4))))
+
+    needed = score()
+    while tried < needed:
+        idx = gen.choice(n, size=4, replace=False)
+        tried += 1
+        count, rvecs, tvecs = cv2.solveP3P(obj[idx[:3]], img[idx[:3]], K, None, flags=cv2.SOLVEPNP_AP3P)
+        for rv, tv in zip(rvecs[:count], tvecs[:count], strict=True):
+            R = cv2.Rodrigues(rv)[0]
+            T = np.eye(4)
+            T[:3, :3], T[:3, 3] = R, tv.ravel()
+            if reprojection_errors(T, obj[idx[3:]], img[idx[3:]], K)[0] < reprojection_error:
+                Rs.append(R)
+                ts.append(tv.ravel())
+        if len(Rs) >= 32 or tried >= needed:
+            needed = score()
+    best_n = best["fit"]
+    if best_n is None:
+        return None
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = best_n
+    z_obs = live_z if depth_sigma is not None else None
+    return refine_pose(
+        obj,
+        img,
+        K,
+        T,
+        reprojection_error,
+        min_inliers,
+        live_z=z_obs,
+        depth_sigma=depth_sigma,
+        depth_tolerance=tol,
+    )
+
+
+def _exp(w: np.ndarray) -> np.ndarray:
+    return cv2.Rodrigues(np.asarray(w, dtype=np.float64).reshape(3, 1))[0]
+
+
+def _gauss_newton(
+    obj: np.ndarray,
+    img: np.ndarray,
+    K: np.ndarray,
+    R: np.ndarray,
+    t: np.ndarray,
+    z_obs: np.ndarray,
+    z_sigma: np.ndarray,
+    sigma_px: float,
+    steps: int = 4,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Gauss-Newton on the joint residuals (module docstring); NaN ``z_obs`` has no depth term.
+
+    Returns:
+        (R, t, (J^T J)^-1 or a NaN matrix when singular, chi² per degree of freedom).
+    """
+    fx, fy, s = K[0, 0], K[1, 1], K[0, 1]
+    has_z = np.isfinite(z_obs)
+    JtJ = np.eye(6)
+    chi2 = 0.0
+    for _ in range(steps + 1):
+        p = obj @ R.T + t
+        x, y, z = p[:, 0], p[:, 1], np.maximum(p[:, 2], 1e-6)
+        u = fx * x / z + s * y / z + K[0, 2]
+        v = fy * y / z + K[1, 2]
+        ru, rv = (u - img[:, 0]) / sigma_px, (v - img[:, 1]) / sigma_px
+        # d(u, v, z)/d(p): rows of the projection Jacobian; for the perturbation (w, d) of
+        # p = exp(w) q + t + d with q = R x_ref, a row a . dp = (q x a) . w + a . d
+        du = np.stack([fx / z, s / z, -(fx * x + s * y) / z**2], axis=1) / sigma_px
+        dv = np.stack([np.zeros_like(z), fy / z, -fy * y / z**2], axis=1) / sigma_px
+        q = obj @ R.T
+        Ju = np.concatenate([np.cross(q, du), du], axis=1)
+        Jv = np.concatenate([np.cross(q, dv), dv], axis=1)
+        rows, res = [Ju, Jv], [ru, rv]
+        if has_z.any():
+            rz = (z[has_z] - z_obs[has_z]) / z_sigma[has_z]
+            qz = q[has_z]
+            Jz = np.stack(
+                [
+                    qz[:, 1],
+                    -qz[:, 0],
+                    np.zeros(qz.shape[0]),
+                    *np.zeros((2, qz.shape[0])),
+                    np.ones(qz.shape[0]),
+                ],
+                axis=1,
+            )
+            rows.append(Jz / z_sigma[has_z, None])
+            res.append(rz)
+        J, r = np.concatenate(rows), np.concatenate(res)
+        JtJ = J.T @ J
+        chi2 = float(r @ r) / max(r.size - 6, 1)
+        if _ == steps:
+            break
+        delta = -np.linalg.solve(JtJ + 1e-9 * np.trace(JtJ) * np.eye(6), J.T @ r)
+        R = _exp(delta[:3]) @ R
+        t = t + delta[3:]
+        if np.linalg.norm(delta) < 1e-10:
+            break
+    if np.linalg.cond(JtJ) > 1e12:
+        return R, t, np.full((6, 6), np.nan), chi2
+    return R, t, np.linalg.inv(JtJ), chi2
+
+
+def refine_pose(
+    obj: np.ndarray,
+    img: np.ndarray,
+    K: np.ndarray,
+    T: np.ndarray,
+    reprojection_error: float,
+    min_inliers: int,
+    *,
+    live_z: np.ndarray | None = None,
+    depth_sigma: np.ndarray | float | None = None,
+    depth_tolerance: np.ndarray | float | None = None,
+    sigma_px: float = 1.0,
+) -> RgbdFit | None:
+    """Refine ``T`` on its inliers by joint Gauss-Newton, twice, re-selecting the inliers.
+
+    Args:
+        obj: (N, 3) reference points, metres.
+        img: (N, 2) observed pixels.
+        K: (3, 3) intrinsics.
+        T: (4, 4) initial ``camera_from_reference``.
+        reprojection_error: inlier threshold, pixels.
+        min_inliers: fewer inliers than this at any step -> None.
+        live_z: optional (N,) observed depth, NaN where none, metres.
+        depth_sigma: depth noise of the observations, metres (scalar or (N,)); needed with
+            ``live_z``.
+        depth_tolerance: largest depth disagreement of an inlier, metres (scalar or (N,)).
+        sigma_px: pixel noise of the observations.
+    """
+    obj = np.ascontiguousarray(obj, dtype=np.float64)
+    img = np.ascontiguousarray(img, dtype=np.float64)
+    n = obj.shape[0]
+    z_obs = np.full(n, np.nan) if live_z is None or depth_sigma is None else np.asarray(live_z, float)
+    z_sig = np.broadcast_to(np.asarray(1.0 if depth_sigma is None else depth_sigma, float), (n,))
+    tol = np.broadcast_to(np.asarray(np.inf if depth_tolerance is None else depth_tolerance, float), (n,))
+    R, t = T[:3, :3].copy(), T[:3, 3].copy()
+
+    def inliers_of(R: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        M = np.eye(4)
+        M[:3, :3], M[:3, 3] = R, t
+        err = reprojection_errors(M, obj, img, K)
+        z = obj @ R[2] + t[2]
+        return (err < reprojection_error) & ~(np.abs(z - z_obs) > tol), err
+
+    inliers, err = inliers_of(R, t)
+    inv = np.full((6, 6), np.nan)
+    chi2 = 1.0
+    for _ in range(2):
+        if inliers.sum() < max(min_inliers, 4):
+            return None
+        R, t, inv, chi2 = _gauss_newton(
+            obj[inliers], img[inliers], K, R, t, z_obs[inliers], z_sig[inliers], sigma_px
+        )
+        inliers, err = inliers_of(R, t)
+    if inliers.sum() < min_inliers:
+        return None
+    cov = None if not np.all(np.isfinite(inv)) else inv * max(chi2, 0.25)
+    return RgbdFit(
+        R,
+        t,
+        inliers,
+        float(np.sqrt(np.mean(err[inliers] ** 2))),
+        cov,
+        int((inliers & np.isfinite(z_obs)).sum()),
+    )
+
+
+def pose_covariance(
+    R: np.ndarray, t: np.ndarray, obj: np.ndarray, img: np.ndarray, K: np.ndarray, rmse: float
+) -> np.ndarray | None:
+    """(6, 6) covariance of (rotation vector [rad], translation [m]) of a PnP fit on its inliers.
+
+    ``rmse² (J^T J)^-1`` with J the (2N, 6) Jacobian of the projections (OpenCV's
+    ``projectPoints``); None when J^T J is singular (too few or degenerate points).
+    """
+    if obj.shape[0] < 3:
+        return None
+    rvec, _ = cv2.Rodrigues(np.asarray(R, float))
+    _, jac = cv2.projectPoints(np.asarray(obj, float), rvec, np.asarray(t, float).reshape(3, 1), K, None)
+    J = jac[:, :6]
+    JtJ = J.T @ J
+    if np.linalg.cond(JtJ) > 1e12:
+        return None
+    return max(rmse, 0.3) ** 2 * np.linalg.inv(JtJ)
+
+
+def point_covariance(R: np.ndarray, src: np.ndarray, rmse: float) -> np.ndarray | None:
+    """(6, 6) covariance of (rotation vector [rad], translation [m]) of a 3-D rigid fit.
+
+    For ``dst = R src + t`` with isotropic residuals of ``rmse`` metres: ``rmse² (J^T J)^-1``
+    with ``J_i = [-[R src_i]_x, I]`` (left perturbation of the rotation); None when singular.
+    """
+    p = np.asarray(src, float) @ np.asarray(R, float).T
+    if p.shape[0] < 3:
+        return None
+    s = p.sum(axis=0)
+    skew = np.array([[0.0, -s[2], s[1]], [s[2], 0.0, -s[0]], [-s[1], s[0], 0.0]])
+    JtJ = np.zeros((6, 6))
+    JtJ[:3, :3] = np.sum(p * p) * np.eye(3) - p.T @ p
+    JtJ[:3, 3:] = skew
+    JtJ[3:, :3] = -skew
+    JtJ[3:, 3:] = p.shape[0] * np.eye(3)
+    if np.linalg.cond(JtJ) > 1e12:
+        return None
+    return max(rmse, 1e-4) ** 2 * np.linalg.inv(JtJ)

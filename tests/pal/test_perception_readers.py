@@ -1,0 +1,127 @@
+"""Readers of real RGB-D frames: folder layouts, PGM and 16-bit PNG depth, calibration files, bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import warnings
+
+import cv2
+import numpy as np
+import pytest
+
+from pal.frames import DepthUnitsWarning, EmptyDepthError, RGBDFrame, TimestampOrderError, check_depth_range
+from pal.perception import Pipeline, PipelineConfig
+from pal.perception.folders import FolderSequence
+from pal.perception.samples import SAMPLES, open_sample, sample_path, support_regions
+from pal.perception.sequence import SequenceError, open_sequence
+
+DESK_K = [[520.9, 0.0, 325.1], [0.0, 521.0, 249.7], [0.0, 0.0, 1.0]]
+
+
+def test_the_samples_read_as_rgb_metres_with_their_calibration():
+    desk, room = open_sample("tum_desk"), open_sample("kinect_room")
+    assert (desk.layout, len(desk), room.layout, len(room)) == ("paired", 2, "subfolders", 3)
+    assert np.allclose(desk.K, DESK_K) and desk.depth_scale == pytest.approx(1 / 5000)
+    assert room.depth_scale == pytest.approx(0.001) and room.stems == ["3", "4", "5"]
+    f = room[0]  # a 16-bit PNG, millimetres
+    assert f.shape == (480, 640) and f.depth.dtype == np.float32
+    assert 2.0 < float(np.median(f.depth[f.depth > 0])) < 4.0  # a room, seen from 1.4 m
+    bgr = cv2.imread(str(sample_path("kinect_room") / "color" / "3.jpg"))
+    assert np.array_equal(f.rgb, bgr[..., ::-1])  # channel order: RGB, not OpenCV's BGR
+    assert np.array_equal(RGBDFrame.from_bgr(bgr, f.depth, f.K, 0.0).rgb, f.rgb)
+    d = desk[1]  # a 16-bit PNG, 1/5000 m
+    assert 1.0 < float(np.median(d.depth[d.depth > 0])) < 2.0 and d.timestamp == pytest.approx(1 / 30)
+    poses = room.camera_poses()
+    assert poses.shape == (3, 4, 4) and np.allclose(poses[:, 3], [0, 0, 0, 1])
+    assert np.allclose(poses[0, :3, :3] @ poses[0, :3, :3].T, np.eye(3))
+    with pytest.raises(SequenceError, match="no camera poses"):
+        desk.camera_poses()
+    assert set(SAMPLES) == {"tum_desk", "kinect_room"} and support_regions("tum_desk")[0] == "desk"
+    with pytest.raises(ValueError, match="unknown sample"):
+        sample_path("kitchen")
+
+
+def _copy(tmp_path, name: str, calibration: bool = True):
+    src = sample_path(name)
+    dst = tmp_path / name
+    shutil.copytree(src, dst)
+    if not calibration:
+        (dst / "calibration.json").unlink()
+    return dst
+
+
+def test_paired_and_subfolder_layouts_need_a_camera_but_no_list(tmp_path):
+    desk = _copy(tmp_path, "tum_desk", calibration=False)
+    with pytest.raises(SequenceError, match="intrinsics are unknown.*no default camera"):
+        open_sequence(desk)
+    with pytest.raises(SequenceError, match=r"depth scale is unknown.*0\.0002 for TUM"):
+        open_sequence(desk, K=np.array(DESK_K))
+    with pytest.raises(SequenceError, match="no timestamps.txt; pass fps="):
+        open_sequence(desk, K=np.array(DESK_K), depth_scale=1 / 5000)
+    seq = open_sequence(desk, K=np.array(DESK_K), depth_scale=1 / 5000, fps=10.0)
+    assert isinstance(seq, FolderSequence) and seq.timestamps.tolist() == [0.0, 0.1]
+    (desk / "timestamps.txt").write_text("# stem seconds\n1 5.0\n2 4.0\n")
+    with pytest.raises(SequenceError, match="not monotonic: frame 1 at 4.000000 s comes after frame 0"):
+        open_sequence(desk, K=np.array(DESK_K), depth_scale=1 / 5000)
+    (desk / "timestamps.txt").write_text("1 5.0\n2 5.5\n")
+    assert open_sequence(desk, K=np.array(DESK_K), depth_scale=1 / 5000).timestamps.tolist() == [5.0, 5.5]
+    (desk / "calibration.json").write_text(json.dumps({"fx": 520.9, "fy": 521.0, "cx": 325.1}))
+    with pytest.raises(SequenceError, match=r"lacks \['cy'\]"):
+        open_sequence(desk)
+    with pytest.raises(SequenceError, match="depth_scale is -1, expected a finite number > 0"):
+        open_sequence(desk, K=np.array(DESK_K), depth_scale=-1)
+    with pytest.raises(SequenceError, match=r"depth_scale is 0\.0, expected a finite number > 0"):
+        open_sequence(desk, K=np.array(DESK_K), depth_scale=0.0)
+
+
+def test_bad_files_raise_naming_the_file(tmp_path):
+    room = _copy(tmp_path, "kinect_room")
+    png = open_sequence(room)
+    depths = [png[k].depth for k in range(len(png))]
+    for stem in png.stems:  # the original's 16-bit binary PGM depth files
+        depth = room / "depth" / f"{stem}.png"
+        assert cv2.imwrite(str(room / "depth" / f"{stem}.pgm"), cv2.imread(str(depth), cv2.IMREAD_UNCHANGED))
+        depth.unlink()
+    seq = open_sequence(room)
+    assert (room / "depth" / "3.pgm").read_bytes().startswith(b"P5")
+    assert all(np.array_equal(seq[k].depth, depths[k]) for k in range(len(seq)))
+    small = cv2.imread(str(room / "color" / "4.jpg"))[:240, :320]
+    cv2.imwrite(str(room / "color" / "4.jpg"), small)
+    with pytest.raises(SequenceError, match=r"4\.jpg is 320x240 but 4\.pgm is 640x480"):
+        seq[1]
+    (room / "depth" / "5.pgm").write_bytes(b"P5 640 480 65535\n" + bytes(640 * 480 * 2))
+    with pytest.raises(EmptyDepthError, match=r"5\.pgm has no valid depth pixel"):
+        seq[2]
+    cv2.imwrite(str(room / "depth" / "3.pgm"), np.zeros((480, 640), np.uint8) + 3)
+    with pytest.raises(SequenceError, match=r"3\.pgm has shape \(480, 640\) dtype uint8"):
+        seq[0]
+
+
+def test_implausible_depth_scales_warn_naming_the_likely_fix(tmp_path):
+    with pytest.warns(DepthUnitsWarning, match=r"closer than 0\.35 m.*millimetres.*depth_scale=0\.001"):
+        open_sequence(sample_path("kinect_room"), depth_scale=1 / 5000)  # a Kinect read as TUM
+    with pytest.warns(DepthUnitsWarning, match=r"farther than .* 15 m.*TUM RGB-D.*depth_scale=0\.0002"):
+        open_sequence(sample_path("tum_desk"), depth_scale=0.001)  # TUM read as millimetres
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        open_sample("tum_desk"), open_sample("kinect_room")
+        assert check_depth_range(np.zeros((4, 4), np.uint16), 0.001)
+    with pytest.raises(ValueError, match="depth_scale is 0"):
+        check_depth_range(np.ones((4, 4), np.uint16), 0.0)
+
+
+def test_the_pipeline_refuses_bad_frames_before_changing_state():
+    f = open_sample("tum_desk")[0]
+    pipe = Pipeline(PipelineConfig(estimate_pose=False, relations=None))
+    with pytest.raises(EmptyDepthError, match="no valid depth pixel"):
+        pipe(RGBDFrame(f.rgb, np.zeros_like(f.depth), f.K, 0.0))
+    assert pipe.frame_count == 0
+    pipe(RGBDFrame(f.rgb, f.depth, f.K, 1.0))
+    with pytest.raises(TimestampOrderError, match=r"0\.5 s is earlier than the previous frame's 1\.0 s"):
+        pipe(RGBDFrame(f.rgb, f.depth, f.K, 0.5))
+    assert pipe.frame_count == 1
+    with pytest.raises(ValueError, match="missing"):
+        RGBDFrame(f.rgb, f.depth, None, 0.0)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"depth has shape \(240, 320\), expected \(480, 640\)"):
+        RGBDFrame(f.rgb, f.depth[:240, :320], f.K, 0.0)
