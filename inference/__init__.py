@@ -13,8 +13,10 @@ from inference.context import active_subgraph, subgraph_model
 from inference.counterfactual import CounterfactualResult, abduct, counterfactual
 from inference.curiosity import CuriositySampler, normalized_entropy, occupancy
 from inference.diagnostics import Diagnostics, PoorPosteriorWarning
-from inference.discovery import DiscoveryResult, discover, shd
+from inference.discovery import DiscoveryOptions, DiscoveryResult, discover, shd
+from inference.effects import EffectResult, treatment_effect
 from inference.ensemble import Ensemble
+from inference.equivalence import CPDAG, EdgeComparison, compare_edges, cpdag
 from inference.fit import FitResult, FitSchedule, fit
 from inference.handlers import AbductNoise, Intervene, MeasurementScale, ReplayNoise
 from inference.importance import ImportanceOptions
@@ -28,13 +30,17 @@ from inference.state import StateResult, infer_state
 from inference.svi_state import SVIOptions
 
 __all__ = [
+    "CPDAG",
     "AbductNoise",
     "ActionOptions",
     "ActionResult",
     "CounterfactualResult",
     "CuriositySampler",
     "Diagnostics",
+    "DiscoveryOptions",
     "DiscoveryResult",
+    "EdgeComparison",
+    "EffectResult",
     "Ensemble",
     "FitResult",
     "FitSchedule",
@@ -54,7 +60,9 @@ __all__ = [
     "abduct",
     "active_subgraph",
     "admissible_parents",
+    "compare_edges",
     "counterfactual",
+    "cpdag",
     "discover",
     "do",
     "fit",
@@ -69,4 +77,5 @@ __all__ = [
     "shd",
     "simulate",
     "subgraph_model",
+    "treatment_effect",
 ]

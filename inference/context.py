@@ -57,9 +57,7 @@ def refuse_categorical_parents(model: WorldModel, what: str, names: Sequence[str
     """
     g = model.graph
     bad = {
-        p: k
-        for p, k in model.discrete.items()
-        if k > 2 and g.children(p) and (names is None or p in names)
+        p: k for p, k in model.discrete.items() if k > 2 and g.children(p) and (names is None or p in names)
     }
     if bad:
         raise ValueError(

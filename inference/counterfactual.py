@@ -184,6 +184,38 @@ def _abduct(
     return abduction.noise
 
 
+def _torch_abduction(model: WorldModel, acts: Mapping[str, Tensor]) -> bool:
+    """Whether :func:`_abduct_plain` gives the program's abduction: no discrete site, every action set."""
+    graph = model.graph
+    return not model.discrete and all(a in acts for a in graph.actions)
+
+
+def _abduct_plain(
+    model: WorldModel, values: Mapping[str, Tensor], acts: Mapping[str, Tensor]
+) -> dict[str, Tensor]:
+    """The torch twin of :class:`AbductNoise` on a plain model with complete values (tests hold them equal).
+
+    ``eps = (x - loc) / scale`` per site in topological order (0 where the scale is 0), and 0
+    at the executed actions, which the factual world sets by ``do``.
+    """
+    graph = model.graph
+    noise: dict[str, Tensor] = {}
+    with torch.no_grad():
+        for name in graph.topological_order():
+            x = values[name]
+            if name in acts:
+                noise[name] = torch.zeros_like(x)
+                continue
+            if graph.is_root(name):
+                loc, scale = model.root_priors.get(name)
+            else:
+                loc, scale = model.mechanism(name).loc_scale(model._parents(name, values))
+            loc, scale = loc.expand_as(x), scale.expand_as(x)
+            safe = torch.where(scale > 0, scale, torch.ones_like(scale))
+            noise[name] = torch.where(scale > 0, (x - loc) / safe, torch.zeros_like(loc))
+    return noise
+
+
 def _combine(scenarios: Sequence[Mapping[str, Any]], n: int) -> dict[str, Callable[[Tensor], Tensor]]:
     """One callable per intervened site acting block-wise on the ``(K * n, dim)`` batch.
 
@@ -356,8 +388,9 @@ def counterfactual(
     Args:
         model: a WorldModel or a program made from one; handlers entered with ``with``
             act in both worlds.
-        factual: name -> ``(N, dim)`` evidence from the factual world. Executed actions
-            are part of it and are treated as interventions of that world.
+        factual: name -> ``(N, dim)`` evidence from the factual world, or a table
+            (:mod:`models.tables`). Executed actions are part of it and are treated as
+            interventions of that world.
         interventions: one scenario (a mapping name -> value, ``(N, dim)`` tensor or
             shift callable) or a sequence of K scenarios evaluated in one batch.
         posterior: a :class:`inference.StateResult` of the same program and factual
@@ -449,7 +482,10 @@ def _fast(
     if state is not None:
         world.update({k: state.samples[k].reshape(s * n, -1) for k in latent})
     factual_acts = {k: v.expand(s, *v.shape).reshape(s * n, -1) for k, v in acts.items()}
-    noise = _abduct(Program(model), {**world, **factual_acts}, s * n, factual_acts, generator)
+    if _torch_abduction(model, factual_acts):
+        noise = _abduct_plain(model, {**world, **factual_acts}, factual_acts)
+    else:
+        noise = _abduct(Program(model), {**world, **factual_acts}, s * n, factual_acts, generator)
     changed = {k for sc in scenarios for k in sc}
     # Executed actions not re-set by a scenario keep their factual values; per-unit
     # values are tiled over the S posterior draws.

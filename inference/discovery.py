@@ -24,7 +24,18 @@ Pipeline:
    Delta_ji = S_i(pa_i) - S_i(pa_i - j) falls below ``prune_nats``.
 
 Each kept edge carries the confidence sigmoid(Delta_ji): its posterior probability against
-its removal under even prior odds, judged on held-out rows.
+its removal under even prior odds, judged on held-out rows. With ``options.bootstrap = B``
+the whole pipeline is repeated on B random subsamples of the rows (without replacement, a
+share ``options.subsample`` each), and :attr:`DiscoveryResult.stability` is the share of
+them whose graph holds each edge (stability selection). The result also carries the CPDAG
+of the learnt DAG under the background knowledge (:mod:`inference.equivalence`), which shows
+the edges observational data cannot orient; :func:`shd` documents how reversed and
+undirected edges count, and :func:`inference.equivalence.compare_edges` compares with a
+reference graph that has cycles.
+
+``discover(table)`` takes a pandas DataFrame, a :class:`models.tables.Table` or a mapping of
+1-d columns directly: every column becomes an observed scalar variable named by the table
+name rule (:mod:`models.tables`).
 """
 
 from __future__ import annotations
@@ -296,7 +307,9 @@ def _inputs(variables: Any, data: Any) -> tuple[list[Any], Mapping[str, Any]]:
         table = as_table(data, keep={v.name for v in vs})
         missing = [v.name for v in vs if v.name not in table]
         if missing:
-            raise ValueError(f"the table has no columns for variables {missing}; columns: {list(table.names)}")
+            raise ValueError(
+                f"the table has no columns for variables {missing}; columns: {list(table.names)}"
+            )
         return vs, table.values
     return vs, data
 
@@ -335,7 +348,9 @@ def _search(
         max_parents=opts.max_parents,
         required=required,
         max_moves=opts.max_moves,
-        on_move=None if bar is None else lambda m: bar.set_description_str(f"discover: {m[0]} {m[1]} -> {m[2]}"),
+        on_move=None
+        if bar is None
+        else lambda m: bar.set_description_str(f"discover: {m[0]} {m[1]} -> {m[2]}"),
     )
     order = dag.order()
     parents = {n: list(ps) for n, ps in dag.parents.items()}
@@ -417,7 +432,13 @@ def discover(
         bar.close()
     stability, adjacency = _stability(vs, sdata, allowed, required, opts, seed, progress_bar)
     seconds = time.perf_counter() - start
-    log.info("discover: %d edges over %d variables in %.2f s (%d sets scored)", len(ratios), len(vs), seconds, calls)
+    log.info(
+        "discover: %d edges over %d variables in %.2f s (%d sets scored)",
+        len(ratios),
+        len(vs),
+        seconds,
+        calls,
+    )
     settings = {
         **opts.to_dict(),
         "seed": seed,
@@ -458,7 +479,9 @@ def _stability(
     pairs: Counter[tuple[str, str]] = Counter()
     for b in tqdm(range(opts.bootstrap), desc="discover: subsamples", disable=not progress_bar, leave=False):
         rows = torch.from_numpy(np.sort(gen.choice(n, size=m, replace=False)))
-        sub = StructureData(sdata.names, sdata.x[rows], sdata.slices, {k: v[rows] for k, v in sdata.rows.items()})
+        sub = StructureData(
+            sdata.names, sdata.x[rows], sdata.slices, {k: v[rows] for k, v in sdata.rows.items()}
+        )
         graph = _search(vs, sub, allowed, required, opts, seed + 1 + b, None)[0]
         edges.update(graph.edges)
         pairs.update((p, c) if index[p] < index[c] else (c, p) for p, c in graph.edges)

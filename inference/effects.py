@@ -134,7 +134,9 @@ def treatment_effect(
     needed = [v for v in g.names if v not in desc] + [outcome]
     missing = [v for v in needed if v not in vals]
     if missing:
-        raise ValueError(f"data needs columns for {missing} (the treatment, the outcome and every non-descendant)")
+        raise ValueError(
+            f"data needs columns for {missing} (the treatment, the outcome and every non-descendant)"
+        )
     model.check_codes(vals, "data")
     t, y = vals[treatment][:, 0].double(), vals[outcome][:, 0].double()
     n_t = int(t.sum())
@@ -157,10 +159,14 @@ def treatment_effect(
     se = float(psi.std() / math.sqrt(n))
     z = float(norm.ppf(0.5 + level / 2))
     naive = float(y[t == 1].mean() - y[t == 0].mean())
-    return EffectResult(estimate, estimate - z * se, estimate + z * se, se, level, target, estimator, n, n_t, clipped, naive)
+    return EffectResult(
+        estimate, estimate - z * se, estimate + z * se, se, level, target, estimator, n, n_t, clipped, naive
+    )
 
 
-def _influence(t: Tensor, y: Tensor, m0: Tensor, m1: Tensor, e: Tensor, target: str, estimator: str) -> Tensor:
+def _influence(
+    t: Tensor, y: Tensor, m0: Tensor, m1: Tensor, e: Tensor, target: str, estimator: str
+) -> Tensor:
     """Per-unit terms whose mean is the estimate: ``(N,)``."""
     n, n_t = t.shape[0], float(t.sum())
     if target == "ate":

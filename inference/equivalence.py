@@ -28,7 +28,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from models.checks import check_edges, describe
+from models.checks import check_edges
 from models.graph import CausalGraph
 
 __all__ = ["CPDAG", "EdgeComparison", "compare_edges", "cpdag"]
@@ -128,7 +128,9 @@ def cpdag(
     )
 
 
-def _meek(undirected: set[tuple[str, str]], directed: set[tuple[str, str]], adj: Mapping[str, set[str]]) -> None:
+def _meek(
+    undirected: set[tuple[str, str]], directed: set[tuple[str, str]], adj: Mapping[str, set[str]]
+) -> None:
     """Apply Meek's rules R1-R4 in place; ``undirected`` holds each reversible edge once."""
 
     def und(a: str, b: str) -> bool:
@@ -191,7 +193,7 @@ class EdgeComparison:
 
     @property
     def shd(self) -> int:
-        """missing + extra + reversed + undirected: every pair whose state differs counts 1."""
+        """Missing + extra + reversed + undirected: every pair whose state differs counts 1."""
         return len(self.missing) + len(self.extra) + len(self.reversed) + len(self.undirected)
 
     @property
@@ -224,13 +226,13 @@ def _learnt_states(learnt: Any) -> dict[frozenset[str], Any]:
         return learnt.states()
     if isinstance(learnt, CausalGraph):
         return {frozenset(e): e for e in learnt.edges}
-    if isinstance(learnt, (str, bytes, Mapping)) or not isinstance(learnt, Iterable):
-        raise ValueError(f"learnt must be a CausalGraph, a CPDAG or (parent, child) pairs, got {describe(learnt)}")
     out: dict[frozenset[str], Any] = {}
     for e in check_edges("learnt", learnt):
         key = frozenset(e)
         if key in out and out[key] != e:
-            raise ValueError(f"learnt has both {e[1]!r} -> {e[0]!r} and {e[0]!r} -> {e[1]!r}; pass a DAG or a CPDAG")
+            raise ValueError(
+                f"learnt has both {e[1]!r} -> {e[0]!r} and {e[0]!r} -> {e[1]!r}; pass a DAG or a CPDAG"
+            )
         out[key] = e
     return out
 
@@ -248,7 +250,9 @@ def compare_edges(learnt: Any, reference: CausalGraph | Iterable[tuple[str, str]
     Raises:
         ValueError: malformed edges, or learnt pairs given both ways.
     """
-    ref_edges = set(reference.edges if isinstance(reference, CausalGraph) else check_edges("reference", reference))
+    ref_edges = set(
+        reference.edges if isinstance(reference, CausalGraph) else check_edges("reference", reference)
+    )
     ref: dict[frozenset[str], set[tuple[str, str]]] = {}
     for e in ref_edges:
         ref.setdefault(frozenset(e), set()).add(e)

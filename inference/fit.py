@@ -342,8 +342,10 @@ def fit(
 
     Args:
         model: the world model.
-        data: name -> ``(N, dim)`` realised values (category codes for discrete sites);
-            every trained variable needs its own column and its parents' columns.
+        data: name -> ``(N, dim)`` realised values (category codes for discrete sites), or
+            a table (a DataFrame, :class:`models.tables.Table` or structured array; columns
+            named like the variables are used); every trained variable needs its own column
+            and its parents' columns.
         variables: mechanisms to train; default every non-root whose columns are present
             and whose mechanism is trainable. Fixed :class:`models.FunctionMechanism`
             mechanisms are never modified; :attr:`FitResult.skipped` says why a site was

@@ -36,7 +36,7 @@ import torch
 from torch import Tensor, nn
 
 from inference.admissible import admissible_parents
-from inference.fit import FIT_KWARGS, fit
+from inference.fit import FIT_KWARGS, FitSchedule, fit
 from models.checks import (
     as_float_tensor,
     check_float,
@@ -201,11 +201,16 @@ def _trained(
     train: Mapping[str, Tensor],
     hidden: tuple[int, ...],
     fit_kwargs: Mapping[str, Any],
+    discrete: Mapping[str, int],
 ) -> WorldModel:
     local = _local_graph(graph, child, parents)
-    # new weights come from the fit seed, not the global RNG
+    # new weights come from the fit seed, not the global RNG; categorical parents stay categorical
     model = WorldModel(
-        local, None if mech is None else {child: mech}, seed=int(fit_kwargs.get("seed", 0)), hidden=hidden
+        local,
+        None if mech is None else {child: mech},
+        seed=int(fit_kwargs.get("seed", 0)),
+        hidden=hidden,
+        discrete={k: v for k, v in discrete.items() if k in local},
     )
     if mech is None or not isinstance(mech, SplitMechanism):
         fit(model, {k: v for k, v in train.items() if k in local}, variables=[child], **fit_kwargs)
@@ -226,9 +231,15 @@ def _split(
     train: Mapping[str, Tensor],
     hidden: tuple[int, ...],
     fit_kwargs: Mapping[str, Any],
+    discrete: Mapping[str, int],
 ) -> tuple[WorldModel, str] | None:
+    categorical = [p for p in parents if discrete.get(p, 0) > 2]
+    if categorical:
+        # the split cuts one column of concat(pa_i), which a one-hot parent does not have
+        log.info("revise %s: no split candidate: the parents %s are categorical", child, categorical)
+        return None
     z = torch.cat([train[p] for p in parents], -1)
-    base = _trained(graph, child, parents, None, train, hidden, fit_kwargs)
+    base = _trained(graph, child, parents, None, train, hidden, fit_kwargs, discrete)
     with torch.no_grad():
         resid = (train[child] - base.loc(child, train)).pow(2).sum(-1)
     best = None
@@ -246,10 +257,17 @@ def _split(
     parts = []
     for mask in (z[:, k] < cut, z[:, k] >= cut):
         sub = {n: v[mask] for n, v in train.items()}
-        parts.append(_trained(graph, child, parents, None, sub, hidden, fit_kwargs).mechanism(child))
+        parts.append(
+            _trained(graph, child, parents, None, sub, hidden, fit_kwargs, discrete).mechanism(child)
+        )
     mech = SplitMechanism(parts[0], parts[1], k, cut)
     local = _local_graph(graph, child, parents)
-    model = WorldModel(local, {child: mech}, seed=int(fit_kwargs.get("seed", 0)))
+    model = WorldModel(
+        local,
+        {child: mech},
+        seed=int(fit_kwargs.get("seed", 0)),
+        discrete={k: v for k, v in discrete.items() if k in local},
+    )
     with torch.no_grad():
         r = train[child] - model.loc(child, train)
         mech.set_sigma(r.pow(2).mean(0).sqrt().clamp_min(1e-6))
@@ -304,10 +322,16 @@ def revise(
     hidden = check_hidden(hidden)
     seed = check_seed("seed", seed)
     fit_kwargs = check_keywords("fit_kwargs", fit_kwargs, [k for k in FIT_KWARGS if k != "variables"])
+    discrete = model.discrete
     for child in variables:
         model.graph.check_name(child, what="variable to revise")
         if model.graph.is_root(child):
             raise ValueError(f"{child!r} is a root; only mechanisms can be revised")
+        if child in discrete:
+            raise ValueError(
+                f"{child!r} is a discrete site; revise scores Gaussian mechanisms by their held-out "
+                "likelihood and does not revise discrete ones"
+            )
     vals, n = as_values(model.graph, data, what="data", dtype=model.dtype)
     missing = [v for v in model.graph.names if v not in vals]
     if missing:
@@ -316,7 +340,7 @@ def revise(
         raise ValueError(
             f"revise needs at least 4 rows of data to split into training and validation, got {n}"
         )
-    fkw = {"epochs": 60, "batch_size": 256, "seed": seed, **fit_kwargs}
+    fkw = {"schedule": FitSchedule(epochs=60, batch_size=256), "seed": seed, **fit_kwargs}
     perm = torch.randperm(n, generator=torch.Generator().manual_seed(seed))
     n_val = max(1, round(val_fraction * n))
     val = {k: v[perm[:n_val]] for k, v in vals.items()}
@@ -328,7 +352,14 @@ def revise(
     for child in variables:
         parents = list(current.graph.parents(child))
         baseline = _trained(
-            current.graph, child, parents, copy.deepcopy(current.mechanism(child)), train, hidden, fkw
+            current.graph,
+            child,
+            parents,
+            copy.deepcopy(current.mechanism(child)),
+            train,
+            hidden,
+            fkw,
+            discrete,
         )
         before = _loglik(baseline, child, val)
         candidates: list[tuple[str, str, WorldModel, list[str]]] = []
@@ -338,17 +369,17 @@ def revise(
                 if j in parents or j in desc:
                     continue
                 new_parents = [p for p in graph.names if p in {*parents, j}]
-                cand = _trained(current.graph, child, new_parents, None, train, hidden, fkw)
+                cand = _trained(current.graph, child, new_parents, None, train, hidden, fkw, discrete)
                 candidates.append(("add_parent", f"{j} -> {child}", cand, new_parents))
         if "capacity" in kinds:
             mech = current.mechanism(child)
             width = max(getattr(mech, "hidden", hidden) or hidden)
             bigger = tuple([2 * width] * (len(getattr(mech, "hidden", hidden)) + 1))
             cand_mech = MLPMechanism(mech.in_dim, mech.out_dim, hidden=bigger, seed=seed)
-            cand = _trained(current.graph, child, parents, cand_mech, train, hidden, fkw)
+            cand = _trained(current.graph, child, parents, cand_mech, train, hidden, fkw, discrete)
             candidates.append(("capacity", f"MLP hidden {list(bigger)}", cand, parents))
         if "split" in kinds and parents:
-            split = _split(current.graph, child, parents, train, hidden, fkw)
+            split = _split(current.graph, child, parents, train, hidden, fkw, discrete)
             if split is not None:
                 candidates.append(("split", split[1], split[0], parents))
         best = None
@@ -369,7 +400,7 @@ def revise(
         fresh = current.with_graph(edited, seed=seed)
         mechs = {v: fresh.mechanism(v) for v in edited.non_roots}
         mechs[child] = mech
-        current = WorldModel(edited, mechs, seed=seed, hidden=hidden)
+        current = WorldModel(edited, mechs, seed=seed, hidden=hidden, discrete=discrete)
         current.copy_root_priors_from(model)
         if not isinstance(mech, SplitMechanism):
             fit(current, {k: v for k, v in vals.items()}, variables=[child], **fkw)

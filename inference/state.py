@@ -229,7 +229,8 @@ def infer_state(
         model: a :class:`models.WorldModel` or a program made from one (``do(model, ...)``,
             ``MeasurementScale(...)(model)``, ...). Handlers entered with ``with`` around the
             call act too.
-        observed: name -> ``(N, dim)`` evidence (category codes for discrete sites).
+        observed: name -> ``(N, dim)`` evidence (category codes for discrete sites), or a
+            table (:mod:`models.tables`).
             Executed actions in it are applied as ``do(action)``, not conditioned on.
         guide: the posterior method, a key of :data:`GUIDES` (module docstring).
         num_steps: SVI steps (SVI guides only).

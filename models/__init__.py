@@ -10,6 +10,7 @@ from models.heteroscedastic import HeteroscedasticMechanism
 from models.io import ModelFileError, load, save
 from models.mechanisms import FunctionMechanism, LinearMechanism, Mechanism, MLPMechanism
 from models.presets import chain_graph, finger_graph, joint_chain_graph, pushing_graph, random_graph
+from models.tables import Table, as_table
 from models.variables import Role, Variable
 from models.world import WorldModel
 
@@ -26,8 +27,10 @@ __all__ = [
     "Mechanism",
     "ModelFileError",
     "Role",
+    "Table",
     "Variable",
     "WorldModel",
+    "as_table",
     "chain_graph",
     "finger_graph",
     "joint_chain_graph",

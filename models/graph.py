@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 import networkx as nx
 
 from models.checks import check_edges, check_float, check_mapping, describe
-from models.variables import Role, Variable
+from models.variables import Role, Variable, variable_name
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -131,6 +131,63 @@ class CausalGraph:
         self._g = g
         self._order = tuple(nx.lexicographical_topological_sort(g, key=self._index.__getitem__))
         self._parents = {n: tuple(sorted(g.predecessors(n), key=self._index.__getitem__)) for n in names}
+
+    @classmethod
+    def from_edges(
+        cls,
+        edges: Iterable[tuple[Any, Any]],
+        nodes: Iterable[Any] = (),
+        *,
+        roles: Mapping[Any, Role | str] | None = None,
+        confidence: Mapping[tuple[Any, Any], float] | None = None,
+    ) -> CausalGraph:
+        """A graph from ``(parent, child)`` label pairs; every variable an observed scalar by default.
+
+        Labels are free text, named by the rule of :func:`models.variables.variable_name`
+        (a valid name is kept; ``" age"`` becomes ``"%20age"``), so the graph's names are
+        those :func:`models.tables.as_table` gives the same table's columns.
+
+        Args:
+            edges: ``(parent, child)`` pairs of labels.
+            nodes: further labels (variables without edges), or :class:`Variable` objects,
+                which are taken as they are (use them for actions, which need bounds, and
+                for ``dim`` > 1).
+            roles: label -> role for the variables made here (default ``"observed"``).
+            confidence: optional ``(parent, child)`` label pair -> confidence in [0, 1].
+
+        Raises:
+            ValueError: malformed pairs or labels, roles for unknown labels, and everything
+                :class:`CausalGraph` refuses (cycles, parents of actions, ...).
+        """
+        if isinstance(edges, (str, bytes, Mapping)) or not isinstance(edges, Iterable):
+            raise ValueError(f"edges must be a sequence of (parent, child) pairs, got {describe(edges)}")
+        pairs = []
+        for edge in edges:
+            if isinstance(edge, (str, bytes)) or not isinstance(edge, Sequence) or len(edge) != 2:
+                raise ValueError(f"edge {edge!r} is not a (parent, child) pair")
+            pairs.append((variable_name(edge[0]), variable_name(edge[1])))
+        given = {}
+        labels: list[str] = []
+        for node in nodes:
+            if isinstance(node, Variable):
+                given[node.name] = node
+                labels.append(node.name)
+            else:
+                labels.append(variable_name(node))
+        labels += [n for e in pairs for n in e]
+        role_of = {
+            variable_name(k): v for k, v in dict(check_mapping("roles", roles, allow_none=True)).items()
+        }
+        names = list(dict.fromkeys(labels))
+        unknown = sorted(set(role_of) - set(names))
+        if unknown:
+            raise ValueError(f"roles name {unknown}, which are in no edge or node; names: {names}")
+        variables = [given.get(n) or Variable(n, role_of.get(n, Role.OBSERVED)) for n in names]
+        conf = {
+            (variable_name(p), variable_name(c)): v
+            for (p, c), v in dict(check_mapping("confidence", confidence, allow_none=True)).items()
+        }
+        return cls(variables, pairs, conf or None)
 
     # ------------------------------------------------------------------ queries
     @property

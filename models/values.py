@@ -15,6 +15,7 @@ from torch import Tensor, nn
 
 from models.checks import as_float_tensor, check_finite_tensor, check_mapping
 from models.graph import CausalGraph
+from models.tables import as_table, is_table
 from models.variables import Role
 
 __all__ = ["BOUNDS_TOLERANCE", "as_values", "check_action_bounds", "module_key"]
@@ -52,6 +53,10 @@ def as_values(
 ) -> tuple[dict[str, Tensor], int | None]:
     """Validate a mapping name -> array of shape ``(N, dim)`` (plus ``extra_dims`` after N).
 
+    ``values`` may also be a table (:class:`models.tables.Table`, a pandas DataFrame or a
+    structured array): its columns named like the graph's variables are taken (1-d
+    columns as ``(N, 1)``), the others left out.
+
     Floating tensors and arrays of any precision are converted to ``dtype`` (default:
     torch's default dtype, which is the model's); Python numbers and lists are accepted;
     integer, bool, string and object data are refused (see :func:`models.checks.as_float_tensor`).
@@ -64,6 +69,8 @@ def as_values(
             mismatched N, NaN or inf.
     """
     out: dict[str, Tensor] = {}
+    if values is not None and is_table(values):
+        values = as_table(values, keep=set(graph.names)).values
     values = check_mapping(what, values, allow_none=True)
     for name, raw in values.items():
         graph.check_name(name, what=f"variable in {what}")

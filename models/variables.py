@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import urllib.parse
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -18,18 +19,78 @@ import numpy as np
 
 from models.checks import check_int, describe
 
-__all__ = ["Role", "Variable", "valid_name"]
+__all__ = ["RESERVED_NAMES", "Role", "Variable", "column_label", "site_name", "valid_name", "variable_name"]
+
+
+#: Site names the Pyro program uses itself: the plate of units. Names starting with ``_``
+#: are reserved too (Pyro's autoguides and pal's internal plates use them).
+RESERVED_NAMES = frozenset({"units"})
 
 
 def valid_name(name: Any) -> bool:
     """Whether ``name`` can name a variable (and its Pyro site).
 
     Any non-empty string of printable characters without leading or trailing whitespace:
-    ``"q"``, ``"q.finger"``, and names made from MuJoCo names such as
-    ``"act.robot:left_fingers"``, ``"q.arm/elbow"``, ``"q.left-knee"`` or ``"q.joint 1"``.
-    Control characters, tabs and newlines are refused.
+    ``"q"``, ``"q.finger"``, ``"p44/42"``, ``"weight (kg)"`` and names made from MuJoCo
+    names such as ``"act.robot:left_fingers"``, ``"q.arm/elbow"``, ``"q.left-knee"`` or
+    ``"q.joint 1"``. Control characters, tabs and newlines are refused, and so are the
+    reserved names: ``"units"`` (the plate) and names starting with ``_``. Any other text
+    becomes a valid name through :func:`site_name`.
     """
-    return isinstance(name, str) and bool(name) and name.isprintable() and name == name.strip()
+    return (
+        isinstance(name, str)
+        and bool(name)
+        and name.isprintable()
+        and name == name.strip()
+        and name not in RESERVED_NAMES
+        and not name.startswith("_")
+    )
+
+
+def _escape(char: str) -> str:
+    return "".join(f"%{b:02X}" for b in char.encode("utf-8"))
+
+
+def site_name(label: Any) -> str:
+    """The variable (site) name of a free-text column label; :func:`column_label` inverts it.
+
+    The rule: ``%`` becomes ``%25``; control characters, leading and trailing whitespace,
+    a leading ``_`` and the first letter of a reserved name are percent-encoded as their
+    UTF-8 bytes (``%0A``, ``%20``, ``%5F``, ``%75nits``). Every other character is kept, so
+    a label that is already a valid name and has no ``%`` is its own site name
+    (``"p44/42"`` -> ``"p44/42"``, ``" age"`` -> ``"%20age"``, ``"50%"`` -> ``"50%25"``).
+    The map is injective on strings. Integer labels (a DataFrame without column names) are
+    written in decimal first (``3`` -> ``"3"``).
+
+    Raises:
+        ValueError: an empty label, or a label that is neither a str nor an int.
+    """
+    if isinstance(label, (int, np.integer)) and not isinstance(label, (bool, np.bool_)):
+        label = str(int(label))
+    if not isinstance(label, str):
+        raise ValueError(f"column label {label!r} is not a str or an int; name the columns with strings")
+    if not label:
+        raise ValueError("column label '' is empty; every column needs a name")
+    chars = ["%25" if c == "%" else c if c.isprintable() else _escape(c) for c in label]
+    lead = len(label) - len(label.lstrip())
+    trail = len(label) - len(label.rstrip())
+    for i in [*range(lead), *range(len(label) - trail, len(label))]:
+        chars[i] = _escape(label[i])
+    if label[0] == "_" or label in RESERVED_NAMES:
+        chars[0] = _escape(label[0])
+    return "".join(chars)
+
+
+def variable_name(label: Any) -> str:
+    """The name rule of tables and edge lists: a valid name is kept, any other label is :func:`site_name`'d."""
+    return label if valid_name(label) else site_name(label)
+
+
+def column_label(name: str) -> str:
+    """The column label that :func:`site_name` maps to ``name`` (percent-decoding)."""
+    if not isinstance(name, str):
+        raise ValueError(f"site name must be a str, got {describe(name)}")
+    return urllib.parse.unquote(name, errors="strict")
 
 
 class Role(StrEnum):
@@ -109,7 +170,8 @@ class Variable:
         if not valid_name(self.name):
             raise ValueError(
                 f"variable name {self.name!r} is not valid; expected a non-empty string of printable "
-                "characters without leading or trailing whitespace (e.g. 'q.finger' or 'q.arm/elbow')"
+                "characters without leading or trailing whitespace, not 'units' and not starting with '_' "
+                "(e.g. 'q.finger' or 'q.arm/elbow'); models.variables.site_name maps any text to a valid name"
             )
         if not isinstance(self.role, str) or self.role not in [r.value for r in Role]:
             raise ValueError(

@@ -267,21 +267,26 @@ class WorldModel(PyroModule, ForwardQueries):
             if k is not None and isinstance(v, Tensor):
                 check_codes(f"{what}[{name!r}]", v, k)
 
-    def probs(self, name: str, values: Mapping[str, Any]) -> Tensor:
+    def probs(self, name: str, values: Mapping[str, Any], grad: bool = False) -> Tensor:
         """``(..., K)`` category probabilities of the discrete non-root ``name`` given its parents' values.
+
+        ``grad`` keeps the autograd graph; by default the result is a plain tensor.
 
         Raises:
             ValueError: ``name`` is not a discrete non-root, or a parent value is missing.
         """
         mech = self.mechanism(name)
         if not isinstance(mech, DiscreteMechanism):
-            raise ValueError(f"{name!r} is continuous; probs is for discrete sites ({sorted(self._categories)})")
+            raise ValueError(
+                f"{name!r} is continuous; probs is for discrete sites ({sorted(self._categories)})"
+            )
         values = check_mapping("values", values)
         missing = [p for p in self.graph.parents(name) if p not in values]
         if missing:
             raise ValueError(f"probs of {name!r} needs values of its parents; missing {missing}")
         vals = {p: as_float_tensor(values[p], f"values[{p!r}]", self.dtype) for p in self.graph.parents(name)}
-        return mech.distribution(self._parents(name, vals)).probs
+        with torch.set_grad_enabled(grad and torch.is_grad_enabled()):
+            return mech.distribution(self._parents(name, vals)).probs
 
     def set_root_probs(self, name: str, probs: Any) -> None:
         """Set the categorical prior of a discrete root: ``(K,)`` probabilities > 0 (renormalised)."""

@@ -361,8 +361,27 @@ def _composed() -> None:
     )
 
 
+def _tables_and_effects() -> None:
+    """Table, as_table, CausalGraph.from_edges, cpdag, compare_edges, DiscoveryOptions, treatment_effect."""
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=200)
+    t = (rng.random(200) < 1 / (1 + np.exp(-x))).astype(float)
+    table = models.as_table({"x": x, "t": t, "y [kg]": 2 * t + x + rng.normal(size=200)})
+    assert isinstance(table, models.Table)
+    g = CausalGraph.from_edges([("x", "t"), ("x", "y [kg]"), ("t", "y [kg]")])
+    m = WorldModel(g, seed=0, kind="linear", discrete={"t": 2})
+    fit(m, table, schedule=inference.FitSchedule(epochs=2, batch_size=64), seed=0)
+    r = inference.treatment_effect(m, table, "t", "y [kg]")
+    assert isinstance(r, inference.EffectResult)
+    res = discover(table, options=inference.DiscoveryOptions(bootstrap=1, features=8), seed=0)
+    assert isinstance(res.cpdag, inference.CPDAG)
+    assert isinstance(inference.compare_edges(res.graph, [("x", "t"), ("t", "x")]), inference.EdgeComparison)
+    inference.cpdag(g)
+
+
 CASES.update(
     {
+        "tables, from_edges, cpdag, compare_edges, treatment_effect": lambda tmp: _tables_and_effects(),
         "discrete sites: sample, fit, counterfactual, infer_state, abduct": lambda tmp: _discrete_queries(),
         "posteriors: grid, importance, flow, posterior=": lambda tmp: _posteriors(),
         "programs and handlers entered with with": lambda tmp: _composed(),

@@ -34,7 +34,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from inference import CuriositySampler, infer_action
+from inference import ActionOptions, CuriositySampler, FitSchedule, infer_action
 from inference.ensemble import Ensemble
 from models import WorldModel, finger_graph
 from models.presets import FINGER_ACTION_RANGE
@@ -168,9 +168,14 @@ def _run_one(strategy: str, config: Config, seed: int) -> tuple[list[int], list[
             a = ens.choose({QP: q_prev}, {ACT: cands}, [DQ], spread=config.choice.spread)[0][ACT]
         else:
             target = torch.as_tensor(cur.sample(rng, q_prev.numpy()[:, 0]), dtype=torch.float32)[:, None]
-            a = infer_action(ens.members[0], {QP: q_prev}, {Q: target}, steps=50, lr=0.05, seed=seed).actions[
-                ACT
-            ]
+            a = infer_action(
+                ens.members[0],
+                {QP: q_prev},
+                {Q: target},
+                num_steps=50,
+                options=ActionOptions(lr=0.05),
+                seed=seed,
+            ).actions[ACT]
         noise = {DQ: torch.randn(b, 1, generator=gen), Q: torch.randn(b, 1, generator=gen)}
         with torch.no_grad():
             out = truth.predict({ACT: a, QP: q_prev}, noise=noise)
@@ -181,8 +186,7 @@ def _run_one(strategy: str, config: Config, seed: int) -> tuple[list[int], list[
         ens.fit(
             {k: torch.cat(v) for k, v in rows.items()},
             seed=seed + r,
-            epochs=config.ensemble.epochs,
-            batch_size=256,
+            schedule=FitSchedule(epochs=config.ensemble.epochs, batch_size=256),
         )
         with torch.no_grad():
             errs.append(float((ens.predict(grid)[DQ] - true_dq).pow(2).mean()))

@@ -37,7 +37,7 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
-from inference import SamplingConfig, fit, infer_action
+from inference import ActionOptions, FitSchedule, SamplingConfig, fit, infer_action
 from models.presets import FINGER_ACTION_RANGE, FINGER_Q_RANGE, finger_graph
 from models.world import WorldModel
 from pal.checks import check_float, check_int
@@ -125,7 +125,9 @@ def finger_model(config: Config) -> WorldModel:
     model = WorldModel(finger_graph("thesis"), seed=config.seed, hidden=config.fit.hidden)
     f = config.fit
     data = {ACTION: action, STATE: q_prev, DQ: dq, TARGET: q}
-    fit(model, data, epochs=f.epochs, batch_size=f.batch_size, lr=f.lr, seed=config.seed)
+    fit(
+        model, data, schedule=FitSchedule(epochs=f.epochs, batch_size=f.batch_size, lr=f.lr), seed=config.seed
+    )
     return model
 
 
@@ -239,16 +241,20 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             timings = measure_interleaved(
                 {
                     METHODS[0]: lambda: infer_action(
-                        model, {STATE: q_prev}, {TARGET: target}, steps=c.steps, lr=c.lr, seed=c.seed
+                        model,
+                        {STATE: q_prev},
+                        {TARGET: target},
+                        num_steps=c.steps,
+                        options=ActionOptions(lr=c.lr),
+                        seed=c.seed,
                     ).actions[ACTION],
                     METHODS[1]: lambda: bare_adam(model, q_prev, target, mid, c.steps, c.lr),
                     METHODS[2]: lambda: infer_action(
                         model,
                         {STATE: q_prev},
                         {TARGET: target},
-                        steps=c.steps,
-                        lr=c.lr,
-                        sampling=c.sampling,
+                        num_steps=c.steps,
+                        options=ActionOptions(lr=c.lr, sampling=c.sampling),
                         seed=c.seed,
                     ).actions[ACTION],
                     METHODS[3]: lambda: bare_cem_adam(

@@ -134,8 +134,10 @@ def _context(config: ContextConfig, seed: int, repeats: int) -> dict[str, Any]:
     target = {tgt: samples[tgt][k : 2 * k]}
     timings = measure_interleaved(
         {
-            "whole": lambda: infer_action(model, state, target, actions=[act], steps=config.steps),
-            "subgraph": lambda: infer_action(small, small_state, target, actions=[act], steps=config.steps),
+            "whole": lambda: infer_action(model, state, target, actions=[act], num_steps=config.steps),
+            "subgraph": lambda: infer_action(
+                small, small_state, target, actions=[act], num_steps=config.steps
+            ),
         },
         repeats=repeats,
     )
@@ -200,6 +202,37 @@ def _tables(disc: dict[str, dict[str, Any]], ctx: dict[str, Any]) -> list[Table]
     ]
 
 
+#: Structure-learning time target: at most this multiple of GRaSP's seconds, at d = TARGET_D.
+GRASP_RATIO = 5.0
+TARGET_D = "20"
+
+
+def _discovery_targets(disc: dict[str, dict[str, Any]]) -> list[Target]:
+    """At the largest d (d = 20 in the full run): time <= 5x GRaSP's and SHD <= GRaSP's (None without peers)."""
+    d = TARGET_D if TARGET_D in disc else max(disc, key=int)
+    row = disc[d]
+    out = [
+        Target(
+            f"discovery.ratio_grasp_d{d}",
+            row["ratio_grasp"],
+            GRASP_RATIO,
+            "<=",
+            f"seconds of discover / seconds of GRaSP at d = {d}",
+        )
+    ]
+    if row["grasp_shd"] is not None:
+        out.append(
+            Target(
+                f"discovery.shd_d{d}",
+                row["shd"],
+                row["grasp_shd"],
+                "<=",
+                f"SHD of discover at d = {d}, at most GRaSP's (its CPDAG, an undirected edge counting 1)",
+            )
+        )
+    return out
+
+
 @register(
     "discovery",
     kind="bench",
@@ -223,6 +256,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         metrics={"discovery": disc, "context": ctx, "causal_learn": use_peers},
         tables=_tables(disc, ctx),
         targets=[
+            *_discovery_targets(disc),
             Target(
                 "context.max_action_diff",
                 ctx["max_action_diff"],

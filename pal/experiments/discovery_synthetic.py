@@ -37,7 +37,7 @@ import numpy as np
 from tqdm import tqdm
 
 from inference.design import choose_interventions, orientation_margins
-from inference.discovery import DiscoveryResult, discover, shd
+from inference.discovery import DiscoveryOptions, DiscoveryResult, discover, shd
 from pal.checks import check_choice, check_int
 from pal.experiments import discovery_peers as peers
 from pal.experiments.discovery_scm import SCMConfig, SyntheticSCM, standardised
@@ -152,9 +152,8 @@ def _timed_discover(
     start = time.perf_counter()
     std = standardised(data)
     if method == "pal_gated":
-        res = discover(
-            scm.graph, std, intervened=masks, seed=seed, sparsify="gated", gated={"steps": config.gated.steps}
-        )
+        options = DiscoveryOptions(sparsify="gated", gated={"steps": config.gated.steps})
+        res = discover(scm.graph, std, intervened=masks, options=options, seed=seed)
     else:
         res = discover(scm.graph, std, intervened=masks, seed=seed)
     return res, time.perf_counter() - start

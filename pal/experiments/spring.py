@@ -20,7 +20,15 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
-from inference import CuriositySampler, fit, infer_action, normalized_entropy, occupancy
+from inference import (
+    ActionOptions,
+    CuriositySampler,
+    FitSchedule,
+    fit,
+    infer_action,
+    normalized_entropy,
+    occupancy,
+)
 from models import FunctionMechanism, LinearMechanism, WorldModel, finger_graph
 from models.presets import FINGER_ACTION_RANGE
 from pal.checks import check_int
@@ -122,15 +130,15 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         fits[variant] = fit(
             model,
             train,
-            epochs=config.epochs,
-            batch_size=config.batch_size,
-            lr=0.01,
+            schedule=FitSchedule(epochs=config.epochs, batch_size=config.batch_size, lr=0.01),
             seed=config.seed,
             progress_bar=progress_bar,
         )
         models[variant] = model
         prediction[variant] = _errors(model, test)
-        res = infer_action(model, state, {Q: target}, steps=200, lr=0.05, seed=config.seed)
+        res = infer_action(
+            model, state, {Q: target}, num_steps=200, options=ActionOptions(lr=0.05), seed=config.seed
+        )
         real = _outcomes(truth, state, res.actions[ACT])
         err_real = (real - target).abs()
         action[variant] = {

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from inference import FitResult, SamplingConfig, fit, infer_action
+from inference import ActionOptions, FitResult, FitSchedule, SamplingConfig, fit, infer_action
 from models import WorldModel
 from models.presets import GRAPH_VARIANTS, joint_chain_graph
 from models.variables import Role
@@ -258,12 +258,14 @@ def fit_model(
         model,
         {k: v for k, v in data.items() if k in model.graph},
         loss="mse" if config.kind == "mlp" else "beta_nll",
-        beta=config.beta,
-        epochs=config.epochs,
-        batch_size=config.batch_size,
-        lr=config.lr,
-        validation=config.validation,
-        patience=config.patience,
+        schedule=FitSchedule(
+            epochs=config.epochs,
+            batch_size=config.batch_size,
+            lr=config.lr,
+            validation=config.validation,
+            patience=config.patience,
+            beta=config.beta,
+        ),
         seed=seed,
         progress_bar=progress_bar,
     )
@@ -410,10 +412,8 @@ def infer_actions(
         {k: v.repeat(starts, 1) for k, v in given.items()},
         {q: tg.repeat(starts, 1)},
         actions=[act],
-        steps=action.steps,
-        lr=action.lr,
-        init=init,
-        sampling=action.sampling,
+        num_steps=action.steps,
+        options=ActionOptions(lr=action.lr, init=init, sampling=action.sampling),
         seed=seed,
     )
     best = res.final_loss.numpy().reshape(starts, n).argmin(0) * n + np.arange(n)

@@ -339,3 +339,22 @@ def test_a_latent_heteroscedastic_site_is_inferred_then_abducted():
     # each draw is abducted exactly: Y' = 0 + exp(-1) * (y - 2x) / s_y
     expected = math.exp(-1.0) * (y_post - 2 * x) / s_y
     torch.testing.assert_close(cf.samples["y"][:, 0], expected, atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("kind", ["mlp", "hetero", "ensemble"])
+def test_torch_abduction_equals_the_program_abduction(kind):
+    """The fast path's torch abduction is the AbductNoise handler's, site for site."""
+    from inference.counterfactual import _abduct, _abduct_plain, _torch_abduction
+    from inference.program import Program
+    from models import finger_graph
+
+    members = 3 if kind == "ensemble" else 1
+    m = WorldModel(finger_graph("state"), seed=0, kind="mlp" if kind == "ensemble" else kind, members=members)
+    s = m.sample(32, torch.Generator().manual_seed(0))
+    acts = {a: s[a] for a in m.graph.actions}
+    assert _torch_abduction(m, acts) and not _torch_abduction(m, {})
+    want = _abduct(Program(m), s, 32, acts, torch.Generator().manual_seed(0))
+    got = _abduct_plain(m, s, acts)
+    assert list(got) == list(want)
+    for k in want:
+        torch.testing.assert_close(got[k], want[k], rtol=0, atol=1e-6)
