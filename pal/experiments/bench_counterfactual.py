@@ -435,9 +435,20 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             Target(
                 f"scenarios_{last}_vs_{first}",
                 growth,
-                2.0,
+                1.5,
                 "<=",
                 f"time of {last} scenarios / time of {first}",
+            ),
+            *(
+                Target(
+                    f"{figure}_vs_{name}",
+                    None if rel[name] is None else rel[name][figure],
+                    0.5,
+                    "<=",
+                    f"our time per unit / {name}'s ({label}; not measured without the bench extra)",
+                )
+                for name in ("chirho", "dowhy")
+                for figure, label in (("chain_unit_ms", "3-node chain"), ("mlp50_unit_ms", "MLP SCM"))
             ),
         ],
         notes=notes,

@@ -53,7 +53,15 @@ def test_counterfactual_quick():
         assert m["agreement"][peer] <= bench_counterfactual.TOLERANCE
     table = rep.tables[0]
     assert table.columns[:4] == ("figure", "pal", "chirho", "dowhy") and len(table.rows) == 3 + 4
-    assert {t.name for t in rep.targets} == {"chain_unit_ms", "units_per_s", "scenarios_8_vs_1"}
+    per_unit = {f"{f}_vs_{n}" for f in ("chain_unit_ms", "mlp50_unit_ms") for n in ("chirho", "dowhy")}
+    assert {t.name for t in rep.targets} == {"chain_unit_ms", "units_per_s", "scenarios_8_vs_1"} | per_unit
+    assert rep.target("scenarios_8_vs_1").threshold == 1.5
+    for name in per_unit:
+        peer = name.rsplit("_vs_", 1)[1]
+        t = rep.target(name)
+        assert t.value == (
+            None if m["ratios"][peer] is None else m["ratios"][peer][name.rsplit("_vs_", 1)[0]]
+        )
     ax = rep.figures["scenarios"].axes[0]
     assert ax.get_xlabel() == "scenarios K" and list(ax.get_lines()[0].get_xdata()) == [1, 2, 4, 8]
 
