@@ -388,7 +388,8 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             f"{config.frames} frames of {config.motion} (seed {config.seed}) at {size}, camera backend {backend}, "
             f"median of {config.repeats} repeats after one warm-up.",
             f"{real_frames} real frames of {', '.join(config.real.samples)} at 640x480; {total['seen_in_both']} objects "
-            f"seen in both frames of a pair, {total['kept_id']} kept their id, {total['with_pose']} had an estimated pose.",
+            f"seen in both frames of a pair, {total['kept_id']} kept their id, {total['with_pose']} had an estimated pose "
+            f"(by solver: {total['pose_solvers']}).",
             "Limits in force while timing: "
             + ", ".join(f"{k} {'not limited' if v is None else v}" for k, v in limits.items())
             + ".",

@@ -17,7 +17,9 @@ finds, without labels. Per consecutive frame pair (i, j) of a sample:
   its id;
 - an object that keeps its id **has a pose** when its poses in both frames are ``estimated``;
   its **error** is the rotation angle and the origin's distance between ``camera_from_object(j)``
-  and ``T_ji camera_from_object(i)``; a pose more than 10 degrees or 5 cm wrong is *wrong*;
+  and ``T_ji camera_from_object(i)``; a pose more than 10 degrees or 5 cm wrong is *wrong*; the
+  solver of the frame-j pose is counted (``pnp`` from features, ``icp`` the dense fallback,
+  which starts at the camera motion's prediction, so its share is reported);
 - the **support plane** of every frame is chosen with seeds ``0 .. support_seeds - 1`` and
   compared with the reference plane of the sample's ``support.json`` (a robust fit to a box that
   shows only the desk or the floor): it is that surface when its normal is within 5 degrees and
@@ -159,6 +161,7 @@ def _pair(
             "kept": match.obj_id == o.obj_id,
             "pose": False,
             "source": None,
+            "solver": None,
             "rot_err_deg": None,
             "trans_err_m": None,
             "rot_err_camera_deg": None,
@@ -169,6 +172,7 @@ def _pair(
         if row["kept"]:
             pi, pj = o.pose, match.pose
             row["source"] = None if pj is None else pj.source
+            row["solver"] = None if pj is None else pj.diagnostics.solver
             row["reason"] = None if pj is None else pj.diagnostics.reason.split(";")[0]
             if pj is not None and pj.source == "rejected":
                 row["reason"] = "; ".join(pj.diagnostics.checks)
@@ -208,6 +212,7 @@ def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "wrong_estimated": len(wrong),
         "rejected": sum(r["source"] == "rejected" for r in kept),
         "without_pose_reasons": dict(Counter(str(r["reason"]) for r in kept if not r["pose"]).most_common(5)),
+        "pose_solvers": dict(Counter(str(r["solver"]) for r in posed)),
     }
 
 

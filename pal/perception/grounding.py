@@ -153,7 +153,7 @@ def object_geometry(
     max_depth: float = 10.0,
 ) -> ObjectGeometry | None:
     """The geometry of one object; None with fewer than 3 points with depth."""
-    pts = mask_points(frame, mask, 0.05, max_depth, max_points=1500)
+    pts = mask_points(frame, mask, 0.05, max_depth, max_points=500)
     if pts.shape[0] < 3:
         return None
     z_med = float(np.median(pts[:, 2]))

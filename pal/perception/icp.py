@@ -18,20 +18,23 @@ linearised point-to-plane least squares::
 photometric, sum runs over the depth-agreeing points when grey levels are given: ``I`` are
 Gaussian-smoothed grey levels, ``b`` the median brightness change, ``sigma_I`` grey levels), then
 ``R <- exp(w) R``, ``t <- t + d``; the correspondence gate shrinks from ``gate`` to
-``3 sigma_z + tolerance``. Depth pins the pose across a curved surface; texture pins the slides
-that depth cannot see (along a plane, about a cylinder's axis). The fit's covariance is
-``s^2 (J^T J)^-1`` over (w, d) — the convention of :mod:`pal.perception.pnp`, so the same
+``3 sigma_z + tolerance`` once the steps settle (or half-way). Depth pins the pose across a
+curved surface; texture pins the slides that depth cannot see (along a plane, about a
+cylinder's axis). The fit's covariance is ``s^2 (J^T J)^-1`` over (w, d) — the convention of :mod:`pal.perception.pnp`, so the same
 conditioning check applies — inflated by ``(correlation_px / grid step)^2`` when the samples are
 closer than the sensor's noise correlation length (neighbouring depth readings of a structured
 light sensor are not independent, and treating them as such would overstate the precision).
 
 **Trust.** Depth alone does not pin a pose on flat or rotationally symmetric surfaces: ICP
 then slides along them and stays wherever it started. The fit reports the *condition number*
-of its normal equations (the ratio of the largest to the smallest singular value), with
+of the normal equations of its depth terms (the ratio of the largest to the smallest singular
+value; the photometric terms are left out, since shading on a smooth one-colour ball looks
+like texture but does not turn with it, and would invent an orientation), with
 rotations scaled by the points' RMS radius about their centroid (Gelfand et al.,
 "Geometrically stable sampling for the ICP algorithm", 3DIM 2003): a large one means some
-motion is unobservable, and the caller rejects the pose. It also reports how many model points that land on valid live depth agree with it
-(``agree``) and how many claim a surface where the sensor sees farther (``free_space``
+motion is unobservable, and the caller rejects the pose. The live normals are taken over
++-``normal_px`` pixels. The fit also reports how many model points that land on valid live
+depth agree with it (``agree``) and how many claim a surface where the sensor sees farther (``free_space``
 violations, the evidence that the object is not there).
 """
 
@@ -69,22 +72,31 @@ class IcpConfig:
         blur_sigma: Gaussian smoothing of the grey levels, pixels.
         correlation_px: noise correlation length of the depth sensor, pixels (covariance
             inflation, module docstring).
+        normal_px: live normals are cross products of depth differences over +-this many
+            pixels (a wide baseline sees through the steps of quantised depth, whose
+            neighbouring-pixel normals would show structure a smooth surface does not have).
+        grow_px: live pixels within this many pixels (at 640 columns) of the live mask's box
+            may match too, in or out of the mask, where their depth agrees: a segment that lost
+            part of the object (a hole, a split) leaves that part's depth where the model
+            expects it (0: inside the live mask only).
         max_rotation_std_deg: largest rotation standard deviation of an accepted fit, deg ...
         max_translation_std: ... and translation standard deviation, metres (stricter than the
             feature fits' conditioning check: a dense fit is accepted only when it is precise).
     """
 
-    max_points: int = 400
-    iterations: int = 20
+    max_points: int = 160
+    iterations: int = 10
     gate: float = 0.05
     tolerance: float = 0.005
     min_points: int = 80
     min_agreement: float = 0.6
-    max_condition: float = 60.0
+    max_condition: float = 6.0
     max_rmse_sigma: float = 2.5
     photometric_sigma: float | None = 6.0
     blur_sigma: float = 1.0
     correlation_px: float = 4.0
+    normal_px: int = 3
+    grow_px: int = 15
     max_rotation_std_deg: float = 1.5
     max_translation_std: float = 0.01
 
@@ -101,6 +113,8 @@ class IcpConfig:
             check_float("photometric_sigma", self.photometric_sigma, 0.0, open_low=True)
         check_float("blur_sigma", self.blur_sigma, 0.0)
         check_float("correlation_px", self.correlation_px, 0.0)
+        check_int("normal_px", self.normal_px)
+        check_int("grow_px", self.grow_px, minimum=0)
         check_float("max_rotation_std_deg", self.max_rotation_std_deg, 0.0, open_low=True)
         check_float("max_translation_std", self.max_translation_std, 0.0, open_low=True)
 
@@ -112,13 +126,15 @@ class IcpFit:
     Attributes:
         T: (4, 4) ``camera_from_object``.
         points: correspondences within the final gate.
-        visible: model points landing on valid live depth inside the live mask.
+        visible: model points landing on valid live depth inside the live mask (or, with
+            ``grow_px``, near it).
         agree: of those, within the final gate.
         free_space: model points in front of which the sensor sees farther than the gate
             (it measured through where the fit puts the surface).
         rmse: RMS point-to-plane residual of the correspondences, metres.
         rmse_sigma: the same in units of sigma_z.
-        condition: condition number of the normal equations (module docstring); inf when singular.
+        condition: condition number of the depth terms' normal equations (module docstring);
+            inf when singular.
         photometric: photometric residuals used (0: depth only).
         covariance: (6, 6) over (rotation vector rad, translation m), or None when singular.
         iterations: steps taken.
@@ -138,7 +154,7 @@ class IcpFit:
 
     @property
     def agreement(self) -> float:
-        """agree / (visible + free_space), 0 without any."""
+        """The agreeing fraction: ``agree / (visible + free_space)``, 0 without any."""
         n = self.visible + self.free_space
         return self.agree / n if n else 0.0
 
@@ -199,36 +215,72 @@ def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     )
 
 
-def _live_map(frame: RGBDFrame, mask: Mask, max_jump: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Points (h, w, 3), unit normals (h, w, 3) and validity (h, w) inside ``mask``'s box."""
-    x0, y0, x1, y1 = mask.bbox
-    z = frame.depth[y0:y1, x0:x1].astype(np.float64)
-    h, w = z.shape
-    vv, uu = np.mgrid[y0:y1, x0:x1]
-    P = backproject(uu, vv, z, frame.K)
-    N = np.zeros_like(P)
-    ok = np.zeros((h, w), dtype=bool)
-    if h >= 3 and w >= 3:
-        dx = P[1:-1, 2:] - P[1:-1, :-2]
-        dy = P[2:, 1:-1] - P[:-2, 1:-1]
-        n = np.cross(dx, dy)
-        norm = np.linalg.norm(n, axis=-1)
-        zc = z[1:-1, 1:-1]
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (N, 3) arrays (cheaper than ``np.cross`` for small N)."""
+    return np.stack(
+        [
+            a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
+            a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
+        ],
+        axis=1,
+    )
+
+
+class _LiveSurface:
+    """Live points and normals in a mask's box, computed only at the pixels looked up.
+
+    With ``grow`` > 0 the box is grown by that many pixels and any valid depth in it counts,
+    in the mask or not.
+    """
+
+    def __init__(self, frame: RGBDFrame, mask: Mask, max_jump: float, baseline: int, grow: int = 0) -> None:
+        self.baseline = baseline
+        H, W = frame.depth.shape
+        bx0, by0, bx1, by1 = mask.bbox
+        self.x0, self.y0 = max(0, bx0 - grow), max(0, by0 - grow)
+        x1, y1 = min(W, bx1 + grow), min(H, by1 + grow)
+        self.z = frame.depth[self.y0 : y1, self.x0 : x1]
+        self.valid = (mask.region(self.x0, self.y0, x1, y1) if grow == 0 else np.ones(self.z.shape, bool)) & (
+            self.z > 0
+        )
+        self.h, self.w = self.z.shape
+        self.K = frame.K
+        self.max_jump = max_jump
+
+    def lookup(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(ok (N,), points (N, 3), unit normals (N, 3) facing the camera) at crop pixels (u, v)."""
+        b = self.baseline
+        ok = (u >= b) & (v >= b) & (u < self.w - b) & (v < self.h - b)
+        ok[ok] = self.valid[v[ok], u[ok]]
+        u, v = u[ok], v[ok]
+        z = self.z
+        zc, zr, zl, zd, zu = z[v, u], z[v, u + b], z[v, u - b], z[v + b, u], z[v - b, u]
+        x0, y0, K = self.x0, self.y0, self.K
+
+        def lift(uu: np.ndarray, vv: np.ndarray, zz: np.ndarray) -> np.ndarray:
+            return backproject(uu + x0, vv + y0, zz, K)
+
+        P = lift(u, v, zc)
+        dx = lift(u + b, v, zr) - lift(u - b, v, zl)
+        dy = lift(u, v + b, zd) - lift(u, v - b, zu)
+        n = _cross(dx, dy)
+        norm = np.linalg.norm(n, axis=1)
         good = (
-            (zc > 0)
-            & (z[1:-1, 2:] > 0)
-            & (z[1:-1, :-2] > 0)
-            & (z[2:, 1:-1] > 0)
-            & (z[:-2, 1:-1] > 0)
-            & (np.abs(dx[..., 2]) < max_jump * zc)
-            & (np.abs(dy[..., 2]) < max_jump * zc)
+            (zr > 0)
+            & (zl > 0)
+            & (zd > 0)
+            & (zu > 0)
+            & (np.abs(dx[:, 2]) < self.max_jump * b * zc)
+            & (np.abs(dy[:, 2]) < self.max_jump * b * zc)
             & (norm > 1e-12)
         )
-        n = n / np.where(norm > 1e-12, norm, 1.0)[..., None]
-        n = np.where((np.sum(n * P[1:-1, 1:-1], axis=-1) > 0)[..., None], -n, n)  # face the camera
-        N[1:-1, 1:-1] = n
-        ok[1:-1, 1:-1] = good & mask.crop[1:-1, 1:-1]
-    return P, N, ok
+        n = n / np.where(norm > 1e-12, norm, 1.0)[:, None]
+        n = np.where((np.sum(n * P, axis=1) > 0)[:, None], -n, n)  # face the camera
+        out = np.flatnonzero(ok)
+        keep = np.zeros(len(ok), dtype=bool)
+        keep[out[good]] = True
+        return keep, P[good], n[good]
 
 
 def _exp(w: np.ndarray) -> np.ndarray:
@@ -279,9 +331,9 @@ def icp_fit(
         raise ValueError(f"T0 has shape {T0.shape} or non-finite entries, expected a finite (4, 4) pose")
     if len(model) < cfg.min_points:
         return None
-    P, N, ok = _live_map(frame, mask, 0.05)
-    x0, y0 = mask.bbox[0], mask.bbox[1]
-    h, w = ok.shape
+    live = _LiveSurface(frame, mask, 0.05, cfg.normal_px, round(cfg.grow_px * frame.width / 640))
+    x0, y0 = live.x0, live.y0
+    h, w = live.h, live.w
     K = frame.K
     R, t = T0[:3, :3].copy(), T0[:3, 3].copy()
     steps = 0
@@ -290,7 +342,7 @@ def icp_fit(
         model_gray = np.asarray(model_gray, dtype=np.float64)
         if model_gray.shape != (len(model),):
             raise ValueError(f"model_gray has shape {model_gray.shape}, expected ({len(model)},)")
-        pad = 4
+        pad = 4 + round(cfg.grow_px * frame.width / 640)
         H, Wd = frame.depth.shape
         gx0, gy0 = max(0, mask.bbox[0] - pad), max(0, mask.bbox[1] - pad)
         gx1, gy1 = min(Wd, mask.bbox[2] + pad), min(H, mask.bbox[3] + pad)
@@ -315,7 +367,7 @@ def icp_fit(
         du = np.stack([K[0, 0] / z, np.zeros_like(z), -K[0, 0] * X[:, 0] / z**2], axis=1)
         dv = np.stack([np.zeros_like(z), K[1, 1] / z, -K[1, 1] * X[:, 1] / z**2], axis=1)
         gX = g[:, :1] * du + g[:, 1:] * dv
-        J = np.concatenate([np.cross(y, gX), gX], axis=1)
+        J = np.concatenate([_cross(y, gX), gX], axis=1)
         s = float(cfg.photometric_sigma)  # type: ignore[arg-type]
         return r / s, J / s
 
@@ -328,25 +380,23 @@ def icp_fit(
         v = np.rint(K[1, 1] * X[:, 1] / zs + K[1, 2]).astype(np.int64) - y0
         inside = (z > 1e-6) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
         idx = np.flatnonzero(inside)
-        good = ok[v[idx], u[idx]]
+        good, q, n = live.lookup(u[idx], v[idx])
         idx = idx[good]
-        q = P[v[idx], u[idx]]
-        n = N[v[idx], u[idx]]
         return idx, y[idx], X[idx], q, n, (u, v, inside, z)
 
+    wide = True  # the wide gate until the steps settle, then the tight one
     for k in range(cfg.iterations):
         idx, y, X, q, n, _ = associate(R, t)
         if len(idx) < cfg.min_points:
             return None
         sig = noise.sigma(q[:, 2]).astype(np.float64)
-        frac = k / max(cfg.iterations - 1, 1)
-        gate = (1.0 - frac) * cfg.gate + frac * 0.0 + (3.0 * sig + cfg.tolerance)
+        gate = (cfg.gate if wide else 0.0) + 3.0 * sig + cfg.tolerance
         r = np.sum((X - q) * n, axis=1)
         near = np.linalg.norm(X - q, axis=1) < gate
         if int(near.sum()) < cfg.min_points:
             return None
         rs = r[near] / sig[near]
-        J = np.concatenate([np.cross(y[near], n[near]), n[near]], axis=1) / sig[near, None]
+        J = np.concatenate([_cross(y[near], n[near]), n[near]], axis=1) / sig[near, None]
         if photo is not None:
             rp, Jp = photometric(idx[near], y[near], X[near])
             rs, J = np.concatenate([rs, rp]), np.concatenate([J, Jp])
@@ -360,8 +410,10 @@ def icp_fit(
         R = _exp(delta[:3]) @ R
         t = t + delta[3:]
         steps = k + 1
-        if np.linalg.norm(delta[:3]) < 1e-5 and np.linalg.norm(delta[3:]) < 1e-5:
+        small = np.linalg.norm(delta[:3]) < 5e-4 and np.linalg.norm(delta[3:]) < 5e-4
+        if small and not wide:
             break
+        wide = wide and not small and k < cfg.iterations // 2
     idx, y, X, q, n, (u, v, inside, z) = associate(R, t)
     if len(idx) < 6:
         return None
@@ -384,7 +436,8 @@ def icp_fit(
     rmse = float(np.sqrt(np.mean(rn**2)))
     rmse_sigma = float(np.sqrt(np.mean((rn / sig[near]) ** 2)))
     rs = rn / sig[near]
-    J = np.concatenate([np.cross(y[near], n[near]), n[near]], axis=1) / sig[near, None]
+    J = np.concatenate([_cross(y[near], n[near]), n[near]], axis=1) / sig[near, None]
+    H_depth = J.T @ J
     n_photo = 0
     if photo is not None:
         rp, Jp = photometric(idx[near], y[near], X[near])
@@ -408,7 +461,7 @@ def icp_fit(
     A = np.eye(6)
     A[:3, :3] /= L
     A[3:, :3] = np.array([[0.0, -mt[2], mt[1]], [mt[2], 0.0, -mt[0]], [-mt[1], mt[0], 0.0]]) / L
-    Hc = A.T @ H @ A
+    Hc = A.T @ H_depth @ A  # depth terms only: shading on a smooth ball must not pin its turns
     ev = np.linalg.eigvalsh(0.5 * (Hc + Hc.T))
     condition = float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 1e-12 * max(ev[-1], 1e-300) else float("inf")
     return IcpFit(T, m, len(idx), m, free, rmse, rmse_sigma, condition, cov, steps, n_photo)
@@ -429,7 +482,12 @@ def geometric_condition(
     x0, y0, x1, y1 = mask.bbox
     pts, _, step = surface_points(frame.depth[y0:y1, x0:x1], mask.crop, (x0, y0), frame.K, cfg.max_points)
     own = IcpConfig(
-        max_points=cfg.max_points, iterations=1, min_points=cfg.min_points, photometric_sigma=None
+        max_points=cfg.max_points,
+        iterations=1,
+        min_points=cfg.min_points,
+        photometric_sigma=None,
+        normal_px=cfg.normal_px,
+        grow_px=0,
     )
     fit = icp_fit(pts, np.eye(4), frame, mask, noise, own, step=step) if len(pts) else None
     return float("inf") if fit is None else fit.condition

@@ -39,14 +39,15 @@ none in rotation, the depth noise and spread of its origin's median in translati
 ``anchor_min_inliers`` inliers (see :meth:`PoseEstimator.anchor_for`). Anchors chain, so
 orientation error accumulates slowly as an object turns through views it never showed before.
 
-**Dense fallback.** When the features give no accepted pose and the object has a predicted
-pose, :mod:`pal.perception.icp` aligns the surface and texture of its best snapshot with the
-live depth and grey levels (point-to-plane ICP plus photometric terms, started at the
-prediction). That pose has solver ``icp``; it is ``estimated`` only if enough of the surface
-agrees with the live depth (few points in free space), the residual is at the sensor's noise,
-the normal equations are well conditioned (no unobservable slide) and its covariance is
-precise (``icp.max_rotation_std_deg``, ``icp.max_translation_std``), and it passes the speed and
-static checks; otherwise it is ``rejected`` with the failed checks.
+**Dense fallback.** When the features give no accepted pose and the object is presumed
+static (so the camera's motion predicts its pose), :mod:`pal.perception.icp` aligns the
+surface and texture of its best snapshot with the live depth and grey levels (point-to-plane
+ICP plus photometric terms, started at the prediction). That pose has solver ``icp``; it is
+``estimated`` only if enough of the surface agrees with the live depth (few points in free
+space), the residual is at the sensor's noise, the depth terms are well conditioned (no
+unobservable slide), its covariance is precise (``icp.max_rotation_std_deg``,
+``icp.max_translation_std``), and it passes the speed and static checks
+(:mod:`pal.perception.pose_dense`); otherwise it is ``rejected`` with the failed checks.
 
 **Failures** without a fit are ``lost`` with a reason, or, if ``propagate_s > 0`` and the last
 two estimated poses are recent, ``propagated`` by constant velocity — flagged and never counted
@@ -58,18 +59,18 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pal.perception.features import FeatureConfig, FeatureExtractor, Features, guided_matches
 from pal.perception.frames import RGBDFrame
-from pal.perception.icp import IcpConfig, IcpFit, geometric_condition, icp_fit, surface_points
+from pal.perception.icp import IcpConfig, geometric_condition, icp_fit
 from pal.perception.masks import Mask
 from pal.perception.memory import AdmissionDecision, ObjectRecord, Snapshot
 from pal.perception.noise import DepthNoise
 from pal.perception.pnp import pnp_ransac
-from pal.perception.pose_checks import Evidence, Limits, PoseChecks, check_fit, motion_between, sigmas
+from pal.perception.pose_checks import Evidence, Limits, PoseChecks, check_fit, motion_between
+from pal.perception.pose_dense import dense_checks, snapshot_surface
 from pal.perception.rigid import to_homogeneous
 from pal.perception.spatial import lift, mask_points
 from pal.perception.trajectory import Pose, PoseDiagnostics
@@ -102,8 +103,8 @@ class PoseConfig:
             where the prediction puts them (binary features only) ...
         guide_bits: ... at a Hamming distance of at most this many bits.
         checks: the validity checks (:mod:`pal.perception.pose_checks`).
-        icp: the depth-only fit (:mod:`pal.perception.icp`) tried when the features give no
-            accepted pose and a predicted pose exists; None: off.
+        icp: the dense RGB-D fit (:mod:`pal.perception.icp`) tried when the features give no
+            accepted pose for an object presumed static; None: off.
     """
 
     features: FeatureConfig = field(default_factory=FeatureConfig)
@@ -376,36 +377,34 @@ class PoseEstimator:
     ) -> Pose | None:
         """The ICP pose (:mod:`pal.perception.icp`) when the features gave none, or None.
 
-        It starts from the predicted pose (the camera's motion applied to the last world pose)
-        and uses the surface of the snapshot closest to it in orientation. It is ``estimated``
-        only if it passes :meth:`_depth_checks`, else ``rejected`` (when the features gave no
-        transform either) with the failed checks; None when there is no prediction or no fit.
+        Only an object presumed static is fitted (not moving, estimated within
+        ``checks.static_horizon_s``): the fit starts from where the camera's motion puts it
+        (its last world pose seen from the live camera) and uses the surface of the snapshot
+        closest to that in orientation. A moving object's masks can hold pieces of the table
+        or a hand that pin a pose its own surface cannot (a rolling one-colour ball), so it is
+        left to its features. The pose is ``estimated`` only if it passes
+        :func:`pal.perception.pose_dense.dense_checks`, else ``rejected`` (when the features
+        gave no transform either) with the failed checks; None when not tried or without a fit.
         """
         cfg = self.config
         assert cfg.icp is not None
-        if record.world_pose is None:
+        if (
+            record.world_pose is None
+            or record.moving
+            or frame.timestamp - record.world_pose[0] > cfg.checks.static_horizon_s
+        ):
             return None
         prior = np.linalg.inv(W) @ record.world_pose[1]
         snaps = self._choose(record, prior)
         if not snaps or snaps[0].anchor is None:
             return None
         snap = snaps[0]
-        pts, values, step = surface_points(
-            snap.depth,
-            snap.mask,
-            (snap.bbox[0], snap.bbox[1]),
-            snap.K,
-            cfg.icp.max_points,
-            (cfg.min_depth, cfg.max_depth),
-            cv2.cvtColor(np.ascontiguousarray(snap.rgb), cv2.COLOR_RGB2GRAY),
-            cfg.icp.blur_sigma,
-        )
-        model = pts @ snap.anchor[:3, :3].T + snap.anchor[:3, 3]
+        model, values, step = snapshot_surface(snap, cfg.icp, (cfg.min_depth, cfg.max_depth))
         fit = icp_fit(model, prior, frame, mask, cfg.noise, cfg.icp, values, step)
         if fit is None:
             return None
         t = frame.timestamp
-        failed = self._depth_checks(fit, record, prior, W, t)
+        failed = dense_checks(fit, record, prior, W, t, cfg)
         before = feature_pose.diagnostics.reason
         diag = PoseDiagnostics(
             feature_pose.diagnostics.matches,
@@ -413,7 +412,11 @@ class PoseEstimator:
             fit.points,
             fit.rmse,
             "icp",
-            (f"rejected: {'; '.join(failed)} (depth fit; features: {before})" if failed else f"depth fit; features: {before}"),
+            (
+                f"rejected: {'; '.join(failed)} (depth fit; features: {before})"
+                if failed
+                else f"depth fit; features: {before}"
+            ),
             snap.index,
             1,
             fit.agreement,
@@ -425,41 +428,6 @@ class PoseEstimator:
             return Pose(t, "rejected", fit.T, diag)
         self._accept(record, fit.T, W, t, False)
         return Pose(t, "estimated", fit.T, diag, fit.covariance)
-
-    def _depth_checks(
-        self, fit: IcpFit, record: ObjectRecord, prior: np.ndarray, W: np.ndarray, t: float
-    ) -> list[str]:
-        """The failed checks of a depth fit: support, agreement, residual, geometry, speed, static."""
-        cfg, icp, chk = self.config, self.config.icp, self.config.checks
-        assert icp is not None
-        failed = []
-        if fit.points < icp.min_points:
-            failed.append(f"points: {fit.points} < {icp.min_points}")
-        if fit.agreement < icp.min_agreement:
-            failed.append(
-                f"agreement: {fit.agreement:.0%} of the visible surface agrees ({fit.free_space} points in free space)"
-            )
-        if fit.rmse_sigma > icp.max_rmse_sigma:
-            failed.append(f"residual: {fit.rmse_sigma:.1f} sigma_z > {icp.max_rmse_sigma:g}")
-        if fit.condition > icp.max_condition:
-            failed.append(f"geometry: condition {fit.condition:.0f} > {icp.max_condition:g} (a slide is unobservable)")
-        rot_std, t_std = sigmas(fit.covariance)
-        if rot_std > icp.max_rotation_std_deg or t_std > icp.max_translation_std:
-            failed.append(f"conditioning: std {rot_std:.1f} deg, {t_std:.3f} m")
-        if record.world_pose is not None:
-            t_last, last = record.world_pose
-            dt = max(t - t_last, 1e-6)
-            dist, turn = motion_between(last, W @ fit.T)
-            if dist > cfg.max_speed * dt + 3 * t_std + 2 * cfg.ransac_threshold:
-                failed.append(f"speed: {dist:.3f} m in {dt:.3f} s in the world frame")
-            if math.radians(turn) > cfg.max_angular_speed * dt + math.radians(5.0 + 3 * rot_std):
-                failed.append(f"speed: {turn:.1f} deg in {dt:.3f} s in the world frame")
-        recent = record.world_pose is not None and t - record.world_pose[0] <= chk.static_horizon_s
-        if not record.moving and recent:
-            dist, turn = motion_between(prior, fit.T)
-            if dist > chk.static_translation + 3 * t_std or turn > chk.static_rotation_deg + 3 * rot_std:
-                failed.append(f"static: {dist:.3f} m and {turn:.1f} deg from where the camera's motion puts a static object")
-        return failed
 
     def _depth_noise(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per-pair depth sigma and inlier tolerance, metres, at observed depths ``z`` (NaN: none).

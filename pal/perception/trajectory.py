@@ -50,9 +50,9 @@ class PoseDiagnostics:
         matches: ratio-test matches inside both masks, summed over the snapshots tried.
         pairs: of those, matches with valid depth on both sides (3-D/3-D pairs).
         inliers: inliers of the accepted fit.
-        rmse: inlier RMSE: metres (``kabsch``), pixels (``pnp``); None without a fit.
-        solver: ``"canonical"`` (frame definition), ``"kabsch"``, ``"pnp"``,
-            ``"constant_velocity"`` (propagation) or None.
+        rmse: inlier RMSE: metres (``kabsch``, ``icp``), pixels (``pnp``); None without a fit.
+        solver: ``"canonical"`` (frame definition), ``"kabsch"``, ``"pnp"``, ``"icp"`` (the
+            dense fallback), ``"constant_velocity"`` (propagation) or None.
         reason: human-readable outcome, e.g. why estimation failed or was rejected.
         snapshot: index of the gallery snapshot that contributed most inliers, if any.
         attempts: snapshots tried.

@@ -1,0 +1,112 @@
+"""The dense pose fallback's inputs and trust checks (:mod:`pal.perception.icp` inside Π's pose stage).
+
+When an object's features give no accepted pose, :class:`pal.perception.pose.PoseEstimator`
+aligns the surface of its best snapshot with the live frame. :func:`snapshot_surface` samples
+that surface in the canonical object frame; :func:`dense_checks` decides whether the fit is
+trusted. A dense fit is ``estimated`` only if it passes all of:
+
+- ``points``: at least ``icp.min_points`` correspondences;
+- ``agreement``: at least ``icp.min_agreement`` of the model points on valid live depth agree
+  with it, free-space violations counting against it;
+- ``residual``: RMS point-to-plane residual at most ``icp.max_rmse_sigma`` sigma_z;
+- ``geometry``: condition number at most ``icp.max_condition`` (no unobservable slide);
+- ``conditioning``: rotation and translation standard deviations at most
+  ``icp.max_rotation_std_deg`` and ``icp.max_translation_std``;
+- ``speed``: the motion since the last estimate **in the world frame** within the speed limits;
+- ``static``: an object presumed static stays where the camera's motion puts it (within
+  ``checks.static_translation`` and ``checks.static_rotation_deg`` plus 3 sigma).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from pal.perception.icp import IcpConfig, IcpFit, surface_points
+from pal.perception.pose_checks import motion_between, sigmas
+
+if TYPE_CHECKING:
+    from pal.perception.memory import ObjectRecord, Snapshot
+    from pal.perception.pose import PoseConfig
+
+__all__ = ["dense_checks", "snapshot_surface"]
+
+
+def snapshot_surface(
+    snap: Snapshot, config: IcpConfig, depth_range: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """A snapshot's surface in the canonical object frame: (points (M, 3) m, grey levels (M,), grid step px).
+
+    Raises:
+        ValueError: the snapshot is not anchored.
+    """
+    if snap.anchor is None:
+        raise ValueError(f"snapshot {snap.index} has no anchor: its surface has no object-frame coordinates")
+    gray = cv2.cvtColor(np.ascontiguousarray(snap.rgb), cv2.COLOR_RGB2GRAY)
+    pts, values, step = surface_points(
+        snap.depth,
+        snap.mask,
+        (snap.bbox[0], snap.bbox[1]),
+        snap.K,
+        config.max_points,
+        depth_range,
+        gray,
+        config.blur_sigma,
+    )
+    assert values is not None
+    return pts @ snap.anchor[:3, :3].T + snap.anchor[:3, 3], values, step
+
+
+def dense_checks(
+    fit: IcpFit, record: ObjectRecord, prior: np.ndarray, W: np.ndarray, t: float, config: PoseConfig
+) -> list[str]:
+    """The failed checks of a dense fit (module docstring), each with its value.
+
+    Args:
+        fit: the fit.
+        record: the object's record (its last world pose, whether it is moving).
+        prior: (4, 4) the predicted ``camera_from_object`` the fit started from.
+        W: (4, 4) the live camera's pose in the world.
+        t: the frame's time, s.
+        config: the pose estimator's parameters (``config.icp`` must be set).
+
+    Returns:
+        The failed checks; empty when the fit is accepted.
+    """
+    cfg, icp, chk = config, config.icp, config.checks
+    assert icp is not None
+    failed = []
+    if fit.points < icp.min_points:
+        failed.append(f"points: {fit.points} < {icp.min_points}")
+    if fit.agreement < icp.min_agreement:
+        failed.append(
+            f"agreement: {fit.agreement:.0%} of the visible surface agrees ({fit.free_space} points in free space)"
+        )
+    if fit.rmse_sigma > icp.max_rmse_sigma:
+        failed.append(f"residual: {fit.rmse_sigma:.1f} sigma_z > {icp.max_rmse_sigma:g}")
+    if fit.condition > icp.max_condition:
+        failed.append(
+            f"geometry: condition {fit.condition:.0f} > {icp.max_condition:g} (a slide is unobservable)"
+        )
+    rot_std, t_std = sigmas(fit.covariance)
+    if rot_std > icp.max_rotation_std_deg or t_std > icp.max_translation_std:
+        failed.append(f"conditioning: std {rot_std:.1f} deg, {t_std:.3f} m")
+    if record.world_pose is not None:
+        t_last, last = record.world_pose
+        dt = max(t - t_last, 1e-6)
+        dist, turn = motion_between(last, W @ fit.T)
+        if dist > cfg.max_speed * dt + 3 * t_std + 2 * cfg.ransac_threshold:
+            failed.append(f"speed: {dist:.3f} m in {dt:.3f} s in the world frame")
+        if math.radians(turn) > cfg.max_angular_speed * dt + math.radians(5.0 + 3 * rot_std):
+            failed.append(f"speed: {turn:.1f} deg in {dt:.3f} s in the world frame")
+    recent = record.world_pose is not None and t - record.world_pose[0] <= chk.static_horizon_s
+    if not record.moving and recent:
+        dist, turn = motion_between(prior, fit.T)
+        if dist > chk.static_translation + 3 * t_std or turn > chk.static_rotation_deg + 3 * rot_std:
+            failed.append(
+                f"static: {dist:.3f} m and {turn:.1f} deg from where the camera's motion puts a static object"
+            )
+    return failed
