@@ -5,7 +5,7 @@ pal list
 pal experiment NAME [--quick] [--json] [--out DIR] [--set KEY=VALUE ...] [BODY OPTIONS] [--dataset DIR]
 pal bench NAME [same options]
 pal loop [--steps N] [--video out.mp4] [--babble B] [--goal X,Y] [--seed S] [--json] [--out DIR]
-pal babble [BODY OPTIONS] [--joint J ...] --steps N --seed S --out DIR [--policy uniform|ou]
+pal babble [BODY OPTIONS] [--joint J ...] --steps N --seed S --out DIR [--policy uniform|ou] [--workers N]
            [--probe-steps N] [--resume] [--json]
 pal record --motion MOTION --seed S --out DIR [--fps F] [--width W] [--height H] [--overwrite] [--json]
 
@@ -227,9 +227,12 @@ def _loop(args: argparse.Namespace) -> int:
 
 def _babble(args: argparse.Namespace) -> int:
     from pal.sim.babbling import BabbleConfig, babble, check_config
+    from pal.sim.shards import babble_sharded, shard_configs
 
     if args.mjcf and args.body:
         raise UsageError("give either --body or --mjcf, not both")
+    if args.workers < 1:
+        raise UsageError(f"pal babble: --workers must be >= 1, got {args.workers}")
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {args.out!r} is a file, expected a dataset directory")
@@ -250,12 +253,21 @@ def _babble(args: argparse.Namespace) -> int:
             probe_steps=args.probe_steps,
         )
         check_config(config)  # names, ranges and the file, before the directory is touched
+        if args.workers > 1:
+            shard_configs(config, args.workers)
     except ValueError as err:  # bad sizes, names, ranges or MJCF
         raise UsageError(f"pal babble: {err}") from None
     _output_dir(args.out)
     start = time.perf_counter()
     try:
-        dataset = babble(config, args.out, resume=args.resume, progress_bar=sys.stderr.isatty())
+        if args.workers > 1:
+            dataset = babble_sharded(
+                config, args.out, workers=args.workers, resume=args.resume, backend=args.backend
+            )
+        else:
+            dataset = babble(
+                config, args.out, resume=args.resume, progress_bar=sys.stderr.isatty(), backend=args.backend
+            )
     except ValueError as err:  # an occupied, locked or corrupted directory
         raise UsageError(f"pal babble: {err}") from None
     meta = dataset.metadata
@@ -449,6 +461,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reset-every", type=int, default=10_000, help="environment reset period (default 10000)")
     p.add_argument("--chunk-size", type=int, default=10_000, help="rows per chunk file (default 10000)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="split the run into N seeded shards babbled by N local processes, merged into --out (default 1)",
+    )
+    p.add_argument(
+        "--backend",
+        choices=["loop", "rollout"],
+        default="loop",
+        help="physics stepping: mj_step from Python or mujoco.rollout (same data; default loop)",
+    )
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(func=_babble)
 

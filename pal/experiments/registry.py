@@ -44,6 +44,7 @@ MODULES: tuple[str, ...] = (
     "pal.experiments.bench_svi",
     "pal.experiments.bench_action",
     "pal.experiments.bench_babble",
+    "pal.experiments.bench_rollout",
     "pal.experiments.bench_discovery",
     "pal.experiments.bench_perception",
     "pal.experiments.bench_fuzz",

@@ -12,7 +12,8 @@
 - :class:`JointData`: the analysed joint's columns ``act.J, q_prev.J, dq_prev.J, dq.J, q.J``.
 - :class:`Realizer`: realized evaluation. It restores the recorded simulator state before a
   transition, executes a given command for the analysed actuator (the other actuators keep
-  their recorded commands) for one environment step, and returns the joint angle reached.
+  their recorded commands) for one environment step, and returns the joint angle reached;
+  many rows at once in one ``mujoco.rollout`` batch, equal bit for bit to the one-by-one replay.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from pal.checks import check_int
 from pal.data import FORMAT, METADATA, DatasetFileError, TransitionDataset
 from pal.dataset_files import read_metadata
 from pal.sim.babbling import BabbleConfig, babble, collect, replay
+from pal.sim.batched import BatchReplayer
 from pal.sim.bodies import BODIES, check_name
 from pal.sim.body_info import BodyInfo, body_info, check_selection, dataset_mismatch
 from pal.sim.env import BabblingEnv
@@ -468,13 +470,17 @@ class Realizer:
                 f"(sha256 {meta['mjcf_sha256'][:12]}...); babble again"
             )
         self.dataset, self.joint = dataset, joint
+        self._replayer: BatchReplayer | None = None
 
-    def outcomes(self, rows: Sequence[int] | np.ndarray, actions: Any) -> np.ndarray:
+    def outcomes(self, rows: Sequence[int] | np.ndarray, actions: Any, *, batched: bool = True) -> np.ndarray:
         """Angles q.J reached when row i's command for the analysed actuator is replaced.
 
         Args:
             rows: ``(n,)`` row indices of the dataset.
             actions: ``(n,)`` or ``(n, 1)`` commands for the analysed actuator.
+            batched: all rows in one ``mujoco.rollout`` call (:class:`~pal.sim.batched.BatchReplayer`);
+                False replays them one by one with :func:`~pal.sim.babbling.replay`. Both give the
+                same angles bit for bit.
 
         Returns:
             ``(n,)`` float64 joint angles after one environment step, rad.
@@ -483,9 +489,13 @@ class Realizer:
         a = np.asarray(actions, dtype=np.float64).reshape(-1)
         if a.shape != rows.shape:
             raise ValueError(f"actions has {a.size} entries, expected one per row ({rows.size})")
+        ctrls = self.dataset.ctrl[rows].astype(np.float64)
+        ctrls[:, self.joint.actuator_index] = a
+        if batched:
+            if self._replayer is None:
+                self._replayer = BatchReplayer(self.env)
+            return self._replayer.step(self.dataset.states[rows], ctrls)[:, self.joint.joint_index]
         out = np.empty(len(rows))
-        for k, (i, ai) in enumerate(zip(rows, a, strict=True)):
-            ctrl = self.dataset.ctrl[i].astype(np.float64)
-            ctrl[self.joint.actuator_index] = ai
+        for k, (i, ctrl) in enumerate(zip(rows, ctrls, strict=True)):
             out[k] = replay(self.env, self.dataset.states[i], ctrl)[self.joint.joint_index]
         return out

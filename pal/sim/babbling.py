@@ -16,7 +16,8 @@ it.
 Seeds: the policy draws from ``default_rng(SeedSequence([seed, 0]))``; the reset of episode
 e uses ``episode_seed(seed, e)``. Everything else is deterministic, so a run is a function
 of its :class:`BabbleConfig`, and a resumed run (:func:`babble` with ``resume=True``)
-produces the same rows as an uninterrupted one.
+produces the same rows as an uninterrupted one. The stepping backend (:data:`BACKENDS`:
+``mj_step`` from Python, or ``mujoco.rollout``) does not change a single bit of the data.
 """
 
 from __future__ import annotations
@@ -34,12 +35,14 @@ import numpy as np
 
 from pal.checks import check_int
 from pal.data import FORMAT, DatasetFileError, DatasetWriter, TransitionDataset, column_names
+from pal.sim.batched import rollout_steps
 from pal.sim.bodies import check_name, load_model
 from pal.sim.env import STATE_SPEC, BabblingEnv
 from pal.sim.policies import POLICIES, make_policy
 from pal.sim.ranges import babbling_ranges, effective_ranges
 
 __all__ = [
+    "BACKENDS",
     "BabbleConfig",
     "BabblingSource",
     "TransitionBlock",
@@ -54,6 +57,10 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
+
+
+#: Stepping backends of :class:`BabblingSource` (same transitions, bit for bit).
+BACKENDS = ("loop", "rollout")
 
 
 def episode_seed(seed: int, episode: int) -> int:
@@ -151,6 +158,9 @@ class BabblingSource:
         seed: master seed (episode reset seeds derive from it).
         reset_every: reset period, steps.
         probe: what the effective-range probe found (metadata), or None.
+        backend: ``"loop"`` (``mj_step`` from Python, the default) or ``"rollout"`` (each step
+            one ``mujoco.rollout`` call, :func:`pal.sim.batched.rollout_steps`); both give the
+            same transitions bit for bit.
     """
 
     def __init__(
@@ -161,8 +171,12 @@ class BabblingSource:
         seed: int,
         reset_every: int,
         probe: dict[str, Any] | None = None,
+        backend: str = "loop",
     ) -> None:
+        if backend not in BACKENDS:
+            raise ValueError(f"unknown backend {backend!r}; expected one of {BACKENDS}")
         self.env, self.policy, self.seed, self.reset_every = env, policy, int(seed), int(reset_every)
+        self.backend = backend
         self.probe = probe
         self.step_index = 0
         self._last_dq = np.zeros(len(env.qpos_indices))
@@ -196,7 +210,7 @@ class BabblingSource:
             }
 
     def run(self, n: int) -> TransitionBlock:
-        """The next ``n`` transitions (preallocated arrays, one ``mj_step(nstep=frame_skip)`` each)."""
+        """The next ``n`` transitions (one ``mj_step(nstep=frame_skip)``, or one ``mujoco.rollout`` call, each)."""
         env = self.env
         m, d, fs = env.model, env.data, env.frame_skip
         qidx, aidx = env.qpos_indices, env.actuator_ids
@@ -209,14 +223,26 @@ class BabblingSource:
         episode = steps // self.reset_every
         qpos, ctrl = d.qpos, d.ctrl
         k, every = self.step_index, self.reset_every
-        for i in range(n):
-            if (k + i) % every == 0:
+        if self.backend == "rollout":
+
+            def reset(i: int) -> bool:
+                if (k + i) % every:
+                    return False
                 env.reset(seed=episode_seed(self.seed, (k + i) // every))
-            mujoco.mj_getState(m, d, states[i], STATE_SPEC)
-            q_prev[i] = qpos[qidx]
-            ctrl[aidx] = applied[i]
-            mujoco.mj_step(m, d, fs)
-            q[i] = qpos[qidx]
+                return True
+
+            states, after = rollout_steps(env, applied, reset)
+            q_prev[:] = states[:, 1 + qidx]  # time, qpos, ... in both signatures
+            q[:] = after[:, 1 + qidx]
+        else:
+            for i in range(n):
+                if (k + i) % every == 0:
+                    env.reset(seed=episode_seed(self.seed, (k + i) // every))
+                mujoco.mj_getState(m, d, states[i], STATE_SPEC)
+                q_prev[i] = qpos[qidx]
+                ctrl[aidx] = applied[i]
+                mujoco.mj_step(m, d, fs)
+                q[i] = qpos[qidx]
         dq = q - q_prev
         dq_prev = np.empty_like(dq)
         dq_prev[0] = self._last_dq
@@ -337,8 +363,10 @@ def check_config(config: BabbleConfig) -> tuple[BabblingEnv, dict[str, tuple[flo
     return env, ranges
 
 
-def make_source(config: BabbleConfig) -> BabblingSource:
+def make_source(config: BabbleConfig, *, backend: str = "loop") -> BabblingSource:
     """Build the environment, policy and source of ``config`` (runs the probe of ``effective_range``).
+
+    ``backend`` is the source's stepping backend (:data:`BACKENDS`); it does not change the data.
 
     Raises:
         MJCFError, ValueError: see :func:`check_config`.
@@ -353,7 +381,7 @@ def make_source(config: BabbleConfig) -> BabblingSource:
             effective_range=False,
             chunk_size=config.probe_steps,
         )
-        found = collect(probe_config).metadata["effective_ranges"]
+        found = collect(probe_config, backend=backend).metadata["effective_ranges"]
         ranges = {a: tuple(found[a]["effective"]) for a in ranges}
         probe = {"steps": config.probe_steps, "seed": probe_config.seed, "effective_ranges": found}
         logger.info("babbling over the effective ranges %s", ranges)
@@ -361,7 +389,9 @@ def make_source(config: BabbleConfig) -> BabblingSource:
     high = np.array([r[1] for r in ranges.values()])
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0]))
     policy = make_policy(config.policy, low, high, rng, dt=env.dt, params=config.policy_params)
-    return BabblingSource(env, policy, seed=config.seed, reset_every=config.reset_every, probe=probe)
+    return BabblingSource(
+        env, policy, seed=config.seed, reset_every=config.reset_every, probe=probe, backend=backend
+    )
 
 
 def _bar(total: int, initial: int, enabled: bool) -> Any:
@@ -370,9 +400,9 @@ def _bar(total: int, initial: int, enabled: bool) -> Any:
     return tqdm(total=total, initial=initial, disable=not enabled, unit="step", desc="babbling")
 
 
-def collect(config: BabbleConfig, *, progress_bar: bool = False) -> TransitionDataset:
-    """Run ``config`` in memory and return the transitions (nothing is written)."""
-    source = make_source(config)
+def collect(config: BabbleConfig, *, progress_bar: bool = False, backend: str = "loop") -> TransitionDataset:
+    """Run ``config`` in memory and return the transitions (nothing is written; ``backend``: :data:`BACKENDS`)."""
+    source = make_source(config, backend=backend)
     meta = {"format": FORMAT, **source.metadata(config)}
     parts = []
     with _bar(config.steps, 0, progress_bar) as bar:
@@ -399,7 +429,12 @@ def collect(config: BabbleConfig, *, progress_bar: bool = False) -> TransitionDa
 
 
 def babble(
-    config: BabbleConfig, out_dir: str | os.PathLike[str], *, resume: bool = False, progress_bar: bool = False
+    config: BabbleConfig,
+    out_dir: str | os.PathLike[str],
+    *,
+    resume: bool = False,
+    progress_bar: bool = False,
+    backend: str = "loop",
 ) -> TransitionDataset:
     """Run ``config`` and write it to ``out_dir`` chunk by chunk (atomic ``.npz`` files).
 
@@ -410,6 +445,7 @@ def babble(
             simulator state and policy generator state are restored, so the result equals
             an uninterrupted run. A larger ``config.steps`` extends a finished dataset.
         progress_bar: show a tqdm bar.
+        backend: the stepping backend (:data:`BACKENDS`); the data do not depend on it.
 
     Returns:
         The dataset, loaded back from ``out_dir``.
@@ -423,7 +459,7 @@ def babble(
     """
     if config.steps < 1:
         raise ValueError("steps must be >= 1 to write a dataset")
-    source = make_source(config)
+    source = make_source(config, backend=backend)
     with DatasetWriter(out_dir, source.metadata(config), resume=resume) as writer:
         if writer.resume_info is not None:
             source.restore(writer.resume_info)
