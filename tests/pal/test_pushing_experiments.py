@@ -64,6 +64,13 @@ def test_c2_inferred_actions_beat_random_babbling():
     assert len(lines[0].get_xdata()) == c2.TINY.episode_steps + 1
     assert m["pushes"]["n"] == len(m["pushes"]["realized_cm"])
     assert rep.figures["pushes"].axes[0].get_xlabel() == "realized displacement, cm"
+    paths = rep.figures["paths"].axes[0].get_lines()  # a path per controller, the start and the goal
+    assert len(paths) == 3 + 2 and len(paths[0].get_xdata()) == c2.TINY.episode_steps + 1
+    goal = paths[-1].get_xydata()[0]
+    np.testing.assert_allclose(goal, 100 * np.asarray(m["episodes"][0]["goal"]), atol=1e-9)
+    final = paths[0].get_xydata()[-1] / 100  # the inferred path ends where its final error is measured
+    err = 100 * np.linalg.norm(final - np.asarray(m["episodes"][0]["goal"]))
+    assert err == pytest.approx(m["episodes"][0]["inferred"]["final_err_cm"], abs=1e-6)
     json.dumps(m, allow_nan=False)
 
 
