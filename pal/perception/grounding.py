@@ -46,6 +46,7 @@ from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask
 from pal.perception.noise import DepthNoise
 from pal.perception.plane import Plane
+from pal.perception.quantiles import median, quantiles
 from pal.perception.spatial import mask_points
 from pal.perception.support import plane_basis
 
@@ -156,14 +157,14 @@ def object_geometry(
     pts = mask_points(frame, mask, 0.05, max_depth, max_points=500)
     if pts.shape[0] < 3:
         return None
-    z_med = float(np.median(pts[:, 2]))
+    z_med = float(median(pts[:, 2]))
     R, t = support_from_camera[:3, :3], support_from_camera[:3, 3]
     q = pts @ R.T + t
-    lo, hi = np.percentile(q, [2, 98], axis=0)
+    lo, mid, hi = quantiles(q, (2.0, 50.0, 98.0))
     sigma = math.hypot(float(config.noise.sigma(z_med)), config.position_floor)
     rim = _rim_points(frame, mask, max_depth, config.surface_points)
     surface = q if rim.shape[0] < 3 else rim @ R.T + t
-    return ObjectGeometry(np.median(q, axis=0), lo[:2], hi[:2], float(lo[2]), float(hi[2]), sigma, surface)
+    return ObjectGeometry(mid, lo[:2], hi[:2], float(lo[2]), float(hi[2]), sigma, surface)
 
 
 def _rim_points(frame: RGBDFrame, mask: Mask, max_depth: float, limit: int) -> np.ndarray:
@@ -205,6 +206,11 @@ def surface_gap(a: ObjectGeometry, b: ObjectGeometry) -> float:
     return float(cKDTree(a.surface).query(b.surface, k=1)[0].min())
 
 
+def _phi(x: float) -> float:
+    """The standard normal CDF of a scalar (``scipy.special.ndtr`` without the ufunc overhead)."""
+    return 0.5 * math.erfc(-x / math.sqrt(2.0))
+
+
 def grade(
     a: ObjectGeometry, b: ObjectGeometry, config: GroundingConfig, gap: float | None = None
 ) -> dict[str, float]:
@@ -217,15 +223,19 @@ def grade(
         gap: :func:`surface_gap` of the pair when already computed (it is symmetric).
     """
     sab = math.hypot(a.sigma, b.sigma)
-    wa, wb = a.hi - a.lo, b.hi - b.lo
-    s_xy = np.sqrt(sab**2 + ((wa + wb) / 4.0) ** 2)
-    left = float(ndtr((b.position[0] - a.position[0]) / s_xy[0]))
-    front = float(ndtr((b.position[1] - a.position[1]) / s_xy[1]))
+    (ax0, ay0), (ax1, ay1) = a.lo.tolist(), a.hi.tolist()
+    (bx0, by0), (bx1, by1) = b.lo.tolist(), b.hi.tolist()
+    pa, pb = a.position.tolist(), b.position.tolist()
+    s_x = math.sqrt(sab**2 + ((ax1 - ax0 + bx1 - bx0) / 4.0) ** 2)
+    s_y = math.sqrt(sab**2 + ((ay1 - ay0 + by1 - by0) / 4.0) ** 2)
+    left = _phi((pb[0] - pa[0]) / s_x)
+    front = _phi((pb[1] - pa[1]) / s_y)
     r = max(config.near_distance, a.extent, b.extent)
-    near = float(ndtr((r - box_gap(a, b)) / (0.25 * r + sab)))
+    box = math.hypot(max(0.0, ax0 - bx1, bx0 - ax1), max(0.0, ay0 - by1, by0 - ay1))
+    near = _phi((r - box) / (0.25 * r + sab))
     s_on = config.on_tolerance / 2.0 + sab
-    above = a.position[2] > b.position[2]
-    on = float(ndtr((config.on_tolerance - abs(a.bottom - b.top)) / s_on)) * _overlap(a, b) if above else 0.0
+    above = pa[2] > pb[2]
+    on = _phi((config.on_tolerance - abs(a.bottom - b.top)) / s_on) * _overlap(a, b) if above else 0.0
     gap3d = surface_gap(a, b) if gap is None else gap
-    touching = float(ndtr((config.touch_gap - gap3d) / (sab * 0.5 + 0.005)))
+    touching = _phi((config.touch_gap - gap3d) / (sab * 0.5 + 0.005))
     return {"near": near, "on": min(on, 1.0), "left_of": left, "in_front_of": front, "touching": touching}

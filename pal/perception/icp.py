@@ -49,6 +49,7 @@ from pal.checks import check_float, check_int
 from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask
 from pal.perception.noise import DepthNoise
+from pal.perception.quantiles import median
 
 __all__ = ["IcpConfig", "IcpFit", "geometric_condition", "icp_fit", "surface_points"]
 
@@ -361,7 +362,7 @@ def icp_fit(
         ok = (u >= 0) & (v >= 0) & (u < img.shape[1] - 1) & (v < img.shape[0] - 1)
         u, v, z, y, X, sel = u[ok], v[ok], z[ok], y[ok], X[ok], sel[ok]
         r = _bilinear(img, u, v) - model_gray[sel]
-        r = r - np.median(r) if len(r) else r
+        r = r - median(r) if len(r) else r
         g = np.stack([_bilinear(gu, u, v), _bilinear(gv, u, v)], axis=1)
         # d(u, v)/dX for the pinhole, then dX/d(w, d) = [-[y]x, I]
         du = np.stack([K[0, 0] / z, np.zeros_like(z), -K[0, 0] * X[:, 0] / z**2], axis=1)

@@ -150,7 +150,9 @@ def fit_plane_ransac(
             continue
         normals, p0 = normals[ok] / norms[ok, None], p0[ok]
         offsets = -np.einsum("ij,ij->i", normals, p0)
-        counts = (np.abs(spts @ normals.T + offsets) < thr_col).sum(axis=0)
+        dist = spts @ normals.T
+        dist += offsets
+        counts = np.count_nonzero(np.abs(dist, out=dist) < thr_col, axis=0)
         k = int(np.argmax(counts))
         if counts[k] > best_count:
             best_count, best_n, best_d = int(counts[k]), normals[k], float(offsets[k])

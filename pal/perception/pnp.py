@@ -235,38 +235,31 @@ def _gauss_newton(
     """
     fx, fy, s = K[0, 0], K[1, 1], K[0, 1]
     has_z = np.isfinite(z_obs)
+    n, nz = obj.shape[0], int(has_z.sum())
+    J, r = np.zeros((2 * n + nz, 6)), np.empty(2 * n + nz)
+    zs_obs, zs_sigma = z_obs[has_z], z_sigma[has_z]
     JtJ = np.eye(6)
     chi2 = 0.0
     for _ in range(steps + 1):
-        p = obj @ R.T + t
+        q = obj @ R.T
+        p = q + t
         x, y, z = p[:, 0], p[:, 1], np.maximum(p[:, 2], 1e-6)
-        u = fx * x / z + s * y / z + K[0, 2]
-        v = fy * y / z + K[1, 2]
-        ru, rv = (u - img[:, 0]) / sigma_px, (v - img[:, 1]) / sigma_px
+        r[:n] = (fx * x / z + s * y / z + K[0, 2] - img[:, 0]) / sigma_px
+        r[n : 2 * n] = (fy * y / z + K[1, 2] - img[:, 1]) / sigma_px
         # d(u, v, z)/d(p): rows of the projection Jacobian; for the perturbation (w, d) of
         # p = exp(w) q + t + d with q = R x_ref, a row a . dp = (q x a) . w + a . d
-        du = np.stack([fx / z, s / z, -(fx * x + s * y) / z**2], axis=1) / sigma_px
-        dv = np.stack([np.zeros_like(z), fy / z, -fy * y / z**2], axis=1) / sigma_px
-        q = obj @ R.T
-        Ju = np.concatenate([np.cross(q, du), du], axis=1)
-        Jv = np.concatenate([np.cross(q, dv), dv], axis=1)
-        rows, res = [Ju, Jv], [ru, rv]
-        if has_z.any():
-            rz = (z[has_z] - z_obs[has_z]) / z_sigma[has_z]
-            qz = q[has_z]
-            Jz = np.stack(
-                [
-                    qz[:, 1],
-                    -qz[:, 0],
-                    np.zeros(qz.shape[0]),
-                    *np.zeros((2, qz.shape[0])),
-                    np.ones(qz.shape[0]),
-                ],
-                axis=1,
-            )
-            rows.append(Jz / z_sigma[has_z, None])
-            res.append(rz)
-        J, r = np.concatenate(rows), np.concatenate(res)
+        q0, q1, q2 = q[:, 0], q[:, 1], q[:, 2]
+        du0, du1, du2 = fx / z / sigma_px, s / z / sigma_px, -(fx * x + s * y) / z**2 / sigma_px
+        dv1, dv2 = fy / z / sigma_px, -fy * y / z**2 / sigma_px
+        Ju, Jv = J[:n], J[n : 2 * n]
+        Ju[:, 0], Ju[:, 1], Ju[:, 2] = q1 * du2 - q2 * du1, q2 * du0 - q0 * du2, q0 * du1 - q1 * du0
+        Ju[:, 3], Ju[:, 4], Ju[:, 5] = du0, du1, du2
+        Jv[:, 0], Jv[:, 1], Jv[:, 2] = q1 * dv2 - q2 * dv1, -q0 * dv2, q0 * dv1
+        Jv[:, 4], Jv[:, 5] = dv1, dv2
+        if nz:
+            r[2 * n :] = (z[has_z] - zs_obs) / zs_sigma
+            Jz = J[2 * n :]
+            Jz[:, 0], Jz[:, 1], Jz[:, 5] = q1[has_z] / zs_sigma, -q0[has_z] / zs_sigma, 1.0 / zs_sigma
         JtJ = J.T @ J
         chi2 = float(r @ r) / max(r.size - 6, 1)
         if _ == steps:

@@ -445,8 +445,6 @@ class PoseEstimator:
         cfg = self.config
         t = frame.timestamp
         adm = record.gallery.config
-        _, valid = lift(feats.keypoints, frame.depth, (0, 0), frame.K, cfg.min_depth, cfg.max_depth)
-        n3d = int(valid.sum())
         if mask.area < adm.min_area:
             return Pose(
                 t,
@@ -454,6 +452,8 @@ class PoseEstimator:
                 None,
                 PoseDiagnostics(reason=f"no canonical frame yet: mask area {mask.area} < {adm.min_area} px"),
             ), None
+        _, valid = lift(feats.keypoints, frame.depth, (0, 0), frame.K, cfg.min_depth, cfg.max_depth)
+        n3d = int(valid.sum())
         pts = mask_points(frame, mask, cfg.min_depth, cfg.max_depth)
         dense = (
             n3d < cfg.min_canonical_points

@@ -169,6 +169,8 @@ def synchrony(
 ) -> float | None:
     """Velocity correlation of two (timestamps (N,), positions (N, 3)) histories (module docstring)."""
     cfg = config or RelationConfig()
+    if len(history_a[0]) < 3 or len(history_b[0]) < 3:
+        return None  # fewer than 3 common timestamps
     ta, pa = _distinct(history_a)
     tb, pb = _distinct(history_b)
     common, ia, ib = np.intersect1d(ta, tb, assume_unique=True, return_indices=True)

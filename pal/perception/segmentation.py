@@ -44,6 +44,7 @@ from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask
 from pal.perception.noise import DepthNoise
 from pal.perception.plane import Plane, plane_height, refit_plane
+from pal.perception.quantiles import median, quantiles
 from pal.perception.regions import (
     bridge_invalid,
     colour_depth_edges,
@@ -310,13 +311,13 @@ class GeometricSegmenter:
         vs, us = np.nonzero(crop & (z > 0))
         if vs.size < 3:
             return False
-        if float(np.median(z[vs, us])) > cfg.range_fraction * cfg.max_depth:
+        if float(median(z[vs, us])) > cfg.range_fraction * cfg.max_depth:
             return False
         if vs.size > 200:
             pick = np.linspace(0, vs.size - 1, 200).astype(np.int64)
             vs, us = vs[pick], us[pick]
         pts = backproject(us + x0, vs + y0, z[vs, us], frame.K)
-        lo, hi = np.percentile(pts, [2, 98], axis=0)
+        lo, hi = quantiles(pts, (2.0, 98.0))
         return float(np.max(hi - lo)) >= cfg.min_extent
 
     def foreground(self, frame: RGBDFrame) -> np.ndarray:

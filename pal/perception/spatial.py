@@ -24,6 +24,7 @@ import numpy as np
 
 from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask
+from pal.perception.quantiles import quantiles
 
 __all__ = ["SpatialDescriptor", "lift", "mask_points", "spatial_descriptor"]
 
@@ -115,7 +116,7 @@ def spatial_descriptor(
     pts = mask_points(frame, mask, min_depth, max_depth, max_points=1500)
     if pts.shape[0] < min_points:
         return None
-    q25, c, q75 = np.percentile(pts, [25, 50, 75], axis=0)
+    q25, c, q75 = quantiles(pts, (25.0, 50.0, 75.0))
     x, y, z = (float(v) for v in c)
     return SpatialDescriptor(
         centroid=c,

@@ -31,6 +31,7 @@ from scipy.spatial import cKDTree
 
 from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask, intersection_area
+from pal.perception.quantiles import median
 
 __all__ = ["TOPOLOGY", "TopologyConfig", "mask_hull", "topology"]
 
@@ -105,6 +106,34 @@ def _points(frame: RGBDFrame, sel: np.ndarray, x0: int, y0: int, limit: int = 30
     return backproject(us + x0, vs + y0, depth[vs, us], frame.K)
 
 
+def _near(
+    own: np.ndarray,
+    other: np.ndarray,
+    other_box: tuple[int, int, int, int],
+    origin: tuple[int, int],
+    invalid: np.ndarray,
+    r: int,
+    hole: int,
+) -> np.ndarray:
+    """``own & _reach(other, ...)`` on a region, computed only near the other mask's box.
+
+    Nothing farther than ``2 r + hole`` from ``other`` can be reached, so the dilations run on
+    the other's box grown by that much (the pair's region can be far larger).
+    """
+    pad = 2 * r + hole + 1
+    h, w = own.shape
+    bx0, by0, bx1, by1 = other_box
+    wx0, wy0 = max(0, bx0 - origin[0] - pad), max(0, by0 - origin[1] - pad)
+    wx1, wy1 = min(w, bx1 - origin[0] + pad), min(h, by1 - origin[1] + pad)
+    out = np.zeros(own.shape, dtype=bool)
+    if wx1 <= wx0 or wy1 <= wy0:
+        return out
+    win = np.s_[wy0:wy1, wx0:wx1]
+    reach = _reach(np.ascontiguousarray(other[win]), np.ascontiguousarray(invalid[win]), r, hole)
+    out[win] = own[win] & reach
+    return out
+
+
 def topology(
     frame: RGBDFrame,
     a: Mask,
@@ -154,14 +183,14 @@ def topology(
     if inter > 0:
         return "overlapping", None
     invalid = depth <= 0
-    near_a = ra & _reach(rb, invalid, r, hole)
-    near_b = rb & _reach(ra, invalid, r, hole)
+    near_a = _near(ra, rb, b.bbox, (x0, y0), invalid, r, hole)
+    near_b = _near(rb, ra, a.bbox, (x0, y0), invalid, r, hole)
     if not near_a.any() or not near_b.any():
         return "disjoint", None
     pa, pb = _points(frame, near_a, x0, y0), _points(frame, near_b, x0, y0)
     if len(pa) == 0 or len(pb) == 0:
         return "disjoint", None
-    da, db = float(np.median(pa[:, 2])), float(np.median(pb[:, 2]))
+    da, db = float(median(pa[:, 2])), float(median(pb[:, 2]))
     if abs(da - db) > cfg.occlusion_gap:
         near, far, far_hull = (ra, rb, hb) if da < db else (rb, ra, ha)
         hull = _hull_fill(far_hull, x0, y0, shape)

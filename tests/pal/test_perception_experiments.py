@@ -297,7 +297,11 @@ def test_bench_perception_tiny():
         "Pi without pose",
         "Pi with pose",
         "Pi with pose and relations, real frames",
+        "the same, CPU time of the process",
     ]
+    # CPU seconds of the process never exceed the wall-clock seconds by more than timer noise
+    assert m["fps_real_cpu"] == pytest.approx(4 / throughput.rows[4][1])
+    assert m["fps_real_cpu"] >= 0.9 * m["fps_real"]
     assert throughput.rows[0][3] == 1.0 and throughput.rows[2][2] == m["fps_with_pose"]
     pairs = rep.tables[2]
     assert [r[0] for r in pairs.rows] == ["tum_desk", "kinect_room"] and pairs.rows[0][1] == "1-2"
