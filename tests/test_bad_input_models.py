@@ -1611,7 +1611,12 @@ CASES += [
     ),
     _c("inference.calibration", "no columns", lambda: predictive_check(xy_model(), {}), "data is empty"),
     # infer_state
-    _c("inference.infer_state", "model a str", lambda: infer_state("m", Z), "model must be a WorldModel or a program"),
+    _c(
+        "inference.infer_state",
+        "model a str",
+        lambda: infer_state("m", Z),
+        "model must be a WorldModel or a program",
+    ),
     _c(
         "inference.infer_state",
         "model without graph",
@@ -2725,14 +2730,18 @@ CASES += [
 
 def binary() -> WorldModel:
     """X -> T (Bernoulli) -> Y, and X -> C (3 categories)."""
-    graph = CausalGraph(
-        [Variable(n, "observed") for n in "xtcy"], [("x", "t"), ("x", "c"), ("t", "y")]
-    )
+    graph = CausalGraph([Variable(n, "observed") for n in "xtcy"], [("x", "t"), ("x", "c"), ("t", "y")])
     return WorldModel(graph, seed=0, kind="linear", discrete={"t": 2, "c": 3})
 
 
 def bin_data(**cols: Any) -> dict[str, Any]:
-    return {"x": np.zeros((4, 1)), "t": np.ones((4, 1)), "c": np.full((4, 1), 2.0), "y": np.zeros((4, 1)), **cols}
+    return {
+        "x": np.zeros((4, 1)),
+        "t": np.ones((4, 1)),
+        "c": np.full((4, 1), 2.0),
+        "y": np.zeros((4, 1)),
+        **cols,
+    }
 
 
 HALF = np.array([[0.0], [0.5], [1.0], [1.0]])
@@ -2740,8 +2749,18 @@ THREE = np.full((4, 1), 3.0)
 
 CASES += [
     # discrete sites
-    _c("models.WorldModel", "discrete unknown site", lambda: WorldModel(chain_graph(), discrete={"w": 2}), "discrete site 'w'"),
-    _c("models.WorldModel", "discrete K of 1", lambda: WorldModel(chain_graph(), discrete={"y": 1}), "number of categories"),
+    _c(
+        "models.WorldModel",
+        "discrete unknown site",
+        lambda: WorldModel(chain_graph(), discrete={"w": 2}),
+        "discrete site 'w'",
+    ),
+    _c(
+        "models.WorldModel",
+        "discrete K of 1",
+        lambda: WorldModel(chain_graph(), discrete={"y": 1}),
+        "number of categories",
+    ),
     _c(
         "models.WorldModel",
         "discrete action",
@@ -2760,8 +2779,15 @@ CASES += [
         lambda: WorldModel(chain_graph(), {"y": LinearMechanism(1, seed=0)}, discrete={"y": 2}),
         "its mechanism is a continuous LinearMechanism",
     ),
-    _c("models.discrete", "categories of 1", lambda: CategoricalMechanism(1, 1), "categories must be an int >= 2, got 1"),
-    _c("models.discrete", "sigma of a Bernoulli", lambda: BernoulliMechanism(1, seed=0).sigma, "has no sigma"),
+    _c(
+        "models.discrete",
+        "categories of 1",
+        lambda: CategoricalMechanism(1, 1),
+        "categories must be an int >= 2, got 1",
+    ),
+    _c(
+        "models.discrete", "sigma of a Bernoulli", lambda: BernoulliMechanism(1, seed=0).sigma, "has no sigma"
+    ),
     _c(
         "models.WorldModel",
         "Bernoulli observed with 0.5 (program)",
@@ -2819,11 +2845,18 @@ CASES += [
     _c(
         "models.WorldModel",
         "residuals of a discrete site",
-        lambda: binary().residuals({k: torch.as_tensor(v, dtype=torch.float32) for k, v in bin_data().items()}),
+        lambda: binary().residuals(
+            {k: torch.as_tensor(v, dtype=torch.float32) for k, v in bin_data().items()}
+        ),
         "residuals are not determined for the discrete sites ['t', 'c']",
     ),
     # posteriors and composition
-    _c("inference.infer_state", "guide unknown", lambda: infer_state(chain(), Z, guide="laplace"), "guide 'laplace' unknown; expected one of"),
+    _c(
+        "inference.infer_state",
+        "guide unknown",
+        lambda: infer_state(chain(), Z, guide="laplace"),
+        "guide 'laplace' unknown; expected one of",
+    ),
     _c(
         "inference.infer_state",
         "options of another guide",
@@ -2837,8 +2870,18 @@ CASES += [
         "['lr'] are SVI settings; guide='importance' does not use them",
     ),
     _c("inference.SVIOptions", "lr zero", lambda: SVIOptions(lr=0.0), "lr must be > 0"),
-    _c("inference.GridOptions", "max_dims 3", lambda: GridOptions(max_dims=3), "max_dims must be 1 or 2, got 3"),
-    _c("inference.ImportanceOptions", "too few particles", lambda: ImportanceOptions(num_particles=2), "num_particles must be an int >= 10, got 2"),
+    _c(
+        "inference.GridOptions",
+        "max_dims 3",
+        lambda: GridOptions(max_dims=3),
+        "max_dims must be 1 or 2, got 3",
+    ),
+    _c(
+        "inference.ImportanceOptions",
+        "too few particles",
+        lambda: ImportanceOptions(num_particles=2),
+        "num_particles must be an int >= 10, got 2",
+    ),
     _c(
         "inference.counterfactual",
         "posterior of a program with a different graph",
@@ -2880,7 +2923,12 @@ CASES += [
         lambda: fit(xy_model(), xy(), schedule={"epochs": 1}),
         "schedule must be a FitSchedule or None",
     ),
-    _c("inference.FitSchedule", "validation 1", lambda: FitSchedule(validation=1.0), "validation must be >= 0 and < 1"),
+    _c(
+        "inference.FitSchedule",
+        "validation 1",
+        lambda: FitSchedule(validation=1.0),
+        "validation must be >= 0 and < 1",
+    ),
     _c(
         "inference.infer_action",
         "options a dict",

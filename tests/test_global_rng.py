@@ -312,7 +312,10 @@ def _discrete_model() -> WorldModel:
     )
     return WorldModel(
         graph,
-        {"t": models.BernoulliMechanism(1, seed=0), "c": models.CategoricalMechanism(1, 3, hidden=(4,), seed=1)},
+        {
+            "t": models.BernoulliMechanism(1, seed=0),
+            "c": models.CategoricalMechanism(1, 3, hidden=(4,), seed=1),
+        },
         seed=2,
         kind="linear",
     )
@@ -333,7 +336,9 @@ def _discrete_queries() -> None:
 def _posteriors() -> None:
     z = {"z": FACTUAL["z"]}
     infer_state(_chain(), z, guide="grid", num_samples=5, options=inference.GridOptions(points=51, pilot=20))
-    infer_state(_chain(), z, guide="importance", num_samples=5, options=inference.ImportanceOptions(num_particles=50))
+    infer_state(
+        _chain(), z, guide="importance", num_samples=5, options=inference.ImportanceOptions(num_particles=50)
+    )
     infer_state(_chain(), z, guide="flow", num_steps=3, num_samples=5, options=inference.SVIOptions(bins=4))
     state = infer_state(_chain(), {"x": FACTUAL["x"], "z": FACTUAL["z"]}, guide="grid", num_samples=5)
     counterfactual(_chain(), {"x": FACTUAL["x"], "z": FACTUAL["z"]}, {"x": 0.0}, posterior=state).to_dict()

@@ -264,7 +264,9 @@ def test_an_ensemble_holding_a_function_cannot_be_saved(tmp_path):
 def test_a_model_with_discrete_sites_round_trips(tmp_path):
     from models import BernoulliMechanism, CategoricalMechanism, CausalGraph, Variable, WorldModel, load, save
 
-    graph = CausalGraph([Variable(n, "observed") for n in "rtcy"], [("r", "t"), ("r", "c"), ("t", "y"), ("c", "y")])
+    graph = CausalGraph(
+        [Variable(n, "observed") for n in "rtcy"], [("r", "t"), ("r", "c"), ("t", "y"), ("c", "y")]
+    )
     model = WorldModel(
         graph,
         {"t": BernoulliMechanism(3, seed=0), "c": CategoricalMechanism(3, 4, hidden=(5,), seed=1)},

@@ -107,7 +107,9 @@ def test_body_report_on_two_arm_joints():
     assert len(effects) == 12  # q_prev, dq_prev and act of 2 joints -> dq of 2 joints
     assert effects["act.finger->dq.finger"] > discovery_body.JUSTIFIED > effects["act.finger->dq.elbow"]
     # the finger still moving at t-1 keeps moving: the simulator justifies dq_prev -> dq
-    assert effects["dq_prev.finger->dq.finger"] > discovery_body.JUSTIFIED > effects["dq_prev.finger->dq.elbow"]
+    assert (
+        effects["dq_prev.finger->dq.finger"] > discovery_body.JUSTIFIED > effects["dq_prev.finger->dq.elbow"]
+    )
     assert ["dq_prev.finger", "dq.finger"] in m["physics_graph"]
     assert rep.target("shd_to_physics_graph").value == max(r["shd_to"]["physics"] for r in m["replicates"])
     counts = m["body_graph"]["counts"]

@@ -94,7 +94,9 @@ def test_snapshots_keep_crops_metadata_and_anchor():
     assert s.bbox == (x0 - 8, y0 - 8, x1 + 8, y1 + 8) and s.rgb.shape[:2] == s.mask.shape == s.depth.shape
     assert s.mask.sum() == mask.area and s.timestamp == 1.5 and d.snapshot == s.index
     assert np.array_equal(s.anchor, anchor) and s.features is not None and len(s.features) > 10
-    assert s.visual is None and s.visual_vector().shape == (54,) and s.visual is not None  # computed once, lazily
+    assert (
+        s.visual is None and s.visual_vector().shape == (54,) and s.visual is not None
+    )  # computed once, lazily
     assert s.sharpness > 0
 
 

@@ -74,7 +74,9 @@ def test_b1_reports_table_5_7_and_the_state_graph_wins(cache_dir):
             assert 0.8 < c["coverage"] <= 1.0 and c["n"] == 600  # sigma estimated on held-out rows
             nominal, observed = zip(*c["reliability"], strict=True)
             assert nominal[0] == 0.1 and nominal[-1] == 0.9 and list(observed) == sorted(observed)
-    assert {"coverage_gap.thesis", "coverage_gap.state", "coverage_gap.dynamics"} <= {t.name for t in rep.targets}
+    assert {"coverage_gap.thesis", "coverage_gap.state", "coverage_gap.dynamics"} <= {
+        t.name for t in rep.targets
+    }
     assert rep.target("q_mse_ratio").value == pytest.approx(err["state"]["q_mse"] / err["thesis"]["q_mse"])
     assert rep.target("q_mse_over_persistence").met is True
     table = rep.tables[0]
@@ -129,7 +131,11 @@ def test_b3_keys_and_curiosity_targets(cache_dir):
     assert rep.metrics["target_entropy"] > rep.metrics["training"]["entropy"]
     assert real["state"]["inferred"]["target_mae"] < real["state"]["random"]["target_mae"]
     assert rep.tables[0].rows[1][:3] == ("training outcomes", "entropy H", 0.84)
-    assert [t.name for t in rep.targets] == ["occupancy_gain.state", "entropy_gain.state", "coverage_gap.state"]
+    assert [t.name for t in rep.targets] == [
+        "occupancy_gain.state",
+        "entropy_gain.state",
+        "coverage_gap.state",
+    ]
     assert set(rep.figures) == {"fig5_7", "reliability"}
 
 
