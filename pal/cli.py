@@ -7,6 +7,8 @@ pal bench NAME [same options]
 pal loop [--steps N] [--video out.mp4] [--babble B] [--goal X,Y] [--seed S] [--json] [--out DIR]
 pal babble [BODY OPTIONS] [--joint J ...] --steps N --seed S --out DIR [--policy uniform|ou] [--workers N]
            [--probe-steps N] [--resume] [--json]
+pal sweep NAME --grid KEY=V1,V2 ... --seeds 0-9 --out DIR [--quick|--tiny] [--set KEY=VALUE ...] [--workers N]
+          [--engine local] [--retry-failed]
 pal record --motion MOTION --seed S --out DIR [--fps F] [--width W] [--height H] [--overwrite] [--json]
 
 BODY OPTIONS: ``--body finger|arm | --mjcf PATH``, ``--name NAME``, ``--joint J``,
@@ -307,6 +309,28 @@ def _babble(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sweep(args: argparse.Namespace) -> int:
+    from pal.experiments import sweep
+
+    if args.engine != "local":
+        raise UsageError(f"pal sweep: --engine {args.engine} is not supported yet; use --engine local")
+    if args.workers < 1:
+        raise UsageError(f"pal sweep: --workers must be >= 1, got {args.workers}")
+    base = "quick" if args.quick else "tiny" if args.tiny else "default"
+    try:
+        if args.retry_failed and not args.grid and args.seeds is None:
+            plan = None
+        else:
+            plan = sweep.plan(args.name, args.grid or (), args.seeds or "0", base=base, sets=args.set or ())
+        _output_dir(args.out)
+        result = sweep.run_sweep(plan, args.out, retry_failed=args.retry_failed, workers=args.workers)
+    except sweep.SweepError as err:
+        raise UsageError(f"pal sweep: {err}") from None
+    print(result.paths["markdown"].read_text(encoding="utf-8"))
+    print(f"(wrote {', '.join(str(p) for p in result.paths.values())})")
+    return 1 if result.failed else 0
+
+
 def _record(args: argparse.Namespace) -> int:
     from pal.perception import RecordedSequence
     from pal.sim.recording import RecordConfig, record
@@ -475,6 +499,26 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(func=_babble)
+
+    p = sub.add_parser(
+        "sweep", help="run an experiment over a grid of settings x seeds: mean ± sd table, figures"
+    )
+    p.add_argument("name", help="registered experiment")
+    p.add_argument(
+        "--grid", action="append", metavar="KEY=V1,V2", help="swept setting and its values (repeatable)"
+    )
+    p.add_argument("--seeds", default=None, help="seeds of every cell: 0-9, 0,3,7 (default 0)")
+    p.add_argument("--out", required=True, help="sweep directory: runs, summary.csv, summary.md, figures")
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--quick", action="store_true", help="start from the quick config")
+    group.add_argument("--tiny", action="store_true", help="start from the tiny (test) config")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="fixed setting of every run")
+    p.add_argument(
+        "--engine", choices=["local", "ray"], default="local", help="where runs go (default local)"
+    )
+    p.add_argument("--workers", type=int, default=1, help="local processes (default 1: in this process)")
+    p.add_argument("--retry-failed", action="store_true", help="run only the failed runs of --out again")
+    p.set_defaults(func=_sweep)
 
     p = sub.add_parser("record", help="record a scripted tabletop run as an RGB-D sequence with ground truth")
     p.add_argument("--motion", required=True, help="scripted motion of thesis Table 5.1, e.g. box-rotation")

@@ -94,6 +94,21 @@ BAD_INVOCATIONS = [
     (["loop", "--steps", "0"], "steps must be a positive int, got 0"),
     (["loop", "--out", "{file}"], "is a file, expected a directory"),
     (["list", "--bogus"], "unrecognized arguments: --bogus"),
+    (["sweep", "queries", "--seeds", "5-2", "--out", "d"], "--seeds '5-2': range '5-2' runs backwards"),
+    (["sweep", "queries", "--seeds", "x", "--out", "d"], "--seeds 'x': 'x' is not N or FIRST-LAST"),
+    (["sweep", "nope", "--out", "d"], "unknown experiment 'nope'"),
+    (
+        ["sweep", "queries", "--grid", "nope=1,2", "--out", "d"],
+        "'nope' is not a config field; valid: ['num_samples'",
+    ),
+    (["sweep", "queries", "--grid", "num_samples", "--out", "d"], "expected KEY=V1,V2"),
+    (["sweep", "queries", "--grid", "num_samples=50,5", "--out", "d"], "num_samples"),
+    (["sweep", "queries", "--grid", "seed=1,2", "--out", "d"], "give the seeds with --seeds"),
+    (["sweep", "queries", "--workers", "0", "--out", "d"], "--workers must be >= 1, got 0"),
+    (["sweep", "queries", "--engine", "ray", "--out", "d"], "--engine ray is not supported yet"),
+    (["sweep", "queries", "--retry-failed", "--out", "d"], "holds no sweep"),
+    (["sweep", "queries", "--out", "{file}"], "is a file, expected a directory"),
+    (["sweep", "queries", "--quick", "--tiny", "--out", "d"], "not allowed with argument"),
 ]
 
 
