@@ -28,34 +28,13 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
+
+from pal.cli_body import UsageError, UsageParser, action_ranges, add_body_flags, body_fields, check_data
 
 __all__ = ["UsageError", "build_parser", "main"]
 
 log = logging.getLogger("pal")
-
-#: ``pal experiment|bench`` body flags -> field of the config's body choice, in the order they are set.
-BODY_FLAGS = {
-    "body": "body",
-    "mjcf": "mjcf",
-    "body_name": "name",
-    "frame_skip": "frame_skip",
-    "joint": "joint",
-    "actuator": "actuator",
-    "action_range": "action_range",
-    "effective_range": "effective_range",
-}
-
-
-class UsageError(Exception):
-    """A command line that cannot be run; printed as one line, exit status 2."""
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors."""
-
-    def error(self, message: str) -> NoReturn:
-        raise UsageError(f"{self.prog}: {message}")
 
 
 def _configure(verbose: bool, threads: int) -> None:
@@ -87,76 +66,6 @@ def _output_dir(out: str | None) -> Path | None:
         raise UsageError(str(err)) from None
 
 
-def _action_ranges(texts: Sequence[str] | None) -> tuple[tuple[str, float, float], ...]:
-    from pal.sim.ranges import parse_action_range
-
-    try:
-        return tuple(parse_action_range(t) for t in texts or ())
-    except ValueError as err:
-        raise UsageError(f"--action-range: {err}") from None
-
-
-def _body_fields(entry: Any, args: argparse.Namespace) -> dict[str, Any]:
-    """The body and dataset flags as ``--set`` paths, applied in this order.
-
-    A new body (``--body``/``--mjcf``) first clears the joint, actuators and action ranges of
-    the old one that no flag replaces; the body comes before the joint, actuators and ranges,
-    which are checked against it.
-    """
-    from pal.experiments import configs
-    from pal.experiments.wm_data import BodyChoice, DataConfig
-
-    given = {flag: getattr(args, flag, None) for flag in BODY_FLAGS}
-    given = {k: (tuple(v) if isinstance(v, list) else v) for k, v in given.items() if v is not None}
-    if "body" in given and "mjcf" in given:
-        raise UsageError("give either --body or --mjcf, not both")
-    if "joint" in given:
-        if len(given["joint"]) != 1:
-            raise UsageError(
-                f"--joint given {len(given['joint'])} times {list(given['joint'])}; name the one joint to analyse"
-            )
-        given["joint"] = given["joint"][0]
-    if "action_range" in given:
-        given["action_range"] = _action_ranges(given["action_range"])
-    dataset = getattr(args, "dataset", None)
-    if not given and dataset is None:
-        return {}
-    default = entry.default()
-    fields: dict[str, Any] = {}
-    if given:
-        paths = configs.find(default, BodyChoice)
-        if len(paths) != 1:
-            flags = ", ".join("--" + BODY_FLAGS[k].replace("_", "-") for k in given)
-            found = f" (it has {paths})" if paths else ""
-            raise UsageError(f"{flags}: pal {entry.kind} {entry.name} has no body setting{found}")
-        prefix = f"{paths[0]}." if paths[0] else ""
-        if "body" in given or "mjcf" in given:  # settings of the old body that no flag replaces
-            cleared = {"joint": None, "actuator": None, "action_range": ()}
-            fields.update({f"{prefix}{k}": v for k, v in cleared.items() if k not in given})
-            if "body" in given:
-                fields[f"{prefix}mjcf"] = None
-        fields.update({f"{prefix}{BODY_FLAGS[k]}": given[k] for k in BODY_FLAGS if k in given})
-    if dataset is not None:
-        paths = configs.find(default, DataConfig)
-        if len(paths) != 1:
-            raise UsageError(f"--dataset: pal {entry.kind} {entry.name} has no dataset setting")
-        fields[f"{paths[0]}.dataset" if paths[0] else "dataset"] = dataset
-    return fields
-
-
-def _check_data(kind: str, name: str, config: Any) -> None:
-    """Refuse a dataset choice that cannot be analysed, before the run starts."""
-    from pal.experiments import configs
-    from pal.experiments.wm_data import DataConfig
-
-    for _, data in configs.walk(config):
-        if isinstance(data, DataConfig):
-            try:
-                data.check()
-            except ValueError as err:
-                raise UsageError(f"pal {kind} {name}: {err}") from None
-
-
 def _run_entry(kind: str, name: str, args: argparse.Namespace, fields: dict[str, Any] | None = None) -> int:
     from pal.experiments import registry, render
     from pal.experiments.runner import configure, execute
@@ -170,11 +79,11 @@ def _run_entry(kind: str, name: str, args: argparse.Namespace, fields: dict[str,
             entry,
             quick=getattr(args, "quick", False),
             sets=getattr(args, "set", None) or (),
-            fields={**_body_fields(entry, args), **(fields or {})},
+            fields={**body_fields(entry, args), **(fields or {})},
         )
     except ValueError as err:  # unknown setting, wrong type, or refused by the config's checks
         raise UsageError(f"pal {kind} {name}: {err}") from None
-    _check_data(kind, name, config)
+    check_data(kind, name, config)
     out = _output_dir(args.out)
     record = execute(entry, config, progress_bar=not args.json and sys.stderr.isatty())
     if out is not None:
@@ -250,7 +159,7 @@ def _babble(args: argparse.Namespace) -> int:
             reset_every=args.reset_every,
             chunk_size=args.chunk_size,
             name=args.body_name,
-            action_ranges=_action_ranges(args.action_range),
+            action_ranges=action_ranges(args.action_range),
             effective_range=args.effective_range,
             probe_steps=args.probe_steps,
         )
@@ -376,47 +285,6 @@ def _record(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_body_flags(p: argparse.ArgumentParser, *, babble: bool) -> None:
-    p.add_argument("--body", default=None, help="shipped body: finger (default) or arm")
-    p.add_argument("--mjcf", default=None, metavar="PATH", help="any MJCF file instead of a shipped body")
-    p.add_argument(
-        "--name",
-        dest="body_name",
-        default=None,
-        help="the body's name in reports and caches (default: the model's)",
-    )
-    if babble:
-        p.add_argument(
-            "--joint", action="append", metavar="NAME", help="record this joint (repeatable; default all)"
-        )
-    else:
-        p.add_argument("--joint", action="append", metavar="NAME", help="joint to analyse")
-    p.add_argument(
-        "--actuator",
-        action="append",
-        metavar="NAME",
-        help="babble this actuator (repeatable; default all that drive a recorded joint)",
-    )
-    p.add_argument(
-        "--frame-skip",
-        type=int,
-        default=50 if babble else None,
-        help="MuJoCo steps per transition (default 50)",
-    )
-    p.add_argument(
-        "--action-range",
-        action="append",
-        metavar="NAME=LOW,HIGH",
-        help="babble actuator NAME over [LOW, HIGH] inside its ctrlrange (repeatable)",
-    )
-    p.add_argument(
-        "--effective-range",
-        action="store_true",
-        default=False if babble else None,
-        help="babble over the effective ranges found by a short probe run",
-    )
-
-
 def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--out", default=None, help="directory for JSON, markdown and PNG figures (checked first)")
@@ -428,7 +296,7 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
             metavar="KEY=VALUE",
             help="override a setting, e.g. protocol.fit.epochs=40",
         )
-        _add_body_flags(p, babble=False)
+        add_body_flags(p, babble=False)
         p.add_argument(
             "--dataset", default=None, metavar="DIR", help="use this babbling dataset instead of babbling"
         )
@@ -436,10 +304,10 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``pal``."""
-    parser = _Parser(prog="pal", description="Causal perception-action learning toolkit.")
+    parser = UsageParser(prog="pal", description="Causal perception-action learning toolkit.")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging and tracebacks")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=UsageParser)
 
     p = sub.add_parser("demo", help="short end-to-end run: prints reports, saves figures")
     p.add_argument("--out", default="pal-demo", help="directory for reports and figures (default: pal-demo)")
@@ -469,7 +337,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_loop)
 
     p = sub.add_parser("babble", help="record motor-babbling transitions to a dataset directory")
-    _add_body_flags(p, babble=True)
+    add_body_flags(p, babble=True)
     p.add_argument("--steps", type=int, default=100_000, help="transitions (default 100000)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="dataset directory")
