@@ -20,7 +20,7 @@ import numpy as np
 import pyro
 import torch
 
-from inference import infer_state
+from inference import MeasurementScale, SVIOptions, infer_state
 from models import WorldModel
 from pal.agent.config import EstimateConfig
 from pal.agent.graph import blanket
@@ -134,16 +134,15 @@ class Estimator:
                 scales[f"meas.{o}"] = torch.as_tensor(m.std[None], dtype=model.dtype)
         c = self.config
         with pyro.validation_enabled(False):  # the evidence was checked above; validation only adds cost
+            program = self.blanket(model, known)
             post = infer_state(
-                self.blanket(model, known),
+                MeasurementScale(scales)(program) if scales else program,
                 obs,
-                measurement_scale=scales or None,
                 num_steps=c.steps,
-                lr=c.lr,
-                lr_final=c.lr_final,
-                num_particles=c.particles,
                 num_samples=64,
-                init_scale=c.init_scale,
+                options=SVIOptions(
+                    lr=c.lr, lr_final=c.lr_final, num_particles=c.particles, init_scale=c.init_scale
+                ),
                 guide=c.guide,
                 seed=seed,
             )

@@ -16,12 +16,13 @@ ensemble sites are reported (``flagged``) but not revised.
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import torch
 
-from inference import ResidualMonitor, fit, revise
+from inference import FitSchedule, ResidualMonitor, fit, revise
 from models import WorldModel
 from pal.agent.config import LearnConfig, ModelConfig
 from pal.agent.graph import learned_sites
@@ -73,19 +74,19 @@ def fit_model(
     known = lambda cols: {k: v for k, v in cols.items() if k in model.graph}  # noqa: E731
     arm, objects = known(arm), {o: known(c) for o, c in objects.items()}
     learned = [s for s in learned_sites(spec) if s in model.graph]
-    kw = {
-        "epochs": config.epochs,
-        "batch_size": config.batch_size,
-        "lr": config.lr,
-        "validation": config.validation,
-        "patience": config.patience,
-        "beta": config.beta,
-        "seed": seed,
-    }
+    base = FitSchedule(
+        epochs=config.epochs,
+        batch_size=config.batch_size,
+        lr=config.lr,
+        validation=config.validation,
+        patience=config.patience,
+        beta=config.beta,
+    )
 
     def schedule(n: int) -> dict[str, Any]:
         # too few rows to hold any out: train on all of them, every epoch
-        return kw if round(config.validation * n) >= 1 else {**kw, "validation": 0.0, "patience": None}
+        held_out = round(config.validation * n) >= 1
+        return {"schedule": base if held_out else replace(base, validation=0.0, patience=None), "seed": seed}
 
     arm_sites = [s for s in learned if s in ("dq", "v", "dee")]
     fit(model, arm, variables=arm_sites, **schedule(len(arm["act"])))

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from inference import SamplingConfig, infer_action
+from inference import ActionOptions, SamplingConfig, infer_action
 from models import WorldModel
 from pal.agent.config import PlanConfig
 
@@ -156,15 +156,17 @@ def plan(
         model,
         state,
         {f"pos.{o}": t for o, t in tgt.items()} if risk and risk[0] == "disagreement" else None,
-        log_preference=preference(tgt, config, "ee" in model.graph),
-        scale=config.scale,
-        steps=max(config.refine_steps, 1),
-        lr=config.lr,
-        init=start,
-        sampling=sampling,
-        horizon=h,
-        target_at=config.target_at,
-        risk=risk,
+        num_steps=max(config.refine_steps, 1),
+        options=ActionOptions(
+            log_preference=preference(tgt, config, "ee" in model.graph),
+            scale=config.scale,
+            lr=config.lr,
+            init=start,
+            sampling=sampling,
+            horizon=h,
+            target_at=config.target_at,
+            risk=risk,
+        ),
         seed=seed,
     )
     acts = result.actions["act"][0].numpy().astype(np.float64).reshape(h, -1)

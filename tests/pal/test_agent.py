@@ -102,11 +102,18 @@ def test_a_lost_object_is_unobserved_and_no_nan_reaches_the_model(fitted, monkey
     seen = {}
     real = estimate_module.infer_state
 
+    real_scale = estimate_module.MeasurementScale
+
     def spy(model, observed, **kwargs):
-        seen["observed"], seen["scale"] = observed, kwargs.get("measurement_scale")
+        seen["observed"] = observed
         return real(model, observed, **kwargs)
 
+    def spy_scale(scales):
+        seen["scale"] = scales
+        return real_scale(scales)
+
     monkeypatch.setattr(estimate_module, "infer_state", spy)
+    monkeypatch.setattr(estimate_module, "MeasurementScale", spy_scale)
     est = agent.estimator.update(agent.model, prev, est_prev, {}, lost, seed=0)
     assert "meas.ball" not in seen["observed"] and "meas.box" in seen["observed"]
     assert set(seen["scale"]) == {"meas.box"}
