@@ -6,9 +6,9 @@ pal experiment NAME [--quick] [--json] [--out DIR] [--set KEY=VALUE ...] [BODY O
 pal bench NAME [same options]
 pal loop [--steps N] [--video out.mp4] [--babble B] [--goal X,Y] [--seed S] [--json] [--out DIR]
 pal babble [BODY OPTIONS] [--joint J ...] --steps N --seed S --out DIR [--policy uniform|ou] [--workers N]
-           [--probe-steps N] [--resume] [--json]
+           [--engine local|ray] [--ray-address ADDRESS] [--ray-timeout S] [--probe-steps N] [--resume] [--json]
 pal sweep NAME --grid KEY=V1,V2 ... --seeds 0-9 --out DIR [--quick|--tiny] [--set KEY=VALUE ...] [--workers N]
-          [--engine local] [--retry-failed]
+          [--engine local|ray] [--ray-address ADDRESS] [--ray-timeout S] [--retry-failed]
 pal record --motion MOTION --seed S --out DIR [--fps F] [--width W] [--height H] [--overwrite] [--json]
 
 BODY OPTIONS: ``--body finger|arm | --mjcf PATH``, ``--name NAME``, ``--joint J``,
@@ -136,6 +136,34 @@ def _loop(args: argparse.Namespace) -> int:
     return _run_entry("experiment", "loop", args, fields)
 
 
+def _ray_engine(command: str, args: argparse.Namespace) -> Any:
+    """The Ray engine of ``--engine ray`` (not connected yet), or None for ``--engine local``."""
+    if args.engine != "ray":
+        if args.ray_address is not None:
+            raise UsageError(f"pal {command}: --ray-address needs --engine ray")
+        return None
+    if not args.ray_timeout > 0:
+        raise UsageError(f"pal {command}: --ray-timeout must be > 0 seconds, got {args.ray_timeout}")
+    try:
+        from pal.experiments.ray_engine import RayEngine
+    except ModuleNotFoundError as err:
+        if err.name != "ray" and not str(err.name).startswith("ray."):
+            raise
+        raise UsageError(
+            f'pal {command}: --engine ray needs Ray, an optional extra: pip install ".[ray]"'
+        ) from None
+    return RayEngine(args.ray_address, timeout=args.ray_timeout, cpus=args.workers)
+
+
+def _connect(command: str, engine: Any) -> None:
+    from pal.experiments.ray_engine import RayEngineError
+
+    try:
+        engine.__enter__()
+    except RayEngineError as err:
+        raise UsageError(f"pal {command}: {err}") from None
+
+
 def _babble(args: argparse.Namespace) -> int:
     from pal.sim.babbling import BabbleConfig, babble, check_config
     from pal.sim.shards import babble_sharded, shard_configs
@@ -144,6 +172,7 @@ def _babble(args: argparse.Namespace) -> int:
         raise UsageError("give either --body or --mjcf, not both")
     if args.workers < 1:
         raise UsageError(f"pal babble: --workers must be >= 1, got {args.workers}")
+    engine = _ray_engine("babble", args)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {args.out!r} is a file, expected a dataset directory")
@@ -169,18 +198,34 @@ def _babble(args: argparse.Namespace) -> int:
     except ValueError as err:  # bad sizes, names, ranges or MJCF
         raise UsageError(f"pal babble: {err}") from None
     _output_dir(args.out)
+    if engine is not None:
+        _connect("babble", engine)
     start = time.perf_counter()
     try:
         if args.workers > 1:
             dataset = babble_sharded(
-                config, args.out, workers=args.workers, resume=args.resume, backend=args.backend
+                config,
+                args.out,
+                workers=args.workers,
+                resume=args.resume,
+                backend=args.backend,
+                map_shards=None if engine is None else engine.map,
             )
+        elif engine is not None:  # the one run as one Ray task: the same data as in this process
+            from pal.data import TransitionDataset
+            from pal.sim.shards import run_shard
+
+            engine.map(run_shard, [(config, str(out.resolve()), args.resume, args.backend)])
+            dataset = TransitionDataset.load(out)
         else:
             dataset = babble(
                 config, args.out, resume=args.resume, progress_bar=sys.stderr.isatty(), backend=args.backend
             )
     except ValueError as err:  # an occupied, locked or corrupted directory
         raise UsageError(f"pal babble: {err}") from None
+    finally:
+        if engine is not None:
+            engine.__exit__(None, None, None)
     meta = dataset.metadata
     q = {j: dataset.columns[f"q.{j}"][:, 0] for j in dataset.joints}
     summary = {
@@ -221,10 +266,9 @@ def _babble(args: argparse.Namespace) -> int:
 def _sweep(args: argparse.Namespace) -> int:
     from pal.experiments import sweep
 
-    if args.engine != "local":
-        raise UsageError(f"pal sweep: --engine {args.engine} is not supported yet; use --engine local")
     if args.workers < 1:
         raise UsageError(f"pal sweep: --workers must be >= 1, got {args.workers}")
+    engine = _ray_engine("sweep", args)
     base = "quick" if args.quick else "tiny" if args.tiny else "default"
     try:
         if args.retry_failed and not args.grid and args.seeds is None:
@@ -232,7 +276,16 @@ def _sweep(args: argparse.Namespace) -> int:
         else:
             plan = sweep.plan(args.name, args.grid or (), args.seeds or "0", base=base, sets=args.set or ())
         _output_dir(args.out)
-        result = sweep.run_sweep(plan, args.out, retry_failed=args.retry_failed, workers=args.workers)
+        if engine is None:
+            result = sweep.run_sweep(plan, args.out, retry_failed=args.retry_failed, workers=args.workers)
+        else:
+            _connect("sweep", engine)
+            try:
+                result = sweep.run_sweep(
+                    plan, args.out, retry_failed=args.retry_failed, engine=engine.sweep_runs
+                )
+            finally:
+                engine.__exit__(None, None, None)
     except sweep.SweepError as err:
         raise UsageError(f"pal sweep: {err}") from None
     print(result.paths["markdown"].read_text(encoding="utf-8"))
@@ -302,6 +355,23 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
         )
 
 
+def _add_engine_flags(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--engine", choices=["local", "ray"], default="local", help=f"{what} (default local)")
+    p.add_argument(
+        "--ray-address",
+        default=None,
+        metavar="ADDRESS",
+        help="existing Ray cluster (ray.init(address=...)); default: a local Ray with --workers CPUs",
+    )
+    p.add_argument(
+        "--ray-timeout",
+        type=float,
+        default=30.0,
+        metavar="SECONDS",
+        help="seconds the Ray address has to answer (default 30)",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``pal``."""
     parser = UsageParser(prog="pal", description="Causal perception-action learning toolkit.")
@@ -359,6 +429,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=1,
         help="split the run into N seeded shards babbled by N local processes, merged into --out (default 1)",
     )
+    _add_engine_flags(p, "the shards run in local processes or as Ray tasks")
     p.add_argument(
         "--backend",
         choices=["loop", "rollout"],
@@ -382,9 +453,12 @@ def build_parser() -> argparse.ArgumentParser:
     group.add_argument("--tiny", action="store_true", help="start from the tiny (test) config")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="fixed setting of every run")
     p.add_argument(
-        "--engine", choices=["local", "ray"], default="local", help="where runs go (default local)"
+        "--workers",
+        type=int,
+        default=1,
+        help="local processes, or local Ray CPUs (default 1: in this process)",
     )
-    p.add_argument("--workers", type=int, default=1, help="local processes (default 1: in this process)")
+    _add_engine_flags(p, "runs go through local processes or Ray Tune")
     p.add_argument("--retry-failed", action="store_true", help="run only the failed runs of --out again")
     p.set_defaults(func=_sweep)
 

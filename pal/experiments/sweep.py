@@ -17,8 +17,8 @@ every target value (``target.NAME``) and the run time (``seconds``) is summarise
 over the cell's finished runs: the mean and the sample standard deviation (ddof 1; ``n/a``
 for one run; see :mod:`pal.experiments.sweep_summary`). A run that raises is recorded with
 its error, counted as failed in its cell and listed, never dropped; :func:`run_sweep` with ``retry_failed=True`` runs only the runs without
-a report again. Runs go one after the other in this process, or in ``workers`` local
-processes.
+a report again. Runs go one after the other in this process, in ``workers`` local
+processes, or through an ``engine`` (Ray Tune: :mod:`pal.experiments.ray_engine`).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from __future__ import annotations
 import itertools
 import logging
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -40,12 +40,15 @@ from pal.files import atomic_write_json, read_json
 
 __all__ = [
     "FORMAT",
+    "Engine",
     "SweepError",
     "SweepPlan",
     "SweepResult",
+    "compute_run",
     "parse_grid",
     "parse_seeds",
     "plan",
+    "record_run",
     "run_sweep",
     "summarise",
 ]
@@ -247,23 +250,41 @@ def plan(
     return SweepPlan(kind, name, base, tuple(sets), parse_grid(grid, start), seed_list)
 
 
-def _run_one(kind: str, name: str, base: Base, sets: Sequence[str], run: Run, out_dir: str) -> str | None:
-    """Run ``run`` and write its report or its error; returns the one-line error or ``None``."""
-    runs = Path(out_dir) / RUNS
-    entry = registry.get(kind, name)
+Engine = Callable[[SweepPlan, list[Run], Path], None]
+"""Runs a sweep's runs to do: ``engine(plan, todo, out)`` leaves a report or an error record for each."""
+
+
+def compute_run(
+    entry: Entry, base: Base, sets: Sequence[str], settings: Mapping[str, Any], seed: int
+) -> tuple[dict[str, Any] | None, str | None]:
+    """Run one cell of ``entry`` with ``seed``: ``(report document, None)`` or ``(None, one-line error)``."""
     try:
-        config = _config(entry, base, sets, run.settings, run.seed)
+        config = _config(entry, base, sets, settings, seed)
         record = runner.execute(entry, config)
         document = render.document(record)
         _close(record.report.figures.values())  # a sweep keeps each run's JSON, not its figures
     except Exception as err:  # a failed run is recorded and reported, never dropped
         line = f"{type(err).__name__}: {err}".splitlines()[0] if str(err) else type(err).__name__
-        log.warning("sweep run %s (%s, seed %d) failed: %s", run.id, run.settings, run.seed, line)
-        atomic_write_json(runs / f"{run.id}.error.json", {"id": run.id, "error": line})
-        return line
+        return None, line
+    return document, None
+
+
+def record_run(out: Path, run: Run, document: Mapping[str, Any] | None, error: str | None) -> None:
+    """Write ``run``'s report (``runs/rNNN.json``) or, if ``document`` is None, its error record."""
+    runs = out / RUNS
+    if document is None:
+        log.warning("sweep run %s (%s, seed %d) failed: %s", run.id, run.settings, run.seed, error)
+        atomic_write_json(runs / f"{run.id}.error.json", {"id": run.id, "error": str(error)})
+        return
     (runs / f"{run.id}.error.json").unlink(missing_ok=True)
-    atomic_write_json(runs / f"{run.id}.json", document)
-    return None
+    atomic_write_json(runs / f"{run.id}.json", dict(document))
+
+
+def _run_one(kind: str, name: str, base: Base, sets: Sequence[str], run: Run, out_dir: str) -> str | None:
+    """Run ``run`` and write its report or its error; returns the one-line error or ``None``."""
+    document, error = compute_run(registry.get(kind, name), base, sets, run.settings, run.seed)
+    record_run(Path(out_dir), run, document, error)
+    return error
 
 
 def _close(figures: Any) -> None:
@@ -300,6 +321,7 @@ def run_sweep(
     *,
     retry_failed: bool = False,
     workers: int = 1,
+    engine: Engine | None = None,
 ) -> SweepResult:
     """Run a sweep into ``out_dir`` (or only its failed runs again), then summarise it.
 
@@ -309,6 +331,8 @@ def run_sweep(
         out_dir: the sweep's directory (see the module docstring).
         retry_failed: run again only the runs of ``out_dir`` that have no report.
         workers: local processes; 1 runs in this process, one run after the other.
+        engine: runs the runs to do instead of the local processes (``--engine ray``:
+            :meth:`pal.experiments.ray_engine.RayEngine.sweep_runs`); ``workers`` is then unused.
 
     Raises:
         SweepError: ``out_dir`` already holds a sweep (without ``retry_failed``), holds none
@@ -338,7 +362,10 @@ def run_sweep(
     todo = [r for r in sweep.runs if not (out / RUNS / f"{r.id}.json").is_file()]
     log.info("sweep %s: %d of %d runs to do", sweep.name, len(todo), len(sweep.runs))
     args = (sweep.kind, sweep.name, sweep.base, list(sweep.sets))
-    if workers == 1 or len(todo) <= 1:
+    if engine is not None:
+        if todo:
+            engine(sweep, todo, out)
+    elif workers == 1 or len(todo) <= 1:
         for i, r in enumerate(todo):
             log.info(
                 "sweep %s: run %s (%d/%d) %s seed %d", sweep.name, r.id, i + 1, len(todo), r.settings, r.seed
@@ -354,6 +381,5 @@ def run_sweep(
                 try:
                     f.result()
                 except BrokenProcessPool as err:  # the worker died: the run is failed, not dropped
-                    line = f"worker process died ({err})".splitlines()[0]
-                    atomic_write_json(out / RUNS / f"{r.id}.error.json", {"id": r.id, "error": line})
+                    record_run(out, r, None, f"worker process died ({err})".splitlines()[0])
     return summarise(sweep, out, ran=tuple(r.id for r in todo))

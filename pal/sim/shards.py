@@ -13,8 +13,9 @@ Layout of the output directory ``out``::
     out/metadata.json, out/chunk_*.npz   the merged dataset, rows of shard 0, then 1, ...
 
 The shards run in local processes (``concurrent.futures``, spawned interpreters), at most
-``workers`` at a time. ``out`` is locked (:mod:`pal.locks`) for the whole run, each shard
-directory by its own writer. An interrupted run resumes per shard (``resume=True``): finished
+``workers`` at a time, or as Ray tasks (``map_shards``, :mod:`pal.experiments.ray_engine`).
+``out`` is locked (:mod:`pal.locks`) for the whole run, each shard directory by its own
+writer. An interrupted run resumes per shard (``resume=True``): finished
 shards are kept, unfinished ones continue where their last chunk ended.
 
 Merging is atomic: the merged chunks are written to a staging directory, moved into ``out``,
@@ -31,9 +32,11 @@ import logging
 import multiprocessing
 import os
 import shutil
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -43,7 +46,7 @@ from pal.dataset_files import chunk_files, read_metadata
 from pal.locks import LOCK_NAME, DirectoryLock
 from pal.sim.babbling import BabbleConfig, babble, effective_ranges, make_source
 
-__all__ = ["SHARDS_DIR", "babble_sharded", "shard_configs", "shard_seed"]
+__all__ = ["SHARDS_DIR", "ShardMap", "babble_sharded", "run_shard", "shard_configs", "shard_seed"]
 
 logger = logging.getLogger(__name__)
 
@@ -75,8 +78,12 @@ def shard_configs(config: BabbleConfig, workers: int) -> list[BabbleConfig]:
     ]
 
 
-def _run_shard(config: BabbleConfig, out_dir: str, resume: bool, backend: str) -> int:
-    """Babble one shard (in a worker process); returns its rows."""
+ShardMap = Callable[[Callable[..., int], Sequence[tuple[Any, ...]]], list[int]]
+"""Runs ``fn(*args)`` for every ``args`` (each shard) somewhere, returning the results in order."""
+
+
+def run_shard(config: BabbleConfig, out_dir: str, resume: bool, backend: str) -> int:
+    """Babble one shard into ``out_dir`` (in a worker process or a Ray task); returns its rows."""
     return len(babble(config, out_dir, resume=resume, backend=backend))
 
 
@@ -92,6 +99,7 @@ def babble_sharded(
     resume: bool = False,
     backend: str = "loop",
     processes: bool = True,
+    map_shards: ShardMap | None = None,
 ) -> TransitionDataset:
     """Run ``config`` as ``workers`` seeded shards and merge them into one dataset in ``out_dir``.
 
@@ -103,6 +111,9 @@ def babble_sharded(
         backend: the babbling stepping backend of every shard.
         processes: run the shards in worker processes (False: one after the other in this one,
             with the same result).
+        map_shards: runs :func:`run_shard` over the shards' arguments instead of the local
+            processes (``--engine ray``: :meth:`pal.experiments.ray_engine.RayEngine.map`); the
+            shard directories must then be reachable at the same path by every worker.
 
     Returns:
         The merged dataset, loaded back from ``out_dir``.
@@ -128,12 +139,14 @@ def babble_sharded(
                 raise ValueError(f"{out} holds {what}; it cannot be resumed with workers={len(shards)}")
         dirs = [_shard_dir(out, k) for k in range(len(shards))]
         args = [(c, str(d), resume and d.exists(), backend) for c, d in zip(shards, dirs, strict=True)]
-        if processes and len(shards) > 1:
+        if map_shards is not None:  # absolute paths: a Ray worker runs in its own directory
+            rows = map_shards(run_shard, [(c, str(Path(d).resolve()), *rest) for c, d, *rest in args])
+        elif processes and len(shards) > 1:
             ctx = multiprocessing.get_context("spawn")
             with ProcessPoolExecutor(max_workers=len(shards), mp_context=ctx) as pool:
-                rows = list(pool.map(_run_shard, *zip(*args, strict=True)))
+                rows = list(pool.map(run_shard, *zip(*args, strict=True)))
         else:
-            rows = [_run_shard(*a) for a in args]
+            rows = [run_shard(*a) for a in args]
         logger.info("shards done: %s rows", rows)
         _merge(config, shards, dirs, out)
     return TransitionDataset.load(out)

@@ -105,7 +105,7 @@ BAD_INVOCATIONS = [
     (["sweep", "queries", "--grid", "num_samples=50,5", "--out", "d"], "num_samples"),
     (["sweep", "queries", "--grid", "seed=1,2", "--out", "d"], "give the seeds with --seeds"),
     (["sweep", "queries", "--workers", "0", "--out", "d"], "--workers must be >= 1, got 0"),
-    (["sweep", "queries", "--engine", "ray", "--out", "d"], "--engine ray is not supported yet"),
+    (["sweep", "queries", "--ray-address", "127.0.0.1:1", "--out", "d"], "--ray-address needs --engine ray"),
     (["sweep", "queries", "--retry-failed", "--out", "d"], "holds no sweep"),
     (["sweep", "queries", "--out", "{file}"], "is a file, expected a directory"),
     (["sweep", "queries", "--quick", "--tiny", "--out", "d"], "not allowed with argument"),
