@@ -66,7 +66,7 @@ def test_body_and_senses_do_not_import_the_world_model(path):
     assert not imports(path) & {"models", "inference"}
 
 
-WIRING = {"agent.py", "agent", "cli.py", "experiments"}
+WIRING = {"agent.py", "agent", "cli.py", "experiments", "language"}
 
 
 @pytest.mark.parametrize("path", sources("pal"), ids=lambda p: str(p.relative_to(ROOT)))
@@ -216,3 +216,12 @@ def test_there_are_no_import_cycles():
 def test_the_body_does_not_import_the_senses(name):
     senses = sorted(m for m in GRAPH[name] if m == "pal.perception" or m.startswith("pal.perception."))
     assert not senses, f"{name} imports {senses}; share code through pal.frames / pal.sequence_files"
+
+
+@pytest.mark.parametrize(
+    "path", sources("models") + sources("inference") + sources("pal"), ids=lambda p: str(p.relative_to(ROOT))
+)
+def test_only_the_ray_engine_imports_ray(path):
+    if path.relative_to(ROOT).as_posix() == "pal/experiments/ray_engine.py":
+        return
+    assert "ray" not in imports(path), f"{path} imports ray; Ray code lives in pal/experiments/ray_engine.py"

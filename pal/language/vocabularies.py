@@ -1,0 +1,113 @@
+"""The signatures of the two worlds: constants bound to the agent world model's variables.
+
+Pushing world (:func:`pal.agent.pushing_spec`): ``hand`` (body part: ``ee``, joints ``q``),
+``box`` and ``ball`` (objects: ``pos.o``, ``contact.o``, ``dpos.o``, ``rel.o``). Pusher-v5
+(:func:`pal.agent.pusher_spec`): ``fingertip`` (``ee``, ``q``) and ``object`` (``pos.object``,
+``dpos.object``, ``rel.object``). Actions ``act`` (:mod:`pal.agent.graph`).
+
+Action terms:
+
+- ``hold(h)``: keep the start's servo targets (pushing world: the joint angles; Pusher-v5,
+  torque driven: zero torques), a fixed sequence;
+- ``reach(h, o)``: action inference bringing ``ee`` to the object's position;
+- ``push(h, o)``: action inference bringing the object's position ``push_distance`` m further
+  along the hand -> object direction.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import torch
+from torch import Tensor
+
+from pal.language.actions import CompileContext, fixed_action_term, inferred_action_term
+from pal.language.builtins import builtin_predicates
+from pal.language.signature import ActionTermDef, Constant, Signature
+
+__all__ = ["pusher_signature", "pushing_signature"]
+
+PLACES = "object|body_part"
+
+
+def _object(name: str, contact: bool, **attributes: float) -> Constant:
+    roles = {"position": f"pos.{name}", "displacement": f"dpos.{name}", "relative": f"rel.{name}"}
+    if contact:
+        roles["contact"] = f"contact.{name}"
+    return Constant(name, "object", roles, attributes)
+
+
+def _hold(torque: bool) -> ActionTermDef:
+    def fn(context: CompileContext, constants: tuple[Constant, ...]) -> Mapping[str, Tensor]:
+        q = context.situations.values[constants[0].variable("joints", "hold")]
+        return {"act": torch.zeros_like(q) if torque else q}
+
+    return fixed_action_term("hold", ("body_part",), ("act",), fn, doc="keep the current servo targets")
+
+
+def _reach(horizon: int | None) -> ActionTermDef:
+    def target(context: CompileContext, constants: tuple[Constant, ...]) -> Mapping[str, Tensor]:
+        h, o = constants
+        ee = context.situations.values[h.variable("position", "reach")]
+        pos = context.situations.values[o.variable("position", "reach")]
+        goal = ee.clone()
+        k = min(ee.shape[-1], pos.shape[-1])
+        goal[:, :k] = pos[:, :k]
+        return {h.variable("position", "reach"): goal}
+
+    return inferred_action_term(
+        "reach",
+        ("body_part", "object"),
+        ("act",),
+        lambda c: (c[0].variable("position"), c[1].variable("position")),
+        target,
+        horizon,
+        doc="bring the hand to the object",
+    )
+
+
+def _push(horizon: int | None, distance: float) -> ActionTermDef:
+    def target(context: CompileContext, constants: tuple[Constant, ...]) -> Mapping[str, Tensor]:
+        h, o = constants
+        ee = context.situations.values[h.variable("position", "push")]
+        pos = context.situations.values[o.variable("position", "push")]
+        k = min(ee.shape[-1], pos.shape[-1], 2)
+        d = pos[:, :k] - ee[:, :k]
+        goal = pos.clone()
+        goal[:, :k] = pos[:, :k] + distance * d / d.norm(dim=-1, keepdim=True).clamp_min(1e-6)
+        return {o.variable("position", "push"): goal}
+
+    return inferred_action_term(
+        "push",
+        ("body_part", "object"),
+        ("act",),
+        lambda c: (c[0].variable("position"), c[1].variable("position")),
+        target,
+        horizon,
+        doc="push the object away from the hand",
+    )
+
+
+def pushing_signature(horizon: int | None = None, push_distance: float = 0.05) -> Signature:
+    """The pushing world's signature (module docstring); ``horizon`` of the inferred terms."""
+    from pal.sim.pushing import BOX_HALF, OBJECT_RADIUS
+
+    hand = Constant("hand", "body_part", {"position": "ee", "joints": "q"}, {"reach": 0.25})
+    box = _object("box", True, radius=max(BOX_HALF[:2]), height=2 * BOX_HALF[2])
+    ball = _object("ball", True, radius=OBJECT_RADIUS["ball"], height=2 * OBJECT_RADIUS["ball"])
+    return Signature(
+        (hand, box, ball),
+        builtin_predicates(),
+        (_hold(False), _reach(horizon), _push(horizon, push_distance)),
+    )
+
+
+def pusher_signature(horizon: int | None = None, push_distance: float = 0.05) -> Signature:
+    """Pusher-v5's signature (module docstring); ``horizon`` of the inferred terms."""
+    tip = Constant("fingertip", "body_part", {"position": "ee", "joints": "q"})
+    obj = _object("object", False, radius=0.05)
+    return Signature(
+        (tip, obj),
+        builtin_predicates(),
+        (_hold(True), _reach(horizon), _push(horizon, push_distance)),
+    )
