@@ -40,6 +40,7 @@ MODULES: tuple[str, ...] = (
     "pal.experiments.c3",
     "pal.experiments.c4",
     "pal.experiments.pusher",
+    "pal.experiments.lot",
     "pal.experiments.bench_counterfactual",
     "pal.experiments.bench_svi",
     "pal.experiments.bench_action",
