@@ -211,16 +211,7 @@ class Hierarchy:
         events = [a for a in sub.graph.actions]
         if not events:
             raise ValueError(f"no event variable reaches the object targets {sorted(targets)}")
-        q = self.queries["object"]
-        result = infer_action(
-            sub_model,
-            _state(sub_model, state, events) or None,
-            targets,
-            actions=events,
-            num_steps=q.num_steps,
-            options=q.options,
-            seed=self.seed,
-        )
+        result = self._infer("object", sub_model, state, targets, events)
         return dict(result.actions), result, sub
 
     def actions(
@@ -229,18 +220,22 @@ class Hierarchy:
         """a*(t): action inference on the body layer's active submodel towards ``body_target`` (step 3)."""
         targets = dict(check_mapping("body_target", body_target))
         sub_model, sub = self.context("body", list(targets))
-        acts = list(sub.graph.actions)
-        q = self.queries["body"]
-        result = infer_action(
-            sub_model,
-            _state(sub_model, state, acts) or None,
+        return self._infer("body", sub_model, state, targets, list(sub.graph.actions)), sub
+
+    def _infer(
+        self, level: str, model: WorldModel, state: Mapping[str, Any], targets: dict, actions: list[str]
+    ) -> ActionResult:
+        """Action inference on one level's active submodel with that level's query settings."""
+        q = self.queries[level]
+        return infer_action(
+            model,
+            _state(model, state, actions) or None,
             targets,
-            actions=acts,
+            actions=actions,
             num_steps=q.num_steps,
             options=q.options,
             seed=self.seed,
         )
-        return result, sub
 
     def plan(
         self, object_target: Mapping[str, Any], state: Mapping[str, Any], phase: int = 0

@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from pal.cli_body import UsageError, UsageParser, action_ranges, add_body_flags, body_fields, check_data
+from pal.cli_engine import add_engine_flags, connected, ray_engine
 
 __all__ = ["UsageError", "build_parser", "main"]
 
@@ -136,43 +137,45 @@ def _loop(args: argparse.Namespace) -> int:
     return _run_entry("experiment", "loop", args, fields)
 
 
-def _ray_engine(command: str, args: argparse.Namespace) -> Any:
-    """The Ray engine of ``--engine ray`` (not connected yet), or None for ``--engine local``."""
-    if args.engine != "ray":
-        if args.ray_address is not None:
-            raise UsageError(f"pal {command}: --ray-address needs --engine ray")
-        return None
-    if not args.ray_timeout > 0:
-        raise UsageError(f"pal {command}: --ray-timeout must be > 0 seconds, got {args.ray_timeout}")
-    try:
-        from pal.experiments.ray_engine import RayEngine
-    except ModuleNotFoundError as err:
-        if err.name != "ray" and not str(err.name).startswith("ray."):
-            raise
-        raise UsageError(
-            f'pal {command}: --engine ray needs Ray, an optional extra: pip install ".[ray]"'
-        ) from None
-    return RayEngine(args.ray_address, timeout=args.ray_timeout, cpus=args.workers)
-
-
-def _connect(command: str, engine: Any) -> None:
-    from pal.experiments.ray_engine import RayEngineError
+def _babble_run(config: Any, args: argparse.Namespace, out: Path, engine: Any) -> Any:
+    """Babble ``config`` into ``out``: sharded, as one Ray task, or in this process."""
+    from pal.sim.babbling import babble
+    from pal.sim.shards import babble_sharded
 
     try:
-        engine.__enter__()
-    except RayEngineError as err:
-        raise UsageError(f"pal {command}: {err}") from None
+        if args.workers > 1:
+            dataset = babble_sharded(
+                config,
+                args.out,
+                workers=args.workers,
+                resume=args.resume,
+                backend=args.backend,
+                map_shards=None if engine is None else engine.map,
+            )
+        elif engine is not None:  # the one run as one Ray task: the same data as in this process
+            from pal.data import TransitionDataset
+            from pal.sim.shards import run_shard
+
+            engine.map(run_shard, [(config, str(out.resolve()), args.resume, args.backend)])
+            dataset = TransitionDataset.load(out)
+        else:
+            dataset = babble(
+                config, args.out, resume=args.resume, progress_bar=sys.stderr.isatty(), backend=args.backend
+            )
+    except ValueError as err:  # an occupied, locked or corrupted directory
+        raise UsageError(f"pal babble: {err}") from None
+    return dataset
 
 
 def _babble(args: argparse.Namespace) -> int:
-    from pal.sim.babbling import BabbleConfig, babble, check_config
-    from pal.sim.shards import babble_sharded, shard_configs
+    from pal.sim.babbling import BabbleConfig, check_config
+    from pal.sim.shards import shard_configs
 
     if args.mjcf and args.body:
         raise UsageError("give either --body or --mjcf, not both")
     if args.workers < 1:
         raise UsageError(f"pal babble: --workers must be >= 1, got {args.workers}")
-    engine = _ray_engine("babble", args)
+    engine = ray_engine("babble", args)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {args.out!r} is a file, expected a dataset directory")
@@ -198,34 +201,9 @@ def _babble(args: argparse.Namespace) -> int:
     except ValueError as err:  # bad sizes, names, ranges or MJCF
         raise UsageError(f"pal babble: {err}") from None
     _output_dir(args.out)
-    if engine is not None:
-        _connect("babble", engine)
-    start = time.perf_counter()
-    try:
-        if args.workers > 1:
-            dataset = babble_sharded(
-                config,
-                args.out,
-                workers=args.workers,
-                resume=args.resume,
-                backend=args.backend,
-                map_shards=None if engine is None else engine.map,
-            )
-        elif engine is not None:  # the one run as one Ray task: the same data as in this process
-            from pal.data import TransitionDataset
-            from pal.sim.shards import run_shard
-
-            engine.map(run_shard, [(config, str(out.resolve()), args.resume, args.backend)])
-            dataset = TransitionDataset.load(out)
-        else:
-            dataset = babble(
-                config, args.out, resume=args.resume, progress_bar=sys.stderr.isatty(), backend=args.backend
-            )
-    except ValueError as err:  # an occupied, locked or corrupted directory
-        raise UsageError(f"pal babble: {err}") from None
-    finally:
-        if engine is not None:
-            engine.__exit__(None, None, None)
+    with connected("babble", engine):
+        start = time.perf_counter()
+        dataset = _babble_run(config, args, out, engine)
     meta = dataset.metadata
     q = {j: dataset.columns[f"q.{j}"][:, 0] for j in dataset.joints}
     summary = {
@@ -268,7 +246,7 @@ def _sweep(args: argparse.Namespace) -> int:
 
     if args.workers < 1:
         raise UsageError(f"pal sweep: --workers must be >= 1, got {args.workers}")
-    engine = _ray_engine("sweep", args)
+    engine = ray_engine("sweep", args)
     base = "quick" if args.quick else "tiny" if args.tiny else "default"
     try:
         if args.retry_failed and not args.grid and args.seeds is None:
@@ -276,16 +254,13 @@ def _sweep(args: argparse.Namespace) -> int:
         else:
             plan = sweep.plan(args.name, args.grid or (), args.seeds or "0", base=base, sets=args.set or ())
         _output_dir(args.out)
-        if engine is None:
-            result = sweep.run_sweep(plan, args.out, retry_failed=args.retry_failed, workers=args.workers)
-        else:
-            _connect("sweep", engine)
-            try:
+        with connected("sweep", engine):
+            if engine is None:
+                result = sweep.run_sweep(plan, args.out, retry_failed=args.retry_failed, workers=args.workers)
+            else:
                 result = sweep.run_sweep(
                     plan, args.out, retry_failed=args.retry_failed, engine=engine.sweep_runs
                 )
-            finally:
-                engine.__exit__(None, None, None)
     except sweep.SweepError as err:
         raise UsageError(f"pal sweep: {err}") from None
     print(result.paths["markdown"].read_text(encoding="utf-8"))
@@ -355,23 +330,6 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
         )
 
 
-def _add_engine_flags(p: argparse.ArgumentParser, what: str) -> None:
-    p.add_argument("--engine", choices=["local", "ray"], default="local", help=f"{what} (default local)")
-    p.add_argument(
-        "--ray-address",
-        default=None,
-        metavar="ADDRESS",
-        help="existing Ray cluster (ray.init(address=...)); default: a local Ray with --workers CPUs",
-    )
-    p.add_argument(
-        "--ray-timeout",
-        type=float,
-        default=30.0,
-        metavar="SECONDS",
-        help="seconds the Ray address has to answer (default 30)",
-    )
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``pal``."""
     parser = UsageParser(prog="pal", description="Causal perception-action learning toolkit.")
@@ -429,7 +387,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=1,
         help="split the run into N seeded shards babbled by N local processes, merged into --out (default 1)",
     )
-    _add_engine_flags(p, "the shards run in local processes or as Ray tasks")
+    add_engine_flags(p, "the shards run in local processes or as Ray tasks")
     p.add_argument(
         "--backend",
         choices=["loop", "rollout"],
@@ -458,7 +416,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=1,
         help="local processes, or local Ray CPUs (default 1: in this process)",
     )
-    _add_engine_flags(p, "runs go through local processes or Ray Tune")
+    add_engine_flags(p, "runs go through local processes or Ray Tune")
     p.add_argument("--retry-failed", action="store_true", help="run only the failed runs of --out again")
     p.set_defaults(func=_sweep)
 

@@ -29,6 +29,7 @@ from pal.language.sim_worlds import PushingWorld, pushing_situations
 from pal.language.syntax import parse_query
 from pal.language.vocabularies import pushing_signature
 from pal.language.world import ModelWorld, Situations
+from pal.sim.pushing import PushingEnv
 
 __all__ = ["QUERIES", "Config", "agree", "run"]
 
@@ -100,8 +101,6 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     model, rows = fitted_model(agent, config.setup, config.seed, "truth", np.arange(len(agent.history)))
     agent.env.close()
     sig = pushing_signature(horizon=config.horizon)
-    from pal.sim.pushing import PushingEnv
-
     env = PushingEnv(camera=False)
     try:
         values, states = pushing_situations(env, config.situations, np.random.default_rng([config.seed, 14]))
