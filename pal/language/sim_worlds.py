@@ -233,14 +233,21 @@ def pushing_situations(
     near_fraction: float = 0.5,
     near_radius: tuple[float, float] = (0.07, 0.14),
     max_tries: int = 50,
+    babble: tuple[float, float] | None = None,
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """N settled start situations of the pushing world: a random arm, the box near or anywhere.
+    """N start situations of the pushing world: a random arm, the box near or anywhere.
 
     Each situation: joint angles uniform over their ranges; with probability ``near_fraction``
     the box is put ``near_radius`` m from the hand (random bearing and yaw), otherwise where the
     world's reset spawns it; the ball at its spawn place. The world holds the arm for one step
     (servo targets = the angles) so that everything rests; a draw in which the arm touches an
     object or an object moves more than 1 mm in that step is drawn again.
+
+    With ``babble = (local, reach)`` the situation is the state one babbling step later, drawn
+    as the agent babbles (:class:`pal.agent.config.BabbleConfig`): with probability ``local`` servo
+    targets within ``reach`` rad of the angles, else uniform over the ranges. The arm is then
+    moving (and may be pushing) as it is at the start of the steps a babbling agent learns from,
+    whose world model does not sense joint velocities; a settled arm is a start it never saw.
 
     Args:
         env: a :class:`pal.sim.pushing.PushingEnv` (its state is changed).
@@ -249,14 +256,19 @@ def pushing_situations(
         near_fraction: share of box-near-hand draws, in [0, 1].
         near_radius: (low, high) hand-box centre distance of those draws, m.
         max_tries: draws per situation before giving up.
+        babble: ``(local, reach)`` of the babbling step, or None for the settled situation.
 
     Returns:
         ``(values, states)``: start values ``q`` (N, 2), ``ee`` (N, 3), ``pos.<o>`` (N, 2)
         (true body centres, table plane, m), and the (N, state_size) state vectors.
 
     Raises:
-        ValueError: no settled draw within ``max_tries`` for some situation.
+        ValueError: no settled draw within ``max_tries`` for some situation; a bad ``babble``.
     """
+    if babble is not None:
+        local, reach = (float(x) for x in babble)
+        if not (0.0 <= local <= 1.0 and reach >= 0.0):
+            raise ValueError(f"babble must be (local in [0, 1], reach >= 0 rad), got {babble!r}")
     world = PushingWorld(env)
     rows: list[dict[str, np.ndarray]] = []
     states = []
@@ -280,6 +292,13 @@ def pushing_situations(
             raise ValueError(
                 f"pushing situation {i}: no settled draw in {max_tries} tries; widen near_radius"
             )
+        if babble is not None:
+            q = after["q"]
+            if rng.uniform() < local:
+                target = np.clip(q + rng.uniform(-reach, reach, q.size), env.ctrl_low, env.ctrl_high)
+            else:
+                target = rng.uniform(env.ctrl_low, env.ctrl_high)
+            after = world.advance(target)
         states.append(env.get_state())
         rows.append({k: v for k, v in after.items() if not k.startswith("contact.")})
     values = {k: np.stack([r[k] for r in rows]) for k in rows[0]}
@@ -293,41 +312,61 @@ def pusher_situations(
     spread: float = 0.3,
     near_fraction: float = 0.5,
     near_radius: tuple[float, float] = (0.03, 0.12),
+    babble_steps: int = 0,
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """N start situations of Pusher-v5: a random arm at rest, the object near the fingertip or anywhere.
+    """N start situations of Pusher-v5: a random arm, the object near the fingertip or anywhere.
 
-    Each situation: ``reset(seed)`` (the object where Gymnasium puts it), then the seven joint
-    angles uniform within ``spread`` of each range's half-width around its middle, clipped to
-    the range, all velocities zero; with probability ``near_fraction`` the object is moved under
-    the fingertip, ``near_radius`` m from it in the table plane.
+    Each situation: ``reset(seed)`` (the object where Gymnasium puts it), then
+
+    - ``babble_steps = 0``: the seven joint angles uniform within ``spread`` of each range's
+      half-width around its middle, clipped to the range, all velocities zero (at rest);
+    - ``babble_steps = K > 0``: k ~ U{0, ..., K - 1} steps of uniform random torques, the
+      babbling of :mod:`pal.experiments.pusher` (the arm where babbling takes it, moving);
+
+    then the object is at rest (zero velocity, as ``dpos.object`` = 0 says) and, with probability
+    ``near_fraction``, moved under the fingertip, ``near_radius`` m from it in the table plane.
 
     Args:
         env: ``gymnasium.make("Pusher-v5")`` (its state is changed).
         n: situations.
         rng: the draws.
-        spread: share of each joint range drawn, in (0, 1].
+        spread: share of each joint range drawn, in (0, 1] (``babble_steps = 0``).
         near_fraction: share of object-near-fingertip draws.
         near_radius: (low, high) fingertip-object distance in the table plane, m.
+        babble_steps: K, the babbling before the situation (0: an arm at rest).
 
     Returns:
         ``(values, states)``: start values ``q``, ``v`` (N, 7), ``ee`` (N, 3), ``pos.object``
         (N, 3), ``dpos.object`` (N, 3) zeros, ``goal.object`` (N, 3); states (N, nq + nv).
+
+    Raises:
+        ValueError: ``babble_steps`` < 0.
     """
+    if isinstance(babble_steps, bool) or not isinstance(babble_steps, int) or babble_steps < 0:
+        raise ValueError(f"babble_steps must be an int >= 0, got {babble_steps!r}")
     raw = env.unwrapped
     m = raw.model
     low, high = m.jnt_range[:7, 0], m.jnt_range[:7, 1]
     mid, half = (low + high) / 2, (high - low) / 2
+    a_low, a_high = (np.asarray(b, dtype=np.float64) for b in (env.action_space.low, env.action_space.high))
+    obj = m.body_jntadr[m.body("object").id]
     world = PusherWorld(env)
     rows, states = [], []
     for _ in range(n):
         env.reset(seed=int(rng.integers(2**31)))
-        qpos, qvel = raw.data.qpos.copy(), np.zeros(m.nv)
-        qpos[:7] = np.clip(mid + spread * half * rng.uniform(-1, 1, 7), low, high)
+        if babble_steps:
+            for _ in range(int(rng.integers(babble_steps))):
+                raw.step(rng.uniform(a_low, a_high).astype(np.float32))
+            qpos, qvel = raw.data.qpos.copy(), raw.data.qvel.copy()
+        else:
+            qpos, qvel = raw.data.qpos.copy(), np.zeros(m.nv)
+            qpos[:7] = np.clip(mid + spread * half * rng.uniform(-1, 1, 7), low, high)
+        qvel[m.jnt_dofadr[obj] + np.arange(2)] = 0.0  # the object at rest: dpos.object = 0
         raw.set_state(qpos, qvel)
         if rng.uniform() < near_fraction:
             obs = raw._get_obs()
             target = _near_point(rng, obs[14:16], near_radius)
-            axes = m.jnt_axis[m.body_jntadr[m.body("object").id] + np.arange(2), :2].T  # (2, 2) slide axes
+            axes = m.jnt_axis[obj + np.arange(2), :2].T  # (2, 2) slide axes
             qpos[-4:-2] += np.linalg.solve(axes, target - obs[17:19])
             raw.set_state(qpos, qvel)
         state = pusher_state(raw)

@@ -2,8 +2,10 @@
 
 Pushing world (:func:`pal.agent.pushing_spec`): ``hand`` (body part: ``ee``, joints ``q``),
 ``box`` and ``ball`` (objects: ``pos.o``, ``contact.o``, ``dpos.o``, ``rel.o``). Pusher-v5
-(:func:`pal.agent.pusher_spec`): ``fingertip`` (``ee``, ``q``) and ``object`` (``pos.object``,
-``dpos.object``, ``rel.object``). Actions ``act`` (:mod:`pal.agent.graph`).
+(:func:`pal.agent.pusher_spec`): ``fingertip`` (``ee``, ``q``), ``object`` (``pos.object``,
+``dpos.object``, ``rel.object``) and ``goal``, the object's goal marker (``goal.object``, a disc
+of 8 cm radius; sensed, not a world-model variable, so a model world holds it:
+``ModelWorld(model, held=("goal.object",))``). Actions ``act`` (:mod:`pal.agent.graph`).
 
 Action terms:
 
@@ -28,6 +30,8 @@ from pal.language.signature import ActionTermDef, Constant, Signature
 __all__ = ["pusher_signature", "pushing_signature"]
 
 PLACES = "object|body_part"
+#: Radius of Pusher-v5's goal marker (a thin cylinder), m.
+GOAL_RADIUS = 0.08
 
 
 def _object(name: str, contact: bool, **attributes: float) -> Constant:
@@ -106,8 +110,9 @@ def pusher_signature(horizon: int | None = None, push_distance: float = 0.05) ->
     """Pusher-v5's signature (module docstring); ``horizon`` of the inferred terms."""
     tip = Constant("fingertip", "body_part", {"position": "ee", "joints": "q"})
     obj = _object("object", False, radius=0.05)
+    goal = Constant("goal", "object", {"position": "goal.object"}, {"radius": GOAL_RADIUS})
     return Signature(
-        (tip, obj),
+        (tip, obj, goal),
         builtin_predicates(),
         (_hold(True), _reach(horizon), _push(horizon, push_distance)),
     )

@@ -173,13 +173,27 @@ class ModelWorld:
     of their ``lag_of`` variable (or of the slot itself) and then take the previous step's
     values. Lag-0 non-action roots given in the situations are held on every step.
 
+    Situation values that are not variables of the model (e.g. the goal marker of Pusher-v5,
+    sensed but not modelled, which nothing moves) may be named in ``held``: their paths are
+    the start value at every time.
+
     Args:
         model: the world model (its parameters are not changed).
+        held: names of situation values outside the model's graph, held constant.
+
+    Raises:
+        ValueError: a ``held`` name that is a variable of the graph, or not a str.
     """
 
-    def __init__(self, model: WorldModel) -> None:
+    def __init__(self, model: WorldModel, held: Sequence[str] = ()) -> None:
         self.model = require_world_model(model)
         self.graph = model.graph
+        if isinstance(held, str) or not all(isinstance(h, str) for h in held):
+            raise ValueError(f"held must be a sequence of variable names, got {describe(held)}")
+        inside = sorted(h for h in held if h in self.graph)
+        if inside:
+            raise ValueError(f"held names {inside}, which are variables of the model; they are rolled out")
+        self.held = tuple(held)
         self.layout = action_layout(model)
         self.action_dim = sum(d for _, d in self.layout)
         #: rollout steps taken by :meth:`play` so far (one step = one pass over the mechanisms per unit batch).
@@ -205,11 +219,11 @@ class ModelWorld:
     ) -> tuple[list[Tensor], int]:
         if not isinstance(situations, Situations):
             raise TypeError(f"situations must be Situations, got {describe(situations)}")
-        unknown = sorted(k for k in situations.values if k not in self.graph)
+        unknown = sorted(k for k in situations.values if k not in self.graph and k not in self.held)
         if unknown:
             raise ValueError(
-                f"Situations.values names {unknown}, which are not variables of the model graph "
-                f"(use Situations.select-like subsets per world); known: {list(self.graph.names)}"
+                f"Situations.values names {unknown}, which are not variables of the model graph nor "
+                f"held (ModelWorld(model, held=...)); known: {list(self.graph.names)}"
             )
         samples = check_int("samples", samples, minimum=1)
         if isinstance(plans, Tensor) or not isinstance(plans, Sequence) or not plans:
@@ -243,7 +257,8 @@ class ModelWorld:
 
         Returns:
             K :class:`Outcome`; paths of every lag-0 variable ``(N, S, T_k + 1, d)``, index 0 the
-            situations' start values (NaN and listed in ``unknown_start`` when not given).
+            situations' start values (NaN and listed in ``unknown_start`` when not given), and
+            of every ``held`` value the situations give, constant.
 
         Raises:
             ValueError: bad situations, plans of the wrong shape, actions out of bounds, a
@@ -299,5 +314,9 @@ class ModelWorld:
                     first = rep(start).unsqueeze(1)
                 path = torch.cat([first, traj[v]], dim=1)
                 paths[v] = path.reshape(n, s, t + 1, graph[v].dim)
+            for v in self.held:
+                if v in situations.values:
+                    start = rep(situations.values[v]).reshape(n, s, 1, -1)
+                    paths[v] = start.expand(n, s, t + 1, start.shape[-1])
             outcomes.append(Outcome(paths, frozenset(unknown)))
         return outcomes

@@ -61,3 +61,21 @@ def test_bad_plans_and_start_values():
             1,
             torch.Generator(),
         )
+
+
+def test_held_values_outside_the_model_stay_at_their_start():
+    world = _world()
+    g = torch.tensor([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]], dtype=torch.float64)
+    sit = Situations({"x": torch.zeros(3, 1, dtype=torch.float64), "goal": g})
+    with pytest.raises(ValueError, match="not variables of the model graph nor held"):
+        world.play(sit, [torch.zeros(3, 2, 1)], 1, torch.Generator())
+    held = ModelWorld(world.model, held=("goal",))
+    (out,) = held.play(sit, [torch.ones(3, 2, 1, dtype=torch.float64)], 4, torch.Generator().manual_seed(0))
+    assert out.paths["goal"].shape == (3, 4, 3, 2)
+    torch.testing.assert_close(out.paths["goal"], g[:, None, None, :].expand(3, 4, 3, 2), rtol=0, atol=0)
+    assert out.at("end")["goal"].shape == (3, 4, 2)
+    # the model's own variables are rolled out, not held
+    with pytest.raises(ValueError, match="variables of the model"):
+        ModelWorld(world.model, held=("x",))
+    with pytest.raises(ValueError, match="sequence of variable names"):
+        ModelWorld(world.model, held="goal")
