@@ -120,6 +120,15 @@ def _check_sorts(name: str, sorts: tuple[str, ...]) -> tuple[str, ...]:
     return sorts
 
 
+def sort_error(a: Atom, index: int, constant: Constant, expected: str) -> SortError:
+    """The error for argument ``index`` (0-based) of ``a``, a ``constant`` not of sort ``expected``."""
+    article = "an" if constant.sort[0] in "aeiou" else "a"
+    return SortError(
+        f"{a} at position {a.position}: argument {index + 1} {constant.name!r} is {article} "
+        f"{constant.sort}, expected {expected}"
+    )
+
+
 @dataclass(frozen=True)
 class PredicateDef:
     """An element of P.
@@ -271,9 +280,7 @@ class Signature:
         constants = tuple(self.constant(n) for n in a.args)
         for i, (c, s) in enumerate(zip(constants, sorts, strict=True)):
             if c.sort not in s.split("|"):
-                raise SortError(
-                    f"{a} at position {a.position}: argument {i + 1} {c.name!r} is a {c.sort}, expected {s}"
-                )
+                raise sort_error(a, i, c, s)
         return constants
 
     def predicate(self, a: Atom) -> tuple[PredicateDef, tuple[Constant, ...]]:

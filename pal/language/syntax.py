@@ -36,7 +36,7 @@ from __future__ import annotations
 import re
 from typing import NamedTuple
 
-from pal.language.signature import LanguageError, Signature, UnknownConstantError
+from pal.language.signature import LanguageError, Signature, UnknownConstantError, sort_error
 from pal.language.terms import TIMES, Atom, Literal, Query, Rule
 
 __all__ = ["QuerySyntaxError", "parse_query", "parse_rule"]
@@ -130,9 +130,10 @@ class _Parser:
 
     def open(self) -> str:
         """``(`` or ``[`` after P, Pr or do; returns the matching closer."""
+        keyword = self.toks[self.i - 1].text  # P, Pr or do, just read
         tok = self.next()
         if tok.kind not in ("(", "["):
-            raise self.fail(f"'(' or '[' after {self.toks[self.i - 2].text!r}", tok)
+            raise self.fail(f"'(' or '[' after {keyword!r}", tok)
         return ")" if tok.kind == "(" else "]"
 
     def atom(self, what: str) -> Atom:
@@ -274,6 +275,11 @@ def _check_atom(signature: Signature, a: Atom, action: bool, args: tuple[int, ..
             f"unknown object {a.args[i]!r} at position {args[i] if i < len(args) else a.position} "
             f"in {a}; the signature knows {sorted(signature.constants)}"
         )
+    assert known is not None  # else lookup raised
+    for i, (n, s) in enumerate(zip(a.args, known.sorts, strict=True)):  # constants among variables
+        c = signature.constants.get(n)
+        if c is not None and c.sort not in s.split("|"):
+            raise sort_error(a, i, c, s)
 
 
 def _check(parser: _Parser, signature: Signature, item: Query | Rule) -> None:

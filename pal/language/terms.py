@@ -166,4 +166,4 @@ class Rule:
 
     def __str__(self) -> str:
         lhs = " and ".join([*map(str, self.premises), f"do({self.action})"])
-        return f"{lhs} => P({self.conclusion}) > {self.kappa:g}"
+        return f"{lhs} => P({self.conclusion}) > {float(self.kappa)!r}"
