@@ -41,6 +41,7 @@ MODULES: tuple[str, ...] = (
     "pal.experiments.c4",
     "pal.experiments.pusher",
     "pal.experiments.lot",
+    "pal.experiments.hierarchy_compare",
     "pal.experiments.bench_counterfactual",
     "pal.experiments.bench_svi",
     "pal.experiments.bench_action",
