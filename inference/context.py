@@ -200,6 +200,9 @@ def active_subgraph(
 ) -> ActiveSubgraph:
     """Extract G^C: the targets and everything with a relevant directed path to them.
 
+    The lag-0 partner (``lag_of``) of every kept lag-1 variable is kept too, with its own
+    relevant ancestors: it carries the state to the next step of a rollout.
+
     Args:
         model: the world model.
         samples: name -> ``(N, dim)`` context samples of every variable.
@@ -216,14 +219,23 @@ def active_subgraph(
     vals = _values(model, samples)
     sens = context_sensitivity(model, vals)
     active = {e for e, r in sens.items() if r >= threshold}
-    keep = set(targets)
-    frontier = list(targets)
+    keep: set[str] = set()
+    frontier: list[str] = []
+
+    def add(name: str) -> None:
+        # a kept lag-1 root carries its lag-0 partner's value to the next step: keep the partner
+        while name is not None and name not in keep:
+            keep.add(name)
+            frontier.append(name)
+            name = g[name].lag_of
+
+    for t in targets:
+        add(t)
     while frontier:
         child = frontier.pop()
         for p in g.parents(child):
-            if (p, child) in active and p not in keep:
-                keep.add(p)
-                frontier.append(p)
+            if (p, child) in active:
+                add(p)
     names = [n for n in g.names if n in keep]
     edges = [(p, c) for p, c in g.edges if p in keep and c in keep and (p, c) in active]
     clamped: dict[str, dict[str, Tensor]] = {}

@@ -85,3 +85,24 @@ def test_context_inputs_are_checked(chain):
         target_relevance(chain, {"x": torch.zeros(2, 1)}, ["w"])
     with pytest.raises(ValueError, match="targets is empty"):
         active_subgraph(chain, chain.sample(4), [])
+
+
+def test_a_kept_lag_one_root_keeps_its_partner():
+    """ee <- ee_prev (lag 1 of ee) and dee <- q_prev (lag 1 of q): targeting ee keeps q, so rollouts carry the state."""
+    from models import CausalGraph, LinearMechanism, Variable
+
+    g = CausalGraph(
+        [
+            Variable("act", "action", 1, bounds=(-1, 1)),
+            Variable("q_prev", "observed", 1, lag=1, lag_of="q"),
+            Variable("q", "latent", 1),
+            Variable("ee_prev", "observed", 1, lag=1, lag_of="ee"),
+            Variable("ee", "latent", 1),
+        ],
+        [("act", "q"), ("q_prev", "q"), ("q_prev", "ee"), ("ee_prev", "ee")],
+    )
+    lin = lambda *w: LinearMechanism.from_coefficients([list(w)], sigma=1e-3)  # noqa: E731
+    model = WorldModel(g, {"q": lin(1.0, 1.0), "ee": lin(0.5, 1.0)})
+    sub = active_subgraph(model, model.sample(64, torch.Generator().manual_seed(0)), ["ee"])
+    assert set(sub.graph.names) == {"act", "q_prev", "q", "ee_prev", "ee"}
+    assert sub.graph["q_prev"].lag_of == "q" and sub.dropped == ()
