@@ -8,6 +8,9 @@ Two worlds, each a :class:`pal.experiments.lot_play.Section` of the report:
   box near the hand in half of them, then, with ``babbling_starts``, one babbling step, so the
   arm moves as in the steps the model learned from: it does not sense joint velocities).
 - **Pusher-v5** (:mod:`pal.experiments.lot_pusher`), unless ``pusher`` is None.
+- **Hierarchy against flat action inference** on object goals
+  (:mod:`pal.experiments.hierarchy_compare`, also its own experiment ``hierarchy``), unless
+  ``hierarchy`` is None.
 
 Every query's do-terms are compiled once with the model; the same plans are played in the
 model world (S sampled residuals per situation) and in the simulator (deterministic, S = 1),
@@ -19,13 +22,14 @@ over all and per world.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 import torch
 
 from pal.checks import check_float, check_int
+from pal.experiments import hierarchy_compare
 from pal.experiments.lot_play import QueryResult, Section, agree, play_queries, query_section
 from pal.experiments.lot_pusher import QUICK_PUSHER, TINY_PUSHER, PusherPart, pusher_section
 from pal.experiments.pushing_setup import TINY_SETUP, SetupConfig, babbled_agent, fitted_model
@@ -67,6 +71,7 @@ class Config:
         babbling_starts: the situations are one babbling step after a settled draw (else settled).
         tolerance: largest accepted |P_model - P_sim| (else the intervals must overlap both ways).
         pusher: the Pusher-v5 part, or None to leave it out.
+        hierarchy: the hierarchy-against-flat comparison (its seed is replaced by ``seed``), or None.
     """
 
     seed: int = 0
@@ -78,6 +83,7 @@ class Config:
     babbling_starts: bool = True
     tolerance: float = 0.05
     pusher: PusherPart | None = PusherPart()
+    hierarchy: hierarchy_compare.Config | None = hierarchy_compare.Config()
 
     def __post_init__(self) -> None:
         check_int("situations", self.situations, 2)
@@ -90,9 +96,20 @@ class Config:
 
 #: ``--quick``: 1000 babbling steps (240, the other experiments' quick babbling, leave the
 #: contact and displacement mechanisms too rough for these queries).
-QUICK = Config(setup=SetupConfig(babble_steps=1000), situations=40, samples=16, pusher=QUICK_PUSHER)
+QUICK = Config(
+    setup=SetupConfig(babble_steps=1000),
+    situations=40,
+    samples=16,
+    pusher=QUICK_PUSHER,
+    hierarchy=hierarchy_compare.QUICK,
+)
 TINY = Config(
-    setup=TINY_SETUP, situations=4, samples=2, queries=QUERIES[:2] + QUERIES[-1:], pusher=TINY_PUSHER
+    setup=TINY_SETUP,
+    situations=4,
+    samples=2,
+    queries=QUERIES[:2] + QUERIES[-1:],
+    pusher=TINY_PUSHER,
+    hierarchy=hierarchy_compare.TINY,
 )
 
 
@@ -140,14 +157,16 @@ def _pushing_section(config: Config, progress_bar: bool) -> Section:
 
 
 def sections(config: Config, progress_bar: bool = False) -> list[Section]:
-    """The report's parts: the pushing world, then Pusher-v5 (when configured).
+    """The report's parts: the pushing world, then Pusher-v5 and the hierarchy comparison (when configured).
 
-    Further parts (e.g. a comparison of hierarchical and flat action inference) are appended
-    to this list; each brings its own metrics, tables and targets.
+    Each part brings its own metrics, tables, targets and notes.
     """
     out = [_pushing_section(config, progress_bar)]
     if config.pusher is not None:
         out.append(pusher_section(config.pusher, config.seed, config.tolerance))
+    if config.hierarchy is not None:
+        h = replace(config.hierarchy, seed=config.seed)
+        out.append(hierarchy_compare.hierarchy_section(h, progress_bar))
     return out
 
 
