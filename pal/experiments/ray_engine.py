@@ -14,7 +14,11 @@ command line imports it only for ``--engine ray``. It runs the same work as the 
   loggers and progress output are off.
 
 Ray runs on an existing cluster (``address``, as for ``ray.init(address=...)``) or on a local
-one started with ``cpus`` CPUs. An address is probed first, within ``timeout`` seconds: a TCP
+one started with ``cpus`` CPUs. The local one keeps its session files (logs, sockets) in a
+temporary directory removed at the end (``ray.init(_temp_dir=...)``, not ``/tmp/ray``), uses a
+fresh token of Ray's token authentication (``RAY_AUTH_TOKEN`` for the length of the block,
+nothing written to ``~/.ray``) and logs at level ERROR (no warning that token authentication
+is on). An address is probed first, within ``timeout`` seconds: a TCP
 connection to ``host:port``, then ``ray.init`` in a child process that is killed when the
 time is up (``ray.init`` itself retries for minutes). Workers write the shard and sweep
 directories at the paths given here, so on a multi-node cluster those must be on storage
@@ -26,6 +30,8 @@ from __future__ import annotations
 import json
 import logging
 import os
+import secrets
+import shutil
 import signal
 import socket
 import subprocess
@@ -108,6 +114,10 @@ def probe(address: str, timeout: float) -> float:
     return float(json.loads(out.strip().splitlines()[-1]))
 
 
+def _log_unremoved(_fn: Any, path: str, exc_info: Any) -> None:
+    log.warning("could not remove the local Ray's file %s: %s", path, exc_info[1])
+
+
 class RayEngine:
     """A connection to Ray for the length of a ``with`` block.
 
@@ -123,6 +133,8 @@ class RayEngine:
     def __init__(self, address: str | None = None, *, timeout: float = 30.0, cpus: int | None = None):
         self.address, self.timeout, self.cpus = address, timeout, cpus
         self._owner = False
+        self._temp: str | None = None  # the local Ray's session directory
+        self._env: dict[str, str | None] = {}  # environment variables to restore at the end
 
     def __enter__(self) -> RayEngine:
         if self.address is not None:
@@ -130,19 +142,52 @@ class RayEngine:
         if ray.is_initialized():
             log.info("using the Ray already initialised in this process")
             return self
-        quiet = {"logging_level": logging.WARNING, "log_to_driver": False}
         if self.address is not None:
-            ray.init(address=self.address, **quiet)
+            ray.init(address=self.address, logging_level=logging.WARNING, log_to_driver=False)
         else:
-            ray.init(num_cpus=self.cpus, include_dashboard=False, **quiet)
+            self._start_local()
         self._owner = True
         log.info("Ray: %s CPUs", ray.cluster_resources().get("CPU"))
         return self
+
+    def _start_local(self) -> None:
+        """``ray.init`` of a local Ray: own session directory and token, log level ERROR."""
+        env = {}
+        if not (os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH")):
+            env["RAY_AUTH_TOKEN"] = secrets.token_hex(32)  # else Ray writes one to ~/.ray/auth_token
+        self._env = {k: os.environ.get(k) for k in env}
+        os.environ.update(env)
+        # Ray's own base directory (RAY_TMPDIR, else /tmp on macOS: short socket paths)
+        base = os.environ.get("RAY_TMPDIR") or ("/tmp" if sys.platform == "darwin" else None)
+        self._temp = tempfile.mkdtemp(prefix="pal-ray-", dir=base)
+        try:
+            ray.init(
+                num_cpus=self.cpus,
+                include_dashboard=False,
+                logging_level=logging.ERROR,
+                log_to_driver=False,
+                _temp_dir=self._temp,
+            )
+        except BaseException:
+            self._clean_up()
+            raise
+
+    def _clean_up(self) -> None:
+        for key, value in self._env.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+        self._env = {}
+        if self._temp is not None:
+            shutil.rmtree(self._temp, onerror=_log_unremoved)
+            self._temp = None
 
     def __exit__(self, *exc: object) -> None:
         if self._owner:
             ray.shutdown()
             self._owner = False
+            self._clean_up()
 
     def map(self, fn: Callable[..., Any], args: Sequence[tuple[Any, ...]]) -> list[Any]:
         """``[fn(*a) for a in args]`` as Ray tasks of 1 CPU each, results in order.
