@@ -35,7 +35,6 @@ Metrics: ``{inferred|random|scripted: {final_err_cm_median, _mean, _p25, _p75, w
 from __future__ import annotations
 
 import logging
-import math
 from collections import Counter
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -44,6 +43,7 @@ import numpy as np
 
 from pal.agent import Agent
 from pal.checks import check_float, check_int
+from pal.experiments.push_goals import check_interval, push_goals
 from pal.experiments.pushing_control import ScriptedPusher
 from pal.experiments.pushing_setup import QUICK_SETUP, TINY_SETUP, SetupConfig, babbled_agent, summary
 from pal.experiments.registry import register
@@ -64,13 +64,6 @@ TARGET_ERR_CM = 1.5
 TARGET_VS_RANDOM = 5.0
 #: Where the ball waits during C2 (out of the arm's reach, in view), table frame, m.
 BALL_PARK = (-0.22, 0.0, 0.0)
-
-
-def _interval(name: str, value: tuple[float, float], low: float | None = None) -> tuple[float, float]:
-    a, b = (check_float(name, v, low) for v in value)
-    if not a <= b:
-        raise ValueError(f"{name} must be (low, high) with low <= high, got {value!r}")
-    return a, b
 
 
 @dataclass(frozen=True)
@@ -100,9 +93,9 @@ class Config:
         check_int("targets", self.targets)
         check_int("episode_steps", self.episode_steps)
         check_float("bearing_deg", self.bearing_deg, 0.0, 180.0)
-        object.__setattr__(self, "start_radius", _interval("start_radius", self.start_radius, 0.0))
-        object.__setattr__(self, "distance", _interval("distance", self.distance, 0.0))
-        object.__setattr__(self, "cone_deg", _interval("cone_deg", self.cone_deg))
+        object.__setattr__(self, "start_radius", check_interval("start_radius", self.start_radius, 0.0))
+        object.__setattr__(self, "distance", check_interval("distance", self.distance, 0.0))
+        object.__setattr__(self, "cone_deg", check_interval("cone_deg", self.cone_deg))
 
 
 QUICK = Config(setup=QUICK_SETUP, targets=2, episode_steps=3)
@@ -110,23 +103,18 @@ TINY = Config(setup=TINY_SETUP, targets=1, episode_steps=2)
 
 
 def goals(config: Config, heading: float, shoulder: np.ndarray) -> list[dict[str, Any]]:
-    """The seeded episodes: box start (x, y, yaw deg), goal (2,) and reset seed, table frame, m."""
-    rng = np.random.default_rng(np.random.SeedSequence([config.seed, 62]))
-    out = []
-    for k in range(config.targets):
-        r = rng.uniform(*config.start_radius)
-        b = heading + math.radians(rng.uniform(-config.bearing_deg, config.bearing_deg))
-        start = shoulder + r * np.array([math.cos(b), math.sin(b)])
-        direction = b + math.pi / 2 + math.radians(rng.uniform(*config.cone_deg))
-        goal = start + rng.uniform(*config.distance) * np.array([math.cos(direction), math.sin(direction)])
-        out.append(
-            {
-                "box": (float(start[0]), float(start[1]), float(rng.uniform(-180, 180))),
-                "goal": goal,
-                "seed": int(np.random.SeedSequence([config.seed, 63, k]).generate_state(1)[0]),
-            }
-        )
-    return out
+    """The seeded episodes (:func:`pal.experiments.push_goals.push_goals`, stream 62)."""
+    return push_goals(
+        config.seed,
+        config.targets,
+        heading,
+        shoulder,
+        start_radius=config.start_radius,
+        bearing_deg=config.bearing_deg,
+        distance=config.distance,
+        cone_deg=config.cone_deg,
+        stream=62,
+    )
 
 
 _Z90 = 1.6448536269514722

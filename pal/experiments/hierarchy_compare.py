@@ -28,7 +28,6 @@ contextualisation (the layers' samples), later ones reuse it.
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections import Counter
 from dataclasses import dataclass
@@ -45,6 +44,7 @@ from pal.checks import check_float, check_int
 from pal.experiments.c2 import BALL_PARK
 from pal.experiments.hierarchy_pushing import PHASES, HierarchyConfig, push_phase, pushing_hierarchy
 from pal.experiments.lot_play import Section
+from pal.experiments.push_goals import check_interval, push_goals
 from pal.experiments.pushing_setup import QUICK_SETUP, TINY_SETUP, SetupConfig, babbled_agent, fitted_model
 from pal.experiments.registry import register
 from pal.experiments.report import Report, Table, Target
@@ -55,15 +55,6 @@ __all__ = ["METHODS", "QUICK", "TINY", "Config", "compare", "goals", "hierarchy_
 log = logging.getLogger(__name__)
 
 METHODS = ("hierarchy", "flat")
-
-
-def _interval(name: str, value: tuple[float, float], low: float | None = None) -> tuple[float, float]:
-    if len(value) != 2:
-        raise ValueError(f"{name} must be (low, high), got {value!r}")
-    a, b = (check_float(name, v, low) for v in value)
-    if not a <= b:
-        raise ValueError(f"{name} must be (low, high) with low <= high, got {value!r}")
-    return a, b
 
 
 @dataclass(frozen=True)
@@ -97,9 +88,9 @@ class Config:
         check_int("episode_steps", self.episode_steps)
         check_float("tolerance", self.tolerance, 0.0, open_low=True)
         check_float("bearing_deg", self.bearing_deg, 0.0, 180.0)
-        object.__setattr__(self, "start_radius", _interval("start_radius", self.start_radius, 0.0))
-        object.__setattr__(self, "distance", _interval("distance", self.distance, 0.0))
-        object.__setattr__(self, "cone_deg", _interval("cone_deg", self.cone_deg))
+        object.__setattr__(self, "start_radius", check_interval("start_radius", self.start_radius, 0.0))
+        object.__setattr__(self, "distance", check_interval("distance", self.distance, 0.0))
+        object.__setattr__(self, "cone_deg", check_interval("cone_deg", self.cone_deg))
 
 
 QUICK = Config(setup=QUICK_SETUP, goals=10, episode_steps=12)
@@ -114,23 +105,18 @@ TINY = Config(
 
 
 def goals(config: Config, heading: float, shoulder: np.ndarray) -> list[dict[str, Any]]:
-    """The seeded episodes: box start (x, y, yaw deg), goal (2,) and reset seed, table frame, m."""
-    rng = np.random.default_rng(np.random.SeedSequence([config.seed, 64]))
-    out = []
-    for k in range(config.goals):
-        r = rng.uniform(*config.start_radius)
-        b = heading + math.radians(rng.uniform(-config.bearing_deg, config.bearing_deg))
-        start = shoulder + r * np.array([math.cos(b), math.sin(b)])
-        direction = b + math.pi / 2 + math.radians(rng.uniform(*config.cone_deg))
-        goal = start + rng.uniform(*config.distance) * np.array([math.cos(direction), math.sin(direction)])
-        out.append(
-            {
-                "box": (float(start[0]), float(start[1]), float(rng.uniform(-180, 180))),
-                "goal": goal,
-                "seed": int(np.random.SeedSequence([config.seed, 65, k]).generate_state(1)[0]),
-            }
-        )
-    return out
+    """The seeded episodes (:func:`pal.experiments.push_goals.push_goals`, stream 64)."""
+    return push_goals(
+        config.seed,
+        config.goals,
+        heading,
+        shoulder,
+        start_radius=config.start_radius,
+        bearing_deg=config.bearing_deg,
+        distance=config.distance,
+        cone_deg=config.cone_deg,
+        stream=64,
+    )
 
 
 def _state(obs: np.ndarray, info: dict[str, Any], objects: tuple[str, ...]) -> dict[str, np.ndarray]:
