@@ -38,6 +38,7 @@ from pal.experiments.report import Report, Target
 from pal.language.sim_worlds import PushingWorld, pushing_situations
 from pal.language.vocabularies import pushing_signature
 from pal.language.world import ModelWorld, Situations
+from pal.perception.grounding import GroundingConfig
 from pal.sim.pushing import PushingEnv
 
 __all__ = ["QUERIES", "Config", "agree", "run"]
@@ -70,6 +71,8 @@ class Config:
         queries: the pushing-world query texts.
         babbling_starts: the situations are one babbling step after a settled draw (else settled).
         tolerance: largest accepted |P_model - P_sim| (else the intervals must overlap both ways).
+        position_sigma: the position uncertainty the built-in predicates grade with, m (both
+            worlds report true positions); None: the perception floor (1 cm).
         pusher: the Pusher-v5 part, or None to leave it out.
         hierarchy: the hierarchy-against-flat comparison (its seed is replaced by ``seed``), or None.
     """
@@ -82,6 +85,7 @@ class Config:
     queries: tuple[str, ...] = QUERIES
     babbling_starts: bool = True
     tolerance: float = 0.05
+    position_sigma: float | None = None
     pusher: PusherPart | None = PusherPart()
     hierarchy: hierarchy_compare.Config | None = hierarchy_compare.Config()
 
@@ -90,6 +94,8 @@ class Config:
         check_int("samples", self.samples, 1)
         check_int("horizon", self.horizon, 1)
         check_float("tolerance", self.tolerance, 0.0)
+        if self.position_sigma is not None:
+            check_float("position_sigma", self.position_sigma, 0.0, open_low=True)
         if not self.queries:
             raise ValueError("queries must hold at least one query text")
 
@@ -113,6 +119,11 @@ TINY = Config(
 )
 
 
+def grounding(config: Config) -> GroundingConfig | None:
+    """The built-ins' scales: the perception defaults, with ``position_sigma`` as the floor when set."""
+    return None if config.position_sigma is None else GroundingConfig(position_floor=config.position_sigma)
+
+
 def _pushing_section(config: Config, progress_bar: bool) -> Section:
     agent = babbled_agent(config.setup, config.seed, progress_bar=progress_bar)
     model, rows = fitted_model(agent, config.setup, config.seed, "truth", np.arange(len(agent.history)))
@@ -129,7 +140,7 @@ def _pushing_section(config: Config, progress_bar: bool) -> Section:
         sit = Situations({k: torch.as_tensor(v, dtype=model.dtype) for k, v in values.items()}, states)
         results = play_queries(
             config.queries,
-            pushing_signature(horizon=config.horizon),
+            pushing_signature(horizon=config.horizon, grounding=grounding(config)),
             model,
             ModelWorld(model),
             PushingWorld(env),
@@ -163,7 +174,7 @@ def sections(config: Config, progress_bar: bool = False) -> list[Section]:
     """
     out = [_pushing_section(config, progress_bar)]
     if config.pusher is not None:
-        out.append(pusher_section(config.pusher, config.seed, config.tolerance))
+        out.append(pusher_section(config.pusher, config.seed, config.tolerance, grounding(config)))
     if config.hierarchy is not None:
         h = replace(config.hierarchy, seed=config.seed)
         out.append(hierarchy_compare.hierarchy_section(h, progress_bar))

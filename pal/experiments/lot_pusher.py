@@ -27,6 +27,7 @@ from pal.experiments.pusher_runs import ENV_ID
 from pal.language.sim_worlds import PusherWorld, pusher_situations
 from pal.language.vocabularies import pusher_signature
 from pal.language.world import ModelWorld, Situations
+from pal.perception.grounding import GroundingConfig
 
 __all__ = ["PUSHER_QUERIES", "QUICK_PUSHER", "TINY_PUSHER", "PusherPart", "pusher_section"]
 
@@ -85,8 +86,13 @@ TINY_PUSHER = PusherPart(
 )
 
 
-def pusher_section(part: PusherPart, seed: int, tolerance: float) -> Section:
-    """Babble, fit, draw the situations and answer the Pusher-v5 queries in both worlds."""
+def pusher_section(
+    part: PusherPart, seed: int, tolerance: float, grounding: GroundingConfig | None = None
+) -> Section:
+    """Babble, fit, draw the situations and answer the Pusher-v5 queries in both worlds.
+
+    ``grounding``: the built-ins' scales (:func:`pal.language.vocabularies.pusher_signature`).
+    """
     config = AgentConfig(model=part.model, reset_every=None, servo=False)
     agent = Agent(gymnasium.make(ENV_ID), pusher_spec(), config, seed=seed)
     try:
@@ -104,7 +110,7 @@ def pusher_section(part: PusherPart, seed: int, tolerance: float) -> Section:
         sit = Situations({k: torch.as_tensor(v, dtype=model.dtype) for k, v in given.items()}, states)
         results = play_queries(
             part.queries,
-            pusher_signature(horizon=part.horizon),
+            pusher_signature(horizon=part.horizon, grounding=grounding),
             model,
             ModelWorld(model, held=("goal.object",)),
             PusherWorld(env),

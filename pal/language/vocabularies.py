@@ -26,6 +26,7 @@ from torch import Tensor
 from pal.language.actions import CompileContext, fixed_action_term, inferred_action_term
 from pal.language.builtins import builtin_predicates
 from pal.language.signature import ActionTermDef, Constant, Signature
+from pal.perception.grounding import GroundingConfig
 
 __all__ = ["pusher_signature", "pushing_signature"]
 
@@ -92,8 +93,18 @@ def _push(horizon: int | None, distance: float) -> ActionTermDef:
     )
 
 
-def pushing_signature(horizon: int | None = None, push_distance: float = 0.05) -> Signature:
-    """The pushing world's signature (module docstring); ``horizon`` of the inferred terms."""
+def pushing_signature(
+    horizon: int | None = None, push_distance: float = 0.05, grounding: GroundingConfig | None = None
+) -> Signature:
+    """The pushing world's signature (module docstring).
+
+    Args:
+        horizon: steps of the inferred action terms (None: the term's default).
+        push_distance: how far ``push`` aims past the object, m.
+        grounding: the built-ins' scales (:func:`pal.language.builtins.builtin_predicates`); its
+            ``position_floor`` is the position uncertainty of every constant, m. The default (1 cm)
+            is that of perceived positions; worlds reporting true positions want less.
+    """
     from pal.sim.pushing import BOX_HALF, OBJECT_RADIUS
 
     hand = Constant("hand", "body_part", {"position": "ee", "joints": "q"}, {"reach": 0.25})
@@ -101,18 +112,20 @@ def pushing_signature(horizon: int | None = None, push_distance: float = 0.05) -
     ball = _object("ball", True, radius=OBJECT_RADIUS["ball"], height=2 * OBJECT_RADIUS["ball"])
     return Signature(
         (hand, box, ball),
-        builtin_predicates(),
+        builtin_predicates(grounding),
         (_hold(False), _reach(horizon), _push(horizon, push_distance)),
     )
 
 
-def pusher_signature(horizon: int | None = None, push_distance: float = 0.05) -> Signature:
-    """Pusher-v5's signature (module docstring); ``horizon`` of the inferred terms."""
+def pusher_signature(
+    horizon: int | None = None, push_distance: float = 0.05, grounding: GroundingConfig | None = None
+) -> Signature:
+    """Pusher-v5's signature (module docstring); the arguments as for :func:`pushing_signature`."""
     tip = Constant("fingertip", "body_part", {"position": "ee", "joints": "q"})
     obj = _object("object", False, radius=0.05)
     goal = Constant("goal", "object", {"position": "goal.object"}, {"radius": GOAL_RADIUS})
     return Signature(
         (tip, obj, goal),
-        builtin_predicates(),
+        builtin_predicates(grounding),
         (_hold(True), _reach(horizon), _push(horizon, push_distance)),
     )

@@ -3,6 +3,8 @@ vocabularies, and the LoT experiment's agreement rule and start grades shared by
 
 from __future__ import annotations
 
+import math
+
 import gymnasium
 import numpy as np
 import pytest
@@ -183,3 +185,22 @@ def _answer(p: float, se: float) -> Answer:
 )
 def test_agreement_rule(model, sim, expected):
     assert agree(_answer(*model), _answer(*sim), 0.05) is expected
+
+
+def test_the_grounding_floor_sets_how_moving_a_resting_object_is():
+    """moving(o) = Phi((|dp| - v0) / (v0 / 4 + sqrt(2) sigma)): at rest 0.374 with the 1 cm floor, 0.030 with 1 mm."""
+    from pal.perception.grounding import GroundingConfig
+
+    rest = {"pos.box": torch.zeros(3, 2, 2, dtype=torch.float64)}  # (N, window + 1, d): no motion
+    lit = Literal(atom("moving", "box"), time="end")
+    coarse = literal_grade(lit, pushing_signature(), rest)
+    fine = literal_grade(lit, pushing_signature(grounding=GroundingConfig(position_floor=0.001)), rest)
+    v0 = 0.005
+    expected = [0.5 * math.erfc(v0 / (0.25 * v0 + math.sqrt(2) * s) / math.sqrt(2)) for s in (0.01, 0.001)]
+    torch.testing.assert_close(coarse, torch.full((3,), expected[0], dtype=torch.float64), rtol=0, atol=1e-9)
+    torch.testing.assert_close(fine, torch.full((3,), expected[1], dtype=torch.float64), rtol=0, atol=1e-9)
+    assert expected[0] > 0.35 and expected[1] < 0.05
+    from pal.experiments.lot import Config
+
+    with pytest.raises(ValueError, match="position_sigma"):
+        Config(position_sigma=0.0)
