@@ -130,6 +130,14 @@ def _static(situations: Situations) -> Outcome:
     return Outcome({k: torch.as_tensor(v)[:, None, None, :] for k, v in situations.values.items()})
 
 
+def _check_world(world: Any) -> None:
+    if not callable(getattr(world, "play", None)):
+        raise TypeError(
+            f"world must be a World (a ModelWorld or a simulator world with play(situations, plans, "
+            f"samples, generator)), got {type(world).__name__}"
+        )
+
+
 def answer(
     query: Query,
     signature: Signature,
@@ -158,6 +166,7 @@ def answer(
         LanguageError: plans that do not match the query (one, or two for a counterfactual).
     """
     signature.check(query)
+    _check_world(world)
     want = 2 if query.is_counterfactual else 1
     if len(plans) != want:
         raise LanguageError(f"{query}: expected {want} plan(s), got {len(plans)}")
@@ -195,6 +204,7 @@ def evaluate(
     horizon: int = 1,
 ) -> Answer:
     """Compile the query's do-terms (with ``model`` for inferred terms) and answer it in ``world``."""
+    _check_world(world)
     if isinstance(query, str):
         from pal.language.syntax import parse_query
 

@@ -23,6 +23,7 @@ from collections.abc import Mapping
 import torch
 from torch import Tensor
 
+from pal.checks import check_float
 from pal.language.actions import CompileContext, fixed_action_term, inferred_action_term
 from pal.language.builtins import builtin_predicates
 from pal.language.signature import ActionTermDef, Constant, Signature
@@ -33,6 +34,12 @@ __all__ = ["pusher_signature", "pushing_signature"]
 PLACES = "object|body_part"
 #: Radius of Pusher-v5's goal marker (a thin cylinder), m.
 GOAL_RADIUS = 0.08
+
+
+def _check(horizon: int | None, push_distance: float) -> None:
+    if horizon is not None and (isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1):
+        raise ValueError(f"horizon must be None or an int >= 1 (steps), got {horizon!r}")
+    check_float("push_distance", push_distance, 0.0, open_low=True)
 
 
 def _object(name: str, contact: bool, **attributes: float) -> Constant:
@@ -107,6 +114,8 @@ def pushing_signature(
     """
     from pal.sim.pushing import BOX_HALF, OBJECT_RADIUS
 
+    _check(horizon, push_distance)
+
     hand = Constant("hand", "body_part", {"position": "ee", "joints": "q"}, {"reach": 0.25})
     box = _object("box", True, radius=max(BOX_HALF[:2]), height=2 * BOX_HALF[2])
     ball = _object("ball", True, radius=OBJECT_RADIUS["ball"], height=2 * OBJECT_RADIUS["ball"])
@@ -121,6 +130,7 @@ def pusher_signature(
     horizon: int | None = None, push_distance: float = 0.05, grounding: GroundingConfig | None = None
 ) -> Signature:
     """Pusher-v5's signature (module docstring); the arguments as for :func:`pushing_signature`."""
+    _check(horizon, push_distance)
     tip = Constant("fingertip", "body_part", {"position": "ee", "joints": "q"})
     obj = _object("object", False, radius=0.05)
     goal = Constant("goal", "object", {"position": "goal.object"}, {"radius": GOAL_RADIUS})

@@ -204,3 +204,26 @@ def test_the_grounding_floor_sets_how_moving_a_resting_object_is():
 
     with pytest.raises(ValueError, match="position_sigma"):
         Config(position_sigma=0.0)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"horizon": 0}, "horizon must be None or an int >= 1"),
+        ({"horizon": 1.5}, "horizon must be None or an int >= 1"),
+        ({"push_distance": -1.0}, "push_distance must be > 0"),
+        ({"push_distance": float("nan")}, "push_distance must be finite"),
+    ],
+)
+def test_vocabularies_refuse_bad_settings(kwargs, message):
+    for make in (pushing_signature, pusher_signature):
+        with pytest.raises(ValueError, match=message):
+            make(**kwargs)
+
+
+def test_a_query_needs_a_world():
+    from pal.language import P
+
+    sit = Situations({"q": torch.zeros(2, 2, dtype=torch.float64)})
+    with pytest.raises(TypeError, match="world must be a World .*got str"):
+        P("P(near(hand, box))", pushing_signature(), "simulator", sit)
