@@ -3,7 +3,7 @@
 ``--body finger|arm | --mjcf PATH``, ``--name NAME``, ``--joint J``, ``--actuator A ...``,
 ``--frame-skip N``, ``--action-range A=LOW,HIGH ...``, ``--effective-range`` and
 ``--dataset DIR``: the flags, and their translation into ``--set`` paths of a config's
-:class:`~pal.experiments.wm_data.BodyChoice` and :class:`~pal.experiments.wm_data.DataConfig`.
+:class:`~pal.experiments.wm_body.BodyChoice` and :class:`~pal.experiments.wm_data.DataConfig`.
 """
 
 from __future__ import annotations
