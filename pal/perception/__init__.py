@@ -9,7 +9,7 @@ for the real frames shipped with pal), :mod:`~pal.perception.noise` (the sensor'
 :mod:`~pal.perception.segmentation` (Σ, Eq. 4.8; :mod:`~pal.perception.regions`),
 :mod:`~pal.perception.egomotion` (the camera's motion, :mod:`~pal.perception.pnp`),
 :mod:`~pal.perception.tracking` (Eq. 4.9-4.11; :mod:`~pal.perception.association`), :mod:`~pal.perception.memory` (EEMS, Eq. 4.12-4.13),
-:mod:`~pal.perception.pose` (Eq. 4.14-4.17; :mod:`~pal.perception.pose_checks`, :mod:`~pal.perception.icp`, :mod:`~pal.perception.pose_dense`), :mod:`~pal.perception.trajectory` (Eq. 4.18),
+:mod:`~pal.perception.pose` (Eq. 4.14-4.17; :mod:`~pal.perception.pose_config`, :mod:`~pal.perception.pose_matching`, :mod:`~pal.perception.pose_checks`, :mod:`~pal.perception.icp`, :mod:`~pal.perception.pose_dense`), :mod:`~pal.perception.trajectory` (Eq. 4.18),
 :mod:`~pal.perception.filters` (1€), :mod:`~pal.perception.kinematic` and
 :mod:`~pal.perception.visual` (descriptors), :mod:`~pal.perception.normalise`,
 :mod:`~pal.perception.concepts` (Eq. 1.3-1.7, 4.23-4.26), :mod:`~pal.perception.spatial`,

@@ -1,5 +1,8 @@
 """Behaviour monitoring BM (Eq. 4.14-4.17): object pose from features matched to EEMS snapshots.
 
+Parameters: :class:`PoseConfig` (:mod:`pal.perception.pose_config`); snapshot choice and
+matching: :mod:`pal.perception.pose_matching`.
+
 **Canonical object frame.** The first view of an object with enough depth-backed features
 (``min_canonical_points``) or, with the dense fit on, enough depth pixels (twice its
 ``min_points``) on a surface that pins all six degrees of freedom (a box, not a ball:
@@ -56,102 +59,24 @@ as valid. Errors are raised, never swallowed.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
-
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pal.perception.features import FeatureConfig, FeatureExtractor, Features, guided_matches
+from pal.perception.features import FeatureExtractor, Features
 from pal.perception.frames import RGBDFrame
-from pal.perception.icp import IcpConfig, geometric_condition, icp_fit
+from pal.perception.icp import geometric_condition, icp_fit
 from pal.perception.masks import Mask
-from pal.perception.memory import AdmissionDecision, ObjectRecord, Snapshot
-from pal.perception.noise import DepthNoise
+from pal.perception.memory import AdmissionDecision, ObjectRecord
 from pal.perception.pnp import pnp_ransac
-from pal.perception.pose_checks import Evidence, Limits, PoseChecks, check_fit, motion_between
+from pal.perception.pose_checks import Evidence, Limits, check_fit, motion_between
+from pal.perception.pose_config import PoseConfig
 from pal.perception.pose_dense import dense_checks, snapshot_surface
+from pal.perception.pose_matching import choose_snapshots, correspond
 from pal.perception.rigid import to_homogeneous
 from pal.perception.spatial import lift, mask_points
 from pal.perception.trajectory import Pose, PoseDiagnostics
 
 __all__ = ["PoseConfig", "PoseEstimator", "lift", "position_std"]
-
-
-@dataclass(frozen=True)
-class PoseConfig:
-    """Pose-estimation parameters.
-
-    Attributes:
-        features: feature detector/matcher settings (ORB default).
-        min_depth, max_depth: depth accepted for lifting keypoints, metres.
-        noise: the depth sensor's noise model (the depth check).
-        ransac_threshold: 3-D agreement tolerance of the depth check, metres (1-2 cm).
-        ransac_iterations: RANSAC hypotheses.
-        min_pairs: object-point/live-pixel pairs needed to try a fit.
-        pnp_reprojection_px: inlier threshold, pixels at 640 columns (scaled with the width).
-        pnp_confidence: RANSAC confidence.
-        max_snapshots: snapshots tried per frame.
-        anchor_min_inliers: inliers needed to anchor a new snapshot with the pose.
-        min_canonical_points: depth-backed keypoints needed to define the canonical frame.
-        max_speed: a faster translation in the world frame since the last estimate is
-            rejected, m/s ...
-        max_angular_speed: ... or a faster rotation, rad/s.
-        propagate_s: constant-velocity propagation horizon after the last estimate, s (0: off).
-        guide_px: with a predicted pose (the camera's motion applied to the last estimate),
-            snapshot features are also matched within this many pixels (at 640 columns) of
-            where the prediction puts them (binary features only) ...
-        guide_bits: ... at a Hamming distance of at most this many bits.
-        checks: the validity checks (:mod:`pal.perception.pose_checks`).
-        icp: the dense RGB-D fit (:mod:`pal.perception.icp`) tried when the features give no
-            accepted pose for an object presumed static; None: off.
-    """
-
-    features: FeatureConfig = field(default_factory=FeatureConfig)
-    min_depth: float = 0.1
-    max_depth: float = 6.0
-    noise: DepthNoise = DepthNoise()
-    ransac_threshold: float = 0.015
-    ransac_iterations: int = 128
-    min_pairs: int = 6
-    pnp_reprojection_px: float = 4.0
-    pnp_confidence: float = 0.99
-    max_snapshots: int = 3
-    anchor_min_inliers: int = 12
-    min_canonical_points: int = 8
-    max_speed: float = 2.0
-    max_angular_speed: float = 2.0 * math.pi
-    propagate_s: float = 0.5
-    guide_px: float = 10.0
-    guide_bits: int = 64
-    checks: PoseChecks = PoseChecks()
-    icp: IcpConfig | None = field(default_factory=IcpConfig)
-
-    def __post_init__(self) -> None:
-        if not 0 < self.min_depth < self.max_depth:
-            raise ValueError(f"depth range [{self.min_depth}, {self.max_depth}] m is invalid")
-        if not 0 < self.ransac_threshold <= 0.1:
-            raise ValueError(
-                f"ransac_threshold is {self.ransac_threshold} m; expected metres in (0, 0.1], e.g. 0.015"
-            )
-        if self.min_pairs < 6 or self.ransac_iterations < 1 or not self.pnp_reprojection_px > 0:
-            raise ValueError(
-                f"min_pairs >= 6, ransac_iterations >= 1 and pnp_reprojection_px > 0 are required; got {self}"
-            )
-        if (
-            self.max_snapshots < 1
-            or self.max_speed <= 0
-            or self.max_angular_speed <= 0
-            or self.propagate_s < 0
-        ):
-            raise ValueError(
-                f"max_snapshots >= 1, max_speed > 0 and propagate_s >= 0 are required; got {self}"
-            )
-
-
-def _angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
-    c = (np.trace(Ra.T @ Rb) - 1.0) / 2.0
-    return float(np.arccos(np.clip(c, -1.0, 1.0)))
 
 
 def position_std(pose: Pose, K: np.ndarray, floor: float = 0.002) -> np.ndarray | None:
@@ -280,7 +205,7 @@ class PoseEstimator:
                 record.world_origin = record.world_pose[1]
             return pose, decision
         prior = None if record.world_pose is None else np.linalg.inv(W) @ record.world_pose[1]
-        snaps = self._choose(record, prior)
+        snaps = choose_snapshots(record, cfg.max_snapshots, prior)
         if not snaps:
             return self._fallback(record, t, PoseDiagnostics(reason="no anchored snapshot")), None
         live_pts, live_valid = lift(
@@ -288,8 +213,8 @@ class PoseEstimator:
         )
         obj, live_idx, owner, has3d = [], [], [], []
         for snap in snaps:
-            pairs, ref_pts, ref_valid = self._correspond(snap, feats, prior, frame)
-            if len(pairs) == 0 or snap.anchor is None:  # _choose only yields anchored snapshots
+            pairs, ref_pts, ref_valid = correspond(self.extractor, cfg, snap, feats, prior, frame)
+            if len(pairs) == 0 or snap.anchor is None:  # choose_snapshots only yields anchored ones
                 continue
             anchor = snap.anchor
             obj.append(ref_pts @ anchor[:3, :3].T + anchor[:3, 3])
@@ -395,7 +320,7 @@ class PoseEstimator:
         ):
             return None
         prior = np.linalg.inv(W) @ record.world_pose[1]
-        snaps = self._choose(record, prior)
+        snaps = choose_snapshots(record, cfg.max_snapshots, prior)
         if not snaps or snaps[0].anchor is None:
             return None
         snap = snaps[0]
@@ -497,72 +422,6 @@ class PoseEstimator:
         var = (np.var(pts, axis=0) / max(pts.shape[0], 1)) + float(cfg.noise.sigma(float(c0[2]))) ** 2
         cov = np.diag(np.concatenate([np.full(3, 1e-10), var]))
         return Pose(t, "estimated", np.linalg.inv(anchor), diag, cov), decision
-
-    def _choose(self, record: ObjectRecord, prior: np.ndarray | None = None) -> list[Snapshot]:
-        """The anchored snapshots to match, the closest in orientation to ``prior`` first.
-
-        ``prior`` is the predicted pose; without it, the last estimated one; without either (or
-        on ties), the newest first.
-        """
-        anchored = record.gallery.anchored()
-        if not anchored:
-            return []
-        last = record.trajectory.last_valid(1)
-        ref = prior if prior is not None else (last[0].camera_from_object if last else None)
-        if ref is not None:
-            R = ref[:3, :3]
-            # anchor = object_from_camera at capture, so its rotation transposed is camera_R_object then
-            key = {s.index: _angle(s.anchor[:3, :3].T, R) for s in anchored}  # type: ignore[index]
-            order = sorted(anchored, key=lambda s: (key[s.index], -s.index))
-        else:
-            order = sorted(anchored, key=lambda s: -s.index)
-        return order[: self.config.max_snapshots]
-
-    def _correspond(
-        self, snap: Snapshot, feats: Features, prior: np.ndarray | None = None, frame: RGBDFrame | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Matches with lifted snapshot keypoints: (pairs (M, 2), (M, 3), (M,) valid).
-
-        Pairs are (live index, snapshot index) inside both masks: ratio-test matches, and with a
-        predicted ``camera_from_object`` ``prior`` the guided matches (module docstring); the
-        snapshot keypoints are lifted to 3-D in the snapshot's camera frame, metres.
-        """
-        cfg = self.config
-        empty = np.zeros((0, 2), dtype=np.int64), np.zeros((0, 3)), np.zeros(0, dtype=bool)
-        if snap.features is None or len(snap.features) < 2 or len(feats) < 1:
-            return empty
-        x0, y0 = snap.bbox[0], snap.bbox[1]
-        sk = snap.features.keypoints
-        u = np.rint(sk[:, 0]).astype(np.int64) - x0
-        v = np.rint(sk[:, 1]).astype(np.int64) - y0
-        on = (u >= 0) & (v >= 0) & (u < snap.mask.shape[1]) & (v < snap.mask.shape[0])
-        on[on] = snap.mask[v[on], u[on]]
-        pts, valid = lift(sk, snap.depth, (x0, y0), snap.K, cfg.min_depth, cfg.max_depth)
-        pairs = self.extractor.match(feats, snap.features)
-        if prior is not None and frame is not None and feats.kind == "orb" and snap.anchor is not None:
-            ref = np.flatnonzero(on & valid)
-            cam = (pts[ref] @ snap.anchor[:3, :3].T + snap.anchor[:3, 3]) @ prior[:3, :3].T + prior[:3, 3]
-            front = cam[:, 2] > 1e-3
-            ref, cam = ref[front], cam[front]
-            if ref.size:
-                uv = cam[:, :2] / cam[:, 2:3] * np.array([frame.K[0, 0], frame.K[1, 1]]) + frame.K[:2, 2]
-                radius = cfg.guide_px * frame.width / 640.0
-                g = guided_matches(
-                    uv,
-                    snap.features.descriptors[ref],
-                    feats.keypoints,
-                    feats.descriptors,
-                    radius,
-                    cfg.guide_bits,
-                )
-                guided = np.stack([g[:, 1], ref[g[:, 0]]], axis=1)
-                taken = set(guided[:, 0].tolist())
-                rest = pairs[[int(a) not in taken for a in pairs[:, 0]]] if len(pairs) else pairs
-                pairs = np.concatenate([guided, rest.reshape(-1, 2)]).astype(np.int64)
-        if len(pairs) == 0:
-            return empty
-        pairs = pairs[on[pairs[:, 1]]]
-        return pairs, pts[pairs[:, 1]], valid[pairs[:, 1]]
 
     def missing(self, record: ObjectRecord, t: float, diag: PoseDiagnostics) -> Pose:
         """The pose sample of an object with no usable observation at ``t``: ``propagated`` or ``lost``.

@@ -139,7 +139,7 @@ class Evidence:
 
 @dataclass(frozen=True)
 class Limits:
-    """The thresholds :func:`check_fit` applies (from :class:`pal.perception.pose.PoseConfig`).
+    """The thresholds :func:`check_fit` applies (from :class:`pal.perception.pose_config.PoseConfig`).
 
     Attributes:
         checks: the validity checks' thresholds.

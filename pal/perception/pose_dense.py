@@ -30,7 +30,7 @@ from pal.perception.pose_checks import motion_between, sigmas
 
 if TYPE_CHECKING:
     from pal.perception.memory import ObjectRecord, Snapshot
-    from pal.perception.pose import PoseConfig
+    from pal.perception.pose_config import PoseConfig
 
 __all__ = ["dense_checks", "snapshot_surface"]
 

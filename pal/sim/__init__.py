@@ -11,7 +11,7 @@
 - :mod:`pal.sim.ranges`: command-range overrides and the effective ranges found in babbling data.
 - :mod:`pal.sim.tabletop`, :mod:`pal.sim.motions`, :mod:`pal.sim.recording`: the tabletop
   scene, scripted object motions (thesis Table 5.1) and recordings with ground truth.
-- :mod:`pal.sim.pushing`: :class:`PushingEnv`, the arm pushing a box and a ball on the table.
+- :mod:`pal.sim.pushing`: :class:`PushingEnv`, the arm pushing a box and a ball on the table (scene: :mod:`pal.sim.pushing_scene`).
 
 This package imports neither :mod:`models`, :mod:`inference` nor :mod:`pal.perception`: frames
 follow the contract of :mod:`pal.frames` and recordings the format of :mod:`pal.sequence_files`.

@@ -1,0 +1,84 @@
+"""The parameters of the pose estimator :class:`pal.perception.pose.PoseEstimator`."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from pal.perception.features import FeatureConfig
+from pal.perception.icp import IcpConfig
+from pal.perception.noise import DepthNoise
+from pal.perception.pose_checks import PoseChecks
+
+__all__ = ["PoseConfig"]
+
+
+@dataclass(frozen=True)
+class PoseConfig:
+    """Pose-estimation parameters.
+
+    Attributes:
+        features: feature detector/matcher settings (ORB default).
+        min_depth, max_depth: depth accepted for lifting keypoints, metres.
+        noise: the depth sensor's noise model (the depth check).
+        ransac_threshold: 3-D agreement tolerance of the depth check, metres (1-2 cm).
+        ransac_iterations: RANSAC hypotheses.
+        min_pairs: object-point/live-pixel pairs needed to try a fit.
+        pnp_reprojection_px: inlier threshold, pixels at 640 columns (scaled with the width).
+        pnp_confidence: RANSAC confidence.
+        max_snapshots: snapshots tried per frame.
+        anchor_min_inliers: inliers needed to anchor a new snapshot with the pose.
+        min_canonical_points: depth-backed keypoints needed to define the canonical frame.
+        max_speed: a faster translation in the world frame since the last estimate is
+            rejected, m/s ...
+        max_angular_speed: ... or a faster rotation, rad/s.
+        propagate_s: constant-velocity propagation horizon after the last estimate, s (0: off).
+        guide_px: with a predicted pose (the camera's motion applied to the last estimate),
+            snapshot features are also matched within this many pixels (at 640 columns) of
+            where the prediction puts them (binary features only) ...
+        guide_bits: ... at a Hamming distance of at most this many bits.
+        checks: the validity checks (:mod:`pal.perception.pose_checks`).
+        icp: the dense RGB-D fit (:mod:`pal.perception.icp`) tried when the features give no
+            accepted pose for an object presumed static; None: off.
+    """
+
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    min_depth: float = 0.1
+    max_depth: float = 6.0
+    noise: DepthNoise = DepthNoise()
+    ransac_threshold: float = 0.015
+    ransac_iterations: int = 128
+    min_pairs: int = 6
+    pnp_reprojection_px: float = 4.0
+    pnp_confidence: float = 0.99
+    max_snapshots: int = 3
+    anchor_min_inliers: int = 12
+    min_canonical_points: int = 8
+    max_speed: float = 2.0
+    max_angular_speed: float = 2.0 * math.pi
+    propagate_s: float = 0.5
+    guide_px: float = 10.0
+    guide_bits: int = 64
+    checks: PoseChecks = PoseChecks()
+    icp: IcpConfig | None = field(default_factory=IcpConfig)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.min_depth < self.max_depth:
+            raise ValueError(f"depth range [{self.min_depth}, {self.max_depth}] m is invalid")
+        if not 0 < self.ransac_threshold <= 0.1:
+            raise ValueError(
+                f"ransac_threshold is {self.ransac_threshold} m; expected metres in (0, 0.1], e.g. 0.015"
+            )
+        if self.min_pairs < 6 or self.ransac_iterations < 1 or not self.pnp_reprojection_px > 0:
+            raise ValueError(
+                f"min_pairs >= 6, ransac_iterations >= 1 and pnp_reprojection_px > 0 are required; got {self}"
+            )
+        if (
+            self.max_snapshots < 1
+            or self.max_speed <= 0
+            or self.max_angular_speed <= 0
+            or self.propagate_s < 0
+        ):
+            raise ValueError(
+                f"max_snapshots >= 1, max_speed > 0 and propagate_s >= 0 are required; got {self}"
+            )
