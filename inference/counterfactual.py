@@ -4,7 +4,7 @@
    compatible with the factual evidence. If every variable is observed this is exact. If
    some are latent, a posterior over them is first inferred from the factual evidence in
    one world (:func:`inference.infer_state`), and each posterior draw is completed and
-   abducted in turn.
+   abducted in turn (:mod:`inference.abduction`).
 2. Action: ``do`` the scenario's interventions.
 3. Prediction: replay the abducted residuals through the intervened program,
    ``x_i' = f_i(pa_i') + sigma_i(pa_i') * eps_i``.
@@ -50,17 +50,16 @@ from pyro import poutine
 from pyro.poutine.runtime import _PYRO_STACK
 from torch import Tensor
 
+from inference.abduction import _abduct, _abduct_plain, _posterior, _torch_abduction, abduct
 from inference.handlers import AbductNoise, Intervene, ProgramMessenger, ReplayNoise
 from inference.interventions import action_bounds, check_interventions
-from inference.program import Program, as_program, check_active_handlers, read_sites, same_graph
-from inference.quadrature import GridOptions, check_grid
-from inference.state import GUIDES, StateResult, infer_state, split_actions
+from inference.program import Program, as_program, check_active_handlers, read_sites
+from inference.state import GUIDES, StateResult, split_actions
 from models.checks import (
     check_choice,
     check_float,
     check_int,
     check_keywords,
-    check_mapping,
     check_seed,
     describe,
 )
@@ -131,89 +130,6 @@ class CounterfactualResult:
         if self.posterior is not None:
             out["posterior"] = self.posterior.to_dict()
         return out
-
-
-def abduct(
-    model: Any,
-    values: Mapping[str, Tensor],
-    n: int,
-    interventions: Mapping[str, Any] | None = None,
-    *,
-    seed: int = 0,
-) -> dict[str, Tensor]:
-    """Standardised residuals of every site given complete ``values`` (Eq. 4.43).
-
-    Args:
-        model: a WorldModel or a program made from one.
-        values: name -> ``(n, dim)`` for every variable (executed actions included).
-        n: number of units.
-        interventions: assignments in force in the factual world (their sites get eps 0).
-        seed: seeds the Gumbel posterior draws of discrete sites (a local generator).
-
-    Returns:
-        name -> ``(n, dim)`` (``(n, K)`` Gumbel noise for a discrete site).
-    """
-    program = as_program(model)
-    n = check_int("n", n, minimum=1)
-    seed = check_seed("seed", seed)
-    world = program.world
-    values, _ = as_values(program.graph, values, n=n, what="values", dtype=world.dtype)
-    world.check_codes(values, "values")
-    interventions = check_interventions(
-        program.graph,
-        check_mapping("interventions", interventions, allow_none=True),
-        world.dtype,
-        world.discrete,
-    )
-    return _abduct(program, values, n, interventions, torch.Generator().manual_seed(seed))
-
-
-def _abduct(
-    program: Program,
-    values: Mapping[str, Tensor],
-    n: int,
-    interventions: Mapping[str, Any],
-    generator: torch.Generator,
-) -> dict[str, Tensor]:
-    if interventions:
-        program = Intervene(interventions)(program)
-    abduction = AbductNoise(generator)
-    # Inputs were checked by ``as_values``; Pyro's per-site argument validation only adds cost.
-    with torch.no_grad(), pyro.validation_enabled(False):
-        abduction(program)({k: v for k, v in values.items() if k not in interventions}, n)
-    return abduction.noise
-
-
-def _torch_abduction(model: WorldModel, acts: Mapping[str, Tensor]) -> bool:
-    """Whether :func:`_abduct_plain` gives the program's abduction: no discrete site, every action set."""
-    graph = model.graph
-    return not model.discrete and all(a in acts for a in graph.actions)
-
-
-def _abduct_plain(
-    model: WorldModel, values: Mapping[str, Tensor], acts: Mapping[str, Tensor]
-) -> dict[str, Tensor]:
-    """The torch twin of :class:`AbductNoise` on a plain model with complete values (tests hold them equal).
-
-    ``eps = (x - loc) / scale`` per site in topological order (0 where the scale is 0), and 0
-    at the executed actions, which the factual world sets by ``do``.
-    """
-    graph = model.graph
-    noise: dict[str, Tensor] = {}
-    with torch.no_grad():
-        for name in graph.topological_order():
-            x = values[name]
-            if name in acts:
-                noise[name] = torch.zeros_like(x)
-                continue
-            if graph.is_root(name):
-                loc, scale = model.root_priors.get(name)
-            else:
-                loc, scale = model.mechanism(name).loc_scale(model._parents(name, values))
-            loc, scale = loc.expand_as(x), scale.expand_as(x)
-            safe = torch.where(scale > 0, scale, torch.ones_like(scale))
-            noise[name] = torch.where(scale > 0, (x - loc) / safe, torch.zeros_like(loc))
-    return noise
 
 
 def _combine(scenarios: Sequence[Mapping[str, Any]], n: int) -> dict[str, Callable[[Tensor], Tensor]]:
@@ -321,54 +237,6 @@ def _scenarios(program: Program, interventions: Any, n: int) -> list[dict[str, A
 
 def _handlers_active() -> bool:
     return any(isinstance(f, ProgramMessenger) for f in _PYRO_STACK)
-
-
-def _posterior(
-    program: Program,
-    obs: Mapping[str, Tensor],
-    evidence: Mapping[str, Tensor],
-    n: int,
-    latent: tuple[str, ...],
-    posterior: Any,
-    guide: str,
-    num_samples: int,
-    options: Any,
-    seed: int,
-    legacy: Mapping[str, Any],
-) -> StateResult:
-    """The given posterior (checked against the program and evidence) or a new one."""
-    if posterior is not None:
-        if not isinstance(posterior, StateResult):
-            raise ValueError(f"posterior must be a StateResult from infer_state, got {describe(posterior)}")
-        same_graph(program.graph, posterior.graph, "posterior")
-        if set(posterior.latent) != set(latent):
-            raise ValueError(
-                f"posterior is over {sorted(posterior.latent)}, but the latent sites of this program and "
-                f"evidence are {sorted(latent)}; infer it from the same program and factual evidence"
-            )
-        for k, v in evidence.items():
-            given = posterior.evidence.get(k)
-            if given is None or given.shape != v.shape or not torch.equal(given.to(v.dtype), v):
-                raise ValueError(
-                    f"posterior was inferred from other evidence for {k!r}; pass the factual values it was "
-                    "inferred from (no evidence counted twice: the posterior comes from the factual world)"
-                )
-        return posterior
-    if guide == "auto":
-        with torch.random.fork_rng():
-            torch.manual_seed(seed)
-            sites = read_sites(program, evidence, n)
-        try:
-            check_grid(sites, options if isinstance(options, GridOptions) else GridOptions())
-            guide = "grid"
-        except ValueError:
-            guide = "normal"
-    kwargs = {"guide": guide, "num_samples": num_samples, "seed": seed, "options": options, **legacy}
-    if options is not None and not isinstance(options, GUIDES[guide]):
-        kwargs.pop("options")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)  # the caller was warned once already
-        return infer_state(program, obs, **kwargs)
 
 
 def counterfactual(

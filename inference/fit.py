@@ -26,220 +26,35 @@ A discrete site (:mod:`models.discrete`) is trained by its cross-entropy ``-mean
 (``"cross_entropy"``, reported in nats), with the same split and early stopping; a discrete
 root gets the training frequencies (plus 1/2 per category) as its prior.
 
-Sigma rules, reported per site in :attr:`FitResult.sigma_rule` and logged:
-``"validation"`` (RMS validation residual of the loc), ``"training"`` (RMS training residual,
-no split), ``"nll"`` (the sigma learned by the NLL, no split), ``"predicted"`` (a
-heteroscedastic scale head, trained by the NLL, no split), ``"recalibrated"`` (that head
-rescaled per component so that the validation residuals have ``mean(z^2) = 1``,
-:meth:`models.heteroscedastic.HeteroscedasticMechanism.recalibrate`; for an ensemble of K > 1
-the moment-matched site scale is rescaled the same way after its members,
-:meth:`models.ensemble.EnsembleMechanism.recalibrate`) and ``"none"`` (discrete sites).
-
-The default schedule (``schedule=None``, :meth:`FitSchedule.auto`) scales with the number of
-rows N so that it behaves from N = 200 to N = 10^6:
-
-    validation = 0.2 (N < 10 000) or 0.1,        n_train = N - round(validation * N)
-    batch_size = clip(n_train // 8, 32, 2048)    (at least 8 steps per epoch below 16 k rows)
-    epochs     = clip(ceil(10 000 / steps per epoch), 10, 500)      (~10 000 Adam steps)
-    patience   = max(5, epochs // 10),  lr = 0.01
-
-so small tables get many small steps and are stopped by the held-out rows (a plain minibatch
-schedule without them overfits: the noise sd shrinks towards 0), and large ones a few epochs
-of 2048-row batches. Below 20 rows there is no split and no early stopping.
-
-The thesis protocol (§5.2.1) is ``fit(model, data, loss="mse",
-schedule=FitSchedule(epochs=120, batch_size=2048, lr=0.01, validation=0.0))``: no held-out
-rows, sigma_i the RMS training residual, every epoch kept, the same random streams (split,
-minibatch order) as always; a test holds its numbers fixed.
+The sigma rules are in :mod:`inference.fit_sigma`; the schedule and result types
+(:class:`FitSchedule`, its default :meth:`FitSchedule.auto`, the thesis protocol, :class:`FitResult`)
+in :mod:`inference.fit_types`.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import logging
 import math
 import time
-import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import torch
 from torch import Tensor
 from tqdm import tqdm
 
-from models.checks import check_bool, check_choice, check_float, check_int, check_names, check_seed, describe
+from inference.fit_sigma import _RULE_TEXT, _members, _set_sigmas
+from inference.fit_types import FIT_KWARGS, LOSSES, FitResult, FitSchedule, _schedule
+from models.checks import check_bool, check_choice, check_names, check_seed
 from models.discrete import DiscreteMechanism
-from models.ensemble import EnsembleMechanism
 from models.mechanisms import Mechanism
 from models.variables import Role
 from models.world import WorldModel, as_values, require_world_model
 
-if TYPE_CHECKING:
-    from matplotlib.figure import Figure
-
 __all__ = ["FIT_KWARGS", "LOSSES", "FitResult", "FitSchedule", "fit"]
 
 log = logging.getLogger(__name__)
-
-LOSSES = ("mse", "nll", "beta_nll")
-
-#: The keyword arguments of :func:`fit` (including the deprecated schedule keywords); wrappers
-#: that forward ``**fit_kwargs`` check against it.
-FIT_KWARGS = (
-    "variables",
-    "loss",
-    "schedule",
-    "beta",
-    "epochs",
-    "batch_size",
-    "lr",
-    "validation",
-    "patience",
-    "bootstrap",
-    "seed",
-    "progress_bar",
-)
-
-#: Schedule keywords of the earlier signature, accepted with a DeprecationWarning.
-_SCHEDULE_KEYWORDS = ("beta", "epochs", "batch_size", "lr", "validation", "patience", "bootstrap")
-
-
-@dataclass(frozen=True)
-class FitSchedule:
-    """The training schedule of :func:`fit` (see the module docstring for :meth:`auto`).
-
-    Attributes:
-        epochs: the most passes over the training rows, >= 1.
-        batch_size: Adam minibatch rows, >= 1.
-        lr: Adam learning rate, > 0.
-        validation: share of rows held out (seeded), in [0, 1); 0 is the thesis protocol.
-        patience: stop a mechanism after this many epochs (>= 1) without a better
-            validation criterion and restore its best epoch; None keeps the last epoch.
-        bootstrap: train each member of an ensemble on its own bootstrap resample.
-        beta: the beta of ``"beta_nll"``, in [0, 1].
-    """
-
-    epochs: int = 120
-    batch_size: int = 2048
-    lr: float = 0.01
-    validation: float = 0.1
-    patience: int | None = None
-    bootstrap: bool = True
-    beta: float = 0.5
-
-    def __post_init__(self) -> None:
-        check_int("epochs", self.epochs, minimum=1)
-        check_int("batch_size", self.batch_size, minimum=1)
-        check_float("lr", self.lr, minimum=0.0, min_open=True)
-        check_float("validation", self.validation, minimum=0.0, maximum=1.0, max_open=True)
-        if self.patience is not None:
-            check_int("patience", self.patience, minimum=1)
-        check_bool("bootstrap", self.bootstrap)
-        check_float("beta", self.beta, minimum=0.0, maximum=1.0)
-
-    @classmethod
-    def auto(cls, n: int) -> FitSchedule:
-        """The default schedule for ``n`` rows (module docstring)."""
-        n = check_int("n", n, minimum=1)
-        if n < 20:
-            return cls(epochs=200, batch_size=max(n, 1), lr=0.01, validation=0.0, patience=None)
-        validation = 0.2 if n < 10_000 else 0.1
-        n_train = n - round(validation * n)
-        batch = int(min(2048, max(32, n_train // 8)))
-        steps = math.ceil(n_train / batch)
-        epochs = int(min(500, max(10, math.ceil(10_000 / steps))))
-        return cls(epochs, batch, 0.01, validation, max(5, epochs // 10))
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-compatible fields."""
-        return dataclasses.asdict(self)
-
-
-@dataclass(frozen=True)
-class FitResult:
-    """Outcome of :func:`fit`.
-
-    Attributes:
-        train_loss: name -> per-epoch mean training MSE, in the variable's units squared
-            (for an ensemble, the mean over members on their own bootstrap rows).
-        val_loss: name -> per-epoch validation MSE of the site's loc (empty without a split).
-        sigma: name -> residual sd per component: sigma_i for homoscedastic sites, else the
-            RMS predictive sd over the validation rows (training rows without a split).
-        trained: names of the mechanisms trained.
-        loss: the requested loss, or ``"auto"`` for the per-mechanism default.
-        epochs: epochs run (the most any mechanism ran).
-        n_train, n_val: training and validation rows.
-        seconds: wall time of the training loop.
-        val_nll: name -> per-epoch validation NLL of the site's Normal, nats per unit and
-            dim (empty for ``"mse"`` sites, whose sigma is set after training, and without
-            a split).
-        best_epoch: name -> the 1-based epoch whose parameters were kept.
-        losses: name -> the loss each mechanism was trained with.
-        beta: the beta of ``"beta_nll"``.
-        patience: the early-stopping patience (None: every epoch kept).
-        sigma_rule: name -> how the site's scale was set: ``"validation"``,
-            ``"training"``, ``"nll"``, ``"predicted"``, ``"recalibrated"`` or ``"none"`` (module docstring).
-        skipped: name -> why a non-root was not trained (fixed function, columns missing).
-        schedule: the schedule used.
-    """
-
-    train_loss: dict[str, tuple[float, ...]]
-    val_loss: dict[str, tuple[float, ...]]
-    sigma: dict[str, tuple[float, ...]]
-    trained: tuple[str, ...]
-    loss: str
-    epochs: int
-    n_train: int
-    n_val: int
-    seconds: float
-    val_nll: dict[str, tuple[float, ...]] = field(default_factory=dict)
-    best_epoch: dict[str, int] = field(default_factory=dict)
-    losses: dict[str, str] = field(default_factory=dict)
-    beta: float = 0.5
-    patience: int | None = None
-    sigma_rule: dict[str, str] = field(default_factory=dict)
-    skipped: dict[str, str] = field(default_factory=dict)
-    schedule: FitSchedule | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-compatible summary: per-site losses, sigmas, rules and the schedule."""
-        return {
-            "trained": list(self.trained),
-            "losses": dict(self.losses),
-            "sigma": {k: list(v) for k, v in self.sigma.items()},
-            "sigma_rule": dict(self.sigma_rule),
-            "skipped": dict(self.skipped),
-            "best_epoch": dict(self.best_epoch),
-            "final_train_loss": {k: v[-1] for k, v in self.train_loss.items() if v},
-            "final_val_loss": {k: v[-1] for k, v in self.val_loss.items() if v},
-            "epochs": self.epochs,
-            "n_train": self.n_train,
-            "n_val": self.n_val,
-            "seconds": self.seconds,
-            "schedule": None if self.schedule is None else self.schedule.to_dict(),
-        }
-
-    def plot(self) -> Figure:
-        """Loss curves per mechanism (log scale), the kept epoch marked; returns the Figure."""
-        import matplotlib.pyplot as plt
-
-        fig, axes = plt.subplots(1, len(self.trained), figsize=(3.2 * len(self.trained), 2.8), squeeze=False)
-        for ax, name in zip(axes[0], self.trained, strict=True):
-            train = self.train_loss[name]
-            ax.plot(range(1, len(train) + 1), train, label="train")
-            if self.val_loss.get(name):
-                ax.plot(range(1, len(self.val_loss[name]) + 1), self.val_loss[name], label="validation")
-            if name in self.best_epoch:
-                ax.axvline(self.best_epoch[name], color="0.5", lw=0.8, ls="--")
-            ax.set_yscale("log")
-            ax.set_title(name, fontsize=9)
-            ax.set_xlabel("epoch")
-            ax.set_ylabel("MSE")
-            ax.legend(fontsize=7)
-        fig.tight_layout()
-        return fig
 
 
 def _standardiser(x: Tensor) -> tuple[Tensor, Tensor]:
@@ -252,10 +67,6 @@ def _derived_seed(seed: int, stream: str) -> int:
     """A seed for a named random stream, independent of the main one (no global RNG)."""
     digest = hashlib.sha256(f"pal.fit:{seed}:{stream}".encode()).digest()
     return int.from_bytes(digest[:8], "little") >> 1
-
-
-def _members(mech: Mechanism) -> list[Mechanism]:
-    return list(mech.members) if isinstance(mech, EnsembleMechanism) else [mech]
 
 
 def _predicts_scale(mech: Mechanism) -> bool:
@@ -337,8 +148,9 @@ def fit(
 ) -> FitResult:
     """Train the local mechanisms (and their scales) of ``model`` in place.
 
-    See the module docstring for the losses, the validation split, early stopping, the
-    sigma rules and the default schedule.
+    See the module docstring for the losses, the validation split and early stopping,
+    :mod:`inference.fit_sigma` for the sigma rules and :mod:`inference.fit_types` for the
+    default schedule.
 
     Args:
         model: the world model.
@@ -563,34 +375,6 @@ def fit(
     )
 
 
-_RULE_TEXT = {
-    "validation": "the RMS residual on the validation rows",
-    "training": "the RMS residual on the training rows (no validation split)",
-    "nll": "the NLL fit (no validation split)",
-    "predicted": "its scale head, trained by the NLL",
-    "recalibrated": "its scale (the head's, or the ensemble's) rescaled to unit validation z-variance",
-    "none": "nothing: the site is discrete",
-}
-
-
-def _schedule(schedule: Any, deprecated: Mapping[str, Any], n: int) -> FitSchedule:
-    """The schedule: given, from the deprecated keywords over ``FitSchedule()``, or auto for n rows."""
-    unknown = sorted(k for k in deprecated if k not in _SCHEDULE_KEYWORDS)
-    if unknown:
-        raise TypeError(f"fit() got unexpected keyword arguments {unknown}")
-    if schedule is not None and not isinstance(schedule, FitSchedule):
-        raise ValueError(f"schedule must be a FitSchedule or None, got {describe(schedule)}")
-    if deprecated:
-        warnings.warn(
-            f"fit({', '.join(f'{k}=' for k in deprecated)}) is deprecated: pass schedule=FitSchedule(...)",
-            DeprecationWarning,
-            stacklevel=3,
-        )
-        base = schedule if schedule is not None else FitSchedule()
-        return dataclasses.replace(base, **deprecated)
-    return schedule if schedule is not None else FitSchedule.auto(n)
-
-
 def _skipped(model: WorldModel, cols: Mapping[str, Tensor], targets: Sequence[str]) -> dict[str, str]:
     """Why each non-root outside ``targets`` was not trained."""
     graph, out = model.graph, {}
@@ -605,61 +389,3 @@ def _skipped(model: WorldModel, cols: Mapping[str, Tensor], targets: Sequence[st
         else:
             out[v] = "not in variables"
     return out
-
-
-def _set_sigmas(
-    model: WorldModel,
-    targets: Sequence[str],
-    losses: Mapping[str, str],
-    inputs: Mapping[str, Tensor],
-    outputs: Mapping[str, Tensor],
-    val_idx: Tensor,
-    train_idx: Tensor,
-    rows: Mapping[str, Sequence[Tensor | None]],
-) -> tuple[dict[str, tuple[float, ...]], dict[str, str]]:
-    """Set each homoscedastic member's sigma from residuals and report every site's sd.
-
-    With validation rows, sigma is the RMS validation residual (whatever the loss);
-    without, the RMS training residual (the member's own bootstrap rows) for ``"mse"``,
-    and the learned sigma otherwise.
-    """
-    out: dict[str, tuple[float, ...]] = {}
-    rules: dict[str, str] = {}
-    with torch.no_grad():
-        for v in targets:
-            mech = model.mechanism(v)
-            if isinstance(mech, DiscreteMechanism):
-                rules[v] = "none"
-                continue
-            if mech.heteroscedastic and all(m.log_sigma is None for m in _members(mech)):
-                rules[v] = "recalibrated" if len(val_idx) else "predicted"
-            elif len(val_idx):
-                rules[v] = "validation"
-            else:
-                rules[v] = "training" if losses[v] == "mse" else "nll"
-            for member, boot in zip(_members(mech), rows[v], strict=True):
-                if member.log_sigma is None:
-                    if len(val_idx):
-                        loc, scale = member.loc_scale(inputs[v][val_idx])
-                        z2 = ((outputs[v][val_idx] - loc) / scale).pow(2).mean(0)
-                        member.recalibrate(z2.sqrt().clamp_min(1e-6))
-                    continue
-                if len(val_idx):
-                    idx = val_idx
-                elif losses[v] == "mse":
-                    idx = train_idx if boot is None else boot
-                else:
-                    continue
-                resid = outputs[v][idx] - member(inputs[v][idx])
-                member.set_sigma(resid.pow(2).mean(0).sqrt().clamp_min(1e-6))
-            if isinstance(mech, EnsembleMechanism) and mech.size > 1 and len(val_idx):
-                loc, scale = mech.loc_scale(inputs[v][val_idx])
-                mech.recalibrate(((outputs[v][val_idx] - loc) / scale).pow(2).mean(0).sqrt().clamp_min(1e-6))
-                rules[v] = "recalibrated"
-            if not mech.heteroscedastic:
-                out[v] = tuple(float(s) for s in mech.sigma.detach())
-            else:
-                idx = val_idx if len(val_idx) else train_idx
-                scale = mech.loc_scale(inputs[v][idx])[1]
-                out[v] = tuple(float(s) for s in scale.pow(2).mean(0).sqrt())
-    return out, rules

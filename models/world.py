@@ -16,7 +16,9 @@ prior; children read a categorical parent with K > 2 one-hot (K columns), a Bern
 as its 0/1 code. Values passed in ``data`` enter as ``obs=``. The program contains
 no ``do``, no conditioning flags: :mod:`inference` adds those with handlers. Site names are
 the variable names. Values have shape ``(N, dim)``. The forward queries (predict, rollout,
-predict_scale, sample, residuals) are in :mod:`models.forward`.
+predict_scale, sample, residuals) are in :mod:`models.forward`, the root priors and their
+setters in :mod:`models.root_priors`, the default mechanisms, discrete categories and parent
+encodings in :mod:`models.world_sites`.
 """
 
 from __future__ import annotations
@@ -40,21 +42,15 @@ from models.checks import (
     check_names,
     describe,
 )
-from models.discrete import (
-    BernoulliMechanism,
-    CategoricalCode,
-    CategoricalMechanism,
-    DiscreteMechanism,
-    check_codes,
-)
-from models.ensemble import EnsembleMechanism
+from models.discrete import CategoricalCode, DiscreteMechanism, check_codes
 from models.forward import ForwardQueries, NoiseSpec
 from models.graph import CausalGraph
-from models.heteroscedastic import HeteroscedasticMechanism
-from models.mechanisms import ACTIVATIONS, LinearMechanism, Mechanism, MLPMechanism, Seed, as_generator
+from models.mechanisms import ACTIVATIONS, Mechanism, Seed, as_generator
+from models.root_priors import RootPriorSetters, _RootPriors
 from models.values import BOUNDS_TOLERANCE, as_values, check_action_bounds, module_key
 from models.variables import Role
 from models.warmstart import rewire_mechanism
+from models.world_sites import KINDS, _categories, _default_discrete, _default_mechanism, _one_hot, _width
 
 __all__ = [
     "BOUNDS_TOLERANCE",
@@ -67,9 +63,6 @@ __all__ = [
     "module_key",
     "require_world_model",
 ]
-
-#: Default mechanism kinds of :class:`WorldModel`.
-KINDS = ("mlp", "linear", "hetero")
 
 
 def model_dtype(model: Any) -> torch.dtype:
@@ -86,31 +79,7 @@ def require_world_model(model: Any, what: str = "model") -> WorldModel:
     return model
 
 
-class _RootPriors(nn.Module):
-    """Buffers mu_k, s_k of the Normal priors of non-action roots; logits of discrete roots."""
-
-    def __init__(self, graph: CausalGraph, categories: Mapping[str, int]) -> None:
-        super().__init__()
-        for name in graph.roots:
-            var = graph[name]
-            if var.role is Role.ACTION:
-                continue
-            if name in categories:
-                self.register_buffer(f"{module_key(name)}_logits", torch.zeros(categories[name]))
-                continue
-            self.register_buffer(f"{module_key(name)}_loc", torch.zeros(var.dim))
-            self.register_buffer(f"{module_key(name)}_scale", torch.ones(var.dim))
-
-    def logits(self, name: str) -> Tensor:
-        """``(K,)`` prior logits of the discrete root ``name``."""
-        return getattr(self, f"{module_key(name)}_logits")
-
-    def get(self, name: str) -> tuple[Tensor, Tensor]:
-        """``(mu_k, s_k)`` of root ``name``, each ``(dim,)``, in the variable's units."""
-        return getattr(self, f"{module_key(name)}_loc"), getattr(self, f"{module_key(name)}_scale")
-
-
-class WorldModel(PyroModule, ForwardQueries):
+class WorldModel(PyroModule, ForwardQueries, RootPriorSetters):
     """A structural causal world model written as a Pyro program.
 
     For every variable in topological order, inside ``pyro.plate("units", N)``:
@@ -288,18 +257,6 @@ class WorldModel(PyroModule, ForwardQueries):
         with torch.set_grad_enabled(grad and torch.is_grad_enabled()):
             return mech.distribution(self._parents(name, vals)).probs
 
-    def set_root_probs(self, name: str, probs: Any) -> None:
-        """Set the categorical prior of a discrete root: ``(K,)`` probabilities > 0 (renormalised)."""
-        k = self._categories.get(name)
-        if k is None or not self.graph.is_root(name):
-            raise ValueError(f"{name!r} is not a discrete root; only those have category probabilities")
-        p = as_float_tensor(probs, f"root probabilities of {name!r}", self.dtype).detach().reshape(-1)
-        if p.numel() != k or not bool(torch.isfinite(p).all()) or not bool((p > 0).all()):
-            raise ValueError(
-                f"root probabilities of {name!r} must be {k} finite values > 0, got {p.tolist()}"
-            )
-        self._priors.logits(name).copy_((p / p.sum()).log())
-
     def mechanism(self, name: str) -> Mechanism:
         """f_i of a non-root variable."""
         self.graph.check_name(name)
@@ -358,43 +315,6 @@ class WorldModel(PyroModule, ForwardQueries):
         if var.bounds is None:
             raise ValueError(f"variable {name!r} has no bounds")
         return torch.tensor(var.low, dtype=self.dtype), torch.tensor(var.high, dtype=self.dtype)
-
-    def set_root_prior(self, name: str, loc: Any, scale: Any) -> None:
-        """Set the prior ``R ~ Normal(loc, scale)`` of a non-action root (:func:`inference.fit` does this from data).
-
-        Args:
-            name: a non-action root.
-            loc: prior mean, a scalar or ``(dim,)`` in the variable's units; finite.
-            scale: prior sd, a scalar or ``(dim,)`` in the variable's units; finite, > 0.
-        """
-        var = self.graph[name]
-        if not self.graph.is_root(name) or var.role is Role.ACTION:
-            raise ValueError(f"{name!r} is not a non-action root; only those have a Normal prior")
-        if name in self._categories:
-            raise ValueError(
-                f"{name!r} is a discrete root; set its category probabilities with set_root_probs"
-            )
-        loc_t, scale_t = (
-            as_float_tensor(v, f"root prior {what} of {name!r}", self.dtype).detach().reshape(-1)
-            for v, what in ((loc, "loc"), (scale, "scale"))
-        )
-        if loc_t.numel() == 1:
-            loc_t = loc_t.expand(var.dim)
-        if scale_t.numel() == 1:
-            scale_t = scale_t.expand(var.dim)
-        if loc_t.numel() != var.dim or scale_t.numel() != var.dim:
-            raise ValueError(
-                f"root prior of {name!r} needs {var.dim} loc and scale entries, got "
-                f"{loc_t.numel()} and {scale_t.numel()}"
-            )
-        if not (torch.isfinite(loc_t).all() and (scale_t > 0).all() and torch.isfinite(scale_t).all()):
-            raise ValueError(
-                f"root prior of {name!r} needs finite loc and positive finite scale, got "
-                f"{loc_t.tolist()}, {scale_t.tolist()}"
-            )
-        cur_loc, cur_scale = self._priors.get(name)
-        cur_loc.copy_(loc_t)
-        cur_scale.copy_(scale_t)
 
     def copy_root_priors_from(self, other: WorldModel, names: Iterable[str] | None = None) -> tuple[str, ...]:
         """Copy the Normal priors of non-action roots from ``other``.
@@ -554,82 +474,3 @@ class WorldModel(PyroModule, ForwardQueries):
     def extra_repr(self) -> str:
         """The graph's repr, shown inside ``repr(model)``."""
         return repr(self.graph)
-
-
-def _default_mechanism(
-    kind: str,
-    in_dim: int,
-    out_dim: int,
-    hidden: tuple[int, ...],
-    activation: str,
-    members: int,
-    generator: torch.Generator | None,
-) -> Mechanism:
-    """The default mechanism of ``kind``; an ensemble of ``members`` of them when > 1."""
-
-    def make(gen: torch.Generator | None) -> Mechanism:
-        if kind == "mlp":
-            return MLPMechanism(in_dim, out_dim, hidden=hidden, activation=activation, seed=gen)
-        if kind == "linear":
-            return LinearMechanism(in_dim, out_dim, seed=gen)
-        return HeteroscedasticMechanism(in_dim, out_dim, hidden=hidden, activation=activation, seed=gen)
-
-    if members == 1:
-        return make(generator)
-    return EnsembleMechanism.replicate(make, members, generator)
-
-
-def _categories(
-    graph: CausalGraph, discrete: Mapping[str, int] | None, given: Mapping[str, Mechanism]
-) -> dict[str, int]:
-    """Name -> K of every discrete site, from ``discrete`` and the given discrete mechanisms."""
-    out: dict[str, int] = {}
-    for name, k in check_mapping("discrete", discrete, allow_none=True).items():
-        graph.check_name(name, what="discrete site")
-        out[name] = check_int(f"discrete[{name!r}] (number of categories)", k, minimum=2)
-    for name, mech in given.items():
-        if isinstance(mech, DiscreteMechanism):
-            if name in out and out[name] != mech.categories:
-                raise ValueError(
-                    f"discrete[{name!r}] = {out[name]} categories, but its mechanism has {mech.categories}"
-                )
-            out[name] = mech.categories
-        elif name in out:
-            raise ValueError(
-                f"{name!r} is listed in discrete but its mechanism is a continuous {type(mech).__name__}; "
-                "give a BernoulliMechanism or CategoricalMechanism, or leave it to the default"
-            )
-    for name in out:
-        var = graph[name]
-        if var.role is Role.ACTION:
-            raise ValueError(f"{name!r} is an action; actions are continuous boxes and cannot be discrete")
-        if var.dim != 1:
-            raise ValueError(
-                f"discrete site {name!r} has dim {var.dim}; a discrete variable holds one code (dim 1)"
-            )
-    return {n: out[n] for n in graph.names if n in out}
-
-
-def _width(graph: CausalGraph, categories: Mapping[str, int], name: str) -> int:
-    k = categories.get(name, 0)
-    return k if k > 2 else graph[name].dim
-
-
-def _one_hot(value: Tensor, k: int) -> Tensor:
-    """``(..., 1)`` codes -> ``(..., k)`` one-hot rows of the same dtype."""
-    return torch.nn.functional.one_hot(value[..., 0].long().clamp(0, k - 1), k).to(value.dtype)
-
-
-def _default_discrete(
-    kind: str,
-    in_dim: int,
-    k: int,
-    hidden: tuple[int, ...],
-    activation: str,
-    generator: torch.Generator | None,
-) -> DiscreteMechanism:
-    """Logistic / softmax regression for ``kind="linear"``, an MLP of ``hidden`` otherwise."""
-    widths = () if kind == "linear" else hidden
-    if k == 2:
-        return BernoulliMechanism(in_dim, hidden=widths, activation=activation, seed=generator)
-    return CategoricalMechanism(in_dim, k, hidden=widths, activation=activation, seed=generator)
