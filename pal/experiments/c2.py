@@ -42,8 +42,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pal.agent import Agent
-from pal.checks import check_float, check_int
-from pal.experiments.push_goals import check_interval, push_goals
+from pal.checks import check_int
+from pal.experiments.push_goals import check_geometry, push_goals
 from pal.experiments.pushing_control import ScriptedPusher
 from pal.experiments.pushing_setup import QUICK_SETUP, TINY_SETUP, SetupConfig, babbled_agent, summary
 from pal.experiments.registry import register
@@ -92,10 +92,7 @@ class Config:
         check_int("seed", self.seed, minimum=0)
         check_int("targets", self.targets)
         check_int("episode_steps", self.episode_steps)
-        check_float("bearing_deg", self.bearing_deg, 0.0, 180.0)
-        object.__setattr__(self, "start_radius", check_interval("start_radius", self.start_radius, 0.0))
-        object.__setattr__(self, "distance", check_interval("distance", self.distance, 0.0))
-        object.__setattr__(self, "cone_deg", check_interval("cone_deg", self.cone_deg))
+        check_geometry(self)
 
 
 QUICK = Config(setup=QUICK_SETUP, targets=2, episode_steps=3)
@@ -104,17 +101,7 @@ TINY = Config(setup=TINY_SETUP, targets=1, episode_steps=2)
 
 def goals(config: Config, heading: float, shoulder: np.ndarray) -> list[dict[str, Any]]:
     """The seeded episodes (:func:`pal.experiments.push_goals.push_goals`, stream 62)."""
-    return push_goals(
-        config.seed,
-        config.targets,
-        heading,
-        shoulder,
-        start_radius=config.start_radius,
-        bearing_deg=config.bearing_deg,
-        distance=config.distance,
-        cone_deg=config.cone_deg,
-        stream=62,
-    )
+    return push_goals(config, config.targets, heading, shoulder, stream=62)
 
 
 _Z90 = 1.6448536269514722

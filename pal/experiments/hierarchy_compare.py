@@ -44,7 +44,7 @@ from pal.checks import check_float, check_int
 from pal.experiments.c2 import BALL_PARK
 from pal.experiments.hierarchy_pushing import PHASES, HierarchyConfig, push_phase, pushing_hierarchy
 from pal.experiments.lot_play import Section
-from pal.experiments.push_goals import check_interval, push_goals
+from pal.experiments.push_goals import check_geometry, push_goals
 from pal.experiments.pushing_setup import QUICK_SETUP, TINY_SETUP, SetupConfig, babbled_agent, fitted_model
 from pal.experiments.registry import register
 from pal.experiments.report import Report, Table, Target
@@ -87,10 +87,7 @@ class Config:
         check_int("goals", self.goals)
         check_int("episode_steps", self.episode_steps)
         check_float("tolerance", self.tolerance, 0.0, open_low=True)
-        check_float("bearing_deg", self.bearing_deg, 0.0, 180.0)
-        object.__setattr__(self, "start_radius", check_interval("start_radius", self.start_radius, 0.0))
-        object.__setattr__(self, "distance", check_interval("distance", self.distance, 0.0))
-        object.__setattr__(self, "cone_deg", check_interval("cone_deg", self.cone_deg))
+        check_geometry(self)
 
 
 QUICK = Config(setup=QUICK_SETUP, goals=10, episode_steps=12)
@@ -106,17 +103,7 @@ TINY = Config(
 
 def goals(config: Config, heading: float, shoulder: np.ndarray) -> list[dict[str, Any]]:
     """The seeded episodes (:func:`pal.experiments.push_goals.push_goals`, stream 64)."""
-    return push_goals(
-        config.seed,
-        config.goals,
-        heading,
-        shoulder,
-        start_radius=config.start_radius,
-        bearing_deg=config.bearing_deg,
-        distance=config.distance,
-        cone_deg=config.cone_deg,
-        stream=64,
-    )
+    return push_goals(config, config.goals, heading, shoulder, stream=64)
 
 
 def _state(obs: np.ndarray, info: dict[str, Any], objects: tuple[str, ...]) -> dict[str, np.ndarray]:

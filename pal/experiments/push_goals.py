@@ -14,7 +14,7 @@ import numpy as np
 
 from pal.checks import check_float
 
-__all__ = ["check_interval", "push_goals"]
+__all__ = ["check_geometry", "check_interval", "push_goals"]
 
 
 def check_interval(name: str, value: tuple[float, float], low: float | None = None) -> tuple[float, float]:
@@ -27,34 +27,39 @@ def check_interval(name: str, value: tuple[float, float], low: float | None = No
     return a, b
 
 
-def push_goals(
-    seed: int,
-    n: int,
-    heading: float,
-    shoulder: np.ndarray,
-    *,
-    start_radius: tuple[float, float],
-    bearing_deg: float,
-    distance: tuple[float, float],
-    cone_deg: tuple[float, float],
-    stream: int,
-) -> list[dict[str, Any]]:
-    """N episodes (module docstring), table frame, m; angles in degrees except ``heading`` (rad).
+def check_geometry(config: Any) -> None:
+    """Check a frozen config's ``bearing_deg`` and set its intervals to checked float pairs.
 
-    The draws use the seed sequence ``[seed, stream]`` and episode k's reset seed ``[seed,
-    stream + 1, k]``, so experiments with distinct streams get distinct goals.
+    ``config`` has the fields ``start_radius``, ``bearing_deg``, ``distance`` and ``cone_deg``
+    (module docstring); called from its ``__post_init__``.
+    """
+    check_float("bearing_deg", config.bearing_deg, 0.0, 180.0)
+    object.__setattr__(config, "start_radius", check_interval("start_radius", config.start_radius, 0.0))
+    object.__setattr__(config, "distance", check_interval("distance", config.distance, 0.0))
+    object.__setattr__(config, "cone_deg", check_interval("cone_deg", config.cone_deg))
+
+
+def push_goals(
+    config: Any, n: int, heading: float, shoulder: np.ndarray, stream: int
+) -> list[dict[str, Any]]:
+    """N episodes (module docstring), table frame, m; ``heading`` in rad.
+
+    ``config`` gives ``seed`` and the geometry fields of :func:`check_geometry` (degrees). The
+    draws use the seed sequence ``[seed, stream]`` and episode k's reset seed ``[seed, stream + 1,
+    k]``, so experiments with distinct streams get distinct goals.
 
     Returns:
         Per episode ``{"box": (x, y, yaw_deg), "goal": (2,) array, "seed": int}``.
     """
+    seed = config.seed
     rng = np.random.default_rng(np.random.SeedSequence([seed, stream]))
     out = []
     for k in range(n):
-        r = rng.uniform(*start_radius)
-        b = heading + math.radians(rng.uniform(-bearing_deg, bearing_deg))
+        r = rng.uniform(*config.start_radius)
+        b = heading + math.radians(rng.uniform(-config.bearing_deg, config.bearing_deg))
         start = shoulder + r * np.array([math.cos(b), math.sin(b)])
-        direction = b + math.pi / 2 + math.radians(rng.uniform(*cone_deg))
-        goal = start + rng.uniform(*distance) * np.array([math.cos(direction), math.sin(direction)])
+        direction = b + math.pi / 2 + math.radians(rng.uniform(*config.cone_deg))
+        goal = start + rng.uniform(*config.distance) * np.array([math.cos(direction), math.sin(direction)])
         out.append(
             {
                 "box": (float(start[0]), float(start[1]), float(rng.uniform(-180, 180))),
