@@ -31,6 +31,7 @@ import mujoco
 import numpy as np
 import torch
 
+from pal.checks import check_int
 from pal.language.world import Outcome, Situations
 
 __all__ = [
@@ -342,8 +343,7 @@ def pusher_situations(
     Raises:
         ValueError: ``babble_steps`` < 0.
     """
-    if isinstance(babble_steps, bool) or not isinstance(babble_steps, int) or babble_steps < 0:
-        raise ValueError(f"babble_steps must be an int >= 0, got {babble_steps!r}")
+    babble_steps = check_int("babble_steps", babble_steps, 0)
     raw = env.unwrapped
     m = raw.model
     low, high = m.jnt_range[:7, 0], m.jnt_range[:7, 1]
