@@ -6,7 +6,7 @@ The file is an ``.npz`` archive without pickled objects: one array per ``state_d
 provenance) and a SHA-256 checksum over the format, versions, metadata and every array's
 name, dtype, shape and bytes.
 
-This module follows the rules of ``pal.files`` with its own copy of them (``models`` may not
+This module follows the rules of ``pal.io.files`` with its own copy of them (``models`` may not
 import ``pal``): atomic writes (temp file, fsync, rename) with mode :data:`FILE_MODE`; strict
 JSON (NaN/inf refused naming the key); sizes checked from the zip directory and the ``.npy``
 headers before anything is inflated (:class:`ReadLimits`); and every defect of a file raises
@@ -61,7 +61,7 @@ __all__ = [
 FORMAT = "pal.world_model/3"
 _READABLE_FORMATS = ("pal.world_model/2", FORMAT)
 _OLD_FORMATS = ("pal.world_model/1",)
-#: Mode of every file written here (owner read/write, everyone read), as in ``pal.files``.
+#: Mode of every file written here (owner read/write, everyone read), as in ``pal.io.files``.
 FILE_MODE = 0o644
 _GIB = 1024**3
 _DISTS = ("pal", "torch", "pyro-ppl", "numpy", "networkx")

@@ -57,7 +57,7 @@ def _configure(verbose: bool, threads: int) -> None:
 
 
 def _output_dir(out: str | None) -> Path | None:
-    from pal.experiments.runner import OutputError, check_output_dir
+    from pal.lab.runner import OutputError, check_output_dir
 
     if out is None:
         return None
@@ -68,8 +68,8 @@ def _output_dir(out: str | None) -> Path | None:
 
 
 def _run_entry(kind: str, name: str, args: argparse.Namespace, fields: dict[str, Any] | None = None) -> int:
-    from pal.experiments import registry, render
-    from pal.experiments.runner import configure, execute
+    from pal.lab import registry, render
+    from pal.lab.runner import configure, execute
 
     try:
         entry = registry.get(kind, name)
@@ -98,7 +98,7 @@ def _run_entry(kind: str, name: str, args: argparse.Namespace, fields: dict[str,
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from pal.experiments import demo
+    from pal.lab import demo
 
     out = _output_dir(args.out)
     start = time.perf_counter()
@@ -109,7 +109,7 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _list(args: argparse.Namespace) -> int:
-    from pal.experiments import registry
+    from pal.lab import registry
 
     for entry in registry.entries():
         print(f"pal {entry.kind:<10} {entry.name:<16} {entry.summary}")
@@ -153,7 +153,7 @@ def _babble_run(config: Any, args: argparse.Namespace, out: Path, engine: Any) -
                 map_shards=None if engine is None else engine.map,
             )
         elif engine is not None:  # the one run as one Ray task: the same data as in this process
-            from pal.data import TransitionDataset
+            from pal.io.dataset import TransitionDataset
             from pal.sim.shards import run_shard
 
             engine.map(run_shard, [(config, str(out.resolve()), args.resume, args.backend)])
@@ -242,7 +242,7 @@ def _babble(args: argparse.Namespace) -> int:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from pal.experiments import sweep
+    from pal.lab import sweep
 
     if args.workers < 1:
         raise UsageError(f"pal sweep: --workers must be >= 1, got {args.workers}")

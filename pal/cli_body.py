@@ -3,7 +3,7 @@
 ``--body finger|arm | --mjcf PATH``, ``--name NAME``, ``--joint J``, ``--actuator A ...``,
 ``--frame-skip N``, ``--action-range A=LOW,HIGH ...``, ``--effective-range`` and
 ``--dataset DIR``: the flags, and their translation into ``--set`` paths of a config's
-:class:`~pal.experiments.wm_body.BodyChoice` and :class:`~pal.experiments.wm_data.DataConfig`.
+:class:`~pal.experiments.world_model.body.BodyChoice` and :class:`~pal.experiments.world_model.data.DataConfig`.
 """
 
 from __future__ import annotations
@@ -64,8 +64,8 @@ def body_fields(entry: Any, args: argparse.Namespace) -> dict[str, Any]:
     the old one that no flag replaces; the body comes before the joint, actuators and ranges,
     which are checked against it.
     """
-    from pal.experiments import configs
-    from pal.experiments.wm_data import BodyChoice, DataConfig
+    from pal.experiments.world_model.data import BodyChoice, DataConfig
+    from pal.lab import configs
 
     given = {flag: getattr(args, flag, None) for flag in BODY_FLAGS}
     given = {k: (tuple(v) if isinstance(v, list) else v) for k, v in given.items() if v is not None}
@@ -107,8 +107,8 @@ def body_fields(entry: Any, args: argparse.Namespace) -> dict[str, Any]:
 
 def check_data(kind: str, name: str, config: Any) -> None:
     """Refuse a dataset choice that cannot be analysed, before the run starts."""
-    from pal.experiments import configs
-    from pal.experiments.wm_data import DataConfig
+    from pal.experiments.world_model.data import DataConfig
+    from pal.lab import configs
 
     for _, data in configs.walk(config):
         if isinstance(data, DataConfig):

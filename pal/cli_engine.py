@@ -1,6 +1,6 @@
 """The engine options of ``pal babble`` and ``pal sweep``: ``--engine local|ray``, ``--ray-address``, ``--ray-timeout``.
 
-Ray is an optional extra: :mod:`pal.experiments.ray_engine` is imported only for ``--engine ray``.
+Ray is an optional extra: :mod:`pal.lab.ray_engine` is imported only for ``--engine ray``.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def ray_engine(command: str, args: argparse.Namespace) -> Any:
     if not args.ray_timeout > 0:
         raise UsageError(f"pal {command}: --ray-timeout must be > 0 seconds, got {args.ray_timeout}")
     try:
-        from pal.experiments.ray_engine import RayEngine
+        from pal.lab.ray_engine import RayEngine
     except ModuleNotFoundError as err:
         if err.name != "ray" and not str(err.name).startswith("ray."):
             raise
@@ -62,7 +62,7 @@ def connected(command: str, engine: Any) -> Iterator[Any]:
     if engine is None:
         yield None
         return
-    from pal.experiments.ray_engine import RayEngineError
+    from pal.lab.ray_engine import RayEngineError
 
     try:
         engine.__enter__()

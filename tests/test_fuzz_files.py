@@ -1,7 +1,7 @@
 """Seeded byte-flip fuzzing: a flipped byte either leaves the content identical or is refused.
 
 2,000 single-byte flips each, of a small saved world model (through ``models.io.load``) and
-of a small dataset chunk (through ``pal.data.read_chunk``): 0 silent content changes and 0
+of a small dataset chunk (through ``pal.io.dataset.read_chunk``): 0 silent content changes and 0
 exceptions of another type than the documented one.
 """
 
@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from models import ModelFileError
-from pal.data import DatasetFileError
-from pal.experiments.bench_fuzz import TARGETS, same_arrays
-from pal.files import FileFormatError, read_npz, write_npz
-from pal.fuzz import FuzzResult, flip_bytes
+from pal.experiments.bench.fuzz import TARGETS, same_arrays
+from pal.io.dataset import DatasetFileError
+from pal.io.files import FileFormatError, read_npz, write_npz
+from pal.io.fuzz import FuzzResult, flip_bytes
 
 FLIPS = 2000
 

@@ -1,4 +1,4 @@
-"""Both persistence layers (``pal.files`` and its copy in ``models.io``) give the same guarantees.
+"""Both persistence layers (``pal.io.files`` and its copy in ``models.io``) give the same guarantees.
 
 Each guarantee is checked on both sides: file mode, a checksum that covers the metadata and
 each array's dtype and shape, size limits checked before reading, the NaN policy of JSON,
@@ -19,7 +19,7 @@ import pytest
 import torch
 
 import models.io as model_io
-import pal.files as pal_files
+import pal.io.files as pal_files
 from models import WorldModel, chain_graph
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -210,7 +210,7 @@ def _defs(package: str, name: str) -> list[str]:
 
 
 def test_one_versions_function_per_side():
-    assert _defs("pal", "versions") == ["pal/files.py"]
+    assert _defs("pal", "versions") == ["pal/io/files.py"]
     assert _defs("models", "versions") == ["models/io.py"]
 
 

@@ -11,7 +11,7 @@ model. ``truth_prev``/``truth`` (d,) are ground-truth positions and ``state`` th
 before the step, copied from the environment's ``info`` when it reports them, for evaluation and
 exact replay (the agent never reads them; NaN and empty otherwise). ``episode`` is the episode index.
 
-On disk a history is a checked, compressed ``.npz`` of :mod:`pal.files` (format
+On disk a history is a checked, compressed ``.npz`` of :mod:`pal.io.files` (format
 :data:`FORMAT`): one array per field, and as metadata the joints, objects, provenance (seed
 and config when known) and the caller's metadata; library versions are added.
 """
@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from pal.files import FileFormatError, check_json, read_npz, write_npz
+from pal.io.files import FileFormatError, check_json, read_npz, write_npz
 
 __all__ = ["FIELDS", "FORMAT", "MOMENTUM_FIELDS", "SOURCES", "VELOCITY_FIELDS", "History", "relative"]
 

@@ -1,10 +1,14 @@
-"""Scripted experiments and benchmarks, one module each, in one protocol.
+"""The registered experiments and benchmarks, grouped by subject.
 
-Every module registers its entry with :func:`pal.experiments.registry.register`: a frozen
-``Config`` (nested sub-configs, a ``seed``), a quick and a tiny config, and
-``run(config, progress_bar=False) -> Report`` (:mod:`pal.experiments.report`). The ``pal``
-command finds entries through :func:`pal.experiments.registry.entries`, builds configs with
-:func:`pal.experiments.runner.configure` (``--set a.b=VALUE``), runs them with
-:func:`pal.experiments.runner.execute`, and :mod:`pal.experiments.render` writes every
-report as markdown, JSON and PNG.
+- :mod:`~pal.experiments.world_model`: the thesis's B1-B3, online exploration, the spring and
+  the analytic queries.
+- :mod:`~pal.experiments.perception`: A1-A3 and the real RGB-D frames.
+- :mod:`~pal.experiments.closed_loop`: the loop, C1-C4, Pusher-v5 and the hierarchy comparison.
+- :mod:`~pal.experiments.structure`: structure learning and active design.
+- :mod:`~pal.experiments.language`: grounded queries (LoT).
+- :mod:`~pal.experiments.bench`: ``pal bench NAME``.
+
+Every module here is scanned by :func:`pal.lab.registry.entries`; one that defines
+``run`` decorated with :func:`pal.lab.registry.register` is an entry. The protocol itself lives
+in :mod:`pal.lab`.
 """

@@ -322,7 +322,7 @@ def pusher_situations(
     - ``babble_steps = 0``: the seven joint angles uniform within ``spread`` of each range's
       half-width around its middle, clipped to the range, all velocities zero (at rest);
     - ``babble_steps = K > 0``: k ~ U{0, ..., K - 1} steps of uniform random torques, the
-      babbling of :mod:`pal.experiments.pusher` (the arm where babbling takes it, moving);
+      babbling of :mod:`pal.experiments.closed_loop.pusher` (the arm where babbling takes it, moving);
 
     then the object is at rest (zero velocity, as ``dpos.object`` = 0 says) and, with probability
     ``near_fraction``, moved under the fingertip, ``near_radius`` m from it in the table plane.

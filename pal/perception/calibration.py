@@ -9,7 +9,7 @@ either passed by the caller or read from ``calibration.json`` next to the frames
      "fps": 30.0}                                           # optional: frame rate when there are no timestamps
 
 Arguments given to the reader override the file. Without either, the reader raises
-:class:`~pal.sequence_files.SequenceError` naming what is missing and how to give it.
+:class:`~pal.io.sequence_files.SequenceError` naming what is missing and how to give it.
 """
 
 from __future__ import annotations
@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from pal.files import FileFormatError, read_json
 from pal.frames import check_intrinsics
-from pal.sequence_files import SequenceError
+from pal.io.files import FileFormatError, read_json
+from pal.io.sequence_files import SequenceError
 
 __all__ = ["CALIBRATION_FILE", "Calibration", "intrinsics_matrix", "resolve_calibration"]
 

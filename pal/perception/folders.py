@@ -31,8 +31,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pal.frames import RGBDFrame, check_depth_range
-from pal.perception.calibration import resolve_calibration
-from pal.sequence_files import (
+from pal.io.sequence_files import (
     FrameSequence,
     SequenceError,
     check_timestamps,
@@ -40,6 +39,7 @@ from pal.sequence_files import (
     read_image,
     read_text_rows,
 )
+from pal.perception.calibration import resolve_calibration
 
 __all__ = ["COLOR_EXTENSIONS", "DEPTH_EXTENSIONS", "FolderSequence", "find_folder_layout", "pose_matrices"]
 

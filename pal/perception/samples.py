@@ -14,7 +14,7 @@ from __future__ import annotations
 from importlib import resources
 from pathlib import Path
 
-from pal.files import read_json
+from pal.io.files import read_json
 from pal.perception.folders import FolderSequence
 
 __all__ = ["SAMPLES", "open_sample", "sample_path", "support_regions"]

@@ -1,6 +1,6 @@
 """Reading recorded RGB-D sequences: the ``pal`` layout and :func:`open_sequence` for any layout.
 
-The ``pal`` layout and its writer are defined in :mod:`pal.sequence_files` (shared with
+The ``pal`` layout and its writer are defined in :mod:`pal.io.sequence_files` (shared with
 :mod:`pal.sim.recording`); this module reads it as :class:`RecordedSequence`. The TUM RGB-D
 layout is read by :mod:`pal.perception.tum`, folders of image files (``1.png`` +
 ``1_depth.png``, or ``color/`` + ``depth/``) by :mod:`pal.perception.folders`;
@@ -20,11 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from pal.files import FileFormatError, read_json, read_npz
 from pal.frames import RGBDFrame, check_intrinsics
-from pal.perception.folders import FolderSequence, find_folder_layout
-from pal.perception.tum import TUMSequence
-from pal.sequence_files import (
+from pal.io.files import FileFormatError, read_json, read_npz
+from pal.io.sequence_files import (
     FORMAT,
     POSES_FORMAT,
     FrameSequence,
@@ -37,6 +35,8 @@ from pal.sequence_files import (
     read_image,
     read_text_rows,
 )
+from pal.perception.folders import FolderSequence, find_folder_layout
+from pal.perception.tum import TUMSequence
 
 __all__ = [
     "FORMAT",

@@ -31,7 +31,7 @@ from typing import Any, Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pal.files import FileFormatError, check_json, read_npz, write_npz
+from pal.io.files import FileFormatError, check_json, read_npz, write_npz
 
 __all__ = ["SOURCES", "Pose", "PoseDiagnostics", "PoseSource", "Trajectory"]
 
@@ -216,7 +216,7 @@ class Trajectory:
     def save(self, path: str | os.PathLike[str], metadata: Mapping[str, Any] | None = None) -> Path:
         """Write the trajectory as a checked ``.npz`` and return its path.
 
-        The file (:mod:`pal.files`: no pickle, atomic, checksummed) holds the arrays, and the
+        The file (:mod:`pal.io.files`: no pickle, atomic, checksummed) holds the arrays, and the
         diagnostics and ``metadata`` (provenance) as JSON; versions are added.
         """
         meta = {

@@ -23,9 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from pal.frames import RGBDFrame, check_depth_range
-from pal.perception.calibration import intrinsics_matrix, resolve_calibration
-from pal.perception.folders import pose_matrices
-from pal.sequence_files import (
+from pal.io.sequence_files import (
     FrameSequence,
     SequenceError,
     check_timestamps,
@@ -33,6 +31,8 @@ from pal.sequence_files import (
     read_image,
     read_text_rows,
 )
+from pal.perception.calibration import intrinsics_matrix, resolve_calibration
+from pal.perception.folders import pose_matrices
 
 __all__ = [
     "FREIBURG1_K",

@@ -7,14 +7,14 @@
 - :mod:`pal.sim.camera`: RGB, metric depth and segmentation from a named camera (EGL/OSMesa,
   or a ray-cast fallback).
 - :mod:`pal.sim.policies`, :mod:`pal.sim.babbling`: babbling policies and the data source
-  that records :class:`pal.data.TransitionDataset` files.
+  that records :class:`pal.io.dataset.TransitionDataset` files.
 - :mod:`pal.sim.ranges`: command-range overrides and the effective ranges found in babbling data.
 - :mod:`pal.sim.tabletop`, :mod:`pal.sim.motions`, :mod:`pal.sim.recording`: the tabletop
   scene, scripted object motions (thesis Table 5.1) and recordings with ground truth.
 - :mod:`pal.sim.pushing`: :class:`PushingEnv`, the arm pushing a box and a ball on the table (scene: :mod:`pal.sim.pushing_scene`).
 
 This package imports neither :mod:`models`, :mod:`inference` nor :mod:`pal.perception`: frames
-follow the contract of :mod:`pal.frames` and recordings the format of :mod:`pal.sequence_files`.
+follow the contract of :mod:`pal.frames` and recordings the format of :mod:`pal.io.sequence_files`.
 """
 
 from pal.sim.bodies import BODIES, MJCFError, body_path, check_name, load_body, load_model

@@ -34,7 +34,7 @@ import mujoco
 import numpy as np
 
 from pal.checks import check_int
-from pal.data import FORMAT, DatasetFileError, DatasetWriter, TransitionDataset, column_names
+from pal.io.dataset import FORMAT, DatasetFileError, DatasetWriter, TransitionDataset, column_names
 from pal.sim.batched import rollout_steps
 from pal.sim.bodies import check_name, load_model
 from pal.sim.env import STATE_SPEC, BabblingEnv

@@ -209,7 +209,7 @@ def effective_ranges(dataset: Any, *, rel_tol: float = 0.05, z: float = 2.0) -> 
     """Per babbling actuator, the command range within which the joint still responds.
 
     Args:
-        dataset: a :class:`~pal.data.TransitionDataset` of babbling (its metadata names the
+        dataset: a :class:`~pal.io.dataset.TransitionDataset` of babbling (its metadata names the
             actuators, their ctrl, babbled and force-limit ranges and the joints they drive).
         rel_tol: plateau tolerance as a share of the spread of the bin effects, in (0, 1].
         z: confidence of the plateau test, in standard errors (>= 0).

@@ -4,7 +4,7 @@
 one :class:`~pal.frames.RGBDFrame` per scripted instant, with the ground-truth
 instance labels (:data:`~pal.sim.tabletop.OBJECT_LABELS`) and every object's
 ``camera_from_object``. :func:`record` writes them in the ``pal`` sequence layout
-(:mod:`pal.sequence_files`, read by :mod:`pal.perception.sequence`): rgb, 16-bit depth
+(:mod:`pal.io.sequence_files`, read by :mod:`pal.perception.sequence`): rgb, 16-bit depth
 (1 mm units), ``gt/masks``, ``gt/poses.npz`` and provenance (motion, seed, drawn parameters,
 camera, backend, noise). Like all of :mod:`pal.sim`, this module does not import
 :mod:`pal.perception`.
@@ -44,7 +44,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from pal.frames import RGBDFrame
-from pal.sequence_files import SequenceWriter
+from pal.io.sequence_files import SequenceWriter
 from pal.sim.motions import MOTIONS, Script, occluder_path, script
 from pal.sim.tabletop import (
     CAMERA,
@@ -258,7 +258,7 @@ def record(
     """Record one run to the sequence directory ``out`` (module docstring); returns its path.
 
     Raises:
-        pal.sequence_files.SequenceError: ``out`` already holds a sequence and not ``overwrite``.
+        pal.io.sequence_files.SequenceError: ``out`` already holds a sequence and not ``overwrite``.
     """
     run = script(config.motion, config.seed, config.fps)
     metadata = {

@@ -13,8 +13,8 @@ Layout of the output directory ``out``::
     out/metadata.json, out/chunk_*.npz   the merged dataset, rows of shard 0, then 1, ...
 
 The shards run in local processes (``concurrent.futures``, spawned interpreters), at most
-``workers`` at a time, or as Ray tasks (``map_shards``, :mod:`pal.experiments.ray_engine`).
-``out`` is locked (:mod:`pal.locks`) for the whole run, each shard directory by its own
+``workers`` at a time, or as Ray tasks (``map_shards``, :mod:`pal.lab.ray_engine`).
+``out`` is locked (:mod:`pal.io.locks`) for the whole run, each shard directory by its own
 writer. An interrupted run resumes per shard (``resume=True``): finished
 shards are kept, unfinished ones continue where their last chunk ended.
 
@@ -41,9 +41,9 @@ from typing import Any
 import numpy as np
 
 from pal.checks import check_int
-from pal.data import METADATA, DatasetWriter, TransitionDataset
-from pal.dataset_files import chunk_files, read_metadata
-from pal.locks import LOCK_NAME, DirectoryLock
+from pal.io.dataset import METADATA, DatasetWriter, TransitionDataset
+from pal.io.dataset_files import chunk_files, read_metadata
+from pal.io.locks import LOCK_NAME, DirectoryLock
 from pal.sim.babbling import BabbleConfig, babble, effective_ranges, make_source
 
 __all__ = ["SHARDS_DIR", "ShardMap", "babble_sharded", "run_shard", "shard_configs", "shard_seed"]
@@ -112,7 +112,7 @@ def babble_sharded(
         processes: run the shards in worker processes (False: one after the other in this one,
             with the same result).
         map_shards: runs :func:`run_shard` over the shards' arguments instead of the local
-            processes (``--engine ray``: :meth:`pal.experiments.ray_engine.RayEngine.map`); the
+            processes (``--engine ray``: :meth:`pal.lab.ray_engine.RayEngine.map`); the
             shard directories must then be reachable at the same path by every worker.
 
     Returns:

@@ -1,4 +1,4 @@
-"""Average treatment effects from a fitted world model against a closed-form oracle (real tables: tests/pal/test_datasets.py)."""
+"""Average treatment effects from a fitted world model against a closed-form oracle (real tables: tests/pal/datasets/test_tables.py)."""
 
 from __future__ import annotations
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-import pal.experiments.runner as runner
+import pal.lab.runner as runner
 from pal.cli import main
 
 

@@ -1,0 +1,8 @@
+"""Reference controllers and peer adapters that the experiments compare pal against.
+
+- :mod:`pal.baselines.pets`: a PETS-style probabilistic ensemble over the full observation,
+  planned with CEM (plain torch).
+- :mod:`pal.baselines.scripted_pusher`: a pushing controller that reads the ground truth.
+- :mod:`pal.baselines.counterfactual_peers`: ChiRho and DoWhy-GCM on pal's SCMs (``.[bench]``).
+- :mod:`pal.baselines.discovery_peers`: causal-learn's GRaSP and PC (``.[bench]``).
+"""

@@ -1,0 +1,402 @@
+"""Experiment C2: goal-directed pushing of the box to 20 targets, judged in the simulator.
+
+After babbling and fitting (:mod:`pal.experiments.closed_loop.setup`), each of ``targets`` episodes puts
+the box at a seeded start (``start_radius`` m from the shoulder, within ``bearing_deg`` of the
+workspace's central bearing, random yaw), the ball out of reach, the arm at rest, and draws a goal
+``distance`` m away in a direction ``cone_deg`` from the arm's sweep direction (the
+counter-clockwise tangent about the shoulder; negative angles turn it outwards, away from the body;
+pushing the box towards the body needs the hand beyond it, which this arm rarely manages). Three
+controllers get ``episode_steps`` steps from the same start:
+
+- ``inferred``: the agent in goal mode (:meth:`pal.agent.Agent.decide`): per step Π, the state
+  posterior through the measurement sites, and model-predictive control: the sampling planner
+  over ``agent.plan.horizon`` steps through the ensemble world model, replanned every step
+  (:mod:`pal.agent.plan`); it holds when the model predicts no progress. The goal is given to it
+  as the wanted displacement of the box (its perceived start plus the true offset), so the constant
+  offset between the perceived point and the box centre does not count against it;
+- ``random``: uniform random servo targets;
+- ``scripted``: :class:`~pal.baselines.scripted_pusher.ScriptedPusher`, which knows the true state
+  and checks its approach moves in the simulator.
+
+``final_err_cm``: true distance of the box centre from the goal after the episode (from the
+environment's ``info``; the random and scripted controllers run on a second, camera-less world
+with the same starts). For the agent, ``model_err_cm``: the distance to its goal that the world
+model predicted for its last executed action, and ``belief_err_cm``: the distance of its final
+state estimate (posterior mean) from it. For every executed push (touch), the model's predicted
+displacement of the box over the step with its 90 % interval is held against the true one
+(``pushes``, ``push_interval_coverage``).
+
+Metrics: ``{inferred|random|scripted: {final_err_cm_median, _mean, _p25, _p75, within_2cm}}``,
+``model_err_cm_median``, ``belief_err_cm_median``, ``initial_err_cm_median``,
+``random_over_inferred``, ``scripted_over_inferred``, ``episodes`` (one record per target) and
+``info``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from pal.agent import Agent
+from pal.baselines.scripted_pusher import ScriptedPusher
+from pal.checks import check_int
+from pal.experiments.closed_loop.push_goals import check_geometry, push_goals
+from pal.experiments.closed_loop.setup import QUICK_SETUP, TINY_SETUP, SetupConfig, babbled_agent, summary
+from pal.lab.registry import register
+from pal.lab.report import Report, Table, Target
+from pal.sim.pushing import PushingEnv
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = ["CONDITIONS", "TARGET_ERR_CM", "TARGET_VS_RANDOM", "Config", "goals", "run"]
+
+log = logging.getLogger(__name__)
+
+CONDITIONS = ("inferred", "random", "scripted")
+#: The agent's median final error should be at most this, cm (and below the scripted pusher's) ...
+TARGET_ERR_CM = 1.5
+#: ... and at least this many times smaller than random babbling's.
+TARGET_VS_RANDOM = 5.0
+#: Where the ball waits during C2 (out of the arm's reach, in view), table frame, m.
+BALL_PARK = (-0.22, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Config:
+    """C2 protocol (module docstring); sizes in metres and degrees.
+
+    Attributes:
+        seed: master seed (babbling, fits, episodes, inference).
+        setup: babbling and fitting.
+        targets: goal episodes.
+        episode_steps: steps per episode and controller.
+        start_radius, bearing_deg: where the box starts about the shoulder (m, deg).
+        distance, cone_deg: how far the goal is (m) and its direction from the sweep direction (deg).
+    """
+
+    seed: int = 0
+    setup: SetupConfig = SetupConfig()
+    targets: int = 20
+    episode_steps: int = 15
+    start_radius: tuple[float, float] = (0.16, 0.20)
+    bearing_deg: float = 25.0
+    distance: tuple[float, float] = (0.04, 0.08)
+    cone_deg: tuple[float, float] = (-60.0, 15.0)
+
+    def __post_init__(self) -> None:
+        check_int("seed", self.seed, minimum=0)
+        check_int("targets", self.targets)
+        check_int("episode_steps", self.episode_steps)
+        check_geometry(self)
+
+
+QUICK = Config(setup=QUICK_SETUP, targets=2, episode_steps=3)
+TINY = Config(setup=TINY_SETUP, targets=1, episode_steps=2)
+
+
+def goals(config: Config, heading: float, shoulder: np.ndarray) -> list[dict[str, Any]]:
+    """The seeded episodes (:func:`pal.experiments.closed_loop.push_goals.push_goals`, stream 62)."""
+    return push_goals(config, config.targets, heading, shoulder, stream=62)
+
+
+_Z90 = 1.6448536269514722
+
+
+def _truth(agent: Agent) -> np.ndarray:
+    """The box centre (2,) that the environment reports in ``info`` (evaluation only)."""
+    return np.asarray(agent.percept.evaluation["truth"]["box"][:2], dtype=np.float64)
+
+
+def _inferred(
+    agent: Agent, spec: dict[str, Any], goal: np.ndarray, steps: int
+) -> tuple[dict[str, Any], list[np.ndarray]]:
+    """The agent in goal mode for ``steps`` steps; its record (model and belief errors, modes, pushes) and box path."""
+    agent.reset(seed=spec["seed"], options={"objects": {"box": spec["box"], "ball": BALL_PARK}})
+    est = agent.estimate.get("box")
+    if est is None:
+        log.warning("the box was not perceived at the start of an episode; the agent cannot act on it")
+        agent.goal = {}
+    else:
+        agent.goal = {"box": est + (goal - np.asarray(spec["box"][:2]))}
+    last, path, pushes = None, [], []
+    modes: Counter[str] = Counter()
+    for _ in range(steps):
+        before = _truth(agent)
+        path.append(before)
+        decision = agent.decide("goal")
+        modes[decision.mode] += 1
+        if decision.mode == "goal":
+            last = decision
+        percept = agent.step(decision.action)
+        if decision.mode == "goal" and percept.touch[0] > 0 and "box" in decision.step_mean:
+            pushes.append([*decision.step_mean["box"], *decision.step_sd["box"], *(_truth(agent) - before)])
+    end = agent.estimate.get("box")
+    path.append(_truth(agent))
+    record = {
+        "model_err_cm": None if last is None else 100 * float(last.objective),
+        "belief_err_cm": None
+        if end is None or not agent.goal
+        else 100 * float(np.linalg.norm(end - agent.goal["box"])),
+        "modes": dict(modes),
+        "pushes": pushes,
+    }
+    return record, path
+
+
+def _episode(
+    agent: Agent, judge: PushingEnv, spec: dict[str, Any], condition: str, steps: int
+) -> tuple[dict[str, Any], np.ndarray]:
+    """One episode of ``condition``: its record (``final_err_cm``, cm) and the box centre's path (T + 1, 2), m."""
+    goal = np.asarray(spec["goal"], float)
+    if condition == "inferred":
+        record, path = _inferred(agent, spec, goal, steps)
+    else:
+        record, path = {}, []
+        judge.reset(seed=spec["seed"], options={"objects": {"box": spec["box"], "ball": BALL_PARK}})
+        rng = np.random.default_rng(spec["seed"])
+        pusher = ScriptedPusher(judge)
+        box = lambda: np.asarray(judge.object_positions()["box"][:2], dtype=np.float64)  # noqa: E731
+        for _ in range(steps):
+            path.append(box())
+            judge.step(
+                rng.uniform(judge.ctrl_low, judge.ctrl_high) if condition == "random" else pusher.act(goal)[0]
+            )
+        path.append(box())
+    path = np.array(path).reshape(-1, 2)
+    record["final_err_cm"] = 100 * float(np.linalg.norm(path[-1] - goal))
+    return record, path
+
+
+def _ratio(num: float | None, den: float | None) -> float | None:
+    return None if num is None or not den else num / den
+
+
+@register("c2", config=Config, quick=QUICK, tiny=TINY)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """C2: pushing the box to goals, inferred actions vs random and scripted, in the simulator."""
+    agent = babbled_agent(config.setup, config.seed, progress_bar=progress_bar)
+    fitted = agent.refit()["rows"]
+    env = agent.env.unwrapped
+    judge = PushingEnv(camera_size=config.setup.camera_size)
+    specs = goals(config, env.workspace_bearing, np.asarray(env.layout.shoulder[:2]))
+    episodes: list[dict[str, Any]] = []
+    traces: dict[str, list[np.ndarray]] = {c: [] for c in CONDITIONS}
+    paths: dict[str, list[np.ndarray]] = {c: [] for c in CONDITIONS}
+    for k, spec in enumerate(specs):
+        row: dict[str, Any] = {
+            "target": k,
+            "box_start": list(spec["box"]),
+            "goal": spec["goal"].tolist(),
+            "initial_err_cm": 100 * float(np.linalg.norm(spec["goal"] - np.asarray(spec["box"][:2]))),
+        }
+        for c in CONDITIONS:
+            row[c], path = _episode(agent, judge, spec, c, config.episode_steps)
+            paths[c].append(path)
+            traces[c].append(np.linalg.norm(path - spec["goal"], axis=1))
+        log.info(
+            "C2 target %d: %s",
+            k,
+            ", ".join(f"{c} {row[c]['final_err_cm']:.2f} cm" for c in CONDITIONS),
+        )
+        episodes.append(row)
+    env.close()
+    judge.close()
+    pushes = np.array([p for e in episodes for p in e["inferred"].pop("pushes")]).reshape(-1, 6)
+    inside = np.abs(pushes[:, 4:] - pushes[:, :2]) <= _Z90 * pushes[:, 2:4]
+    metrics: dict[str, Any] = {}
+    for c in CONDITIONS:
+        errors = [e[c]["final_err_cm"] for e in episodes]
+        s = summary(errors)
+        metrics[c] = {
+            "final_err_cm_median": s["median"],
+            "final_err_cm_mean": s["mean"],
+            "final_err_cm_p25": s["p25"],
+            "final_err_cm_p75": s["p75"],
+            "within_2cm": float(np.mean(np.array(errors) <= TARGET_ERR_CM)),
+        }
+    inferred = [e["inferred"] for e in episodes]
+    metrics["model_err_cm_median"] = summary(
+        [r["model_err_cm"] for r in inferred if r["model_err_cm"] is not None]
+    )["median"]
+    metrics["inferred"]["model_err_cm_median"] = metrics["model_err_cm_median"]
+    metrics["belief_err_cm_median"] = summary(
+        [r["belief_err_cm"] for r in inferred if r["belief_err_cm"] is not None]
+    )["median"]
+    metrics["initial_err_cm_median"] = summary([e["initial_err_cm"] for e in episodes])["median"]
+    med = {c: metrics[c]["final_err_cm_median"] for c in CONDITIONS}
+    metrics["random_over_inferred"] = _ratio(med["random"], med["inferred"])
+    metrics["scripted_over_inferred"] = _ratio(med["scripted"], med["inferred"])
+    metrics["inferred_modes"] = dict(sum((Counter(r["modes"]) for r in inferred), Counter()))
+    metrics["pushes"] = {
+        "n": len(pushes),
+        "predicted_cm": (100 * pushes[:, :2]).tolist(),
+        "sd_cm": (100 * pushes[:, 2:4]).tolist(),
+        "realized_cm": (100 * pushes[:, 4:]).tolist(),
+    }
+    metrics["push_interval_coverage"] = float(inside.mean()) if len(pushes) else None
+    metrics["episodes"] = episodes
+    metrics["info"] = {"fitted_rows": fitted}
+    return Report(
+        title="C2: pushing the box to targets (realized in the simulator)",
+        metrics=metrics,
+        tables=_tables(metrics),
+        targets=[
+            Target(
+                "inferred_final_err_cm",
+                med["inferred"],
+                TARGET_ERR_CM,
+                "<=",
+                "median over goals of the true box centre's final distance from the goal, inferred actions, cm",
+            ),
+            Target(
+                "inferred_below_scripted",
+                metrics["scripted_over_inferred"],
+                1.0,
+                ">",
+                "median final distance of the scripted pusher / of the agent (> 1: the agent is closer)",
+            ),
+            Target(
+                "push_interval_coverage",
+                metrics["push_interval_coverage"],
+                0.85,
+                ">=",
+                "share of the box's true displacements over the agent's pushes inside its model's 90 % interval "
+                "(per component; 85-95 % is calibrated)",
+            ),
+            Target(
+                "push_interval_coverage_max",
+                metrics["push_interval_coverage"],
+                0.95,
+                "<=",
+                "the same share, at most 95 % (wider intervals than calibrated ones are underconfident)",
+            ),
+            Target(
+                "random_over_inferred",
+                metrics["random_over_inferred"],
+                TARGET_VS_RANDOM,
+                ">=",
+                "median final distance from the goal of random babbling / of inferred actions",
+            ),
+        ],
+        notes=[
+            f"{config.targets} goal{'s' * (config.targets != 1)}, {config.episode_steps} steps each, after {config.setup.babble_steps} "
+            f"babbling steps (seed {config.seed}).",
+            "Errors are the true box centre's distance from the goal at the end of the episode, cm.",
+        ],
+        figures={
+            "episodes": _episodes_figure(traces),
+            "paths": _paths_figure(paths, specs),
+            "pushes": _pushes_figure(pushes),
+        },
+    )
+
+
+def _tables(m: dict[str, Any]) -> list[Table]:
+    controllers = [
+        [
+            c,
+            m[c]["final_err_cm_median"],
+            m[c]["final_err_cm_p25"],
+            m[c]["final_err_cm_p75"],
+            m[c]["final_err_cm_mean"],
+            m[c]["within_2cm"],
+        ]
+        for c in CONDITIONS
+    ]
+    agent = [
+        ["start-to-goal distance, median [cm]", m["initial_err_cm_median"]],
+        ["model-internal predicted error of the last action, median [cm]", m["model_err_cm_median"]],
+        ["final belief (posterior mean) to goal, median [cm]", m["belief_err_cm_median"]],
+        ["random / inferred", m["random_over_inferred"]],
+        ["scripted / inferred", m["scripted_over_inferred"]],
+    ]
+    agent += [[f"agent decisions: {mode}", n] for mode, n in sorted(m["inferred_modes"].items())]
+    episodes = [
+        [e["target"], e["initial_err_cm"], *[e[c]["final_err_cm"] for c in CONDITIONS]] for e in m["episodes"]
+    ]
+    return [
+        Table(
+            "Final distance of the box from the goal [cm]",
+            ["controller", "median", "25th pct", "75th pct", "mean", "share within 2 cm"],
+            controllers,
+            caption="The thesis has no number for this.",
+        ),
+        Table("The agent's own view", ["quantity", "value"], agent),
+        Table("Episodes [cm]", ["goal", "start", *CONDITIONS], episodes),
+    ]
+
+
+def _pushes_figure(pushes: np.ndarray) -> Figure:
+    """Predicted against realized box displacement over each push, per component, with the 90 % intervals."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(4.2, 3.8))
+    for k, (axis, colour) in enumerate((("x", "C0"), ("y", "C1"))):
+        ax.errorbar(
+            100 * pushes[:, 4 + k],
+            100 * pushes[:, k],
+            yerr=100 * _Z90 * pushes[:, 2 + k],
+            fmt=".",
+            color=colour,
+            ecolor=colour,
+            alpha=0.6,
+            lw=0.8,
+            label=axis,
+        )
+    lim = float(np.abs(100 * pushes[:, [0, 1, 4, 5]]).max()) if len(pushes) else 1.0
+    ax.plot([-lim, lim], [-lim, lim], color="k", lw=1, ls=":")
+    ax.set(xlabel="realized displacement, cm", ylabel="predicted (90 % interval), cm", title="C2 pushes")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def _paths_figure(paths: dict[str, list[np.ndarray]], specs: list[dict[str, Any]], n: int = 4) -> Figure:
+    """The box centre's path under each controller in the first ``n`` episodes, with its start and goal (table plane)."""
+    import matplotlib.pyplot as plt
+
+    n = min(n, len(specs))
+    cols = min(n, 2)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, 3.2 * rows), squeeze=False)
+    for k, ax in enumerate(axes.flat):
+        if k >= n:
+            ax.set_axis_off()
+            continue
+        for c, colour in zip(CONDITIONS, ("C0", "C3", "C2"), strict=True):
+            p = 100 * paths[c][k]
+            ax.plot(p[:, 0], p[:, 1], color=colour, marker=".", ms=3, lw=1, label=c)
+        start, goal = 100 * np.asarray(specs[k]["box"][:2]), 100 * np.asarray(specs[k]["goal"])
+        ax.plot(*start, color="k", marker="o", ls="none", label="start")
+        ax.plot(*goal, color="k", marker="*", ms=11, ls="none", label="goal")
+        ax.set(xlabel="x, cm", ylabel="y, cm", title=f"goal {k}", aspect="equal")
+    axes.flat[0].legend(fontsize=6)
+    fig.suptitle("C2: the box's path and its goal")
+    fig.tight_layout()
+    return fig
+
+
+def _episodes_figure(traces: dict[str, list[np.ndarray]]) -> Figure:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 3.6))
+    for c, colour in zip(CONDITIONS, ("C0", "C3", "C2"), strict=True):
+        for k, trace in enumerate(traces[c]):
+            ax.plot(
+                np.arange(len(trace)),
+                trace * 100,
+                color=colour,
+                alpha=0.35,
+                lw=1,
+                label=c if k == 0 else None,
+            )
+    ax.axhline(TARGET_ERR_CM, color="k", ls=":", lw=1)
+    ax.set(xlabel="step", ylabel="box distance to goal, cm", title="C2 episodes")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,291 @@
+"""Experiment C4: curiosity-driven exploration of the object variables against random babbling.
+
+For each of ``runs`` seeds (``seed``, ``seed + 1``, ...), two agents start from the same
+``setup.babble_steps`` steps of random babbling (same seed, so the same actions and the same
+world), then spend ``budget`` more steps:
+
+- ``curiosity``: the world model (heteroscedastic ensembles) is fitted on the warm-up, then every
+  step the agent chooses the action sequence whose ensemble members disagree most about the
+  objects' displacements, gated by the causal action-influence score of each object
+  (:mod:`pal.agent.influence`), executes its first action, and refits every
+  ``setup.agent.learn.refit_every`` steps; when no sequence scores it babbles
+  (``setup.agent.curiosity.method="density"`` uses the grid targets of Eq. 4.34-4.38 instead);
+- ``random``: random babbling goes on.
+
+Objects are put back at the same seeded places every ``setup.agent.reset_every`` steps in both runs.
+Coverage is the share of cells of the agent's grid over the table region that an object entered
+during the budget *by being moved* (true position after a step in which it moved more than
+``min_motion`` m; positions where objects were put back do not count), averaged over the objects.
+The contact rate is the share of the budget's steps in which the arm touched an object.
+
+Metrics: ``coverage_at_budget`` and ``contact_rate`` ``{curiosity, random}`` (mean over seeds),
+``per_seed`` values, ``coverage_gain`` and ``contact_gain`` (curiosity minus random, targets > 0),
+the one-sided paired t-test over seeds of each gain (``paired_test``), ``curiosity_over_random``,
+the coverage and contact ``curves`` and the curious agent's ``curious_decisions``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from scipy import stats
+
+from pal.agent import AgentConfig, LearnConfig
+from pal.agent.config import ModelConfig
+from pal.agent.curiosity import grid_occupancy
+from pal.agent.history import History
+from pal.checks import check_float, check_int
+from pal.experiments.closed_loop.setup import TINY_AGENT, TINY_SETUP, SetupConfig, babbled_agent
+from pal.lab.registry import register
+from pal.lab.report import Report, Table, Target
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = ["Config", "coverage_curve", "run"]
+
+log = logging.getLogger(__name__)
+
+#: The two explorers: curiosity targets (Eq. 4.38) and random babbling.
+_CONDITIONS = ("curiosity", "random")
+
+
+@dataclass(frozen=True)
+class Config:
+    """C4 protocol (module docstring).
+
+    Attributes:
+        seed: seed of the first run (the k-th run uses ``seed + k``).
+        runs: repetitions of both conditions.
+        setup: the warm-up babbling, the fits and the agent (its ``refit_every`` is the curious
+            agent's online refit period, steps).
+        budget: steps after the warm-up.
+        checkpoint_every: coverage is read every this many steps of the budget.
+        min_motion: an object counts as moved when it moves more than this in one step, m.
+    """
+
+    seed: int = 0
+    runs: int = 3
+    setup: SetupConfig = SetupConfig(babble_steps=400, agent=AgentConfig(learn=LearnConfig(refit_every=50)))
+    budget: int = 200
+    checkpoint_every: int = 20
+    min_motion: float = 0.005
+
+    def __post_init__(self) -> None:
+        for name in ("runs", "budget", "checkpoint_every"):
+            check_int(name, getattr(self, name))
+        check_int("seed", self.seed, minimum=0)
+        check_float("min_motion", self.min_motion, 0.0)
+
+    @property
+    def seeds(self) -> tuple[int, ...]:
+        """The seeds of the runs."""
+        return tuple(range(self.seed, self.seed + self.runs))
+
+
+QUICK = Config(
+    runs=1,
+    setup=SetupConfig(
+        babble_steps=120,
+        agent=AgentConfig(model=ModelConfig(epochs=30), learn=LearnConfig(refit_every=1000)),
+    ),
+    budget=6,
+    checkpoint_every=3,
+)
+TINY = Config(
+    runs=2,
+    setup=replace(TINY_SETUP, babble_steps=8, agent=replace(TINY_AGENT, learn=LearnConfig(refit_every=2))),
+    budget=2,
+    checkpoint_every=1,
+)
+
+
+def contact_curve(history: History, start: int, checkpoints: np.ndarray) -> np.ndarray:
+    """Share of the rows [start, start + s) in which the arm touched any object, for each s in ``checkpoints``."""
+    touched = (history.array("touch")[start:] > 0).any(1)
+    return np.array([float(touched[: int(s)].mean()) for s in checkpoints])
+
+
+def paired_test(a: list[float], b: list[float]) -> float | None:
+    """One-sided paired t-test p-value that ``a`` exceeds ``b`` (None with fewer than 2 pairs or no spread)."""
+    d = np.asarray(a) - np.asarray(b)
+    if d.size < 2 or np.allclose(d, d[0]):
+        return None
+    return float(stats.ttest_rel(a, b, alternative="greater").pvalue)
+
+
+def coverage_curve(
+    history: History,
+    start: int,
+    checkpoints: np.ndarray,
+    region: Any,
+    bins: tuple[int, int],
+    min_motion: float,
+) -> np.ndarray:
+    """Coverage (mean over objects) of moved-object positions in rows [start, start + s) for each s.
+
+    Args:
+        history: the agent's history (true positions are read).
+        start: first row of the budget.
+        checkpoints: (K,) step counts s.
+        region: ((x0, y0), (x1, y1)) table region, m.
+        bins: grid cells per axis (x, y).
+        min_motion: an object counts as moved when it moved more than this in the step, m.
+
+    Returns:
+        (K,) shares of grid cells.
+    """
+    truth, truth_prev = history.array("truth"), history.array("truth_prev")
+    (x0, y0), (x1, y1) = region
+    out = []
+    for s in checkpoints:
+        rows = slice(start, start + int(s))
+        values = []
+        for k in range(len(history.objects)):
+            moved = np.linalg.norm(truth[rows, k] - truth_prev[rows, k], axis=1) > min_motion
+            pts = truth[rows, k][moved]
+            values.append(grid_occupancy(pts, (x0, y0), (x1, y1), bins) if len(pts) else 0.0)
+        out.append(float(np.mean(values)))
+    return np.array(out)
+
+
+@register("c4", config=Config, quick=QUICK, tiny=TINY)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """C4: coverage of pushed object positions, curiosity-driven vs random babbling."""
+    warmup, budget = config.setup.babble_steps, config.budget
+    checkpoints = np.unique(
+        np.append(np.arange(config.checkpoint_every, budget + 1, config.checkpoint_every), budget)
+    )
+    curves: dict[str, list[np.ndarray]] = {c: [] for c in _CONDITIONS}
+    contacts: dict[str, list[np.ndarray]] = {c: [] for c in _CONDITIONS}
+    modes: list[dict[str, int]] = []
+    region, bins = config.setup.agent.curiosity.region, config.setup.agent.curiosity.bins
+    for seed in config.seeds:
+        curious = babbled_agent(config.setup, seed, progress_bar=progress_bar)
+        curious.refit()
+        decisions = curious.run(budget, "curious", progress_bar=progress_bar)
+        modes.append({m: sum(d.mode == m for d in decisions) for m in ("curious", "babble")})
+        randomly = babbled_agent(
+            replace(config.setup, babble_steps=warmup + budget), seed, progress_bar=progress_bar
+        )
+        for c, agent in (("curiosity", curious), ("random", randomly)):
+            curves[c].append(
+                coverage_curve(agent.history, warmup, checkpoints, region, bins, config.min_motion)
+            )
+            contacts[c].append(contact_curve(agent.history, warmup, checkpoints))
+            agent.env.close()
+        log.info(
+            "C4 seed %d: curiosity %.3f, random %.3f",
+            seed,
+            curves["curiosity"][-1][-1],
+            curves["random"][-1][-1],
+        )
+    at_budget = {c: float(np.mean([v[-1] for v in curves[c]])) for c in _CONDITIONS}
+    per_seed = {c: [float(v[-1]) for v in curves[c]] for c in _CONDITIONS}
+    rate = {c: float(np.mean([v[-1] for v in contacts[c]])) for c in _CONDITIONS}
+    rate_seed = {c: [float(v[-1]) for v in contacts[c]] for c in _CONDITIONS}
+    gain = at_budget["curiosity"] - at_budget["random"]
+    contact_gain = rate["curiosity"] - rate["random"]
+    tests = {
+        "coverage_p": paired_test(per_seed["curiosity"], per_seed["random"]),
+        "contact_p": paired_test(rate_seed["curiosity"], rate_seed["random"]),
+    }
+    metrics = {
+        "seeds": list(config.seeds),
+        "coverage_at_budget": at_budget,
+        "per_seed": per_seed,
+        "coverage_gain": gain,
+        "contact_rate": rate,
+        "contact_per_seed": rate_seed,
+        "contact_gain": contact_gain,
+        "paired_test": tests,
+        "curiosity_over_random": at_budget["curiosity"] / at_budget["random"]
+        if at_budget["random"]
+        else None,
+        "curves": {
+            "steps": checkpoints.tolist(),
+            **{c: [v.tolist() for v in curves[c]] for c in _CONDITIONS},
+            "contact": {c: [v.tolist() for v in contacts[c]] for c in _CONDITIONS},
+        },
+        "curious_decisions": modes,
+        "info": {"region": [list(p) for p in region], "bins": list(bins)},
+    }
+    table = Table(
+        "Coverage of pushed object positions and contact rate at the budget",
+        [
+            "condition",
+            "coverage, mean",
+            *[f"coverage, seed {s}" for s in config.seeds],
+            "contact rate, mean",
+            *[f"contact, seed {s}" for s in config.seeds],
+        ],
+        [[c, at_budget[c], *per_seed[c], rate[c], *rate_seed[c]] for c in _CONDITIONS],
+        caption="Coverage: share of table cells an object was pushed into. Contact rate: share of steps with touch. "
+        "The thesis reports occupancy only for a finger joint (§5.2.4), not for object variables.",
+    )
+    return Report(
+        title="C4: exploration of the object positions, curiosity vs random babbling",
+        metrics=metrics,
+        tables=[table],
+        targets=[
+            Target(
+                "coverage_gain",
+                gain,
+                0.0,
+                ">",
+                f"coverage at the budget, curiosity minus random babbling (share of the {bins[0]} x {bins[1]} "
+                "table cells an object was pushed into, mean over seeds)",
+            ),
+            Target(
+                "contact_gain",
+                contact_gain,
+                0.0,
+                ">",
+                "share of the budget's steps with touch, curiosity minus random (mean over seeds)",
+            ),
+            Target(
+                "coverage_paired_p",
+                tests["coverage_p"],
+                0.05,
+                "<=",
+                "one-sided paired t-test over seeds, coverage of curiosity > random (p-value)",
+            ),
+            Target(
+                "contact_paired_p",
+                tests["contact_p"],
+                0.05,
+                "<=",
+                "one-sided paired t-test over seeds, contact rate of curiosity > random (p-value)",
+            ),
+        ],
+        notes=[
+            f"After {warmup} warm-up babbling steps, {budget} more steps per seed "
+            f"(seeds {', '.join(str(s) for s in config.seeds)}).",
+        ],
+        figures={
+            "coverage": _coverage_figure(
+                checkpoints, {c: np.stack(v) for c, v in curves.items()}, "coverage"
+            ),
+            "contact": _coverage_figure(
+                checkpoints, {c: np.stack(v) for c, v in contacts.items()}, "contact rate"
+            ),
+        },
+    )
+
+
+def _coverage_figure(steps: np.ndarray, curves: dict[str, np.ndarray], what: str) -> Figure:
+    """Mean ± sd over seeds of a curve against the steps of the budget, curiosity against random."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5, 3.4))
+    for c, colour in zip(_CONDITIONS, ("C0", "C3"), strict=True):
+        mean, sd = curves[c].mean(0), curves[c].std(0)
+        ax.plot(steps, mean, color=colour, label=c)
+        ax.fill_between(steps, mean - sd, mean + sd, color=colour, alpha=0.2)
+    ax.set(xlabel="steps after warm-up", ylabel=what, title=f"C4 {what} (mean ± sd over seeds)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,1 @@
+"""Grounded query experiments (thesis Eq. 6.10): the world model against the simulator."""

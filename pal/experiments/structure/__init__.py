@@ -1,0 +1,1 @@
+"""Structure-learning experiments: synthetic SCMs, a babbling body, active design."""

@@ -1,0 +1,148 @@
+"""Smoke tests of ``pal bench``: quick configurations run and report sane figures.
+
+Speed is never asserted here (see DESIGN.md); only keys, finiteness and positivity, the
+ratios' definitions, and that the peer libraries compute the same counterfactuals as pal.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from inference import counterfactual
+from pal.baselines.counterfactual_peers import available
+from pal.experiments.bench import action as bench_action
+from pal.experiments.bench import babble as bench_babble
+from pal.experiments.bench import counterfactual as bench_counterfactual
+from pal.experiments.bench import svi as bench_svi
+from pal.lab import registry
+
+FIGURES = {"chain_unit_ms", "mlp50_unit_ms", "units_per_s", "scenarios_ms"}
+
+
+def _positive(value: object) -> bool:
+    return isinstance(value, float) and math.isfinite(value) and value > 0
+
+
+def _check_figures(figs: dict, ks: set[str]) -> None:
+    for key in FIGURES - {"scenarios_ms"}:
+        assert _positive(figs[key]), (key, figs[key])
+    assert set(figs["scenarios_ms"]) == ks
+    assert all(_positive(v) for v in figs["scenarios_ms"].values())
+
+
+def test_benchmarks_are_registered():
+    names = {e.name for e in registry.entries("bench")}
+    assert {"counterfactual", "svi", "action", "babble", "discovery", "perception"} <= names
+
+
+def test_counterfactual_quick():
+    config = registry.get("bench", "counterfactual").quick
+    rep = bench_counterfactual.run(config)
+    m = rep.metrics
+    assert {"pal", "chirho", "dowhy", "ratios", "agreement", "scenario_growth", "intervened"} == set(m)
+    _check_figures(m["pal"], {"1", "2", "4", "8"})
+    assert m["scenario_growth"] == pytest.approx(
+        m["pal"]["scenarios_ms"]["8"] / m["pal"]["scenarios_ms"]["1"]
+    )
+    for peer in ("chirho", "dowhy"):
+        if not available(peer):
+            assert m[peer] is None and m["ratios"][peer] is None
+            continue
+        _check_figures(m[peer], {"1", "2", "4", "8"})
+        ratios = m["ratios"][peer]
+        assert _positive(ratios["chain_unit_ms"]) and _positive(ratios["units_per_s"])
+        assert m["agreement"][peer] <= bench_counterfactual.TOLERANCE
+    table = rep.tables[0]
+    assert table.columns[:4] == ("figure", "pal", "chirho", "dowhy") and len(table.rows) == 3 + 4
+    per_unit = {f"{f}_vs_{n}" for f in ("chain_unit_ms", "mlp50_unit_ms") for n in ("chirho", "dowhy")}
+    assert {t.name for t in rep.targets} == {"chain_unit_ms", "units_per_s", "scenarios_8_vs_1"} | per_unit
+    assert rep.target("scenarios_8_vs_1").threshold == 1.5
+    for name in per_unit:
+        peer = name.rsplit("_vs_", 1)[1]
+        t = rep.target(name)
+        assert t.value == (
+            None if m["ratios"][peer] is None else m["ratios"][peer][name.rsplit("_vs_", 1)[0]]
+        )
+    ax = rep.figures["scenarios"].axes[0]
+    assert ax.get_xlabel() == "scenarios K" and list(ax.get_lines()[0].get_xdata()) == [1, 2, 4, 8]
+
+
+def _chain_factual(n: int) -> dict[str, torch.Tensor]:
+    chain = bench_counterfactual.chain_model()
+    sample = chain.sample(n, torch.Generator().manual_seed(1))
+    unit = bench_counterfactual.CHAIN_UNIT
+    return {k: torch.cat([torch.tensor([[unit[k]]]), v]) for k, v in sample.items()}
+
+
+@pytest.mark.parametrize("peer_name", ["chirho", "dowhy"])
+def test_peer_chain_counterfactual_agrees_with_pal(peer_name):
+    pytest.importorskip(peer_name)
+    from pal.baselines.counterfactual_peers import make_peer
+
+    chain = bench_counterfactual.chain_model()
+    mlp = bench_counterfactual.mlp_model(5, seed=0)
+    peer = make_peer(peer_name, chain, bench_counterfactual.CHAIN_WEIGHTS, mlp)
+    factual = _chain_factual(64)
+    n = factual["x"].shape[0]
+    ours = counterfactual(chain, factual, {"x": bench_counterfactual.CHAIN_DO}).samples
+    theirs = peer.to_tensors(
+        peer.run("chain", peer.native(factual), "x", [bench_counterfactual.CHAIN_DO]), "x", 1, n
+    )
+    for name in ("x", "y", "z"):
+        torch.testing.assert_close(theirs[name], ours[name][0], atol=1e-4, rtol=0)
+    # analytic oracle for the unit (1, 2.5, -3) under do(X = 0): u_y = 0.5, u_z = 0.75
+    assert theirs["y"][0, 0, 0].item() == pytest.approx(0.5, abs=1e-5)
+    assert theirs["z"][0, 0, 0].item() == pytest.approx(0.0, abs=1e-5)
+
+
+def test_svi_quick():
+    rep = bench_svi.run(registry.get("bench", "svi").quick)
+    m = rep.metrics
+    for key in ("steps_per_s", "steps_per_s_loop"):
+        assert set(m[key]) == {"infer_state", "plain_pyro"}
+    assert all(_positive(v) for v in m["steps_per_s"].values())
+    assert m["ratio"] == pytest.approx(m["steps_per_s"]["infer_state"] / m["steps_per_s"]["plain_pyro"])
+    # same seed and settings: the same optimisation trajectory
+    assert m["final_loss"]["infer_state"] == pytest.approx(m["final_loss"]["plain_pyro"], rel=1e-3)
+    assert rep.target("ratio").threshold == pytest.approx(1 / 1.3)
+
+
+def test_bench_svi_leaves_the_global_rngs_alone():
+    import random
+
+    import numpy as np
+
+    before = (random.getstate(), np.random.get_state()[1].copy(), torch.get_rng_state())
+    bench_svi.run(registry.get("bench", "svi").tiny)
+    assert random.getstate() == before[0]
+    assert np.array_equal(np.random.get_state()[1], before[1])
+    assert torch.equal(torch.get_rng_state(), before[2])
+
+
+def test_action_quick():
+    rep = bench_action.run(registry.get("bench", "action").quick)
+    m = rep.metrics
+    for figures in (m, m["planner"]):
+        assert all(_positive(figures[k]) for k in ("seconds", "baseline_seconds", "ratio")), figures
+        assert figures["ratio"] == pytest.approx(figures["seconds"] / figures["baseline_seconds"])
+        assert figures["max_action_diff"] <= 1e-4
+    assert rep.target("max_action_diff").met is True and rep.target("planner_max_action_diff").met is True
+    assert rep.target("planner_ratio").value == m["planner"]["ratio"]
+    assert [r[0] for r in rep.tables[0].rows] == ["infer_action", "bare Adam", "planner", "bare CEM + Adam"]
+    reached = m["reached"]
+    assert (
+        reached["planner"] == reached["bare CEM + Adam"] and reached["infer_action"] == reached["bare Adam"]
+    )
+    assert reached["infer_action"] < reached["planner"] <= m["reachable"] + 1 / 32
+
+
+def test_babble_quick_on_the_arm():
+    config = bench_babble.Config(body=bench_babble.BodyChoice("arm", frame_skip=5), steps=60, repeats=1)
+    rep = bench_babble.run(config)
+    m = rep.metrics
+    assert m["body"] == "arm" and _positive(m["transitions_per_s"]) and _positive(m["raw_steps_per_s"])
+    assert m["ratio"] == pytest.approx(m["transitions_per_s"] / m["raw_steps_per_s"])
+    assert [r[0] for r in rep.tables[0].rows] == ["source", "raw_loop", "raw_nstep", "recorded"]

@@ -1,0 +1,196 @@
+"""Experiments C1-C4 and the closed loop (``pal loop``) on their tiny configs: reports, figures, video."""
+
+import json
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from pal.agent.history import History
+from pal.agent.video import VideoRecorder
+from pal.cli import main
+from pal.experiments.closed_loop import c1, c2, c3, c4
+from pal.experiments.closed_loop import loop as closed_loop
+from pal.experiments.closed_loop.setup import SetupConfig, summary
+
+
+def test_c1_compares_perceived_and_ground_truth_models():
+    rep = c1.run(c1.TINY)
+    m = rep.metrics
+    per = m["per_object"]
+    assert set(per) == {"box", "ball"} and m["unit"] == "cm^2"
+    # the headline numbers are the means over objects, and the target is their ratio
+    assert m["mse_perceived"] == pytest.approx(np.mean([v["mse_perceived"] for v in per.values()]))
+    assert m["mse_ground_truth"] == pytest.approx(np.mean([v["mse_ground_truth"] for v in per.values()]))
+    assert rep.target("perception_cost_ratio").value == pytest.approx(
+        m["mse_perceived"] / m["mse_ground_truth"]
+    )
+    assert m["info"]["train_rows"] + m["info"]["test_rows"] == c1.TINY.setup.babble_steps
+    # perception sees the objects within a few centimetres of their true centres
+    assert m["info"]["perception_err_cm_median"] < 3.0 and m["info"]["lost_fraction"] < 0.5
+    st = m["structure"]
+    assert len(st["edges"]) == st["preset_edges"] - len(st["missing"]) + len(st["extra"])
+    assert st["rows"] <= m["info"]["train_rows"]
+    # the 90 % interval is scored on the held-out pushes, pooled over objects
+    cov = m["coverage"]
+    scored = [v["pushes"] for v in per.values() if v["interval_coverage"] is not None]
+    assert cov["pushes"] == sum(scored) and 0.0 <= cov["pooled"] <= 1.0
+    assert rep.target("push_interval_coverage_low").value == cov["pooled"]
+    assert rep.target("perceived_over_no_motion").value == pytest.approx(m["mse_perceived"] / m["mse_zero"])
+    table = rep.tables[0]
+    assert [r[0] for r in table.rows] == ["box", "ball", "mean"]
+    assert any(t.title.startswith("Structure learning") for t in rep.tables)
+    ax = rep.figures["errors"].axes
+    assert len(ax) == 2 and ax[0].get_xlabel() == "true displacement, cm"
+    assert [len(c.get_offsets()) for c in ax[0].collections] == [per["box"]["n"]] * 2
+
+
+def test_c2_inferred_actions_beat_random_babbling():
+    rep = c2.run(c2.TINY)
+    m = rep.metrics
+    assert len(m["episodes"]) == c2.TINY.targets
+    # on the seeded tiny run the agent leaves the box nearer the goal than random servo targets do
+    assert m["inferred"]["final_err_cm_median"] < m["random"]["final_err_cm_median"]
+    assert rep.target("random_over_inferred").value == pytest.approx(
+        m["random"]["final_err_cm_median"] / m["inferred"]["final_err_cm_median"]
+    )
+    assert rep.target("inferred_final_err_cm").value == m["inferred"]["final_err_cm_median"]
+    assert rep.target("inferred_below_scripted").value == pytest.approx(
+        m["scripted"]["final_err_cm_median"] / m["inferred"]["final_err_cm_median"]
+    )
+    assert sum(m["inferred_modes"].values()) == c2.TINY.targets * c2.TINY.episode_steps
+    lines = rep.figures["episodes"].axes[0].get_lines()
+    assert len(lines) == 3 * c2.TINY.targets + 1  # a trace per controller and goal, and the target line
+    assert len(lines[0].get_xdata()) == c2.TINY.episode_steps + 1
+    assert m["pushes"]["n"] == len(m["pushes"]["realized_cm"])
+    assert rep.figures["pushes"].axes[0].get_xlabel() == "realized displacement, cm"
+    paths = rep.figures["paths"].axes[0].get_lines()  # a path per controller, the start and the goal
+    assert len(paths) == 3 + 2 and len(paths[0].get_xdata()) == c2.TINY.episode_steps + 1
+    goal = paths[-1].get_xydata()[0]
+    np.testing.assert_allclose(goal, 100 * np.asarray(m["episodes"][0]["goal"]), atol=1e-9)
+    final = paths[0].get_xydata()[-1] / 100  # the inferred path ends where its final error is measured
+    err = 100 * np.linalg.norm(final - np.asarray(m["episodes"][0]["goal"]))
+    assert err == pytest.approx(m["episodes"][0]["inferred"]["final_err_cm"], abs=1e-6)
+    json.dumps(m, allow_nan=False)
+
+
+def test_c3_counterfactuals_beat_the_interventional_answer():
+    rep = c3.run(c3.TINY)
+    m = rep.metrics
+    assert m["n"] == c3.TINY.query.count
+    for key in ("perceived", "ground_truth_model"):
+        block = m[key]
+        # abduction keeps what the factual step showed: far closer to the replayed simulator
+        assert block["cf_err_cm_median"] < block["interventional_err_cm_median"]
+        assert block["cf_over_interventional"] == pytest.approx(
+            block["cf_err_cm_median"] / block["interventional_err_cm_median"]
+        )
+    assert rep.target("cf_over_interventional").met
+    assert rep.tables[0].rows[0][0].startswith("perceived")
+    assert [t.get_text() for t in rep.figures["errors"].axes[0].get_xticklabels()] == list(c3.ANSWERS)
+
+
+def test_c4_coverage_report_and_curve():
+    rep = c4.run(c4.TINY)
+    m = rep.metrics
+    assert m["seeds"] == [0, 1] and m["curves"]["steps"] == [1, 2]
+    assert all(sum(d.values()) == c4.TINY.budget for d in m["curious_decisions"])
+    gain = m["coverage_at_budget"]["curiosity"] - m["coverage_at_budget"]["random"]
+    assert rep.target("coverage_gain").value == pytest.approx(gain)
+    assert rep.target("contact_gain").value == pytest.approx(
+        m["contact_rate"]["curiosity"] - m["contact_rate"]["random"]
+    )
+    assert m["contact_rate"]["random"] == pytest.approx(np.mean(m["contact_per_seed"]["random"]))
+    for name in ("coverage", "contact"):
+        assert len(rep.figures[name].axes[0].get_lines()) == 2
+    assert (
+        c4.paired_test([0.3, 0.5, 0.4], [0.1, 0.2, 0.3])
+        < 0.05
+        < c4.paired_test([0.3, 0.1, 0.4], [0.1, 0.2, 0.3])
+    )
+    assert c4.paired_test([0.1], [0.0]) is None
+    h = History(("shoulder", "elbow"), ("box",))
+    for k in range(3):  # the box moves at step 1 only
+        prev, now = np.array([[0.0, 0.1]]), np.array([[0.0, 0.1 + (0.1 if k == 1 else 0.0)]])
+        h.append(
+            episode=0,
+            act=[0, 0],
+            q_prev=[0, 0],
+            q=[0, 0],
+            hand_prev=[0, 0, 0],
+            hand=[0, 0, 0],
+            touch=[0],
+            meas_prev=prev,
+            meas=now,
+            std=prev,
+            est_prev=prev,
+            est=now,
+            truth_prev=prev,
+            truth=now,
+            state=np.zeros(2),
+        )
+    curve = c4.coverage_curve(h, 0, np.array([1, 3]), ((-0.5, 0.0), (0.5, 0.4)), (4, 4), 0.005)
+    np.testing.assert_allclose(curve, [0.0, 1 / 16])
+
+
+def test_loop_towards_a_goal_reports_its_run():
+    config = replace(closed_loop.TINY, steps=6, babble=4, goal=(0.0, 0.2))
+    rep = closed_loop.run(config)
+    m = rep.metrics
+    assert m["steps"] == 6 and m["babble_steps"] == 4 and m["video"] is None
+    assert sum(m["modes"].values()) == 2 and set(m["modes"]) <= {"goal", "hold"}
+    assert m["fit_rows"]["arm"] == 4 and m["episodes"] == 1
+    assert {t.name for t in rep.targets} == {"lost_fraction.box", "lost_fraction.ball"}
+    assert all(t.value == m["lost_fraction"][t.name.split(".")[1]] for t in rep.targets)
+    ax = rep.figures["paths"].axes[0]
+    assert ax.get_xlabel() == "x, m" and len(ax.get_lines()) == 4
+    assert all(len(line.get_xdata()) == 6 for line in ax.get_lines())
+
+
+def test_pal_loop_writes_an_annotated_video(tmp_path, capsys):
+    video = tmp_path / "loop.mp4"
+    assert main(["loop", "--steps", "3", "--babble", "3", "--video", str(video), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    m = doc["metrics"]
+    assert doc["name"] == "loop" and doc["config"]["video"] == str(video)
+    assert m["steps"] == 3 and m["modes"] == {} and m["babble_steps"] == 3 and m["video_frames"] == 4
+    cap = cv2.VideoCapture(str(video))
+    frames = 0
+    while cap.read()[0]:
+        frames += 1
+    assert frames == 4
+    for bad, match in (
+        (["--goal", "a,b"], "expected X,Y"),
+        (["--video", "x.avi"], "ending in .mp4"),
+        (["--babble", "9"], "babble must be in"),
+    ):
+        assert main(["loop", "--steps", "3", *bad]) == 2
+        err = capsys.readouterr().err
+        assert match in err and err.count("\n") == 1
+
+
+def test_configs_refuse_bad_values():
+    for make, match in (
+        (lambda: closed_loop.Config(steps=0), "steps must be a positive int"),
+        (lambda: closed_loop.Config(steps=4, babble=5), "babble must be in"),
+        (lambda: closed_loop.Config(goal=(0.0, float("nan"))), "goal must be finite"),
+        (lambda: SetupConfig(babble_steps=0), "babble_steps must be a positive int"),
+        (lambda: c1.Config(test_fraction=1.0), "test_fraction must be <"),
+        (lambda: c2.Config(distance=(0.08, 0.04)), "low <= high"),
+        (lambda: c3.QueryConfig(delta=0.0), "delta must be >"),
+        (lambda: c4.Config(runs=0), "runs must be a positive int"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            make()
+    assert summary([]) == {"median": None, "mean": None, "p25": None, "p75": None, "n": 0}
+
+
+def test_video_recorder_rejects_bad_frames(tmp_path):
+    with VideoRecorder(tmp_path / "v.mp4") as rec:
+        rec.write(np.zeros((48, 64, 3), np.uint8))
+        with pytest.raises(ValueError, match="differs from the first frame"):
+            rec.write(np.zeros((32, 64, 3), np.uint8))
+        with pytest.raises(ValueError, match="uint8"):
+            rec.write(np.zeros((48, 64, 3), np.float32))
+    assert (tmp_path / "v.mp4").stat().st_size > 0

@@ -1,0 +1,177 @@
+"""``pal sweep``: grid × seeds of a registered experiment, mean ± sd table, figures, failed runs retried."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass
+
+import pytest
+
+from pal.cli import main
+from pal.lab import registry, sweep
+from pal.lab.registry import Entry
+from pal.lab.report import Report, Target
+
+
+@dataclass(frozen=True)
+class FakeConfig:
+    """A config whose run fails for chosen seeds (listed in a file)."""
+
+    seed: int = 0
+    scale: float = 1.0
+    fail_file: str = ""
+
+
+def _fake_run(config: FakeConfig, progress_bar: bool = False) -> Report:
+    """Metric = scale * (seed + 1): an oracle for the table; fails for the seeds in fail_file."""
+    if config.fail_file:
+        with open(config.fail_file) as fh:
+            if str(config.seed) in fh.read().split():
+                raise RuntimeError(f"seed {config.seed} exploded\nsecond line of the traceback text")
+    value = config.scale * (config.seed + 1)
+    return Report(
+        "fake",
+        metrics={"value": value, "nested": {"double": 2 * value}, "flag": True, "series": [1.0, 2.0]},
+        targets=[Target("value_small", value, 10.0, "<=", "the value")],
+    )
+
+
+@pytest.fixture
+def fake(monkeypatch, tmp_path):
+    registry.entries()
+    entry = Entry("sweep_fake", "experiment", FakeConfig, FakeConfig(), FakeConfig(), _fake_run, "fake")
+    monkeypatch.setitem(registry._REGISTRY, ("experiment", "sweep_fake"), entry)
+    fail_file = tmp_path / "fail.txt"
+    fail_file.write_text("1")
+    return fail_file
+
+
+def test_table_holds_mean_and_sd_per_cell_and_failed_runs_are_reported_then_retried(fake, tmp_path, capsys):
+    out = tmp_path / "sweep"
+    argv = ["sweep", "sweep_fake", "--grid", "scale=1,3", "--seeds", "0-2", "--set", f"fail_file={fake}"]
+    assert main([*argv, "--out", str(out)]) == 1  # a failed run: exit 1, reported
+    text = capsys.readouterr().out
+    assert "2 failed" in text and "RuntimeError: seed 1 exploded" in text and "second line" not in text
+    assert sorted(p.name for p in (out / "runs").glob("*.error.json")) == [
+        "r001.error.json",
+        "r004.error.json",
+    ]
+    rows = list(csv.DictReader((out / "summary.csv").open()))
+    by = {(r["scale"], r["metric"]): r for r in rows}
+    # scale 3, seeds 0 and 2 finished: values 3 and 9 -> mean 6, sd sqrt(18)
+    assert by[("3", "value")]["n"] == "2"
+    assert float(by[("3", "value")]["mean"]) == pytest.approx(6.0, abs=1e-12)
+    assert float(by[("3", "value")]["sd"]) == pytest.approx(math.sqrt(18.0), abs=1e-12)
+    assert float(by[("1", "nested.double")]["mean"]) == pytest.approx(4.0, abs=1e-12)
+    assert float(by[("1", "target.value_small")]["mean"]) == pytest.approx(2.0, abs=1e-12)
+    assert ("1", "flag") not in by and ("1", "series") not in by  # bools and lists are not summarised
+    assert (out / "value_small.png").read_bytes()[:4] == b"\x89PNG"
+    md = (out / "summary.md").read_text()
+    assert "| finished runs | 2/3 | 2/3 |" in md and "### Failed runs" in md and "6 ± 4.2" in md
+
+    assert main([*argv, "--out", str(out)]) == 2  # an existing sweep is not overwritten
+    assert "already holds a sweep" in capsys.readouterr().err
+
+    fake.write_text("")  # the cause is fixed: retry only the two failed runs
+    before = (out / "runs" / "r000.json").read_bytes()
+    assert main(["sweep", "sweep_fake", "--retry-failed", "--out", str(out)]) == 0
+    assert "0 failed" in capsys.readouterr().out
+    assert (out / "runs" / "r000.json").read_bytes() == before  # finished runs are kept, not re-run
+    assert not list((out / "runs").glob("*.error.json"))
+    rows = {(r["scale"], r["metric"]): r for r in csv.DictReader((out / "summary.csv").open())}
+    assert rows[("3", "value")]["n"] == "3"
+    assert float(rows[("3", "value")]["mean"]) == pytest.approx(6.0, abs=1e-12)  # 3, 6, 9
+    assert float(rows[("3", "value")]["sd"]) == pytest.approx(3.0, abs=1e-12)
+
+
+def test_retry_refuses_a_different_sweep(fake, tmp_path, capsys):
+    out = tmp_path / "sweep"
+    assert main(["sweep", "sweep_fake", "--grid", "scale=1,2", "--seeds", "0", "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert (
+        main(
+            [
+                "sweep",
+                "sweep_fake",
+                "--grid",
+                "scale=1,5",
+                "--seeds",
+                "0",
+                "--retry-failed",
+                "--out",
+                str(out),
+            ]
+        )
+        == 2
+    )
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "holds a different sweep" in err
+
+
+@pytest.mark.parametrize(
+    ("text", "seeds"), [("0-2", (0, 1, 2)), ("4", (4,)), ("0,3,7", (0, 3, 7)), ("0-1,5", (0, 1, 5))]
+)
+def test_seeds_parse(text, seeds):
+    assert sweep.parse_seeds(text) == seeds
+
+
+@pytest.mark.parametrize(
+    ("text", "message"), [("5-2", "runs backwards"), ("a", "is not N or FIRST-LAST"), ("1,1", "given twice")]
+)
+def test_bad_seeds_are_refused(text, message):
+    with pytest.raises(sweep.SweepError, match=message):
+        sweep.parse_seeds(text)
+
+
+def test_grid_values_keep_json_lists_and_are_checked_against_the_config():
+    base = registry.get("experiment", "spring").tiny
+    assert sweep.parse_grid(["epochs=1,2"], base) == (("epochs", (1, 2)),)
+    with pytest.raises(sweep.SweepError, match=r"'nope' is not a config field; valid: \['transitions'"):
+        sweep.parse_grid(["nope=1"], base)
+    with pytest.raises(sweep.SweepError, match="epochs must be a positive int, got 0"):
+        sweep.parse_grid(["epochs=1,0"], base)
+    assert sweep._split_values("1,[2,3],x") == ["1", "[2,3]", "x"]
+
+
+@pytest.fixture(scope="module")
+def spring_sweep(tmp_path_factory):
+    out = tmp_path_factory.mktemp("spring") / "sweep"
+    plan = sweep.plan("spring", ["epochs=1,2,3"], "0-2", base="tiny")
+    return sweep.run_sweep(plan, out)
+
+
+def test_a_real_experiment_3_configs_x_3_seeds_gives_one_table_and_a_figure_per_target(spring_sweep):
+    result = spring_sweep
+    out = result.paths["manifest"].parent
+    assert not result.failed and len(result.ran) == 9
+    targets = {t["name"] for t in json.loads((out / "runs" / "r000.json").read_text())["targets"]}
+    assert targets == {"q_mse_ratio", "realized_mae_state", "curiosity_entropy_gain"}
+    for name in targets:
+        assert result.paths[name].read_bytes()[:4] == b"\x89PNG", name
+    rows = list(csv.DictReader((out / "summary.csv").open()))
+    cells = {r["epochs"] for r in rows}
+    assert cells == {"1", "2", "3"}
+    for name in targets:
+        for epochs in cells:
+            row = next(r for r in rows if r["epochs"] == epochs and r["metric"] == f"target.{name}")
+            assert row["n"] == "3" and math.isfinite(float(row["mean"])) and float(row["sd"]) >= 0
+    # each cell's mean is the mean of its three run reports
+    docs = [json.loads((out / "runs" / f"r{i:03d}.json").read_text()) for i in range(3)]
+    assert [d["config"]["epochs"] for d in docs] == [1, 1, 1] and [d["seed"] for d in docs] == [0, 1, 2]
+    value = [next(t["value"] for t in d["targets"] if t["name"] == "q_mse_ratio") for d in docs]
+    row = next(r for r in rows if r["epochs"] == "1" and r["metric"] == "target.q_mse_ratio")
+    assert float(row["mean"]) == pytest.approx(sum(value) / 3, rel=1e-12)
+    assert "| finished runs | 3/3 | 3/3 | 3/3 |" in (out / "summary.md").read_text()
+
+
+def test_two_local_workers_give_the_same_reports_as_one_process(spring_sweep, tmp_path):
+    plan = sweep.plan("spring", ["epochs=1"], "0-1", base="tiny")
+    result = sweep.run_sweep(plan, tmp_path / "par", workers=2)
+    assert not result.failed
+    serial = spring_sweep.paths["manifest"].parent / "runs"
+    for i in range(2):
+        a = json.loads((tmp_path / "par" / "runs" / f"r{i:03d}.json").read_text())
+        b = json.loads((serial / f"r{i:03d}.json").read_text())
+        assert a["config"] == b["config"] and a["targets"] == b["targets"] and a["metrics"] == b["metrics"]
