@@ -152,11 +152,9 @@ def pnp_ransac(
         pool.add(*_ap3p_hypotheses(gen, obj, img, K, reprojection_error))
         if len(pool.Rs) >= 32 or tried >= needed:
             needed = pool.score()
-    if pool.fit is None:
+    T = pool.best()
+    if T is None:
         return None
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = pool.fit
-    z_obs = live_z if depth_sigma is not None else None
     return refine_pose(
         obj,
         img,
@@ -164,7 +162,7 @@ def pnp_ransac(
         T,
         reprojection_error,
         min_inliers,
-        live_z=z_obs,
+        live_z=live_z if depth_sigma is not None else None,
         depth_sigma=depth_sigma,
         depth_tolerance=tol,
     )
@@ -244,6 +242,14 @@ class _Hypotheses:
         self.Rs.extend(Rs)
         self.ts.extend(ts)
         return len(Rs)
+
+    def best(self) -> np.ndarray | None:
+        """The best hypothesis so far as a (4, 4) transform, or None."""
+        if self.fit is None:
+            return None
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = self.fit
+        return T
 
     def score(self) -> int:
         """Score the pending hypotheses; returns the hypotheses needed for ``confidence``."""
