@@ -36,6 +36,8 @@ motion is unobservable, and the caller rejects the pose. The live normals are ta
 +-``normal_px`` pixels. The fit also reports how many model points that land on valid live
 depth agree with it (``agree``) and how many claim a surface where the sensor sees farther (``free_space``
 violations, the evidence that the object is not there).
+
+The correspondences and the photometric term are in :mod:`pal.perception.icp_terms`.
 """
 
 from __future__ import annotations
