@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from inference import fit
+from inference import FitSchedule, fit
 from inference.rewire import evidence_groups, rewire
 from models import CausalGraph, FunctionMechanism, Role, Variable, WorldModel, finger_graph
 
@@ -19,7 +19,7 @@ def fitted_thesis_model(rng: np.random.Generator) -> tuple[WorldModel, dict[str,
     data = {"act.finger": a, "q_prev.finger": q_prev, "dq.finger": dq, "q.finger": q_prev + dq}
     torch.manual_seed(0)
     model = WorldModel(finger_graph("thesis"), hidden=(8,))
-    fit(model, data, epochs=5, batch_size=128, seed=0)
+    fit(model, data, schedule=FitSchedule(epochs=5, batch_size=128), seed=0)
     return model, data
 
 
