@@ -94,7 +94,8 @@ def infer_action(
     replayed (expected residuals u-bar, or those of a ``ReplayNoise`` the program carries).
     Otherwise the loss of :mod:`inference.action_objective` is evaluated with the torch twins
     :meth:`~models.WorldModel.predict` / :meth:`~models.WorldModel.rollout` of that program
-    (or, for a program with handlers, the program itself over a candidate plate): with
+    (or, for a program with handlers or under any active handler, the program itself over
+    a candidate plate; :mod:`inference.active`): with
     ``sampling`` a CEM / iCEM stage (:mod:`inference.planning`) starts from ``init`` (one
     member of the first population), projected Adam refines the best
     ``sampling.refine_elites`` elites, and each unit keeps its lowest-loss candidate.
@@ -122,12 +123,12 @@ def infer_action(
         within them.
 
     Raises:
-        ValueError: bad state, targets, init or noise values (see
+        ValueError: bad state, targets or init values (see
             :func:`models.world.as_values`), fixed actions outside their bounds, unknown or
             non-action ``actions``, a bad scale, log-preference, optimiser argument,
             sampling config, horizon, target_at or risk, non-roots in the state with a
             horizon, a disagreement risk without targets, or a horizon or risk for a
-            program with handlers.
+            program with handlers or under an active handler.
         FloatingPointError: the final loss is NaN or inf.
     """
     program = as_program(model)

@@ -2680,7 +2680,7 @@ CASES += [
     _c(
         "inference.rewire",
         "epochs str",
-        lambda: rewire(finger(), finger_graph(), finger_data(), epochs="3"),
+        lambda: rewire(finger(), finger_graph(), finger_data(), schedule=FitSchedule(epochs="3")),
         "epochs must be a positive int, got '3'",
     ),
     _c(
@@ -2848,9 +2848,9 @@ CASES += [
     ),
     _c(
         "inference.infer_state",
-        "SVI keyword for importance sampling",
+        "SVI options for importance sampling",
         lambda: infer_state(chain(), Z, guide="importance", options=SVIOptions(lr=0.1)),
-        "['lr'] are SVI settings; guide='importance' does not use them",
+        "guide='importance' takes options=ImportanceOptions(...), got SVIOptions(",
     ),
     _c("inference.SVIOptions", "lr zero", lambda: SVIOptions(lr=0.0), "lr must be > 0"),
     _c(

@@ -226,12 +226,14 @@ def _metalearn() -> None:
     monitor = ResidualMonitor(model, window=10)
     monitor.update(model, data)
     monitor.flagged()
-    revise(model, data, ["dq.finger"], hidden=(4,), fit_kwargs={"epochs": 1, "batch_size": 16})
+    revise(
+        model, data, ["dq.finger"], hidden=(4,), fit_kwargs={"schedule": FitSchedule(epochs=1, batch_size=16)}
+    )
 
 
 def _rewire() -> None:
     model = _fitted_finger()
-    rewire(model, finger_graph("thesis"), _finger_data(), epochs=1, batch_size=8)
+    rewire(model, finger_graph("thesis"), _finger_data(), schedule=FitSchedule(epochs=1, batch_size=8))
 
 
 def _design() -> None:

@@ -65,7 +65,7 @@ def test_capacity_revision_when_the_mechanism_underfits(rng):
         ["y"],
         kinds=("capacity", "split"),
         hidden=(16,),
-        fit_kwargs={"epochs": 60, "batch_size": 200},
+        fit_kwargs={"schedule": FitSchedule(epochs=60, batch_size=200)},
     )
     accepted = [r for r in log if r.accepted]
     assert [r.kind for r in accepted] == ["capacity"]

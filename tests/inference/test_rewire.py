@@ -68,7 +68,12 @@ def test_rewire_refits_only_changed_mechanisms_on_their_evidence_rows(rng):
     cut = np.zeros(len(data["dq.finger"]), bool)
     cut[:100] = True
     res = rewire(
-        model, finger_graph("state"), data, intervened={"dq.finger": cut}, epochs=3, batch_size=128, seed=0
+        model,
+        finger_graph("state"),
+        data,
+        intervened={"dq.finger": cut},
+        schedule=FitSchedule(epochs=3, batch_size=128),
+        seed=0,
     )
     assert res.warm_start == {"dq.finger": "rewired", "q.finger": "kept"}
     # 400 rows, 100 of them intervened on dq: 300 evidence rows, 10 % held out for sigma

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from inference import FitSchedule, counterfactual, do, infer_action, infer_state
+from inference import counterfactual, do, infer_action, infer_state
 from models import CausalGraph, LinearMechanism, Variable, WorldModel
 from models.abstraction import (
     Abstraction,
@@ -92,9 +92,7 @@ def test_temporal_encoder_fit_reduces_loss() -> None:
     g = torch.Generator().manual_seed(0)
     x = torch.randn(64, 5, 2, generator=g, dtype=torch.float64)
     enc = TemporalEncoder(("x",), (2,), window=5, dim=2, hidden=(16,), seed=0)
-    losses = enc.fit(
-        {"x": x}, x[:, -1], schedule=FitSchedule(epochs=150, lr=0.02)
-    )  # learn to report the window's end state
+    losses = enc.fit({"x": x}, x[:, -1], epochs=150, lr=0.02)  # learn to report the window's end state
     assert losses[-1] < 0.2 * losses[0]
     assert enc({"x": x}).shape == (64, 2)
 
