@@ -21,7 +21,8 @@ def test_demo_quick_writes_every_report_and_the_target_table(tmp_path, capsys):
     assert names == ["queries", "spring", "b1", "b2", "a1", "loop"]
     rows = summary["targets"]["rows"]
     assert len(rows) == sum(len(r["targets"]) for r in summary["runs"])
-    assert {r[-1] for r in rows} <= {"met", "**NOT met**", "not measured"}
+    assert {r[-1] for r in rows} <= {"met", "**NOT met**", "not measured", "not evaluated"}
+    assert sum(summary["verdicts"].values()) == len(rows)
     queries = summary["runs"][0]
     exact = next(t for t in queries["targets"] if t["name"] == "exact_counterfactual_error")
     assert exact["met"] is True and exact["value"] <= 1e-5
