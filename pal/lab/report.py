@@ -48,6 +48,26 @@ class Precondition:
             raise ValueError(f"precondition reason must be a non-empty str, got {self.reason!r}")
         object.__setattr__(self, "holds", holds)
 
+    @classmethod
+    def nonzero(cls, value: Any, what: str) -> Precondition:
+        """The baseline of a ratio did something: ``value`` is finite and nonzero.
+
+        ``value`` is the baseline's error, distance, time ..., e.g.
+        ``Precondition.nonzero(persistence_mse, "the q MSE of persistence")``.
+
+        ``None`` (the baseline was not run, e.g. a peer library not installed) holds: the
+        target's value is then ``None`` as well, and its verdict "not measured".
+        """
+        if hasattr(value, "item") and getattr(value, "ndim", None) == 0:
+            value = value.item()
+        if value is None:
+            return cls(True, f"{what} finite and nonzero (not measured)")
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        holds = number and math.isfinite(value) and value != 0
+        return cls(
+            bool(holds), f"{what} finite and nonzero (was {value:.4g})" if number else f"{what} a number"
+        )
+
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready fields."""
         return {"holds": self.holds, "reason": self.reason}

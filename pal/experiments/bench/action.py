@@ -43,7 +43,7 @@ from models.world import WorldModel
 from pal.checks import check_float, check_int
 from pal.experiments.world_model.setup import FitConfig
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 from pal.lab.timing import measure_interleaved, ratio, torch_threads
 
 __all__ = ["Config", "bare_adam", "bare_cem_adam", "finger_model", "run"]
@@ -325,6 +325,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 1.5,
                 "<=",
                 "planner seconds / bare-torch CEM + Adam seconds",
+                Precondition.nonzero(sec[METHODS[3]], "the bare-torch CEM + Adam seconds"),
             ),
             Target(
                 "planner_max_action_diff",

@@ -46,7 +46,7 @@ import numpy as np
 from pal.checks import check_int
 from pal.experiments.world_model.data import BodyChoice
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 from pal.lab.timing import Timing, measure_interleaved, ratio
 from pal.sim.babbling import babble, make_source
 from pal.sim.batched import FULLPHYSICS
@@ -242,6 +242,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 TARGET_RATIO,
                 ">=",
                 "transitions/s of the data source / env steps/s of a bare mj_step loop",
+                Precondition.nonzero(rate["raw_loop"], "the bare mj_step loop's steps/s"),
             ),
             Target(
                 "ratio_rollout",
@@ -249,6 +250,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 TARGET_ROLLOUT_RATIO,
                 ">=",
                 "transitions/s of the data source / env steps/s of one mujoco.rollout call, one core",
+                Precondition.nonzero(rate["mujoco.rollout"], "mujoco.rollout's steps/s"),
             ),
             Target(
                 "workers_speedup",
@@ -257,6 +259,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 ">=",
                 f"transitions/s of a {config.workers}-worker sharded run (merged to disk) / one babble() "
                 f"process, {config.sharded_steps} transitions, {os.cpu_count()} cores",
+                Precondition.nonzero(worker_rate.get("one process"), "the one-process transitions/s"),
             ),
         ],
         notes=[

@@ -36,7 +36,7 @@ from models.world import WorldModel
 from pal.baselines.counterfactual_peers import available, make_peer
 from pal.checks import check_float, check_int
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 from pal.lab.timing import Timing, measure, ratio, torch_threads
 
 if TYPE_CHECKING:
@@ -438,6 +438,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 1.5,
                 "<=",
                 f"time of {last} scenarios / time of {first}",
+                Precondition.nonzero(pal.scenarios_ms[first], f"the time of {first} scenarios"),
             ),
             *(
                 Target(
@@ -446,6 +447,9 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                     0.5,
                     "<=",
                     f"our time per unit / {name}'s ({label}; not measured without the bench extra)",
+                    Precondition.nonzero(
+                        None if libs[name] is None else getattr(libs[name], figure), f"{name}'s time per unit"
+                    ),
                 )
                 for name in ("chirho", "dowhy")
                 for figure, label in (("chain_unit_ms", "3-node chain"), ("mlp50_unit_ms", "MLP SCM"))

@@ -33,7 +33,7 @@ import numpy as np
 from pal.checks import check_int
 from pal.experiments.world_model.data import BodyChoice, JointData, Realizer, pick_rows
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 from pal.lab.timing import measure_interleaved, ratio
 from pal.sim.babbling import collect
 from pal.sim.batched import BatchReplayer
@@ -162,6 +162,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 TARGET_SPEEDUP,
                 ">=",
                 f"serial seconds / batched seconds, {len(rows)} targets, one thread",
+                Precondition.nonzero(seconds["serial"], "the serial seconds"),
             ),
             Target(
                 "identical",

@@ -54,7 +54,7 @@ from pal.experiments.closed_loop.setup import (
     split_rows,
 )
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -237,6 +237,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 "<=",
                 "displacement MSE of the model fitted on perceived positions / of the model fitted on "
                 "true positions, held-out transitions, mean over objects",
+                Precondition.nonzero(mse_g, "the displacement MSE of the model fitted on true positions"),
             ),
             Target(
                 "perceived_over_no_motion",
@@ -244,6 +245,9 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 TARGET_VS_ZERO,
                 "<=",
                 "displacement MSE of the agent's model (perceived positions) / of predicting no motion, held-out transitions",
+                Precondition.nonzero(
+                    metrics["mse_zero"], "the MSE of predicting no motion (the objects moved)"
+                ),
             ),
             Target(
                 "push_interval_coverage_low",

@@ -33,7 +33,7 @@ from models import FunctionMechanism, LinearMechanism, WorldModel, finger_graph
 from models.presets import FINGER_ACTION_RANGE
 from pal.checks import check_int
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -181,6 +181,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 0.2,
                 "<",
                 "q MSE of the state graph / q MSE of the thesis graph",
+                Precondition.nonzero(prediction["thesis"]["q_mse"], "the thesis graph's q MSE"),
             ),
             Target(
                 "realized_mae_state",

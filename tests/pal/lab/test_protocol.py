@@ -189,3 +189,12 @@ def test_check_output_dir(tmp_path):
         ro.mkdir(mode=0o500)
         with pytest.raises(OutputError, match="is not writable"):
             check_output_dir(ro)
+
+
+def test_the_baseline_of_a_ratio_must_be_finite_and_nonzero():
+    assert Precondition.nonzero(np.float64(0.2), "the persistence q MSE").holds
+    for bad in (0.0, math.nan, math.inf):
+        pre = Precondition.nonzero(bad, "the persistence q MSE")
+        assert not pre.holds and pre.reason.startswith("the persistence q MSE finite and nonzero (was ")
+    missing = Target("over_peer", None, 1.0, "<=", "", Precondition.nonzero(None, "the peer's time"))
+    assert missing.evaluated and missing.verdict == "not measured"  # a peer that was not run
