@@ -38,7 +38,8 @@ __all__ = ["UsageError", "build_parser", "main"]
 log = logging.getLogger("pal")
 
 
-def _configure(verbose: bool, threads: int) -> None:
+def _configure(verbose: bool, threads: int, quiet: bool = False) -> None:
+    """Threads and logging: DEBUG with ``-v``, else WARNING for ``quiet`` commands (the demo), else INFO."""
     os.environ.setdefault("MPLBACKEND", "Agg")
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, str(threads))  # before numpy/torch load their thread pools
@@ -47,11 +48,13 @@ def _configure(verbose: bool, threads: int) -> None:
     # The models work on small tensors: one intra-op thread is faster, and OpenMP threads
     # slow down by orders of magnitude when another process holds the second core.
     torch.set_num_threads(threads)
+    level = logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO
     logging.basicConfig(
-        level=logging.DEBUG if verbose else logging.INFO,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
+        level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )
+    # also when the root logger had handlers already, e.g. main() called from a test: basicConfig
+    # then leaves the level as it was
+    logging.getLogger().setLevel(level)
     for noisy in ("matplotlib", "PIL", "OpenGL", "numexpr", "h5py", "jax"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
 
@@ -102,7 +105,11 @@ def _demo(args: argparse.Namespace) -> int:
 
     out = _output_dir(args.out)
     start = time.perf_counter()
-    for text in demo.run(out, quick=args.quick, progress_bar=sys.stderr.isatty()):
+
+    def started(i: int, n: int, kind: str, name: str) -> None:
+        print(f"pal demo: {kind} {name} ({i}/{n}) ...", file=sys.stderr, flush=True)
+
+    for text in demo.run(out, quick=args.quick, progress_bar=sys.stderr.isatty(), started=started):
         print(text, flush=True)
     print(f"\n(pal demo took {time.perf_counter() - start:.1f} s; reports and figures in {out})")
     return 0
@@ -333,14 +340,19 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``pal``."""
     parser = UsageParser(prog="pal", description="Causal perception-action learning toolkit.")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging and tracebacks")
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="debug logging (the demo logs warnings only otherwise) and tracebacks",
+    )
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=UsageParser)
 
     p = sub.add_parser("demo", help="short end-to-end run: prints reports, saves figures")
     p.add_argument("--out", default="pal-demo", help="directory for reports and figures (default: pal-demo)")
     p.add_argument("--quick", action="store_true", help="smallest sizes")
-    p.set_defaults(func=_demo)
+    p.set_defaults(func=_demo, quiet=True)  # tables and progress only; log lines with -v
 
     p = sub.add_parser("list", help="list the registered experiments and benchmarks")
     p.set_defaults(func=_list)
@@ -445,7 +457,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         verbose = args.verbose
         if args.threads < 1:
             raise UsageError(f"--threads must be >= 1, got {args.threads}")
-        _configure(args.verbose, args.threads)
+        _configure(args.verbose, args.threads, quiet=getattr(args, "quiet", False))
         return int(args.func(args))
     except UsageError as err:
         print(f"pal: error: {err}" if not str(err).startswith("pal") else f"{err}", file=sys.stderr)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from pal.io.files import atomic_write_json
@@ -46,17 +46,26 @@ def _config(entry: registry.Entry, out: Path, quick: bool) -> object:
     return config
 
 
-def run(out_dir: str | os.PathLike[str], *, quick: bool = False, progress_bar: bool = False) -> Iterator[str]:
+def run(
+    out_dir: str | os.PathLike[str],
+    *,
+    quick: bool = False,
+    progress_bar: bool = False,
+    started: Callable[[int, int, str, str], None] | None = None,
+) -> Iterator[str]:
     """Run :data:`SEQUENCE`; yields each run's markdown, then the table of all targets.
 
     Args:
         out_dir: directory for every run's ``NAME.json``, ``NAME.md``, figures and ``demo.json``.
         quick: the tiny configurations (seconds) instead of the quick ones.
         progress_bar: show progress bars of the long steps.
+        started: called as ``started(i, n, kind, name)`` before the i-th of n runs (progress).
     """
     out = Path(out_dir)
     records: list[RunRecord] = []
-    for kind, name in SEQUENCE:
+    for i, (kind, name) in enumerate(SEQUENCE, 1):
+        if started is not None:
+            started(i, len(SEQUENCE), kind, name)
         entry = registry.get(kind, name)
         record = execute(entry, _config(entry, out, quick), progress_bar=progress_bar)
         render.write(record, out)
