@@ -103,6 +103,33 @@ def _outcomes(truth: WorldModel, state: dict[str, torch.Tensor], actions: torch.
         return truth.predict({**state, ACT: actions})[Q]
 
 
+def _targets(prediction: dict[str, Any], action: dict[str, Any], curiosity: dict[str, float]) -> list[Target]:
+    return [
+        Target(
+            "q_mse_ratio",
+            prediction["state"]["q_mse"] / prediction["thesis"]["q_mse"],
+            0.2,
+            "<",
+            "q MSE of the state graph / q MSE of the thesis graph",
+            Precondition.nonzero(prediction["thesis"]["q_mse"], "the thesis graph's q MSE"),
+        ),
+        Target(
+            "realized_mae_state",
+            action["state"]["mae_real"],
+            0.05,
+            "<=",
+            "true-SCM error of the actions inferred with the state graph, rad",
+        ),
+        Target(
+            "curiosity_entropy_gain",
+            curiosity["curiosity_entropy_real"] - curiosity["random_entropy_real"],
+            0.0,
+            ">=",
+            "entropy of curiosity-conditioned outcomes minus that of random actions",
+        ),
+    ]
+
+
 @register(
     "spring",
     config=Config,
@@ -174,30 +201,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         title="World model of a known spring finger: prediction, action inference, curiosity",
         metrics={"prediction": prediction, "action": action, "curiosity": curiosity},
         tables=_tables(prediction, action, curiosity),
-        targets=[
-            Target(
-                "q_mse_ratio",
-                prediction["state"]["q_mse"] / prediction["thesis"]["q_mse"],
-                0.2,
-                "<",
-                "q MSE of the state graph / q MSE of the thesis graph",
-                Precondition.nonzero(prediction["thesis"]["q_mse"], "the thesis graph's q MSE"),
-            ),
-            Target(
-                "realized_mae_state",
-                action["state"]["mae_real"],
-                0.05,
-                "<=",
-                "true-SCM error of the actions inferred with the state graph, rad",
-            ),
-            Target(
-                "curiosity_entropy_gain",
-                curiosity["curiosity_entropy_real"] - curiosity["random_entropy_real"],
-                0.0,
-                ">=",
-                "entropy of curiosity-conditioned outcomes minus that of random actions",
-            ),
-        ],
+        targets=_targets(prediction, action, curiosity),
         notes=[
             f"{config.transitions} samples of the true SCM (80:20 split); Alg. 4.2: Adam 200 steps, lr 0.05, "
             "midpoint start; curiosity: 20 bins, alpha 0.5, sigma = range / 10."
