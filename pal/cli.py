@@ -55,8 +55,7 @@ def _configure(verbose: bool, threads: int, quiet: bool = False) -> None:
     logging.basicConfig(
         level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )
-    # also when the root logger had handlers already, e.g. main() called from a test: basicConfig
-    # then leaves the level as it was
+    # basicConfig leaves the level alone when the root logger has handlers (e.g. main() in a test)
     logging.getLogger().setLevel(level)
     for noisy in ("matplotlib", "PIL", "OpenGL", "numexpr", "h5py", "jax"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
@@ -342,7 +341,7 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
 
 def _add_demo_parser(sub: Subparsers) -> None:
     """``pal demo``."""
-    p = sub.add_parser("demo", help="short end-to-end run: prints reports, saves figures")
+    p = sub.add_parser("demo", help="short end-to-end run: prints reports (log lines with -v), saves figures")
     p.add_argument("--out", default="pal-demo", help="directory for reports and figures (default: pal-demo)")
     p.add_argument("--quick", action="store_true", help="smallest sizes")
     p.set_defaults(func=_demo, quiet=True)  # tables and progress only; log lines with -v
@@ -462,12 +461,7 @@ def _add_record_parser(sub: Subparsers) -> None:
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``pal``."""
     parser = UsageParser(prog="pal", description="Causal perception-action learning toolkit.")
-    parser.add_argument(
-        "-v",
-        "--verbose",
-        action="store_true",
-        help="debug logging (the demo logs warnings only otherwise) and tracebacks",
-    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging and tracebacks")
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=UsageParser)
     _add_demo_parser(sub)
