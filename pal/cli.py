@@ -41,7 +41,8 @@ log = logging.getLogger("pal")
 Subparsers = Any
 
 
-def _configure(verbose: bool, threads: int) -> None:
+def _configure(verbose: bool, threads: int, quiet: bool = False) -> None:
+    """Threads and logging: DEBUG with ``-v``, else WARNING for ``quiet`` commands (the demo), else INFO."""
     os.environ.setdefault("MPLBACKEND", "Agg")
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, str(threads))  # before numpy/torch load their thread pools
@@ -50,11 +51,12 @@ def _configure(verbose: bool, threads: int) -> None:
     # The models work on small tensors: one intra-op thread is faster, and OpenMP threads
     # slow down by orders of magnitude when another process holds the second core.
     torch.set_num_threads(threads)
+    level = logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO
     logging.basicConfig(
-        level=logging.DEBUG if verbose else logging.INFO,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
+        level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )
+    # basicConfig leaves the level alone when the root logger has handlers (e.g. main() in a test)
+    logging.getLogger().setLevel(level)
     for noisy in ("matplotlib", "PIL", "OpenGL", "numexpr", "h5py", "jax"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
 
@@ -105,7 +107,11 @@ def _demo(args: argparse.Namespace) -> int:
 
     out = _output_dir(args.out)
     start = time.perf_counter()
-    for text in demo.run(out, quick=args.quick, progress_bar=sys.stderr.isatty()):
+
+    def started(i: int, n: int, kind: str, name: str) -> None:
+        print(f"pal demo: {kind} {name} ({i}/{n}) ...", file=sys.stderr, flush=True)
+
+    for text in demo.run(out, quick=args.quick, progress_bar=sys.stderr.isatty(), started=started):
         print(text, flush=True)
     print(f"\n(pal demo took {time.perf_counter() - start:.1f} s; reports and figures in {out})")
     return 0
@@ -335,10 +341,10 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
 
 def _add_demo_parser(sub: Subparsers) -> None:
     """``pal demo``."""
-    p = sub.add_parser("demo", help="short end-to-end run: prints reports, saves figures")
+    p = sub.add_parser("demo", help="short end-to-end run: prints reports (log lines with -v), saves figures")
     p.add_argument("--out", default="pal-demo", help="directory for reports and figures (default: pal-demo)")
     p.add_argument("--quick", action="store_true", help="smallest sizes")
-    p.set_defaults(func=_demo)
+    p.set_defaults(func=_demo, quiet=True)  # tables and progress only; log lines with -v
 
 
 def _add_list_parser(sub: Subparsers) -> None:
@@ -476,7 +482,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         verbose = args.verbose
         if args.threads < 1:
             raise UsageError(f"--threads must be >= 1, got {args.threads}")
-        _configure(args.verbose, args.threads)
+        _configure(args.verbose, args.threads, quiet=getattr(args, "quiet", False))
         return int(args.func(args))
     except UsageError as err:
         print(f"pal: error: {err}" if not str(err).startswith("pal") else f"{err}", file=sys.stderr)

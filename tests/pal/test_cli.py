@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 import pytest
@@ -11,9 +12,14 @@ import pal.lab.runner as runner
 from pal.cli import main
 
 
-def test_demo_quick_writes_every_report_and_the_target_table(tmp_path, capsys):
+def test_demo_quick_writes_every_report_and_the_target_table(tmp_path, capsys, caplog):
+    caplog.set_level(logging.INFO)  # as a bare interpreter would after basicConfig(INFO): the demo lowers it
     assert main(["demo", "--quick", "--out", str(tmp_path)]) == 0
-    out = capsys.readouterr().out
+    captured = capsys.readouterr()
+    out = captured.out
+    assert "INFO" not in out + captured.err and "INFO" not in caplog.text  # quiet without -v
+    assert not [r for r in caplog.records if r.levelno < logging.WARNING]
+    assert "pal demo: experiment queries (1/6) ..." in captured.err
     assert "## Causal queries on X -> Y -> Z against closed forms" in out
     assert "## pal demo: every target and its verdict" in out
     summary = json.loads((tmp_path / "demo.json").read_text())
@@ -21,7 +27,8 @@ def test_demo_quick_writes_every_report_and_the_target_table(tmp_path, capsys):
     assert names == ["queries", "spring", "b1", "b2", "a1", "loop"]
     rows = summary["targets"]["rows"]
     assert len(rows) == sum(len(r["targets"]) for r in summary["runs"])
-    assert {r[-1] for r in rows} <= {"met", "**NOT met**", "not measured"}
+    assert {r[-1] for r in rows} <= {"met", "**NOT met**", "not measured", "not evaluated"}
+    assert sum(summary["verdicts"].values()) == len(rows)
     queries = summary["runs"][0]
     exact = next(t for t in queries["targets"] if t["name"] == "exact_counterfactual_error")
     assert exact["met"] is True and exact["value"] <= 1e-5

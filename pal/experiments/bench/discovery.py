@@ -31,7 +31,7 @@ from pal.baselines import discovery_peers as peers
 from pal.checks import check_int
 from pal.experiments.structure.scm import SCMConfig, standardised
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 from pal.lab.timing import measure_interleaved, ratio, torch_threads
 
 __all__ = ["Config", "ContextConfig", "run"]
@@ -218,6 +218,7 @@ def _discovery_targets(disc: dict[str, dict[str, Any]]) -> list[Target]:
             GRASP_RATIO,
             "<=",
             f"seconds of discover / seconds of GRaSP at d = {d}",
+            Precondition.nonzero(row["grasp_seconds"], "GRaSP's seconds"),
         )
     ]
     if row["grasp_shd"] is not None:
@@ -270,6 +271,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 1.0,
                 "<",
                 "seconds of action inference on the active subgraph / on the whole graph",
+                Precondition.nonzero(ctx["whole_seconds"], "the seconds on the whole graph"),
             ),
         ],
         notes=notes,

@@ -58,7 +58,7 @@ from pal.experiments.closed_loop.setup import (
 )
 from pal.experiments.language.lot_play import Section
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 from pal.sim.pushing import PushingEnv
 
 __all__ = ["METHODS", "QUICK", "TINY", "Config", "compare", "goals", "hierarchy_section", "run"]
@@ -309,6 +309,9 @@ def hierarchy_section(config: Config, progress_bar: bool = False) -> Section:
             1.0,
             "<",
             "mean mechanism evaluations per decision, hierarchy / flat (< 1: fewer)",
+            Precondition.nonzero(
+                s["flat"]["evaluations_mean"], "flat action inference's evaluations per decision"
+            ),
         ),
     )
     notes = (

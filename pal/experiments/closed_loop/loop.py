@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -142,6 +142,28 @@ def _frame(agent: Agent, decision: Decision | None, percept: Percept, step: int)
     )
 
 
+def _tables(metrics: dict[str, Any], objects: tuple[str, ...]) -> list[Table]:
+    fit_rows, lost, coverage = metrics["fit_rows"], metrics["lost_fraction"], metrics["coverage"]
+    summary = [
+        ["loop steps", metrics["steps"]],
+        ["babbling steps", metrics["babble_steps"]],
+        ["episodes", metrics["episodes"]],
+        ["arm transitions fitted", fit_rows["arm"]],
+        *[[f"decisions after babbling: {m}", n] for m, n in sorted(metrics["modes"].items())],
+        ["video", metrics["video"]],
+        ["video frames", metrics["video_frames"]],
+    ]
+    return [
+        Table("Run", ["quantity", "value"], summary),
+        Table(
+            "Objects",
+            ["object", "frames lost [share]", "estimate coverage [share of cells]", "transitions fitted"],
+            [[o, lost[o], coverage[o], fit_rows.get(o)] for o in objects],
+            caption="Transitions fitted: the babbling steps in which the object was perceived before and after.",
+        ),
+    ]
+
+
 @register("loop", config=Config, quick=QUICK, tiny=TINY)
 def run(config: Config, progress_bar: bool = False) -> Report:
     """The closed loop: babble, fit, then curiosity-driven (or goal-directed) pushing, filmed."""
@@ -193,28 +215,10 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         "video": None if path is None else str(path),
         "video_frames": None if recorder is None else recorder.frames,
     }
-    summary = [
-        ["loop steps", metrics["steps"]],
-        ["babbling steps", babble],
-        ["episodes", metrics["episodes"]],
-        ["arm transitions fitted", fit_rows["arm"]],
-        *[[f"decisions after babbling: {m}", n] for m, n in sorted(modes.items())],
-        ["video", metrics["video"]],
-        ["video frames", metrics["video_frames"]],
-    ]
-    objects = [[o, lost[o], coverage[o], fit_rows.get(o)] for o in spec.object_names]
     return Report(
         title="The closed perception-action loop: Π -> measurement sites -> world model -> action",
         metrics=metrics,
-        tables=[
-            Table("Run", ["quantity", "value"], summary),
-            Table(
-                "Objects",
-                ["object", "frames lost [share]", "estimate coverage [share of cells]", "transitions fitted"],
-                objects,
-                caption="Transitions fitted: the babbling steps in which the object was perceived before and after.",
-            ),
-        ],
+        tables=_tables(metrics, spec.object_names),
         targets=[
             Target(
                 f"lost_fraction.{o}",

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import gymnasium
 import numpy as np
@@ -47,11 +47,8 @@ from pal.experiments.closed_loop.pusher_runs import (
     step_cost,
 )
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 from pal.lab.timing import torch_threads
-
-if TYPE_CHECKING:
-    pass
 
 __all__ = ["CONTROLLERS", "Config", "run"]
 
@@ -63,6 +60,8 @@ TARGET_DISTANCE = 0.1
 TARGET_STEP_SECONDS = 0.5
 #: Both learned controllers should end at most this share of random's median distance.
 TARGET_VS_RANDOM = 0.5
+#: A ratio of two controllers' distances counts only if each moved the object this far, m.
+MOVED = 0.005
 
 PLAN = PlanConfig(
     horizon=10,
@@ -218,40 +217,58 @@ def _stats(values: list[float]) -> dict[str, float | None]:
     }
 
 
-@register("pusher", config=Config, quick=QUICK, tiny=TINY)
-def run(config: Config, progress_bar: bool = False) -> Report:
-    """Pusher-v5: the agent's MPC against a PETS-style baseline and random torques, at equal environment steps."""
-    with torch_threads(config.threads):
-        per_seed = {s: _one_seed(config, s) for s in config.seeds}
-    pooled = {c: [e for r in per_seed.values() for e in r["evaluation"][c]] for c in CONTROLLERS}
-    metrics: dict[str, Any] = {
-        "seeds": list(config.seeds),
-        "env_steps": next(iter(per_seed.values()))["env_steps"],
+def _moved(episodes: list[Episode]) -> float:
+    """The largest x-y displacement of the object from its start over ``episodes``, m."""
+    return max(
+        (
+            float(np.max(np.linalg.norm(np.asarray(e.path) - np.asarray(e.path[0]), axis=1)))
+            for e in episodes
+            if e.path
+        ),
+        default=0.0,
+    )
+
+
+def _controller(
+    config: Config, per_seed: dict[int, dict[str, Any]], eps: list[Episode], c: str
+) -> dict[str, Any]:
+    """The metrics block of controller ``c`` over its pooled evaluation episodes ``eps``."""
+    block = {
+        "final_planar": _stats([e.final_planar for e in eps]),
+        "final_distance": _stats([e.final_distance for e in eps]),
+        "start_planar": _stats([e.start_planar for e in eps]),
+        "success": float(np.mean([e.final_planar <= config.success for e in eps])),
+        "goals": len(eps),
     }
-    for c in CONTROLLERS:
-        eps = pooled[c]
-        block = {
-            "final_planar": _stats([e.final_planar for e in eps]),
-            "final_distance": _stats([e.final_distance for e in eps]),
-            "start_planar": _stats([e.start_planar for e in eps]),
-            "success": float(np.mean([e.final_planar <= config.success for e in eps])),
-            "goals": len(eps),
-        }
-        if c != "random":
-            block["predicted_final"] = _stats([e.predicted_final for e in eps])
-            block["step_cpu_seconds"] = _stats([e.cpu for e in eps])
-            block["step_wall_seconds"] = _stats([e.wall for e in eps])
-            block["per_seed_median"] = [
-                float(np.median([e.final_planar for e in per_seed[s]["evaluation"][c]])) for s in config.seeds
-            ]
-        block["episodes"] = [e.as_dict() for e in eps]
-        metrics[c] = block
-    steps = [config.babble_steps + (e + 1) * config.episode_steps for e in range(config.train_episodes)]
-    curves = {c: np.array([per_seed[s]["curve"][c] for s in config.seeds]) for c in ("pal", "baseline")}
-    metrics["curve"] = {"steps": steps, **{c: v.tolist() for c, v in curves.items()}}
+    if c != "random":
+        block["predicted_final"] = _stats([e.predicted_final for e in eps])
+        block["step_cpu_seconds"] = _stats([e.cpu for e in eps])
+        block["step_wall_seconds"] = _stats([e.wall for e in eps])
+        block["per_seed_median"] = [
+            float(np.median([e.final_planar for e in per_seed[s]["evaluation"][c]])) for s in config.seeds
+        ]
+    block["max_object_displacement"] = _moved(eps)
+    block["episodes"] = [e.as_dict() for e in eps]
+    return block
+
+
+def _targets(metrics: dict[str, Any], pooled: dict[str, list[Episode]]) -> list[Target]:
+    """The targets; a ratio of two controllers is evaluated only if both moved the object.
+
+    Without that, two controllers that never touch the object end at the same distance and
+    their ratio is 1.0, which would meet ``pal_over_baseline <= 1``.
+    """
     med = {c: metrics[c]["final_planar"]["median"] for c in CONTROLLERS}
     ratio = lambda a, b: None if a is None or not b else a / b  # noqa: E731
-    targets = [
+
+    def compared(a: str, b: str, name: str, threshold: float, description: str) -> Target:
+        moved = Precondition(
+            _moved(pooled[a]) > MOVED and _moved(pooled[b]) > MOVED,
+            f"the object moved > {MOVED * 1000:g} mm in an evaluation episode of {a} and of {b}",
+        )
+        return Target(name, ratio(med[a], med[b]), threshold, "<=", description, moved)
+
+    return [
         Target(
             "pal_final_distance",
             med["pal"],
@@ -259,25 +276,25 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             "<=",
             "median over the evaluation goals of the agent's final object-goal distance in the table plane, m",
         ),
-        Target(
+        compared(
+            "pal",
+            "baseline",
             "pal_over_baseline",
-            ratio(med["pal"], med["baseline"]),
             1.0,
-            "<=",
             "the agent's median final distance / the PETS-style baseline's, at equal environment steps",
         ),
-        Target(
+        compared(
+            "pal",
+            "random",
             "pal_over_random",
-            ratio(med["pal"], med["random"]),
             TARGET_VS_RANDOM,
-            "<=",
             "the agent's median final distance / random torques'",
         ),
-        Target(
+        compared(
+            "baseline",
+            "random",
             "baseline_over_random",
-            ratio(med["baseline"], med["random"]),
             TARGET_VS_RANDOM,
-            "<=",
             "the baseline's median final distance / random torques'",
         ),
         Target(
@@ -288,6 +305,11 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             "the agent's planning time per MPC step, process CPU seconds on one torch thread (median over episodes)",
         ),
     ]
+
+
+def _tables(
+    config: Config, metrics: dict[str, Any], steps: list[int], curves: dict[str, np.ndarray]
+) -> list[Table]:
     rows = [
         [
             c,
@@ -301,43 +323,61 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         ]
         for c in CONTROLLERS
     ]
+    return [
+        Table(
+            "Final object-goal distance over the evaluation goals [m]",
+            [
+                "controller",
+                "median (x-y)",
+                "25th pct",
+                "75th pct",
+                "median (3-D, reward_dist)",
+                f"share within {config.success} m",
+                "predicted final (x-y), median",
+                "planning CPU s / step",
+            ],
+            rows,
+            caption="The baseline is a PETS-style probabilistic ensemble with CEM written for this comparison, not the authors' code.",
+        ),
+        Table(
+            "Learning curve: final x-y distance of each training episode [m], mean over seeds",
+            ["environment steps", "pal", "baseline"],
+            [
+                [s, float(curves["pal"][:, k].mean()), float(curves["baseline"][:, k].mean())]
+                for k, s in enumerate(steps)
+            ],
+        ),
+    ]
+
+
+@register("pusher", config=Config, quick=QUICK, tiny=TINY)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """Pusher-v5: the agent's MPC against a PETS-style baseline and random torques, at equal environment steps."""
+    with torch_threads(config.threads):
+        per_seed = {s: _one_seed(config, s) for s in config.seeds}
+    pooled = {c: [e for r in per_seed.values() for e in r["evaluation"][c]] for c in CONTROLLERS}
+    metrics: dict[str, Any] = {
+        "seeds": list(config.seeds),
+        "env_steps": next(iter(per_seed.values()))["env_steps"],
+    }
+    for c in CONTROLLERS:
+        metrics[c] = _controller(config, per_seed, pooled[c], c)
+    steps = [config.babble_steps + (e + 1) * config.episode_steps for e in range(config.train_episodes)]
+    curves = {c: np.array([per_seed[s]["curve"][c] for s in config.seeds]) for c in ("pal", "baseline")}
+    metrics["curve"] = {"steps": steps, **{c: v.tolist() for c, v in curves.items()}}
     n_goals = len(pooled["pal"])
     return Report(
         title="Pusher-v5: the agent against a PETS-style baseline at equal environment steps",
         metrics=metrics,
-        tables=[
-            Table(
-                "Final object-goal distance over the evaluation goals [m]",
-                [
-                    "controller",
-                    "median (x-y)",
-                    "25th pct",
-                    "75th pct",
-                    "median (3-D, reward_dist)",
-                    f"share within {config.success} m",
-                    "predicted final (x-y), median",
-                    "planning CPU s / step",
-                ],
-                rows,
-                caption="The baseline is a PETS-style probabilistic ensemble with CEM written for this comparison, not the authors' code.",
-            ),
-            Table(
-                "Learning curve: final x-y distance of each training episode [m], mean over seeds",
-                ["environment steps", "pal", "baseline"],
-                [
-                    [s, float(curves["pal"][:, k].mean()), float(curves["baseline"][:, k].mean())]
-                    for k, s in enumerate(steps)
-                ],
-            ),
-        ],
-        targets=targets,
+        tables=_tables(config, metrics, steps, curves),
+        targets=_targets(metrics, pooled),
         notes=[
             f"{n_goals} evaluation goals ({config.eval_goals} per seed, seeds {', '.join(map(str, config.seeds))}) after "
             f"{metrics['env_steps']} environment steps each: {config.babble_steps} random, then {config.train_episodes} MPC episodes of {config.episode_steps} steps.",
             "Both planners use the same CEM settings (population, elites, iterations, horizon, momentum, initial spread, warm start) and the same step cost; the baseline is a PETS-style baseline, not the original implementation.",
         ],
         figures={
-            "learning_curve": curve_figure(steps, curves, med["random"]),
+            "learning_curve": curve_figure(steps, curves, metrics["random"]["final_planar"]["median"]),
             "paths": paths_figure({c: pooled[c][0] for c in CONTROLLERS}),
             "predicted_vs_realized": prediction_figure({c: pooled[c] for c in ("pal", "baseline")}),
         },

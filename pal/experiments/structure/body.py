@@ -52,7 +52,7 @@ from pal.experiments.world_model.setup import (
     setup_note,
 )
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 
 __all__ = ["JUSTIFIED", "Config", "physics_effects", "run"]
 
@@ -353,6 +353,9 @@ def _targets(reps: list[dict[str, Any]], body: dict[str, Any], error: dict[str, 
             1.0 + TARGET_B1,
             "<=",
             f"B1 test q MSE of the learnt graph / of the best preset ({best} graph; mean over the datasets)",
+            Precondition.nonzero(
+                error[best]["q_mse"] if have else None, f"the q MSE of the best preset ({best})"
+            ),
         ),
         Target(
             "unjustified_cross_joint_transition_edges",

@@ -37,7 +37,7 @@ from pal.experiments.world_model.setup import (
     state_of,
 )
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -130,7 +130,12 @@ def targets(error: dict[str, Any]) -> list[Target]:
     worst = max(error[g]["q_mse"] for g in error if g != "persistence")
     return [
         Target(
-            "q_mse_ratio", ratio, TARGET_RATIO, "<=", "q MSE of the state graph / q MSE of the thesis graph"
+            "q_mse_ratio",
+            ratio,
+            TARGET_RATIO,
+            "<=",
+            "q MSE of the state graph / q MSE of the thesis graph",
+            Precondition.nonzero(error["thesis"]["q_mse"] if have else None, "the thesis graph's q MSE"),
         ),
         Target(
             "q_mse_over_persistence",
@@ -138,6 +143,9 @@ def targets(error: dict[str, Any]) -> list[Target]:
             1.0,
             "<",
             "largest q MSE of the fitted graphs / q MSE of persistence",
+            Precondition.nonzero(
+                error["persistence"]["q_mse"], "the q MSE of persistence (the joints moved)"
+            ),
         ),
     ]
 

@@ -25,7 +25,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from tqdm import tqdm
@@ -210,6 +210,36 @@ def _median_steps(steps: list[int | None]) -> float | None:
     return med if np.isfinite(med) else None
 
 
+def _explore(
+    config: Config, joint: JointData, q_range: Any, progress_bar: bool
+) -> tuple[
+    dict[str, list[int | None]], dict[str, list[float]], dict, dict[str, list[np.ndarray]], dict[str, float]
+]:
+    """Both conditions on every seed: steps to full occupancy, final entropy, curves, visited q, seconds."""
+    steps: dict[str, list[int | None]] = {c: [] for c in CONDITIONS}
+    ent_final: dict[str, list[float]] = {c: [] for c in CONDITIONS}
+    curves: dict[str, dict[str, list[np.ndarray]]] = {c: {"occupancy": [], "entropy": []} for c in CONDITIONS}
+    visited: dict[str, list[np.ndarray]] = {c: [] for c in CONDITIONS}
+    seconds = dict.fromkeys(CONDITIONS, 0.0)
+    for seed in config.seeds:
+        for cond in CONDITIONS:
+            start = time.perf_counter()
+            if cond == "curiosity":
+                values = _curiosity_run(config, joint, seed, q_range, progress_bar)
+            else:
+                values = _random_run(config, joint, seed)
+            seconds[cond] += time.perf_counter() - start
+            occ, ent = coverage_curve(values, config.initial, q_range, config.bins)
+            full = np.flatnonzero(occ >= 1.0)
+            steps[cond].append(int(full[0]) if full.size else None)
+            ent_final[cond].append(float(ent[-1]))
+            curves[cond]["occupancy"].append(occ)
+            curves[cond]["entropy"].append(ent)
+            visited[cond].append(values)
+        log.info("seed %d: steps to full occupancy %s", seed, {c: steps[c][-1] for c in CONDITIONS})
+    return steps, ent_final, curves, visited, seconds
+
+
 @register(
     "explore",
     config=Config,
@@ -238,27 +268,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     q_range = config.q_range or probe.env.joint_ranges[joint.joint]
     if q_range is None:
         raise ValueError(f"joint {joint.joint!r} is unlimited; give the bins' support as q_range=(low, high)")
-    steps: dict[str, list[int | None]] = {c: [] for c in CONDITIONS}
-    ent_final: dict[str, list[float]] = {c: [] for c in CONDITIONS}
-    curves: dict[str, dict[str, list[np.ndarray]]] = {c: {"occupancy": [], "entropy": []} for c in CONDITIONS}
-    visited: dict[str, list[np.ndarray]] = {c: [] for c in CONDITIONS}
-    seconds = dict.fromkeys(CONDITIONS, 0.0)
-    for seed in config.seeds:
-        for cond in CONDITIONS:
-            start = time.perf_counter()
-            if cond == "curiosity":
-                values = _curiosity_run(config, joint, seed, q_range, progress_bar)
-            else:
-                values = _random_run(config, joint, seed)
-            seconds[cond] += time.perf_counter() - start
-            occ, ent = coverage_curve(values, config.initial, q_range, config.bins)
-            full = np.flatnonzero(occ >= 1.0)
-            steps[cond].append(int(full[0]) if full.size else None)
-            ent_final[cond].append(float(ent[-1]))
-            curves[cond]["occupancy"].append(occ)
-            curves[cond]["entropy"].append(ent)
-            visited[cond].append(values)
-        log.info("seed %d: steps to full occupancy %s", seed, {c: steps[c][-1] for c in CONDITIONS})
+    steps, ent_final, curves, visited, seconds = _explore(config, joint, q_range, progress_bar)
     q_range = (float(q_range[0]), float(q_range[1]))
     metrics = {
         "steps_to_full_occupancy": {c: _median_steps(steps[c]) for c in CONDITIONS},

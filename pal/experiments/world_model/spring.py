@@ -33,7 +33,7 @@ from models import FunctionMechanism, LinearMechanism, WorldModel, finger_graph
 from models.presets import FINGER_ACTION_RANGE
 from pal.checks import check_int
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -101,6 +101,33 @@ def _errors(model: WorldModel, test: dict[str, torch.Tensor]) -> dict[str, float
 def _outcomes(truth: WorldModel, state: dict[str, torch.Tensor], actions: torch.Tensor) -> torch.Tensor:
     with torch.no_grad():
         return truth.predict({**state, ACT: actions})[Q]
+
+
+def _targets(prediction: dict[str, Any], action: dict[str, Any], curiosity: dict[str, float]) -> list[Target]:
+    return [
+        Target(
+            "q_mse_ratio",
+            prediction["state"]["q_mse"] / prediction["thesis"]["q_mse"],
+            0.2,
+            "<",
+            "q MSE of the state graph / q MSE of the thesis graph",
+            Precondition.nonzero(prediction["thesis"]["q_mse"], "the thesis graph's q MSE"),
+        ),
+        Target(
+            "realized_mae_state",
+            action["state"]["mae_real"],
+            0.05,
+            "<=",
+            "true-SCM error of the actions inferred with the state graph, rad",
+        ),
+        Target(
+            "curiosity_entropy_gain",
+            curiosity["curiosity_entropy_real"] - curiosity["random_entropy_real"],
+            0.0,
+            ">=",
+            "entropy of curiosity-conditioned outcomes minus that of random actions",
+        ),
+    ]
 
 
 @register(
@@ -174,29 +201,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         title="World model of a known spring finger: prediction, action inference, curiosity",
         metrics={"prediction": prediction, "action": action, "curiosity": curiosity},
         tables=_tables(prediction, action, curiosity),
-        targets=[
-            Target(
-                "q_mse_ratio",
-                prediction["state"]["q_mse"] / prediction["thesis"]["q_mse"],
-                0.2,
-                "<",
-                "q MSE of the state graph / q MSE of the thesis graph",
-            ),
-            Target(
-                "realized_mae_state",
-                action["state"]["mae_real"],
-                0.05,
-                "<=",
-                "true-SCM error of the actions inferred with the state graph, rad",
-            ),
-            Target(
-                "curiosity_entropy_gain",
-                curiosity["curiosity_entropy_real"] - curiosity["random_entropy_real"],
-                0.0,
-                ">=",
-                "entropy of curiosity-conditioned outcomes minus that of random actions",
-            ),
-        ],
+        targets=_targets(prediction, action, curiosity),
         notes=[
             f"{config.transitions} samples of the true SCM (80:20 split); Alg. 4.2: Adam 200 steps, lr 0.05, "
             "midpoint start; curiosity: 20 bins, alpha 0.5, sigma = range / 10."

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pal.lab import configs, render
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 from pal.lab.runner import OutputError, RunRecord, check_output_dir
 
 
@@ -95,6 +95,36 @@ def test_target_verdicts():
         Target("a", "x", 1.0, "<")  # type: ignore[arg-type]
 
 
+def test_a_target_whose_precondition_fails_is_not_evaluated_and_not_met():
+    moved = Precondition(False, "the object moved > 5 mm")
+    failed = Target("ratio", 1.0, 1.0, "<=", "pal / baseline", moved)  # 1.0 <= 1.0, but nothing moved
+    assert failed.verdict == "not evaluated" and failed.met is False and not failed.evaluated
+    held = Target("ratio", 1.0, 1.0, "<=", "pal / baseline", Precondition(np.bool_(True), "moved"))
+    assert held.verdict == "met" and held.met is True and held.precondition.holds is True
+    assert Target("x", None, 1.0, "<", "", moved).verdict == "not evaluated"
+    assert [Target("a", 2.0, 1.0, "<").verdict, Target("a", None, 1.0, "<").verdict] == [
+        "not met",
+        "not measured",
+    ]
+    with pytest.raises(ValueError, match="is not a bool"):
+        Precondition("yes", "x")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="is not a Precondition"):
+        Target("a", 1.0, 1.0, "<", "", True)  # type: ignore[arg-type]
+
+    rep = Report("R", {}, targets=[failed, Target("ok", 0.5, 1.0, "<=", "fine")])
+    md = render.markdown(_record(rep))
+    assert "| ratio | pal / baseline | 1 | <= 1 | not evaluated |" in md
+    assert "1 of 2 targets met (1 not evaluated)." in md
+    assert "`ratio` not evaluated: requires the object moved > 5 mm" in md
+    doc = render.document(_record(rep))["targets"][0]
+    assert doc["met"] is False and doc["verdict"] == "not evaluated"
+    assert doc["precondition"] == {"holds": False, "reason": "the object moved > 5 mm"}
+    table = render.targets_table([("pusher", failed), ("b1", Target("ok", 0.5, 1.0, "<="))])
+    assert [r[-1] for r in table.rows] == ["not evaluated", "met"]
+    assert table.caption.startswith("1 of 2 targets met (1 not evaluated).")
+    assert "pusher: `ratio` not evaluated" in table.caption
+
+
 def test_table_and_report_checks():
     with pytest.raises(ValueError, match="row 1 has 1 cells, expected 2"):
         Table("t", ("a", "b"), [(1, 2), (3,)])
@@ -159,3 +189,12 @@ def test_check_output_dir(tmp_path):
         ro.mkdir(mode=0o500)
         with pytest.raises(OutputError, match="is not writable"):
             check_output_dir(ro)
+
+
+def test_the_baseline_of_a_ratio_must_be_finite_and_nonzero():
+    assert Precondition.nonzero(np.float64(0.2), "the persistence q MSE").holds
+    for bad in (0.0, math.nan, math.inf):
+        pre = Precondition.nonzero(bad, "the persistence q MSE")
+        assert not pre.holds and pre.reason.startswith("the persistence q MSE finite and nonzero (was ")
+    missing = Target("over_peer", None, 1.0, "<=", "", Precondition.nonzero(None, "the peer's time"))
+    assert missing.evaluated and missing.verdict == "not measured"  # a peer that was not run

@@ -66,6 +66,7 @@ def test_table_holds_mean_and_sd_per_cell_and_failed_runs_are_reported_then_retr
     assert float(by[("3", "value")]["sd"]) == pytest.approx(math.sqrt(18.0), abs=1e-12)
     assert float(by[("1", "nested.double")]["mean"]) == pytest.approx(4.0, abs=1e-12)
     assert float(by[("1", "target.value_small")]["mean"]) == pytest.approx(2.0, abs=1e-12)
+    assert float(by[("1", "met.value_small")]["mean"]) == 1.0  # share of runs that met it
     assert ("1", "flag") not in by and ("1", "series") not in by  # bools and lists are not summarised
     assert (out / "value_small.png").read_bytes()[:4] == b"\x89PNG"
     md = (out / "summary.md").read_text()
@@ -175,3 +176,17 @@ def test_two_local_workers_give_the_same_reports_as_one_process(spring_sweep, tm
         a = json.loads((tmp_path / "par" / "runs" / f"r{i:03d}.json").read_text())
         b = json.loads((serial / f"r{i:03d}.json").read_text())
         assert a["config"] == b["config"] and a["targets"] == b["targets"] and a["metrics"] == b["metrics"]
+
+
+def test_a_not_evaluated_target_counts_as_not_met_and_its_value_is_left_out():
+    from pal.lab.report import Precondition
+    from pal.lab.sweep_summary import _values
+
+    targets = [
+        Target("ratio", 1.0, 1.0, "<=", "r", Precondition(False, "something moved")).as_dict(),
+        Target("mse", 0.1, 1.0, "<=", "m").as_dict(),
+        Target("gap", None, 1.0, "<=", "g").as_dict(),
+    ]
+    values = _values({"metrics": {}, "targets": targets, "seconds": 1.0})
+    assert "target.ratio" not in values and values["met.ratio"] == 0.0
+    assert values["target.mse"] == 0.1 and values["met.mse"] == 1.0 and values["met.gap"] == 0.0
