@@ -16,7 +16,7 @@ import typing
 from collections.abc import Iterator
 from typing import Any
 
-__all__ = ["ConfigError", "as_dict", "find", "override", "parse_value", "walk"]
+__all__ = ["ConfigError", "to_dict", "find", "override", "parse_value", "walk"]
 
 
 class ConfigError(ValueError):
@@ -27,7 +27,7 @@ def _is_config(obj: Any) -> bool:
     return dataclasses.is_dataclass(obj) and not isinstance(obj, type)
 
 
-def as_dict(config: Any) -> dict[str, Any]:
+def to_dict(config: Any) -> dict[str, Any]:
     """The config as nested JSON-compatible dicts (tuples become lists)."""
     if not _is_config(config):
         raise ConfigError(f"expected a dataclass config, got {type(config).__name__}")

@@ -69,5 +69,5 @@ def run(out_dir: str | os.PathLike[str], *, quick: bool = False, progress_bar: b
     )
     atomic_write_json(
         out / "demo.json",
-        {"quick": quick, "runs": [render.document(r) for r in records], "targets": table.as_dict()},
+        {"quick": quick, "runs": [render.document(r) for r in records], "targets": table.to_dict()},
     )

@@ -68,7 +68,7 @@ class Target:
         v, t = self.value, self.threshold
         return {"<=": v <= t, ">=": v >= t, "<": v < t, ">": v > t}[self.direction]
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields, with the verdict ``met``."""
         value = self.value if self.value is None or math.isfinite(self.value) else None
         return {
@@ -122,7 +122,7 @@ class Table:
         object.__setattr__(self, "columns", columns)
         object.__setattr__(self, "rows", tuple(rows))
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields."""
         return {
             "title": self.title,

@@ -189,7 +189,7 @@ class SweepPlan:
                 out.append(Run(f"r{len(out):03d}", c, settings, seed))
         return out
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields (the manifest without the run list)."""
         return {
             "kind": self.kind,
@@ -346,9 +346,9 @@ def run_sweep(
         if not manifest.is_file():
             raise SweepError(f"--retry-failed: {out} holds no sweep ({MANIFEST} missing)")
         stored = _read_plan(out)
-        if sweep is not None and sweep.as_dict() != stored.as_dict():
+        if sweep is not None and sweep.to_dict() != stored.to_dict():
             raise SweepError(
-                f"--retry-failed: {out} holds a different sweep {stored.as_dict()}; give the same one or none"
+                f"--retry-failed: {out} holds a different sweep {stored.to_dict()}; give the same one or none"
             )
         sweep = stored
     elif manifest.exists():
@@ -358,7 +358,7 @@ def run_sweep(
     (out / RUNS).mkdir(parents=True, exist_ok=True)
     if not retry_failed:
         runs_doc = [{"id": r.id, "cell": r.cell, "settings": r.settings, "seed": r.seed} for r in sweep.runs]
-        atomic_write_json(manifest, {"format": FORMAT, **sweep.as_dict(), "runs": runs_doc})
+        atomic_write_json(manifest, {"format": FORMAT, **sweep.to_dict(), "runs": runs_doc})
     todo = [r for r in sweep.runs if not (out / RUNS / f"{r.id}.json").is_file()]
     log.info("sweep %s: %d of %d runs to do", sweep.name, len(todo), len(sweep.runs))
     args = (sweep.kind, sweep.name, sweep.base, list(sweep.sets))

@@ -244,7 +244,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             block["per_seed_median"] = [
                 float(np.median([e.final_planar for e in per_seed[s]["evaluation"][c]])) for s in config.seeds
             ]
-        block["episodes"] = [e.as_dict() for e in eps]
+        block["episodes"] = [e.to_dict() for e in eps]
         metrics[c] = block
     steps = [config.babble_steps + (e + 1) * config.episode_steps for e in range(config.train_episodes)]
     curves = {c: np.array([per_seed[s]["curve"][c] for s in config.seeds]) for c in ("pal", "baseline")}

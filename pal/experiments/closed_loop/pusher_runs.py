@@ -117,7 +117,7 @@ class Episode:
     path: list[list[float]] = field(default_factory=list)
     goal: list[float] = field(default_factory=list)
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-compatible fields (without the path)."""
         return {k: v for k, v in self.__dict__.items() if k not in ("path", "goal")}
 
