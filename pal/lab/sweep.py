@@ -124,7 +124,7 @@ def parse_grid(items: Sequence[str], base: Any) -> tuple[tuple[str, tuple[Any, .
         key, sep, raw = item.partition("=")
         key = key.strip()
         if not sep or not key or not raw.strip():
-            raise SweepError(f"--grid {item!r}: expected KEY=V1,V2,..., e.g. --grid epochs=5,10")
+            raise SweepError(f"--grid {item!r}: expected KEY=V1,V2,..., e.g. --grid schedule.epochs=5,10")
         if key == "seed":
             raise SweepError("--grid seed=...: give the seeds with --seeds, e.g. --seeds 0-9")
         if key not in valid:
@@ -218,7 +218,7 @@ def configure_from(config: Any, item: str) -> Any:
     """``config`` with one ``KEY=VALUE`` item (``--set``) applied."""
     key, sep, raw = item.partition("=")
     if not sep or not key:
-        raise configs.ConfigError(f"--set {item!r}: expected KEY=VALUE, e.g. --set epochs=3")
+        raise configs.ConfigError(f"--set {item!r}: expected KEY=VALUE, e.g. --set schedule.epochs=3")
     return configs.override(config, key.strip(), configs.parse_value(raw))
 
 

@@ -15,7 +15,7 @@ true box centre comes within ``tolerance`` m of the goal (it ends there):
   picks the current one), and the joint targets that bring the hand to the waypoint (action
   inference on the body layer's active submodel);
 - ``flat``: the agent's goal-mode planner (:func:`pal.agent.plan.plan`: the sampling planner over
-  ``setup.agent.plan.horizon`` steps through the whole world model towards the box target,
+  ``setup.agent.plan.action.horizon`` steps through the whole world model towards the box target,
   warm-started, holding still when it predicts no progress, as :meth:`pal.agent.Agent.decide`).
 
 Both read the same state from the simulator (joint angles, the sensed hand, the true object
@@ -141,7 +141,7 @@ class _Flat:
         if cfg.warm_start and self.sequence is not None:
             init = np.concatenate([self.sequence[1:], self.sequence[-1:]])
         else:
-            init = np.tile(q, (cfg.horizon, 1))
+            init = np.tile(q, (cfg.action.horizon, 1))
         p = plan(self.model, state, {"box": goal}, cfg, seed=int(self.rng.integers(2**31)), init=init)
         self.sequence = p.sequence
         now = float(np.linalg.norm(state["pos_prev.box"] - goal))

@@ -169,7 +169,7 @@ def baseline_episode(env: gymnasium.Env, planner: CEMPlanner, seed: int, steps: 
     obs0 = np.asarray(obs, dtype=np.float64)
     planner.reset()
     path, cpu, wall, pred = [obs0[_OBJ][:2]], [], [], None
-    horizon = planner.config.horizon
+    horizon = planner.config.action.horizon
     for t in range(steps):
         c0, w0 = time.process_time(), time.perf_counter()
         action, final = planner.act(np.asarray(obs, dtype=np.float64))
