@@ -30,13 +30,14 @@ from __future__ import annotations
 import logging
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 import torch
 
-from inference.hierarchy import Hierarchy
+from inference import SamplingConfig
+from inference.hierarchy import Hierarchy, LevelQuery
 from inference.hierarchy_count import count_evaluations
 from models import WorldModel
 from pal.agent.plan import plan
@@ -105,7 +106,15 @@ QUICK = Config(setup=QUICK_SETUP, goals=10, episode_steps=12)
 TINY = Config(
     setup=TINY_SETUP,
     hierarchy=HierarchyConfig(
-        object_steps=10, body_population=8, body_elites=2, body_refine=3, context_samples=16
+        object_query=replace(HierarchyConfig().object_query, num_steps=10),
+        body_query=LevelQuery(
+            3,
+            replace(
+                HierarchyConfig().body_query.options,
+                sampling=SamplingConfig(population=8, elites=2, iterations=2, refine_steps=3),
+            ),
+        ),
+        context_samples=16,
     ),
     goals=1,
     episode_steps=2,

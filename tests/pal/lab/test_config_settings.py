@@ -3,9 +3,10 @@
 **Option classes** are the dataclasses that :mod:`inference` exports whose names end in
 ``Options``, ``Config`` or ``Schedule`` (:class:`inference.FitSchedule`,
 :class:`inference.SVIOptions`, :class:`inference.SamplingConfig`, :class:`inference.ActionOptions`,
-:class:`inference.DiscoveryOptions` ...). **Pal config classes** are the dataclasses defined
-in ``pal`` that occur in a registered entry's default, quick or tiny config or in
-:class:`pal.agent.AgentConfig` (at any depth, inside nested option objects included).
+:class:`inference.DiscoveryOptions` ...), and :class:`inference.hierarchy.LevelQuery`. **Pal
+config classes** are the dataclasses defined in ``pal`` that occur in a registered entry's
+default, quick or tiny config or in :class:`pal.agent.AgentConfig` (at any depth, inside
+nested option objects included).
 
 A pal config class fails when it
 
@@ -32,6 +33,7 @@ from typing import Any
 import pytest
 
 import inference
+from inference.hierarchy import LevelQuery
 from pal.agent import AgentConfig
 from pal.lab import configs, registry
 
@@ -47,12 +49,15 @@ ALLOWED = {
     ),
 }
 
-OPTION_CLASSES = tuple(
-    obj
-    for name in inference.__all__
-    if isinstance(obj := getattr(inference, name), type)
-    and dataclasses.is_dataclass(obj)
-    and name.endswith(("Options", "Config", "Schedule"))
+OPTION_CLASSES = (
+    *(
+        obj
+        for name in inference.__all__
+        if isinstance(obj := getattr(inference, name), type)
+        and dataclasses.is_dataclass(obj)
+        and name.endswith(("Options", "Config", "Schedule"))
+    ),
+    LevelQuery,
 )
 
 
