@@ -330,27 +330,31 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
         )
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``pal``."""
-    parser = UsageParser(prog="pal", description="Causal perception-action learning toolkit.")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging and tracebacks")
-    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=UsageParser)
-
+def _add_demo_parser(sub: argparse._SubParsersAction) -> None:
+    """``pal demo``."""
     p = sub.add_parser("demo", help="short end-to-end run: prints reports, saves figures")
     p.add_argument("--out", default="pal-demo", help="directory for reports and figures (default: pal-demo)")
     p.add_argument("--quick", action="store_true", help="smallest sizes")
     p.set_defaults(func=_demo)
 
+
+def _add_list_parser(sub: argparse._SubParsersAction) -> None:
+    """``pal list``."""
     p = sub.add_parser("list", help="list the registered experiments and benchmarks")
     p.set_defaults(func=_list)
 
+
+def _add_run_parsers(sub: argparse._SubParsersAction) -> None:
+    """``pal bench`` and ``pal experiment``."""
     for kind, help_text in (("bench", "run a benchmark"), ("experiment", "run an experiment")):
         p = sub.add_parser(kind, help=help_text)
         p.add_argument("name")
         _add_run_flags(p)
         p.set_defaults(func=lambda a, k=kind: _run_entry(k, a.name, a))
 
+
+def _add_loop_parser(sub: argparse._SubParsersAction) -> None:
+    """``pal loop``."""
     p = sub.add_parser("loop", help="the closed perception-action loop (= pal experiment loop)")
     p.add_argument("--steps", type=int, default=60, help="loop steps, babbling included (default 60)")
     p.add_argument(
@@ -364,6 +368,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_flags(p, body=False)
     p.set_defaults(func=_loop)
 
+
+def _add_babble_parser(sub: argparse._SubParsersAction) -> None:
+    """``pal babble``."""
     p = sub.add_parser("babble", help="record motor-babbling transitions to a dataset directory")
     add_body_flags(p, babble=True)
     p.add_argument("--steps", type=int, default=100_000, help="transitions (default 100000)")
@@ -397,6 +404,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(func=_babble)
 
+
+def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
+    """``pal sweep``."""
     p = sub.add_parser(
         "sweep", help="run an experiment over a grid of settings x seeds: mean ± sd table, figures"
     )
@@ -420,6 +430,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--retry-failed", action="store_true", help="run only the failed runs of --out again")
     p.set_defaults(func=_sweep)
 
+
+def _add_record_parser(sub: argparse._SubParsersAction) -> None:
+    """``pal record``."""
     p = sub.add_parser("record", help="record a scripted tabletop run as an RGB-D sequence with ground truth")
     p.add_argument("--motion", required=True, help="scripted motion of thesis Table 5.1, e.g. box-rotation")
     p.add_argument("--seed", type=int, default=0, help="run seed: path, speed, sensor noise (default 0)")
@@ -434,6 +447,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help="replace a sequence already in --out")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(func=_record)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``pal``."""
+    parser = UsageParser(prog="pal", description="Causal perception-action learning toolkit.")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging and tracebacks")
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=UsageParser)
+    _add_demo_parser(sub)
+    _add_list_parser(sub)
+    _add_run_parsers(sub)
+    _add_loop_parser(sub)
+    _add_babble_parser(sub)
+    _add_sweep_parser(sub)
+    _add_record_parser(sub)
     return parser
 
 
