@@ -238,7 +238,7 @@ def test_cli_runs_b1_on_the_arm_and_writes_outputs(tmp_path, capsys, cache_dir):
         stored["metrics"] == printed["metrics"]
         and stored["config"]["protocol"]["data"]["body"]["body"] == "arm"
     )
-    assert stored["config"]["protocol"]["fit"]["epochs"] == 5
+    assert stored["config"]["protocol"]["fit"]["schedule"]["epochs"] == 5
     assert [t["name"] for t in stored["targets"]][:2] == ["q_mse_ratio", "q_mse_over_persistence"]
     assert all(isinstance(t["met"], bool) for t in stored["targets"])
     md = (tmp_path / "b1.md").read_text()
