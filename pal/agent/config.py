@@ -1,4 +1,10 @@
-"""The agent's settings, one frozen sub-config per part: model and fit, estimate, plan, curiosity, learning."""
+"""The agent's settings, one frozen sub-config per part: model and fit, estimate, plan, curiosity, learning.
+
+Each part nests the option object of :mod:`inference` that it passes on unchanged
+(``model.schedule``: :class:`inference.FitSchedule`; ``estimate.svi``: :class:`inference.SVIOptions`;
+``plan.action``: :class:`inference.ActionOptions` with its :class:`inference.SamplingConfig`;
+``curiosity.sampling``) and declares beside it only the agent's own settings.
+"""
 
 from __future__ import annotations
 
