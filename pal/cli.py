@@ -37,6 +37,9 @@ __all__ = ["UsageError", "build_parser", "main"]
 
 log = logging.getLogger("pal")
 
+#: What ``ArgumentParser.add_subparsers`` returns; argparse keeps its class private.
+Subparsers = Any
+
 
 def _configure(verbose: bool, threads: int) -> None:
     os.environ.setdefault("MPLBACKEND", "Agg")
@@ -330,7 +333,7 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
         )
 
 
-def _add_demo_parser(sub: argparse._SubParsersAction) -> None:
+def _add_demo_parser(sub: Subparsers) -> None:
     """``pal demo``."""
     p = sub.add_parser("demo", help="short end-to-end run: prints reports, saves figures")
     p.add_argument("--out", default="pal-demo", help="directory for reports and figures (default: pal-demo)")
@@ -338,13 +341,13 @@ def _add_demo_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_demo)
 
 
-def _add_list_parser(sub: argparse._SubParsersAction) -> None:
+def _add_list_parser(sub: Subparsers) -> None:
     """``pal list``."""
     p = sub.add_parser("list", help="list the registered experiments and benchmarks")
     p.set_defaults(func=_list)
 
 
-def _add_run_parsers(sub: argparse._SubParsersAction) -> None:
+def _add_run_parsers(sub: Subparsers) -> None:
     """``pal bench`` and ``pal experiment``."""
     for kind, help_text in (("bench", "run a benchmark"), ("experiment", "run an experiment")):
         p = sub.add_parser(kind, help=help_text)
@@ -353,7 +356,7 @@ def _add_run_parsers(sub: argparse._SubParsersAction) -> None:
         p.set_defaults(func=lambda a, k=kind: _run_entry(k, a.name, a))
 
 
-def _add_loop_parser(sub: argparse._SubParsersAction) -> None:
+def _add_loop_parser(sub: Subparsers) -> None:
     """``pal loop``."""
     p = sub.add_parser("loop", help="the closed perception-action loop (= pal experiment loop)")
     p.add_argument("--steps", type=int, default=60, help="loop steps, babbling included (default 60)")
@@ -369,7 +372,7 @@ def _add_loop_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_loop)
 
 
-def _add_babble_parser(sub: argparse._SubParsersAction) -> None:
+def _add_babble_parser(sub: Subparsers) -> None:
     """``pal babble``."""
     p = sub.add_parser("babble", help="record motor-babbling transitions to a dataset directory")
     add_body_flags(p, babble=True)
@@ -405,7 +408,7 @@ def _add_babble_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_babble)
 
 
-def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
+def _add_sweep_parser(sub: Subparsers) -> None:
     """``pal sweep``."""
     p = sub.add_parser(
         "sweep", help="run an experiment over a grid of settings x seeds: mean ± sd table, figures"
@@ -431,7 +434,7 @@ def _add_sweep_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_sweep)
 
 
-def _add_record_parser(sub: argparse._SubParsersAction) -> None:
+def _add_record_parser(sub: Subparsers) -> None:
     """``pal record``."""
     p = sub.add_parser("record", help="record a scripted tabletop run as an RGB-D sequence with ground truth")
     p.add_argument("--motion", required=True, help="scripted motion of thesis Table 5.1, e.g. box-rotation")
