@@ -331,7 +331,7 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
             "--set",
             action="append",
             metavar="KEY=VALUE",
-            help="override a setting, e.g. protocol.fit.epochs=40",
+            help="override a setting by its dotted path, e.g. protocol.fit.schedule.epochs=40",
         )
         add_body_flags(p, babble=False)
         p.add_argument(

@@ -84,7 +84,7 @@ def run(
         {
             "quick": quick,
             "runs": [render.document(r) for r in records],
-            "targets": table.as_dict(),
+            "targets": table.to_dict(),
             "verdicts": {v: sum(t.verdict == v for _, t in targets) for v in VERDICTS},
         },
     )

@@ -68,7 +68,7 @@ class Precondition:
             bool(holds), f"{what} finite and nonzero (was {value:.4g})" if number else f"{what} a number"
         )
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields."""
         return {"holds": self.holds, "reason": self.reason}
 
@@ -145,7 +145,7 @@ class Target:
             return "not evaluated"
         return {True: "met", False: "not met", None: "not measured"}[self.met]
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields, with ``met`` (true, false or null), the ``verdict`` and the precondition."""
         value = self.value if self.value is None or math.isfinite(self.value) else None
         return {
@@ -155,7 +155,7 @@ class Target:
             "direction": self.direction,
             "met": self.met,
             "verdict": self.verdict,
-            "precondition": None if self.precondition is None else self.precondition.as_dict(),
+            "precondition": None if self.precondition is None else self.precondition.to_dict(),
             "description": self.description,
         }
 
@@ -201,7 +201,7 @@ class Table:
         object.__setattr__(self, "columns", columns)
         object.__setattr__(self, "rows", tuple(rows))
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields."""
         return {
             "title": self.title,

@@ -124,7 +124,7 @@ def parse_grid(items: Sequence[str], base: Any) -> tuple[tuple[str, tuple[Any, .
         key, sep, raw = item.partition("=")
         key = key.strip()
         if not sep or not key or not raw.strip():
-            raise SweepError(f"--grid {item!r}: expected KEY=V1,V2,..., e.g. --grid epochs=5,10")
+            raise SweepError(f"--grid {item!r}: expected KEY=V1,V2,..., e.g. --grid schedule.epochs=5,10")
         if key == "seed":
             raise SweepError("--grid seed=...: give the seeds with --seeds, e.g. --seeds 0-9")
         if key not in valid:
@@ -269,9 +269,9 @@ def run_sweep(
         if not manifest.is_file():
             raise SweepError(f"--retry-failed: {out} holds no sweep ({MANIFEST} missing)")
         stored = _read_plan(out)
-        if sweep is not None and sweep.as_dict() != stored.as_dict():
+        if sweep is not None and sweep.to_dict() != stored.to_dict():
             raise SweepError(
-                f"--retry-failed: {out} holds a different sweep {stored.as_dict()}; give the same one or none"
+                f"--retry-failed: {out} holds a different sweep {stored.to_dict()}; give the same one or none"
             )
         sweep = stored
     elif manifest.exists():
@@ -281,7 +281,7 @@ def run_sweep(
     (out / RUNS).mkdir(parents=True, exist_ok=True)
     if not retry_failed:
         runs_doc = [{"id": r.id, "cell": r.cell, "settings": r.settings, "seed": r.seed} for r in sweep.runs]
-        atomic_write_json(manifest, {"format": FORMAT, **sweep.as_dict(), "runs": runs_doc})
+        atomic_write_json(manifest, {"format": FORMAT, **sweep.to_dict(), "runs": runs_doc})
     todo = [r for r in sweep.runs if not (out / RUNS / f"{r.id}.json").is_file()]
     log.info("sweep %s: %d of %d runs to do", sweep.name, len(todo), len(sweep.runs))
     args = (sweep.kind, sweep.name, sweep.base, list(sweep.sets))

@@ -64,7 +64,7 @@ class SweepPlan:
                 out.append(Run(f"r{len(out):03d}", c, settings, seed))
         return out
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields (the manifest without the run list)."""
         return {
             "kind": self.kind,
@@ -94,5 +94,5 @@ def configure_from(config: Any, item: str) -> Any:
     """``config`` with one ``KEY=VALUE`` item (``--set``) applied."""
     key, sep, raw = item.partition("=")
     if not sep or not key:
-        raise configs.ConfigError(f"--set {item!r}: expected KEY=VALUE, e.g. --set epochs=3")
+        raise configs.ConfigError(f"--set {item!r}: expected KEY=VALUE, e.g. --set schedule.epochs=3")
     return configs.override(config, key.strip(), configs.parse_value(raw))

@@ -10,7 +10,7 @@ controllers get ``episode_steps`` steps from the same start:
 
 - ``inferred``: the agent in goal mode (:meth:`pal.agent.Agent.decide`): per step Π, the state
   posterior through the measurement sites, and model-predictive control: the sampling planner
-  over ``agent.plan.horizon`` steps through the ensemble world model, replanned every step
+  over ``agent.plan.action.horizon`` steps through the ensemble world model, replanned every step
   (:mod:`pal.agent.plan`); it holds when the model predicts no progress. The goal is given to it
   as the wanted displacement of the box (its perceived start plus the true offset), so the constant
   offset between the perceived point and the box centre does not count against it;

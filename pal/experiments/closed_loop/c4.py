@@ -34,7 +34,7 @@ import numpy as np
 from scipy import stats
 
 from pal.agent import AgentConfig, LearnConfig
-from pal.agent.config import ModelConfig
+from pal.agent.config import MODEL_SCHEDULE, ModelConfig
 from pal.agent.curiosity import grid_occupancy
 from pal.agent.history import History
 from pal.checks import check_float, check_int
@@ -93,7 +93,10 @@ QUICK = Config(
     runs=1,
     setup=SetupConfig(
         babble_steps=120,
-        agent=AgentConfig(model=ModelConfig(epochs=30), learn=LearnConfig(refit_every=1000)),
+        agent=AgentConfig(
+            model=ModelConfig(schedule=replace(MODEL_SCHEDULE, epochs=30)),
+            learn=LearnConfig(refit_every=1000),
+        ),
     ),
     budget=6,
     checkpoint_every=3,

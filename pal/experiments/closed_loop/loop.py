@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from inference import SamplingConfig
 from pal.agent import (
     Agent,
     AgentConfig,
@@ -34,6 +35,7 @@ from pal.agent import (
     PlanConfig,
     pushing_spec,
 )
+from pal.agent.config import ESTIMATE_SVI, MODEL_SCHEDULE, PLAN_ACTION, PLAN_SAMPLING
 from pal.agent.curiosity import grid_occupancy
 from pal.agent.video import VideoRecorder, overlay
 from pal.checks import check_float, check_int
@@ -104,10 +106,15 @@ class Config:
 
 #: The agent of the demo's loop: a short fit, light inference, one episode, no refit.
 QUICK_AGENT = AgentConfig(
-    model=ModelConfig(epochs=40, members=3),
-    estimate=EstimateConfig(steps=30, lr=0.05),
-    plan=PlanConfig(population=32, elites=4, iterations=2, refine_steps=10),
-    curiosity=CuriosityConfig(population=32, elites=4, iterations=2),
+    model=ModelConfig(members=3, schedule=replace(MODEL_SCHEDULE, epochs=40)),
+    estimate=EstimateConfig(num_steps=30, svi=replace(ESTIMATE_SVI, lr=0.05)),
+    plan=PlanConfig(
+        action=replace(
+            PLAN_ACTION,
+            sampling=replace(PLAN_SAMPLING, population=32, elites=4, iterations=2, refine_steps=10),
+        )
+    ),
+    curiosity=CuriosityConfig(sampling=SamplingConfig(population=32, elites=4, iterations=2)),
     learn=LearnConfig(refit_every=1000),
     reset_every=None,
 )
@@ -118,9 +125,18 @@ TINY = Config(
     camera_size=(240, 180),
     agent=replace(
         QUICK_AGENT,
-        model=ModelConfig(epochs=10, members=2, hidden=(16,), patience=None),
-        plan=PlanConfig(population=8, elites=2, iterations=1, refine_steps=3),
-        curiosity=CuriosityConfig(population=8, elites=2, iterations=1, influence_samples=4),
+        model=ModelConfig(
+            members=2, hidden=(16,), schedule=replace(MODEL_SCHEDULE, epochs=10, patience=None)
+        ),
+        plan=PlanConfig(
+            action=replace(
+                PLAN_ACTION,
+                sampling=replace(PLAN_SAMPLING, population=8, elites=2, iterations=1, refine_steps=3),
+            )
+        ),
+        curiosity=CuriosityConfig(
+            sampling=SamplingConfig(population=8, elites=2, iterations=1), influence_samples=4
+        ),
         learn=LearnConfig(refit_every=10),
         reset_every=6,
     ),

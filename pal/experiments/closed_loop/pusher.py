@@ -7,7 +7,7 @@ Per seed (``seed``, ``seed + 1``, ...), state-based (the spec :func:`pal.agent.p
 2. **learning**: each fits its model, then runs ``train_episodes`` goal-directed MPC episodes,
    adding each episode to its data and refitting after it (the same reset seeds for both):
    the agent with its world model built from the spec (joints, fingertip and object as causal
-   variables, heteroscedastic ensembles, the sampling planner over ``plan.horizon`` steps,
+   variables, heteroscedastic ensembles, the sampling planner over ``plan.action.horizon`` steps,
    replanned every step), the baseline with its ensemble over the full observation and CEM
    (:mod:`pal.baselines.pets`), both with the same planner settings and step cost
    (:mod:`pal.experiments.closed_loop.pusher_runs`);
@@ -32,7 +32,9 @@ from typing import Any
 import gymnasium
 import numpy as np
 
+from inference import ActionOptions
 from pal.agent import Agent, AgentConfig, ModelConfig, PlanConfig, pusher_spec
+from pal.agent.config import MODEL_SCHEDULE, PLAN_SAMPLING
 from pal.baselines.pets import BaselineConfig, CEMPlanner
 from pal.checks import check_float, check_int
 from pal.experiments.closed_loop.pusher_plots import curve_figure, paths_figure, prediction_figure
@@ -64,19 +66,21 @@ TARGET_VS_RANDOM = 0.5
 MOVED = 0.005
 
 PLAN = PlanConfig(
-    horizon=10,
-    population=100,
-    elites=10,
-    iterations=3,
-    refine_steps=0,
-    risk="mean",
+    action=ActionOptions(
+        scale=1.0,
+        lr=0.05,
+        horizon=10,
+        target_at="every",
+        risk="mean",
+        sampling=replace(PLAN_SAMPLING, population=100, elites=10, iterations=3, refine_steps=0),
+    ),
     preference="distance",
-    target_at="every",
-    scale=1.0,
     effector_weight=0.5,
     action_weight=0.01,
 )
-MODEL = ModelConfig(members=5, hidden=(64, 64), arm_hidden=(128, 128), epochs=200)
+MODEL = ModelConfig(
+    members=5, hidden=(64, 64), arm_hidden=(128, 128), schedule=replace(MODEL_SCHEDULE, epochs=200)
+)
 
 
 @dataclass(frozen=True)
@@ -126,8 +130,13 @@ QUICK = Config(
     train_episodes=1,
     eval_goals=1,
     episode_steps=30,
-    model=replace(MODEL, epochs=30),
-    plan=replace(PLAN, population=32, elites=4, iterations=2),
+    model=replace(MODEL, schedule=replace(MODEL.schedule, epochs=30)),
+    plan=replace(
+        PLAN,
+        action=replace(
+            PLAN.action, sampling=replace(PLAN.action.sampling, population=32, elites=4, iterations=2)
+        ),
+    ),
     baseline=BaselineConfig(epochs=10),
 )
 TINY = Config(
@@ -136,8 +145,15 @@ TINY = Config(
     train_episodes=1,
     eval_goals=1,
     episode_steps=3,
-    model=ModelConfig(members=2, hidden=(8,), epochs=2, patience=None),
-    plan=replace(PLAN, horizon=2, population=8, elites=2, iterations=1),
+    model=ModelConfig(members=2, hidden=(8,), schedule=replace(MODEL_SCHEDULE, epochs=2, patience=None)),
+    plan=replace(
+        PLAN,
+        action=replace(
+            PLAN.action,
+            horizon=2,
+            sampling=replace(PLAN.action.sampling, population=8, elites=2, iterations=1),
+        ),
+    ),
     baseline=BaselineConfig(members=2, hidden=(8,), epochs=2),
 )
 
@@ -168,7 +184,7 @@ def _one_seed(config: Config, seed: int) -> dict[str, Any]:
         )
 
     base = planner(data, 0)
-    steps, h = config.episode_steps, config.plan.horizon
+    steps, h = config.episode_steps, config.plan.action.horizon
     curve: dict[str, list[float]] = {"pal": [], "baseline": []}
     base_data = [list(x) for x in data]
     for e in range(config.train_episodes):
@@ -248,7 +264,7 @@ def _controller(
             float(np.median([e.final_planar for e in per_seed[s]["evaluation"][c]])) for s in config.seeds
         ]
     block["max_object_displacement"] = _moved(eps)
-    block["episodes"] = [e.as_dict() for e in eps]
+    block["episodes"] = [e.to_dict() for e in eps]
     return block
 
 

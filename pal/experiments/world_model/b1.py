@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
+from inference import FitSchedule
 from pal.experiments.world_model.calibration import (
     calibration,
     calibration_table,
@@ -68,8 +69,10 @@ class Config:
     protocol: ProtocolConfig = ProtocolConfig()
 
 
-QUICK_PROTOCOL = ProtocolConfig(DataConfig(steps=20_000), fit=FitConfig(epochs=40))
-TINY_PROTOCOL = ProtocolConfig(DataConfig(steps=600), fit=FitConfig(epochs=3, batch_size=256))
+QUICK_PROTOCOL = ProtocolConfig(DataConfig(steps=20_000), fit=FitConfig(schedule=FitSchedule(epochs=40)))
+TINY_PROTOCOL = ProtocolConfig(
+    DataConfig(steps=600), fit=FitConfig(schedule=FitSchedule(epochs=3, batch_size=256))
+)
 
 
 def evaluate(prep: Prepared) -> dict[str, dict[str, float]]:

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from tqdm import tqdm
 
-from inference import CuriositySampler
+from inference import CuriositySampler, FitSchedule
 from models.presets import GRAPH_VARIANTS
 from pal.checks import check_choice, check_float, check_int
 from pal.experiments.world_model.data import BodyChoice, JointData
@@ -79,12 +79,12 @@ class Config:
     initial: int = 20
     budget: int = 300
     refit_every: int = 25
-    fit: FitConfig = FitConfig(epochs=200, batch_size=256)
+    fit: FitConfig = FitConfig(schedule=FitSchedule(epochs=200, batch_size=256))
     graph: str = "state"
     bins: int = 20
     alpha: float = 0.5
     sigma_fraction: float = 0.1
-    action: ActionConfig = ActionConfig(steps=100, starts=3)
+    action: ActionConfig = ActionConfig(num_steps=100, starts=3)
     q_range: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
@@ -248,8 +248,8 @@ def _explore(
         initial=10,
         budget=40,
         refit_every=20,
-        fit=FitConfig(epochs=100, batch_size=256),
-        action=ActionConfig(steps=50, starts=3),
+        fit=FitConfig(schedule=FitSchedule(epochs=100, batch_size=256)),
+        action=ActionConfig(num_steps=50, starts=3),
     ),
     tiny=Config(
         runs=1,
@@ -257,8 +257,8 @@ def _explore(
         budget=6,
         refit_every=3,
         bins=5,
-        fit=FitConfig(epochs=5, batch_size=64),
-        action=ActionConfig(steps=5, starts=2),
+        fit=FitConfig(schedule=FitSchedule(epochs=5, batch_size=64)),
+        action=ActionConfig(num_steps=5, starts=2),
     ),
 )
 def run(config: Config, progress_bar: bool = False) -> Report:
@@ -332,7 +332,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             f"{config.runs} seeds, {config.initial} initial random steps, budget {config.budget} steps, "
             f"{config.graph} graph refitted every {config.refit_every} steps, {b} bins over "
             f"[{q_range[0]:.3f}, {q_range[1]:.3f}] rad, alpha {config.alpha}, Alg. 4.2 with "
-            f"{config.action.steps} Adam steps."
+            f"{config.action.num_steps} Adam steps."
         ],
         figures={
             "coverage": _figure(stacked, {c: np.concatenate(v) for c, v in visited.items()}, q_range, b)

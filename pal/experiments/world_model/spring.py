@@ -52,20 +52,19 @@ class Config:
     Attributes:
         seed: seeds the samples, the initial weights, the minibatches and the random actions.
         transitions: samples of the true SCM (80:20 split).
-        epochs, batch_size: :func:`inference.fit` schedule (lr 0.01).
+        schedule: the :func:`inference.fit` schedule.
         targets: test targets of action inference and curiosity.
     """
 
     seed: int = 0
     transitions: int = 20000
-    epochs: int = 60
-    batch_size: int = 512
+    schedule: FitSchedule = FitSchedule(epochs=60, batch_size=512)
     targets: int = 128
 
     def __post_init__(self) -> None:
         check_int("transitions", self.transitions, minimum=10)
-        check_int("epochs", self.epochs)
-        check_int("batch_size", self.batch_size)
+        if not isinstance(self.schedule, FitSchedule):
+            raise ValueError(f"schedule must be a FitSchedule, got {type(self.schedule).__name__}")
         check_int("targets", self.targets)
 
 
@@ -133,8 +132,8 @@ def _targets(prediction: dict[str, Any], action: dict[str, Any], curiosity: dict
 @register(
     "spring",
     config=Config,
-    quick=Config(transitions=4000, epochs=15, targets=32),
-    tiny=Config(transitions=400, epochs=2, batch_size=128, targets=8),
+    quick=Config(transitions=4000, schedule=FitSchedule(epochs=15, batch_size=512), targets=32),
+    tiny=Config(transitions=400, schedule=FitSchedule(epochs=2, batch_size=128), targets=8),
 )
 def run(config: Config, progress_bar: bool = False) -> Report:
     """Fit both finger graphs to a known spring SCM; judge prediction, action inference and curiosity by the truth."""
@@ -157,7 +156,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         fits[variant] = fit(
             model,
             train,
-            schedule=FitSchedule(epochs=config.epochs, batch_size=config.batch_size, lr=0.01),
+            schedule=config.schedule,
             seed=config.seed,
             progress_bar=progress_bar,
         )

@@ -46,7 +46,7 @@ def test_the_baseline_learns_a_linear_system_and_plans_with_it():
     assert float(err) < 0.05
     # drive the first coordinate to 0: CEM picks the action that moves it there
     cost = lambda o, a: o[..., 0].abs()  # noqa: E731
-    config = PlanConfig(horizon=2, population=64, elites=8, iterations=3)
+    config = PlanConfig()  # horizon 2, population 64, 8 elites, 3 iterations
     planner = CEMPlanner(model, -np.ones(2), np.ones(2), config, cost, seed=0)
     action, final = planner.act(np.array([0.4, 0.0, 0.0]))
     assert action[0] < -0.3 and abs(final[0]) < 0.15

@@ -41,7 +41,7 @@ def test_override_reaches_nested_fields_and_coerces():
     assert configs.override(c, "lr", 1).lr == 1.0 and isinstance(configs.override(c, "lr", 1).lr, float)
     assert configs.override(c, "goal", [0.1, 0.2]).goal == (0.1, 0.2)
     assert configs.override(c, "goal", None).goal is None
-    assert configs.as_dict(c) == {
+    assert configs.to_dict(c) == {
         "seed": 0,
         "lr": 0.1,
         "inner": {"epochs": 7, "hidden": [4, 5, 6], "mode": "a"},
@@ -86,7 +86,7 @@ def test_target_verdicts():
     assert Target("a", 2.0, 1.0, ">=").met is True
     assert Target("a", None, 1.0, ">").met is None
     assert Target("a", math.nan, 1.0, ">").met is None
-    assert Target("a", np.float32(3.0), 1, ">").as_dict()["value"] == 3.0
+    assert Target("a", np.float32(3.0), 1, ">").to_dict()["value"] == 3.0
     with pytest.raises(ValueError, match="direction '=='"):
         Target("a", 1.0, 1.0, "==")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="threshold nan is not finite"):

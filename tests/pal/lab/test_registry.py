@@ -77,7 +77,7 @@ def test_tiny_run_report_schema(entry, tmp_path: Path):
     doc = json.loads(Path(paths["json"]).read_text())
     assert set(doc) == REPORT_KEYS
     assert doc["name"] == entry.name and doc["kind"] == entry.kind and doc["seed"] == entry.tiny.seed
-    assert doc["config"] == configs.as_dict(entry.tiny)
+    assert doc["config"] == configs.to_dict(entry.tiny)
     assert {"python", "torch", "numpy"} <= set(doc["versions"])
     assert [t["name"] for t in doc["targets"]] == [t.name for t in report.targets]
     assert all(
