@@ -253,3 +253,31 @@ def test_architecture_md_names_every_package_directory():
 
 def test_the_architecture_check_sees_a_new_package():
     assert "pal/experiments/closed_loop" in package_directories()
+
+
+MAX_FUNCTION_LINES = 80
+
+
+def long_functions(source: str, limit: int = MAX_FUNCTION_LINES) -> list[tuple[str, int]]:
+    """``(name, lines)`` of every function or method in ``source`` longer than ``limit`` lines."""
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+            lines = node.end_lineno - node.lineno + 1
+            if lines > limit:
+                out.append((node.name, lines))
+    return out
+
+
+def test_the_function_length_check_counts_from_def_to_the_last_line():
+    body = "".join(f"    x{i} = {i}\n" for i in range(80))
+    assert long_functions("def f():\n" + body) == [("f", 81)]
+    assert long_functions("class A:\n    def g(self):\n        pass\n") == []
+
+
+@pytest.mark.parametrize(
+    "path", sources("models") + sources("inference") + sources("pal"), ids=lambda p: str(p.relative_to(ROOT))
+)
+def test_functions_fit_on_a_screen(path):
+    found = long_functions(path.read_text())
+    assert not found, f"{path.relative_to(ROOT)}: {found} over {MAX_FUNCTION_LINES} lines; split by their steps"
