@@ -13,6 +13,8 @@ unobserved, so its posterior is the model's prediction; no NaN ever reaches the 
 
 from __future__ import annotations
 
+import logging
+import warnings
 from collections.abc import Mapping
 from typing import Any
 
@@ -21,12 +23,15 @@ import pyro
 import torch
 
 from inference import MeasurementScale, infer_state
+from inference.diagnostics import PoorPosteriorWarning
 from models import WorldModel
 from pal.agent.config import EstimateConfig
 from pal.agent.graph import blanket
 from pal.agent.history import relative
 from pal.agent.senses import Percept
 from pal.agent.spec import EnvSpec
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Estimator", "belief"]
 
@@ -66,10 +71,18 @@ class Estimator:
     Args:
         spec: the environment's spec.
         config: SVI settings.
+
+    Attributes:
+        poor_posteriors: steps whose posterior failed its diagnostics (Pareto-k, guide mass).
+            The agent filters every step with a small SVI budget, so these are counted and
+            logged at DEBUG instead of raising a ``PoorPosteriorWarning`` per step.
+        updates: steps filtered through the world model.
     """
 
     def __init__(self, spec: EnvSpec, config: EstimateConfig) -> None:
         self.spec, self.config = spec, config
+        self.poor_posteriors = 0
+        self.updates = 0
         self._blankets: dict[tuple[int, tuple[str, ...]], WorldModel] = {}
 
     def forget(self) -> None:
@@ -133,7 +146,8 @@ class Estimator:
                 obs[f"meas.{o}"] = m.position[None]
                 scales[f"meas.{o}"] = torch.as_tensor(m.std[None], dtype=model.dtype)
         c = self.config
-        with pyro.validation_enabled(False):  # the evidence was checked above; validation only adds cost
+        with warnings.catch_warnings(), pyro.validation_enabled(False):  # evidence checked above
+            warnings.simplefilter("ignore", PoorPosteriorWarning)  # counted below instead
             program = self.blanket(model, known)
             post = infer_state(
                 MeasurementScale(scales)(program) if scales else program,
@@ -144,6 +158,10 @@ class Estimator:
                 guide=c.guide,
                 seed=seed,
             )
+        self.updates += 1
+        if not post.diagnostics.ok:
+            self.poor_posteriors += 1
+            log.debug("estimate: %s", post.diagnostics.message)
         for o in known:
             out[o] = post.mean[f"pos.{o}"][0].numpy().astype(np.float64)
         return out

@@ -1,5 +1,6 @@
 """The closed loop (pal.agent) on the pushing world: a seeded run, lost objects, measurement sites, history."""
 
+import warnings
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -138,6 +139,20 @@ def test_a_lost_object_is_unobserved_and_no_nan_reaches_the_model(fitted, monkey
     }
     pred = blanket.predict(roots)
     np.testing.assert_allclose(est["ball"], pred["pos.ball"][0].numpy(), atol=0.01)
+
+
+def test_poor_posteriors_are_counted_not_warned_per_step(fitted):
+    """The agent filters every step with a small SVI budget: diagnostics are counted, not warned."""
+    agent = Agent(fitted.env, pushing_spec(), replace(TINY, estimate=EstimateConfig(num_steps=1)), seed=1)
+    agent.model, agent.fitted = fitted.model, True
+    agent.reset(seed=5)
+    prev, est_prev = agent.percept, dict(agent.estimate)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for seed in range(3):
+            agent.estimator.update(agent.model, prev, est_prev, {}, prev, seed=seed)
+    assert agent.estimator.updates == 3
+    assert 1 <= agent.estimator.poor_posteriors <= 3  # one SVI step: the diagnostics fail
 
 
 @pytest.mark.parametrize("std", [1e-4, 1.0])
