@@ -263,8 +263,8 @@ def test_evaluate_sequence_needs_ground_truth(tmp_path):
 
 
 @pytest.mark.render
-def test_bench_perception_tiny():
-    rep = bench_perception.run(bench_perception.TINY, False)
+def test_bench_perception_tiny(tiny_run):
+    rep = tiny_run("bench", "perception").report
     m = rep.metrics
     assert m["frames"] == 3 and (m["width"], m["height"]) == (160, 120) and m["limits"]["opencv_threads"] == 1
     assert m["ratio_no_pose"] == pytest.approx(m["fps_no_pose"] / m["render_fps"])

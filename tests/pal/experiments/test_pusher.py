@@ -10,8 +10,8 @@ from pal.baselines.pets import BaselineConfig, CEMPlanner, ProbabilisticEnsemble
 from pal.experiments.closed_loop import pusher
 
 
-def test_pusher_reports_the_three_controllers_at_equal_steps():
-    rep = pusher.run(pusher.TINY)
+def test_pusher_reports_the_three_controllers_at_equal_steps(tiny_run):
+    rep = tiny_run("experiment", "pusher").report
     m = rep.metrics
     assert m["env_steps"] == pusher.TINY.babble_steps + pusher.TINY.train_episodes * pusher.TINY.episode_steps
     for c in pusher.CONTROLLERS:
