@@ -11,6 +11,7 @@ import pal.lab.runner as runner
 from pal.cli import main
 
 
+@pytest.mark.slow
 def test_demo_quick_writes_every_report_and_the_target_table(tmp_path, capsys):
     assert main(["demo", "--quick", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out

@@ -68,6 +68,7 @@ def short_run(env, seed):
     return agent, decisions
 
 
+@pytest.mark.slow
 def test_seeded_loop_runs_end_to_end_through_the_gymnasium_interface_and_repeats(env):
     a, da = short_run(env, 0)
     b, db = short_run(env, 0)

@@ -139,6 +139,7 @@ def test_action_quick():
     assert reached["infer_action"] < reached["planner"] <= m["reachable"] + 1 / 32
 
 
+@pytest.mark.slow
 def test_babble_quick_on_the_arm():
     config = bench_babble.Config(body=bench_babble.BodyChoice("arm", frame_skip=5), steps=60, repeats=1)
     rep = bench_babble.run(config)

@@ -18,6 +18,7 @@ from pal.experiments.closed_loop import loop as closed_loop
 from pal.experiments.closed_loop.setup import SetupConfig, summary
 
 
+@pytest.mark.slow
 def test_c1_compares_perceived_and_ground_truth_models(tiny_run):
     rep = tiny_run("experiment", "c1").report
     m = rep.metrics
@@ -49,6 +50,7 @@ def test_c1_compares_perceived_and_ground_truth_models(tiny_run):
     assert [len(c.get_offsets()) for c in ax[0].collections] == [per["box"]["n"]] * 2
 
 
+@pytest.mark.slow
 def test_c2_inferred_actions_beat_random_babbling(tiny_run):
     rep = tiny_run("experiment", "c2").report
     m = rep.metrics
@@ -78,6 +80,7 @@ def test_c2_inferred_actions_beat_random_babbling(tiny_run):
     json.dumps(m, allow_nan=False)
 
 
+@pytest.mark.slow
 def test_c3_counterfactuals_beat_the_interventional_answer(tiny_run):
     rep = tiny_run("experiment", "c3").report
     m = rep.metrics
@@ -94,6 +97,7 @@ def test_c3_counterfactuals_beat_the_interventional_answer(tiny_run):
     assert [t.get_text() for t in rep.figures["errors"].axes[0].get_xticklabels()] == list(c3.ANSWERS)
 
 
+@pytest.mark.slow
 def test_c4_coverage_report_and_curve(tiny_run):
     rep = tiny_run("experiment", "c4").report
     m = rep.metrics
@@ -151,6 +155,7 @@ def test_loop_towards_a_goal_reports_its_run():
     assert all(len(line.get_xdata()) == 6 for line in ax.get_lines())
 
 
+@pytest.mark.slow
 def test_pal_loop_writes_an_annotated_video(tmp_path, capsys):
     video = tmp_path / "loop.mp4"
     assert main(["loop", "--steps", "3", "--babble", "3", "--video", str(video), "--json"]) == 0

@@ -119,6 +119,7 @@ def test_nested_chain_and_counted_evaluations(fitted) -> None:
     assert "dpos.ball" not in counts["hierarchy"].by_site  # the ball's sites are not in the active submodels
 
 
+@pytest.mark.slow
 def test_section_reports_both_methods_on_the_same_goals(tiny_run) -> None:
     report = tiny_run("experiment", "hierarchy").report  # the report of hierarchy_section(hc.TINY)
     m = report.metrics

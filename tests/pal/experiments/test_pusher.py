@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 import torch
 
 from pal.agent import PlanConfig
@@ -10,6 +11,7 @@ from pal.baselines.pets import BaselineConfig, CEMPlanner, ProbabilisticEnsemble
 from pal.experiments.closed_loop import pusher
 
 
+@pytest.mark.slow
 def test_pusher_reports_the_three_controllers_at_equal_steps(tiny_run):
     rep = tiny_run("experiment", "pusher").report
     m = rep.metrics

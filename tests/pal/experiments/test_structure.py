@@ -60,6 +60,7 @@ def test_configs_refuse_bad_values(make, message):
         make()
 
 
+@pytest.mark.slow
 def test_synthetic_report_shd_per_d_method_regime(tiny_run):
     rep = tiny_run("experiment", "discovery").report
     shd = rep.metrics["shd"]["5"]
@@ -97,6 +98,7 @@ def test_peers_compare_on_a_strong_chain():
     assert out["shd_undirected_free"] <= out["shd"] and out["edges"] >= out["undirected"]
 
 
+@pytest.mark.slow
 def test_body_report_on_two_arm_joints(tiny_run):
     rep = tiny_run("experiment", "discovery_body").report
     m = rep.metrics
@@ -174,6 +176,7 @@ def test_body_cli_refuses_a_bad_setting_in_one_line(capsys):
     assert "\n" not in err and "replicates must be a positive int, got 0" in err
 
 
+@pytest.mark.slow
 def test_active_design_tiny(tiny_run):
     rep = tiny_run("experiment", "active_design").report
     m = rep.metrics
@@ -195,6 +198,7 @@ def test_active_design_tiny(tiny_run):
     assert ax.get_xlabel() == "transitions" and len(ax.lines) == len(active_design.STRATEGIES) + 1
 
 
+@pytest.mark.slow
 def test_bench_discovery_tiny(tiny_run):
     rep = tiny_run("bench", "discovery").report
     ctx = rep.metrics["context"]

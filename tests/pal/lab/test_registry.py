@@ -60,6 +60,7 @@ def test_config_contract(entry):
 
 
 @pytest.mark.parametrize("entry", ENTRIES, ids=lambda e: f"{e.kind}-{e.name}")
+@pytest.mark.slow
 def test_tiny_run_report_schema(entry, tiny_run, tmp_path: Path):
     record = tiny_run(entry.kind, entry.name)
     report = record.report

@@ -143,6 +143,7 @@ def spring_sweep(tmp_path_factory):
     return sweep.run_sweep(plan, out)
 
 
+@pytest.mark.slow
 def test_a_real_experiment_2_configs_x_2_seeds_gives_one_table_and_a_figure_per_target(spring_sweep):
     result = spring_sweep
     out = result.paths["manifest"].parent
@@ -167,6 +168,7 @@ def test_a_real_experiment_2_configs_x_2_seeds_gives_one_table_and_a_figure_per_
     assert "| finished runs | 2/2 | 2/2 |" in (out / "summary.md").read_text()
 
 
+@pytest.mark.slow
 def test_two_local_workers_give_the_same_reports_as_one_process(spring_sweep, tmp_path):
     plan = sweep.plan("spring", ["epochs=1"], "0-1", base="tiny")
     result = sweep.run_sweep(plan, tmp_path / "par", workers=2)
