@@ -68,6 +68,8 @@ def short_run(env, seed):
     return agent, decisions
 
 
+# the tiny agent's state estimate runs few SVI steps on purpose
+@pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
 @pytest.mark.slow
 def test_seeded_loop_runs_end_to_end_through_the_gymnasium_interface_and_repeats(env):
     a, da = short_run(env, 0)
@@ -87,6 +89,8 @@ def test_seeded_loop_runs_end_to_end_through_the_gymnasium_interface_and_repeats
     assert a.history.array("state").shape == (7, env.state_size)
 
 
+# the tiny agent's state estimate runs few SVI steps on purpose
+@pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
 def test_a_lost_object_is_unobserved_and_no_nan_reaches_the_model(fitted, monkeypatch):
     agent = Agent(
         fitted.env,
@@ -131,6 +135,8 @@ def test_a_lost_object_is_unobserved_and_no_nan_reaches_the_model(fitted, monkey
     np.testing.assert_allclose(est["ball"], pred["pos.ball"][0].numpy(), atol=0.01)
 
 
+# the tiny agent's state estimate runs few SVI steps on purpose
+@pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
 @pytest.mark.parametrize("std", [1e-4, 1.0])
 def test_measurement_sites_weigh_perception_by_its_uncertainty(fitted, std):
     agent = Agent(
