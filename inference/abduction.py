@@ -8,7 +8,6 @@ that completes the evidence before each draw is abducted.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Mapping
 from typing import Any
 
@@ -121,7 +120,6 @@ def _posterior(
     num_samples: int,
     options: Any,
     seed: int,
-    legacy: Mapping[str, Any],
 ) -> StateResult:
     """The given posterior (checked against the program and evidence) or a new one."""
     if posterior is not None:
@@ -150,9 +148,6 @@ def _posterior(
             guide = "grid"
         except ValueError:
             guide = "normal"
-    kwargs = {"guide": guide, "num_samples": num_samples, "seed": seed, "options": options, **legacy}
     if options is not None and not isinstance(options, GUIDES[guide]):
-        kwargs.pop("options")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)  # the caller was warned once already
-        return infer_state(program, obs, **kwargs)
+        options = None
+    return infer_state(program, obs, guide=guide, num_samples=num_samples, seed=seed, options=options)

@@ -20,13 +20,14 @@ and input checks live in :mod:`inference.action_options`.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import pyro
 import torch
-from pyro.poutine.runtime import _PYRO_STACK
 from torch import Tensor
 from tqdm import tqdm
 
@@ -43,11 +44,10 @@ from inference.action_options import (
     ActionResult,
     _check_sampling,
     _initial,
-    _legacy_options,
-    _noise_values,
 )
+from inference.active import no_handler_active
 from inference.frozen import frozen_parameters
-from inference.handlers import Intervene, ProgramMessenger, ReplayNoise
+from inference.handlers import Intervene, ReplayNoise
 from inference.planning import SamplingConfig, plan
 from inference.program import Program, as_program, check_active_handlers
 from models.checks import (
@@ -61,7 +61,7 @@ from models.checks import (
     describe,
 )
 from models.variables import Role
-from models.world import as_values, check_action_bounds
+from models.world import WorldModel, as_values, check_action_bounds
 
 __all__ = ["ActionOptions", "ActionResult", "SamplingConfig", "gaussian_log_preference", "infer_action"]
 
@@ -86,7 +86,6 @@ def infer_action(
     options: ActionOptions | None = None,
     seed: int = 0,
     progress_bar: bool = False,
-    **deprecated: Any,
 ) -> ActionResult:
     """Find actions whose predicted consequences match the targets (Alg. 4.2).
 
@@ -95,7 +94,8 @@ def infer_action(
     replayed (expected residuals u-bar, or those of a ``ReplayNoise`` the program carries).
     Otherwise the loss of :mod:`inference.action_objective` is evaluated with the torch twins
     :meth:`~models.WorldModel.predict` / :meth:`~models.WorldModel.rollout` of that program
-    (or, for a program with handlers, the program itself over a candidate plate): with
+    (or, for a program with handlers or under any active handler, the program itself over
+    a candidate plate; :mod:`inference.active`): with
     ``sampling`` a CEM / iCEM stage (:mod:`inference.planning`) starts from ``init`` (one
     member of the first population), projected Adam refines the best
     ``sampling.refine_elites`` elites, and each unit keeps its lowest-loss candidate.
@@ -116,8 +116,6 @@ def infer_action(
         options: :class:`ActionOptions` (preference, lr, init, sampling, horizon, risk).
         seed: seeds ``init="random"`` and the sampling stage (local generator).
         progress_bar: show a tqdm bar over the Adam steps.
-        **deprecated: ``steps`` (use ``num_steps``), ``noise`` (use ``ReplayNoise``) and
-            the fields of :class:`ActionOptions` as keywords.
 
     Returns:
         :class:`ActionResult`. After each Adam step the actions are clipped to their
@@ -125,33 +123,89 @@ def infer_action(
         within them.
 
     Raises:
-        ValueError: bad state, targets, init or noise values (see
+        ValueError: bad state, targets or init values (see
             :func:`models.world.as_values`), fixed actions outside their bounds, unknown or
             non-action ``actions``, a bad scale, log-preference, optimiser argument,
             sampling config, horizon, target_at or risk, non-roots in the state with a
             horizon, a disagreement risk without targets, or a horizon or risk for a
-            program with handlers.
+            program with handlers or under an active handler.
         FloatingPointError: the final loss is NaN or inf.
     """
-    opts, num_steps, noise = _legacy_options(options, deprecated, num_steps)
-    scale, log_preference, lr, init = opts.scale, opts.log_preference, opts.lr, opts.init
-    sampling, horizon, target_at, risk = opts.sampling, opts.horizon, opts.target_at, opts.risk
-    steps = num_steps
     program = as_program(model)
-    model = program.world
     check_active_handlers(program.graph)
-    plain = not program.handlers and not any(isinstance(f, ProgramMessenger) for f in _PYRO_STACK)
-    graph = model.graph
-    steps = check_int("num_steps", steps, minimum=1)
-    lr = check_float("lr", lr, minimum=0.0, min_open=True)
+    plain = not program.handlers and no_handler_active()
+    opts, risk_kind = _checked_options(options)
+    steps = check_int("num_steps", num_steps, minimum=1)
     seed = check_seed("seed", seed)
     progress_bar = check_bool("progress_bar", progress_bar)
-    sampling = _check_sampling(sampling)
-    horizon = check_int("horizon", horizon)
-    target_at = check_choice("target_at", target_at, TARGET_AT)
-    risk_kind = check_risk(risk)
-    if log_preference is not None:
-        check_callable("log_preference", log_preference)
+    query = _query(program.world, state, targets, actions, opts)
+    generator = torch.Generator().manual_seed(seed)
+    if opts.sampling is None and _discrete_downstream(program.world, query.actions):
+        opts = dataclasses.replace(opts, sampling=SamplingConfig())
+    if not plain and (opts.horizon > 1 or risk_kind[0] is not None):
+        raise ValueError(
+            "a horizon or a risk plans through the torch twin of a plain WorldModel; pass the model "
+            "itself (fixed values in state) instead of a program with handlers, and enter no handler with "
+            "``with`` around the call"
+        )
+    if opts.sampling is None and opts.horizon == 1 and risk_kind[0] is None:
+        return _through_program(program, query, opts.init, steps, opts.lr, generator, progress_bar)
+    _check_planning(program.world.graph, query, opts.horizon, risk_kind)
+    if not plain:
+        return _sampled_program(
+            program, query, opts.init, opts.sampling, steps, opts.lr, generator, progress_bar
+        )
+    return _through_twin(program.world, query, opts, risk_kind, steps, generator, progress_bar)
+
+
+@dataclass(frozen=True)
+class _Query:
+    """The checked inputs of one action query.
+
+    Attributes:
+        given: name -> ``(N, dim)`` the state, fixed actions included.
+        targets: name -> ``(N, dim)`` the targets (may be empty with a log-preference).
+        n: the number of units N.
+        actions: the optimised actions.
+        log_preference: ``predicted -> (N,)`` (by default the Gaussian one of the targets).
+        fixed_acts: the actions given in the state (held fixed).
+        evidence: the state without the fixed actions.
+    """
+
+    given: dict[str, Tensor]
+    targets: dict[str, Tensor]
+    n: int
+    actions: list[str]
+    log_preference: LogPreference
+    fixed_acts: dict[str, Tensor]
+    evidence: dict[str, Tensor]
+
+
+def _checked_options(options: Any) -> tuple[ActionOptions, tuple[str | None, float]]:
+    """The options with their values checked, and the parsed risk."""
+    if options is not None and not isinstance(options, ActionOptions):
+        raise ValueError(f"options must be an ActionOptions or None, got {describe(options)}")
+    opts = options or ActionOptions()
+    lr = check_float("lr", opts.lr, minimum=0.0, min_open=True)
+    sampling = _check_sampling(opts.sampling)
+    horizon = check_int("horizon", opts.horizon)
+    target_at = check_choice("target_at", opts.target_at, TARGET_AT)
+    risk_kind = check_risk(opts.risk)
+    if opts.log_preference is not None:
+        check_callable("log_preference", opts.log_preference)
+    opts = dataclasses.replace(opts, lr=lr, sampling=sampling, horizon=horizon, target_at=target_at)
+    return opts, risk_kind
+
+
+def _query(
+    model: WorldModel,
+    state: Mapping[str, Any] | None,
+    targets: Mapping[str, Any] | None,
+    actions: Sequence[str] | None,
+    opts: ActionOptions,
+) -> _Query:
+    """Check the state, the targets and the optimised actions; build the default preference."""
+    graph = model.graph
     given, n = as_values(graph, state, what="state", dtype=model.dtype)
     tgt, n = as_values(graph, targets, n=n, what="targets", dtype=model.dtype)
     if n is None:
@@ -171,92 +225,71 @@ def infer_action(
     for name in tgt:
         if name in actions:
             raise ValueError(f"target {name!r} is an optimised action; targets must be consequences")
+    log_preference = opts.log_preference
     if log_preference is None:
         if not tgt:
             raise ValueError("give targets or a log_preference")
-        log_preference = gaussian_log_preference(tgt, scale)
+        log_preference = gaussian_log_preference(tgt, opts.scale)
     fixed_acts = {k: v for k, v in given.items() if graph[k].role is Role.ACTION}
     evidence = {k: v for k, v in given.items() if k not in fixed_acts}
-    eps = _noise_values(model, noise, n, horizon)
-    clash = sorted(k for k in eps if k in given or k in actions)
-    if clash:
-        raise ValueError(
-            f"noise names {clash}, which are given in state or optimised; residuals are for the other variables"
-        )
-    generator = torch.Generator().manual_seed(seed)
-    downstream = set().union(*(graph.descendants(a) for a in actions))
-    if sampling is None and downstream & set(model.discrete):
+    return _Query(dict(given), dict(tgt), n, list(actions), log_preference, fixed_acts, evidence)
+
+
+def _discrete_downstream(model: WorldModel, actions: Sequence[str]) -> bool:
+    """True (and logged) when a discrete site follows the actions: its argmax has no gradient."""
+    downstream = set().union(*(model.graph.descendants(a) for a in actions))
+    if downstream & set(model.discrete):
         log.info(
             "infer_action: discrete sites %s follow the actions; using the sampling stage",
             sorted(downstream & set(model.discrete)),
         )
-        sampling = SamplingConfig()
-    if not plain and (horizon > 1 or risk_kind[0] is not None):
-        raise ValueError(
-            "a horizon or a risk plans through the torch twin of a plain WorldModel; pass the model "
-            "itself (fixed values in state, residuals as noise) instead of a program with handlers"
-        )
-    if sampling is None and horizon == 1 and risk_kind[0] is None:
-        return _through_program(
-            program,
-            evidence,
-            fixed_acts,
-            actions,
-            eps,
-            log_preference,
-            n,
-            init,
-            steps,
-            lr,
-            generator,
-            progress_bar,
-        )
-    roots = [k for k in eps if graph.is_root(k)]
-    if roots:
-        raise ValueError(f"noise names roots {roots}; residuals are replayed for non-root variables only")
+        return True
+    return False
+
+
+def _check_planning(graph: Any, query: _Query, horizon: int, risk_kind: tuple[str | None, float]) -> None:
+    """Refuse non-roots in the state with a horizon, and a disagreement risk without targets."""
     if horizon > 1:
-        not_roots = [k for k in given if not graph.is_root(k)]
+        not_roots = [k for k in query.given if not graph.is_root(k)]
         if not_roots:
             raise ValueError(
                 f"with horizon {horizon} the state may give roots only (rollout initial values and held "
                 f"inputs); {not_roots} are not roots"
             )
-    if risk_kind[0] == "disagreement" and not tgt:
+    if risk_kind[0] == "disagreement" and not query.targets:
         raise ValueError("risk ('disagreement', w) needs targets: the sites whose member spread is weighed")
-    if not plain:
-        return _sampled_program(
-            program,
-            given,
-            actions,
-            eps,
-            log_preference,
-            n,
-            init,
-            sampling,
-            steps,
-            lr,
-            generator,
-            progress_bar,
-        )
+
+
+def _through_twin(
+    model: WorldModel,
+    query: _Query,
+    opts: ActionOptions,
+    risk_kind: tuple[str | None, float],
+    steps: int,
+    generator: torch.Generator,
+    progress_bar: bool,
+) -> ActionResult:
+    """Sampling stage and Adam through the torch twins (predict, rollout) of a plain model."""
+    actions, horizon, n = query.actions, opts.horizon, query.n
     objective = ActionObjective(
         model,
-        given,
+        query.given,
         actions,
-        eps,
-        log_preference,
+        {},
+        query.log_preference,
         n,
         horizon,
-        target_at,
+        opts.target_at,
         risk_kind,
-        scales(scale, list(tgt)) if tgt else {},
+        scales(opts.scale, list(query.targets)) if query.targets else {},
     )
-    start = _initial(model, actions, n, init, generator, horizon)
+    start = _initial(model, actions, n, opts.init, generator, horizon)
     start_t = torch.cat([v if horizon > 1 else v.unsqueeze(1) for v in start.values()], -1)
     low = torch.cat([model.bounds(a)[0] for a in actions])
     high = torch.cat([model.bounds(a)[1] for a in actions])
     with frozen_parameters(model):
         best, history, search, final = plan(
-            objective, start_t, low, high, sampling, steps, lr, generator, progress_bar
+            objective, start_t, low, high, opts.sampling, steps, opts.lr, generator, progress_bar
         )
         with torch.no_grad():
             predicted = {k: v[0] for k, v in objective.predict(best[None]).items()}
@@ -269,11 +302,7 @@ def infer_action(
 
 def _sampled_program(
     program: Program,
-    given: Mapping[str, Tensor],
-    actions: Sequence[str],
-    eps: Mapping[str, Tensor],
-    log_preference: LogPreference,
-    n: int,
+    query: _Query,
     init: str | Mapping[str, Any],
     sampling: SamplingConfig | None,
     steps: int,
@@ -284,14 +313,14 @@ def _sampled_program(
     """Sampling stage and Adam through a program with handlers: candidates are a plate of the program."""
     model = program.world
     graph = model.graph
-    fixed_acts = {k: v for k, v in given.items() if graph[k].role is Role.ACTION}
-    evidence = {k: v for k, v in given.items() if k not in fixed_acts}
+    actions, n, log_preference = query.actions, query.n, query.log_preference
+    fixed_acts, evidence = query.fixed_acts, query.evidence
     dims = [graph[a].dim for a in actions]
 
     def predict(a: Tensor) -> dict[str, Tensor]:
         r = a.shape[0]
         parts = dict(zip(actions, torch.split(a[:, :, 0], dims, dim=-1), strict=True))
-        run = Intervene({**fixed_acts, **parts})(ReplayNoise(eps, default="expected")(program))
+        run = Intervene({**fixed_acts, **parts})(ReplayNoise({}, default="expected")(program))
         with pyro.validation_enabled(False), pyro.plate("_candidates", r, dim=-2):
             out = run(evidence, n)
         return {k: v.expand(r, n, v.shape[-1]) for k, v in out.items()}
@@ -318,12 +347,7 @@ def _sampled_program(
 
 def _through_program(
     model: Any,
-    evidence: Mapping[str, Tensor],
-    fixed_acts: Mapping[str, Tensor],
-    actions: Sequence[str],
-    eps: Mapping[str, Tensor],
-    log_preference: LogPreference,
-    n: int,
+    query: _Query,
     init: str | Mapping[str, Any],
     steps: int,
     lr: float,
@@ -331,14 +355,16 @@ def _through_program(
     progress_bar: bool,
 ) -> ActionResult:
     """The thesis protocol: projected Adam from one start through the program under do(actions)."""
-    world = model.world
-    params = {k: v.requires_grad_(True) for k, v in _initial(world, actions, n, init, generator).items()}
-    bounds = {k: world.bounds(k) for k in actions}
+    world, n, log_preference = model.world, query.n, query.log_preference
+    params = {
+        k: v.requires_grad_(True) for k, v in _initial(world, query.actions, n, init, generator).items()
+    }
+    bounds = {k: world.bounds(k) for k in query.actions}
     optim = torch.optim.Adam(list(params.values()), lr=lr)
 
     def forward() -> dict[str, Tensor]:
-        program = Intervene({**fixed_acts, **params})(ReplayNoise(eps, default="expected")(model))
-        return program(evidence, n)
+        program = Intervene({**query.fixed_acts, **params})(ReplayNoise({}, default="expected")(model))
+        return program(query.evidence, n)
 
     history: list[float] = []
     with frozen_parameters(world):

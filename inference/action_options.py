@@ -1,13 +1,11 @@
 """The options and result of :func:`inference.action.infer_action`, and the checks of its inputs.
 
 :class:`ActionOptions` (preference, lr, init, sampling, horizon, risk) and :class:`ActionResult`;
-start values, replayed residuals and the deprecated keywords turned into options.
+and the start values.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -17,7 +15,7 @@ from torch import Tensor
 
 from inference.action_objective import LogPreference, Risk
 from inference.planning import SamplingConfig
-from models.checks import check_mapping, describe
+from models.checks import describe
 from models.world import WorldModel, as_values
 
 __all__ = ["ActionOptions", "ActionResult"]
@@ -112,19 +110,6 @@ def _given_init(model: WorldModel, name: str, raw: Any, n: int, horizon: int) ->
     return a if horizon == 1 else a.unsqueeze(1).expand(n, horizon, a.shape[-1]).clone()
 
 
-def _noise_values(model: WorldModel, noise: Any, n: int, horizon: int) -> dict[str, Tensor]:
-    """Residuals name -> ``(N, dim)``, or with a horizon also ``(N, H, dim)`` (one per step)."""
-    noise = check_mapping("noise", noise, allow_none=True)
-    steps = {k: v for k, v in noise.items() if horizon > 1 and getattr(v, "ndim", None) == 3}
-    rest = {k: v for k, v in noise.items() if k not in steps}
-    eps, _ = as_values(model.graph, rest, n=n, what="noise", dtype=model.dtype)
-    per_step, _ = as_values(model.graph, steps, n=n, what="noise", extra_dims=1, dtype=model.dtype)
-    for k, v in per_step.items():
-        if v.shape[1] != horizon:
-            raise ValueError(f"noise[{k!r}] has {v.shape[1]} steps, expected horizon {horizon}")
-    return {**eps, **per_step}
-
-
 def _check_sampling(sampling: Any) -> SamplingConfig | None:
     if sampling is not None and not isinstance(sampling, SamplingConfig):
         raise ValueError(f"sampling must be None or a SamplingConfig, got {describe(sampling)}")
@@ -161,29 +146,3 @@ class ActionOptions:
     horizon: int = 1
     target_at: str = "final"
     risk: Risk = None
-
-
-#: Keywords of the earlier signature, accepted with a DeprecationWarning.
-_DEPRECATED = ("steps", "noise", *ActionOptions.__dataclass_fields__)
-
-
-def _legacy_options(
-    options: Any, deprecated: Mapping[str, Any], num_steps: int
-) -> tuple[ActionOptions, int, Any]:
-    unknown = sorted(k for k in deprecated if k not in _DEPRECATED)
-    if unknown:
-        raise TypeError(f"infer_action() got unexpected keyword arguments {unknown}")
-    if options is not None and not isinstance(options, ActionOptions):
-        raise ValueError(f"options must be an ActionOptions or None, got {describe(options)}")
-    options = options or ActionOptions()
-    fields = {k: v for k, v in deprecated.items() if k in ActionOptions.__dataclass_fields__}
-    if deprecated:
-        warnings.warn(
-            f"infer_action({', '.join(f'{k}=' for k in deprecated)}) is deprecated: pass num_steps=, "
-            "options=ActionOptions(...) and the residuals as ReplayNoise(noise)(model)",
-            DeprecationWarning,
-            stacklevel=3,
-        )
-    if fields:
-        options = dataclasses.replace(options, **fields)
-    return options, deprecated.get("steps", num_steps), deprecated.get("noise")

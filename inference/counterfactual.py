@@ -39,7 +39,6 @@ path: only the descendants of the intervened sites are recomputed, with the torc
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -47,11 +46,11 @@ from typing import Any
 import pyro
 import torch
 from pyro import poutine
-from pyro.poutine.runtime import _PYRO_STACK
 from torch import Tensor
 
 from inference.abduction import _abduct, _abduct_plain, _posterior, _torch_abduction, abduct
-from inference.handlers import AbductNoise, Intervene, ProgramMessenger, ReplayNoise
+from inference.active import no_handler_active
+from inference.handlers import AbductNoise, Intervene, ReplayNoise
 from inference.interventions import action_bounds, check_interventions
 from inference.program import Program, as_program, check_active_handlers, read_sites
 from inference.state import GUIDES, StateResult, split_actions
@@ -59,27 +58,12 @@ from models.checks import (
     check_choice,
     check_float,
     check_int,
-    check_keywords,
     check_seed,
     describe,
 )
 from models.world import WorldModel, as_values, check_action_bounds
 
-#: Keyword arguments of :func:`inference.infer_state` that the deprecated ``state_kwargs`` may set.
-STATE_KWARGS = (
-    "measurement_scale",
-    "guide",
-    "num_steps",
-    "lr",
-    "lr_final",
-    "num_particles",
-    "num_samples",
-    "init_scale",
-    "seed",
-    "progress_bar",
-)
-
-__all__ = ["STATE_KWARGS", "CounterfactualResult", "abduct", "counterfactual"]
+__all__ = ["CounterfactualResult", "abduct", "counterfactual"]
 
 
 @dataclass(frozen=True)
@@ -235,10 +219,6 @@ def _scenarios(program: Program, interventions: Any, n: int) -> list[dict[str, A
     return out
 
 
-def _handlers_active() -> bool:
-    return any(isinstance(f, ProgramMessenger) for f in _PYRO_STACK)
-
-
 def counterfactual(
     model: Any,
     factual: Mapping[str, Any],
@@ -249,7 +229,6 @@ def counterfactual(
     num_samples: int = 1000,
     options: Any = None,
     seed: int = 0,
-    **deprecated: Any,
 ) -> CounterfactualResult:
     """What would have happened to each unit under other interventions.
 
@@ -268,8 +247,6 @@ def counterfactual(
         num_samples: draws S (posterior draws, and Gumbel posterior draws of discrete sites).
         options: the options of ``guide`` (see :func:`inference.infer_state`).
         seed: seeds the posterior and the Gumbel draws (local generators, forked RNG).
-        **deprecated: ``state_kwargs=`` (keys in :data:`STATE_KWARGS`), replaced by
-            ``posterior=infer_state(...)``.
 
     Returns:
         :class:`CounterfactualResult` with samples of shape ``(S, K, N, dim)``.
@@ -279,26 +256,13 @@ def counterfactual(
             :func:`models.world.as_values`; category codes out of range), executed actions
             outside their bounds, bad scenarios (see :func:`inference.do`), a posterior of
             another graph, latent sites or evidence, an unknown guide, or bad
-            ``num_samples``, ``seed`` or ``state_kwargs``.
+            ``num_samples`` or ``seed``.
     """
     program = as_program(model)
     graph, world = program.graph, program.world
     num_samples = check_int("num_samples", num_samples, minimum=1)
     seed = check_seed("seed", seed)
     guide = check_choice("guide", guide, ["auto", *sorted(GUIDES)])
-    unknown = sorted(k for k in deprecated if k != "state_kwargs")
-    if unknown:
-        raise TypeError(f"counterfactual() got unexpected keyword arguments {unknown}")
-    legacy = check_keywords("state_kwargs", deprecated.get("state_kwargs"), STATE_KWARGS)
-    if "state_kwargs" in deprecated:
-        warnings.warn(
-            "counterfactual(state_kwargs=) is deprecated: pass posterior=infer_state(program, factual, ...)",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-    num_samples = legacy.pop("num_samples", num_samples)
-    seed = legacy.pop("seed", seed)
-    guide = legacy.pop("guide", "normal" if legacy and guide == "auto" else guide)
     obs, n = as_values(graph, factual, what="factual", dtype=world.dtype)
     if n is None:
         raise ValueError("factual evidence is empty")
@@ -307,7 +271,7 @@ def counterfactual(
     scenarios = _scenarios(program, interventions, n)
     check_active_handlers(graph)
     evidence, acts = split_actions(program, obs)
-    plain = not program.handlers and not _handlers_active() and not legacy.get("measurement_scale")
+    plain = not program.handlers and no_handler_active()
     factual_program = Intervene(acts)(program) if acts else program
     if plain:  # nothing can change the roles of the sites: they are the graph's
         latent = tuple(v for v in graph.topological_order() if v not in obs)
@@ -317,9 +281,7 @@ def counterfactual(
             latent = read_sites(factual_program, evidence, n).latent
     state = None
     if latent or posterior is not None:
-        state = _posterior(
-            program, obs, evidence, n, latent, posterior, guide, num_samples, options, seed, legacy
-        )
+        state = _posterior(program, obs, evidence, n, latent, posterior, guide, num_samples, options, seed)
     discrete = bool(world.discrete)
     s = state.num_samples if state is not None else (num_samples if discrete else 1)
     generator = torch.Generator().manual_seed(seed)

@@ -40,11 +40,9 @@ name rule (:mod:`models.tables`).
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 import time
-import warnings
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -271,25 +269,11 @@ def sigmoid(x: float) -> float:
     return e / (1.0 + e)
 
 
-_DEPRECATED = tuple(f for f in DiscoveryOptions.__dataclass_fields__ if f not in ("bootstrap", "subsample"))
-
-
-def _options(options: Any, deprecated: Mapping[str, Any]) -> DiscoveryOptions:
-    unknown = sorted(k for k in deprecated if k not in _DEPRECATED)
-    if unknown:
-        raise TypeError(f"discover() got unexpected keyword arguments {unknown}")
+def _options(options: Any) -> DiscoveryOptions:
     if options is None:
-        options = DiscoveryOptions()
+        return DiscoveryOptions()
     if not isinstance(options, DiscoveryOptions):
         raise ValueError(f"options must be a DiscoveryOptions, got {type(options).__name__}")
-    if deprecated:
-        warnings.warn(
-            f"discover({', '.join(f'{k}=' for k in deprecated)}) is deprecated: pass "
-            "options=DiscoveryOptions(...)",
-            DeprecationWarning,
-            stacklevel=3,
-        )
-        options = dataclasses.replace(options, **deprecated)
     return options
 
 
@@ -381,7 +365,6 @@ def discover(
     options: DiscoveryOptions | None = None,
     seed: int = 0,
     progress_bar: bool = False,
-    **deprecated: Any,
 ) -> DiscoveryResult:
     """Learn the parent sets of the world model from data.
 
@@ -405,8 +388,6 @@ def discover(
         options: :class:`DiscoveryOptions` (search, scorer, stability subsamples).
         seed: seeds the folds, the random features, the gated MLPs and the subsamples.
         progress_bar: show tqdm bars over the search moves and the subsamples.
-        **deprecated: the fields of :class:`DiscoveryOptions` as keywords (``min_gain=``,
-            ``sparsify=``, ...), for one release.
 
     Returns:
         :class:`DiscoveryResult`: the DAG with edge confidences, its CPDAG, and with
@@ -418,7 +399,7 @@ def discover(
             wrong type or range.
     """
     start = time.perf_counter()
-    opts = _options(options, deprecated)
+    opts = _options(options)
     seed = check_seed("seed", seed)
     progress_bar = check_bool("progress_bar", progress_bar)
     vs, data = _inputs(variables, data)
@@ -444,18 +425,9 @@ def discover(
         "seed": seed,
         "intervened_rows": {k: int((~v).sum()) for k, v in sdata.rows.items() if not bool(v.all())},
     }
+    dag = cpdag(graph, allowed=allowed, required=required)
     return DiscoveryResult(
-        graph,
-        ratios,
-        order,
-        tuple(history),
-        total,
-        calls,
-        seconds,
-        settings,
-        cpdag(graph, allowed=allowed, required=required),
-        stability,
-        adjacency,
+        graph, ratios, order, tuple(history), total, calls, seconds, settings, dag, stability, adjacency
     )
 
 

@@ -38,6 +38,7 @@ import logging
 import math
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import torch
@@ -144,7 +145,6 @@ def fit(
     schedule: FitSchedule | None = None,
     seed: int = 0,
     progress_bar: bool = False,
-    **deprecated: Any,
 ) -> FitResult:
     """Train the local mechanisms (and their scales) of ``model`` in place.
 
@@ -168,9 +168,6 @@ def fit(
         schedule: the :class:`FitSchedule`; None uses :meth:`FitSchedule.auto` for N rows.
         seed: seeds the split, the minibatch order and the bootstraps (local generators).
         progress_bar: show a tqdm bar over epochs.
-        **deprecated: ``epochs``, ``batch_size``, ``lr``, ``validation``, ``patience``,
-            ``bootstrap``, ``beta`` (use ``schedule=FitSchedule(...)``); given alone they
-            override the fields of ``FitSchedule()``.
 
     Returns:
         :class:`FitResult`. Non-action roots present in ``data`` also get their prior set
@@ -192,24 +189,66 @@ def fit(
     progress_bar = check_bool("progress_bar", progress_bar)
     if variables is not None:
         variables = check_names("variables", variables, allow_empty=False)
-    graph = model.graph
-    cols, n = as_values(graph, data, dtype=model.dtype)
+    cols, n = _columns(model, data)
+    schedule = _schedule(schedule, n)
+    targets = _select(model, cols, variables)
+    skipped = _skipped(model, cols, targets)
+    for v, why in skipped.items():
+        log.info("fit: %r not trained: %s", v, why)
+    gen = torch.Generator().manual_seed(seed)
+    run = _prepare(model, cols, n, targets, _losses(model, targets, loss), schedule, gen, seed)
+    start = time.perf_counter()
+    epochs_run = _train(model, run, schedule, gen, progress_bar)
+    best_epoch = _restore_best(model, run)
+    seconds = time.perf_counter() - start
+    sigma, sigma_rule = _set_sigmas(
+        model, run.targets, run.losses, run.inputs, run.outputs, run.val_idx, run.train_idx, run.rows
+    )
+    for v, rule in sigma_rule.items():
+        log.info("fit: sigma of %r from %s", v, _RULE_TEXT[rule])
+    model.provenance = {
+        **model.provenance,
+        "fit": _provenance(run, schedule, loss, seed, n, best_epoch, sigma_rule),
+    }
+    return _result(run, schedule, loss, epochs_run, seconds, sigma, sigma_rule, skipped, best_epoch)
+
+
+@dataclass
+class _Run:
+    """The data and the state of one training run: standardised columns, rows, curves, best epochs."""
+
+    targets: list[str]
+    losses: dict[str, str]
+    discrete: set[str]
+    inputs: dict[str, Tensor]
+    outputs: dict[str, Tensor]
+    train_idx: Tensor
+    val_idx: Tensor
+    rows: dict[str, list[Tensor | None]]
+    boot_gen: torch.Generator
+    train_curves: dict[str, list[float]] = field(default_factory=dict)
+    val_curves: dict[str, list[float]] = field(default_factory=dict)
+    nll_curves: dict[str, list[float]] = field(default_factory=dict)
+    best: dict[str, tuple[float, int, dict[str, Tensor]]] = field(default_factory=dict)
+    active: list[str] = field(default_factory=list)
+
+
+def _columns(model: WorldModel, data: Any) -> tuple[dict[str, Tensor], int]:
+    """The data as name -> ``(N, dim)`` columns, with at least 2 rows and valid category codes."""
+    cols, n = as_values(model.graph, data, dtype=model.dtype)
     if n is None:
         raise ValueError("data is empty; fit needs name -> (N, dim) columns")
     if n < 2:
         raise ValueError(f"fit needs at least 2 rows of data, got {n}")
     model.check_codes(cols, "data")
-    schedule = _schedule(schedule, deprecated, n)
-    beta, epochs, batch_size, lr = schedule.beta, schedule.epochs, schedule.batch_size, schedule.lr
-    validation, patience, bootstrap = schedule.validation, schedule.patience, schedule.bootstrap
-    targets = _select(model, cols, variables)
-    skipped = _skipped(model, cols, targets)
-    for v, why in skipped.items():
-        log.info("fit: %r not trained: %s", v, why)
-    discrete = {v for v in targets if isinstance(model.mechanism(v), DiscreteMechanism)}
+    return cols, n
+
+
+def _losses(model: WorldModel, targets: Sequence[str], loss: str | None) -> dict[str, str]:
+    """The loss of each target: the cross-entropy for discrete sites, else ``loss`` or its default."""
     losses = {
         v: "cross_entropy"
-        if v in discrete
+        if isinstance(model.mechanism(v), DiscreteMechanism)
         else loss or ("beta_nll" if _predicts_scale(model.mechanism(v)) else "mse")
         for v in targets
     }
@@ -219,8 +258,21 @@ def fit(
             f"loss='mse' cannot train the scale of the heteroscedastic mechanisms of {bad}; "
             "use loss='beta_nll' (their default) or 'nll'"
         )
+    return losses
 
-    gen = torch.Generator().manual_seed(seed)
+
+def _prepare(
+    model: WorldModel,
+    cols: Mapping[str, Tensor],
+    n: int,
+    targets: list[str],
+    losses: dict[str, str],
+    schedule: FitSchedule,
+    gen: torch.Generator,
+    seed: int,
+) -> _Run:
+    """Split the rows, draw the bootstraps, set the root priors and the normalisers."""
+    validation, patience = schedule.validation, schedule.patience
     perm = torch.randperm(n, generator=gen)
     n_val = round(validation * n)
     train_idx, val_idx = perm[n_val:], perm[:n_val]
@@ -235,13 +287,26 @@ def fit(
     rows: dict[str, list[Tensor | None]] = {}
     for v in targets:
         k = len(_members(model.mechanism(v)))
-        use = bootstrap and k > 1
+        use = schedule.bootstrap and k > 1
         rows[v] = [
             train_idx[torch.randint(n_train, (n_train,), generator=boot_gen)] if use else None
             for _ in range(k)
         ]
+    _set_root_priors(model, cols, train_idx)
+    inputs, outputs = {}, {}
+    for v in targets:
+        inputs[v] = model._parents(v, cols)  # categorical parents one-hot
+        outputs[v] = cols[v]
+        in_loc, in_scale = _standardiser(inputs[v][train_idx])
+        out_loc, out_scale = _standardiser(outputs[v][train_idx])
+        model.mechanism(v).set_normalization(in_loc, in_scale, out_loc, out_scale)
+    discrete = {v for v in targets if losses[v] == "cross_entropy"}
+    return _Run(targets, losses, discrete, inputs, outputs, train_idx, val_idx, rows, boot_gen)
 
-    categories = model.discrete
+
+def _set_root_priors(model: WorldModel, cols: Mapping[str, Tensor], train_idx: Tensor) -> None:
+    """Non-action roots with a column: the Normal prior (or the category frequencies) of the training rows."""
+    graph, categories = model.graph, model.discrete
     for r in graph.roots:
         if r in cols and graph[r].role is not Role.ACTION:
             if r in categories:
@@ -251,124 +316,164 @@ def fit(
             loc, scale = _standardiser(cols[r][train_idx])
             model.set_root_prior(r, loc, scale)
 
-    inputs, outputs = {}, {}
-    for v in targets:
-        inputs[v] = model._parents(v, cols)  # categorical parents one-hot
-        outputs[v] = cols[v]
-        in_loc, in_scale = _standardiser(inputs[v][train_idx])
-        out_loc, out_scale = _standardiser(outputs[v][train_idx])
-        model.mechanism(v).set_normalization(in_loc, in_scale, out_loc, out_scale)
 
+def _train(
+    model: WorldModel, run: _Run, schedule: FitSchedule, gen: torch.Generator, progress_bar: bool
+) -> int:
+    """The Adam epochs with validation and early stopping; returns the epochs run."""
     params = []
-    for v in targets:
+    for v in run.targets:
         for member in _members(model.mechanism(v)):
             params += [
-                p for name, p in member.named_parameters() if losses[v] != "mse" or name != "log_sigma"
+                p for name, p in member.named_parameters() if run.losses[v] != "mse" or name != "log_sigma"
             ]
-    optim = torch.optim.Adam(params, lr=lr)
-    train_curves: dict[str, list[float]] = {v: [] for v in targets}
-    val_curves: dict[str, list[float]] = {v: [] for v in targets}
-    nll_curves: dict[str, list[float]] = {v: [] for v in targets}
-    best: dict[str, tuple[float, int, dict[str, Tensor]]] = {}
-    active = list(targets)
-    start = time.perf_counter()
+    optim = torch.optim.Adam(params, lr=schedule.lr)
+    for curves in (run.train_curves, run.val_curves, run.nll_curves):
+        curves.update({v: [] for v in run.targets})
+    run.active = list(run.targets)
     model.train()
-    bar = tqdm(range(epochs), desc="fit", disable=not progress_bar, leave=False)
+    bar = tqdm(range(schedule.epochs), desc="fit", disable=not progress_bar, leave=False)
     epochs_run = 0
     for epoch in bar:
         epochs_run = epoch + 1
-        order = train_idx[torch.randperm(n_train, generator=gen)]
-        member_order = {
-            v: [b if b is None else b[torch.randperm(n_train, generator=boot_gen)] for b in rows[v]]
-            for v in active
-        }
-        sums = dict.fromkeys(active, 0.0)
-        for b in range(0, n_train, batch_size):
-            idx = order[b : b + batch_size]
-            optim.zero_grad()
-            total = 0.0
-            for v in active:
-                members = _members(model.mechanism(v))
-                for member, m_order in zip(members, member_order[v], strict=True):
-                    m_idx = idx if m_order is None else m_order[b : b + batch_size]
-                    term, resid = _member_loss(member, inputs[v][m_idx], outputs[v][m_idx], losses[v], beta)
-                    total = total + term
-                    sums[v] += float((resid.detach() ** 2).mean(-1).sum()) / len(members)
-            total.backward()
-            optim.step()
-        for v in active:
-            train_curves[v].append(sums[v] / n_train)
-        worst = max(train_curves[v][-1] for v in active)
-        if not math.isfinite(worst):
-            raise FloatingPointError(f"training diverged (loss {worst}); lower lr")
-        if n_val:
-            with torch.no_grad():
-                for v in active:
-                    mech = model.mechanism(v)
-                    x, y = inputs[v][val_idx], outputs[v][val_idx]
-                    if v in discrete:  # the validation criterion is the cross-entropy
-                        val_curves[v].append(_site_nll(mech, x, y))
-                        nll_curves[v].append(val_curves[v][-1])
-                        continue
-                    val_curves[v].append(float(((y - mech(x)) ** 2).mean()))
-                    if losses[v] != "mse":
-                        nll_curves[v].append(_site_nll(mech, x, y))
-        if patience is not None:
-            for v in list(active):
-                score = val_curves[v][-1] if losses[v] == "mse" else nll_curves[v][-1]
-                if not math.isfinite(score):
-                    raise FloatingPointError(f"validation loss of {v!r} is {score}; lower lr")
-                if v not in best or score < best[v][0]:
-                    state = {key: t.detach().clone() for key, t in model.mechanism(v).state_dict().items()}
-                    best[v] = (score, epoch + 1, state)
-                elif epoch + 1 - best[v][1] >= patience:
-                    active.remove(v)
-            if not active:
+        worst = _epoch(model, run, optim, schedule, gen)
+        if len(run.val_idx):
+            _validate(model, run)
+        if schedule.patience is not None:
+            _early_stop(model, run, epoch, schedule.patience)
+            if not run.active:
                 break
         bar.set_postfix(mse=f"{worst:.4g}")
     model.eval()
-    best_epoch = {v: len(train_curves[v]) for v in targets}
-    for v, (_, epoch_kept, state) in best.items():
+    return epochs_run
+
+
+def _epoch(
+    model: WorldModel, run: _Run, optim: torch.optim.Optimizer, schedule: FitSchedule, gen: torch.Generator
+) -> float:
+    """One pass over the training rows in minibatches; returns the worst mean training loss."""
+    train_idx, batch_size, active = run.train_idx, schedule.batch_size, run.active
+    n_train = len(train_idx)
+    order = train_idx[torch.randperm(n_train, generator=gen)]
+    member_order = {
+        v: [b if b is None else b[torch.randperm(n_train, generator=run.boot_gen)] for b in run.rows[v]]
+        for v in active
+    }
+    sums = dict.fromkeys(active, 0.0)
+    for b in range(0, n_train, batch_size):
+        idx = order[b : b + batch_size]
+        optim.zero_grad()
+        total = 0.0
+        for v in active:
+            members = _members(model.mechanism(v))
+            for member, m_order in zip(members, member_order[v], strict=True):
+                m_idx = idx if m_order is None else m_order[b : b + batch_size]
+                term, resid = _member_loss(
+                    member, run.inputs[v][m_idx], run.outputs[v][m_idx], run.losses[v], schedule.beta
+                )
+                total = total + term
+                sums[v] += float((resid.detach() ** 2).mean(-1).sum()) / len(members)
+        total.backward()
+        optim.step()
+    for v in active:
+        run.train_curves[v].append(sums[v] / n_train)
+    worst = max(run.train_curves[v][-1] for v in active)
+    if not math.isfinite(worst):
+        raise FloatingPointError(f"training diverged (loss {worst}); lower lr")
+    return worst
+
+
+def _validate(model: WorldModel, run: _Run) -> None:
+    """Append the validation MSE (and NLL, or the cross-entropy of a discrete site) of every active site."""
+    with torch.no_grad():
+        for v in run.active:
+            mech = model.mechanism(v)
+            x, y = run.inputs[v][run.val_idx], run.outputs[v][run.val_idx]
+            if v in run.discrete:  # the validation criterion is the cross-entropy
+                run.val_curves[v].append(_site_nll(mech, x, y))
+                run.nll_curves[v].append(run.val_curves[v][-1])
+                continue
+            run.val_curves[v].append(float(((y - mech(x)) ** 2).mean()))
+            if run.losses[v] != "mse":
+                run.nll_curves[v].append(_site_nll(mech, x, y))
+
+
+def _early_stop(model: WorldModel, run: _Run, epoch: int, patience: int) -> None:
+    """Keep each site's best epoch; stop the sites without a better one for ``patience`` epochs."""
+    for v in list(run.active):
+        score = run.val_curves[v][-1] if run.losses[v] == "mse" else run.nll_curves[v][-1]
+        if not math.isfinite(score):
+            raise FloatingPointError(f"validation loss of {v!r} is {score}; lower lr")
+        if v not in run.best or score < run.best[v][0]:
+            state = {key: t.detach().clone() for key, t in model.mechanism(v).state_dict().items()}
+            run.best[v] = (score, epoch + 1, state)
+        elif epoch + 1 - run.best[v][1] >= patience:
+            run.active.remove(v)
+
+
+def _restore_best(model: WorldModel, run: _Run) -> dict[str, int]:
+    """Load each early-stopped site's best parameters; returns name -> the 1-based epoch kept."""
+    best_epoch = {v: len(run.train_curves[v]) for v in run.targets}
+    for v, (_, epoch_kept, state) in run.best.items():
         model.mechanism(v).load_state_dict(state)
         best_epoch[v] = epoch_kept
-    seconds = time.perf_counter() - start
-    sigma, sigma_rule = _set_sigmas(model, targets, losses, inputs, outputs, val_idx, train_idx, rows)
-    for v, rule in sigma_rule.items():
-        log.info("fit: sigma of %r from %s", v, _RULE_TEXT[rule])
-    model.provenance = {
-        **model.provenance,
-        "fit": {
-            "loss": loss or "auto",
-            "losses": dict(losses),
-            "beta": beta,
-            "epochs": epochs,
-            "batch_size": batch_size,
-            "lr": lr,
-            "seed": seed,
-            "validation": validation,
-            "patience": patience,
-            "bootstrap": bootstrap,
-            "n": n,
-            "trained": list(targets),
-            "best_epoch": dict(best_epoch),
-            "sigma_rule": dict(sigma_rule),
-        },
+    return best_epoch
+
+
+def _provenance(
+    run: _Run,
+    schedule: FitSchedule,
+    loss: str | None,
+    seed: int,
+    n: int,
+    best_epoch: Mapping[str, int],
+    sigma_rule: Mapping[str, str],
+) -> dict[str, Any]:
+    """The ``fit`` entry of the model's provenance."""
+    return {
+        "loss": loss or "auto",
+        "losses": dict(run.losses),
+        "beta": schedule.beta,
+        "epochs": schedule.epochs,
+        "batch_size": schedule.batch_size,
+        "lr": schedule.lr,
+        "seed": seed,
+        "validation": schedule.validation,
+        "patience": schedule.patience,
+        "bootstrap": schedule.bootstrap,
+        "n": n,
+        "trained": list(run.targets),
+        "best_epoch": dict(best_epoch),
+        "sigma_rule": dict(sigma_rule),
     }
+
+
+def _result(
+    run: _Run,
+    schedule: FitSchedule,
+    loss: str | None,
+    epochs_run: int,
+    seconds: float,
+    sigma: dict[str, tuple[float, ...]],
+    sigma_rule: dict[str, str],
+    skipped: dict[str, str],
+    best_epoch: dict[str, int],
+) -> FitResult:
     return FitResult(
-        {v: tuple(c) for v, c in train_curves.items()},
-        {v: tuple(c) for v, c in val_curves.items()},
+        {v: tuple(c) for v, c in run.train_curves.items()},
+        {v: tuple(c) for v, c in run.val_curves.items()},
         sigma,
-        tuple(targets),
+        tuple(run.targets),
         loss or "auto",
         epochs_run,
-        n_train,
-        n_val,
+        len(run.train_idx),
+        len(run.val_idx),
         seconds,
-        val_nll={v: tuple(c) for v, c in nll_curves.items()},
+        val_nll={v: tuple(c) for v, c in run.nll_curves.items()},
         best_epoch=best_epoch,
-        losses=losses,
-        beta=beta,
-        patience=patience,
+        losses=run.losses,
+        beta=schedule.beta,
+        patience=schedule.patience,
         sigma_rule=sigma_rule,
         skipped=skipped,
         schedule=schedule,

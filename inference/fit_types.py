@@ -25,8 +25,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import warnings
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -39,25 +37,8 @@ __all__ = ["FIT_KWARGS", "LOSSES", "FitResult", "FitSchedule"]
 
 LOSSES = ("mse", "nll", "beta_nll")
 
-#: The keyword arguments of :func:`fit` (including the deprecated schedule keywords); wrappers
-#: that forward ``**fit_kwargs`` check against it.
-FIT_KWARGS = (
-    "variables",
-    "loss",
-    "schedule",
-    "beta",
-    "epochs",
-    "batch_size",
-    "lr",
-    "validation",
-    "patience",
-    "bootstrap",
-    "seed",
-    "progress_bar",
-)
-
-#: Schedule keywords of the earlier signature, accepted with a DeprecationWarning.
-_SCHEDULE_KEYWORDS = ("beta", "epochs", "batch_size", "lr", "validation", "patience", "bootstrap")
+#: The keyword arguments of :func:`fit`; wrappers that forward ``**fit_kwargs`` check against it.
+FIT_KWARGS = ("variables", "loss", "schedule", "seed", "progress_bar")
 
 
 @dataclass(frozen=True)
@@ -196,19 +177,8 @@ class FitResult:
         return fig
 
 
-def _schedule(schedule: Any, deprecated: Mapping[str, Any], n: int) -> FitSchedule:
-    """The schedule: given, from the deprecated keywords over ``FitSchedule()``, or auto for n rows."""
-    unknown = sorted(k for k in deprecated if k not in _SCHEDULE_KEYWORDS)
-    if unknown:
-        raise TypeError(f"fit() got unexpected keyword arguments {unknown}")
+def _schedule(schedule: Any, n: int) -> FitSchedule:
+    """The schedule: the one given, or :meth:`FitSchedule.auto` for n rows."""
     if schedule is not None and not isinstance(schedule, FitSchedule):
         raise ValueError(f"schedule must be a FitSchedule or None, got {describe(schedule)}")
-    if deprecated:
-        warnings.warn(
-            f"fit({', '.join(f'{k}=' for k in deprecated)}) is deprecated: pass schedule=FitSchedule(...)",
-            DeprecationWarning,
-            stacklevel=3,
-        )
-        base = schedule if schedule is not None else FitSchedule()
-        return dataclasses.replace(base, **deprecated)
     return schedule if schedule is not None else FitSchedule.auto(n)

@@ -19,8 +19,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import torch
+from torch import Tensor
 
 from inference.admissible import StructureData
 from models.checks import check_float, check_int, check_mapping, check_seed, describe
@@ -55,13 +58,7 @@ def select_parents(
     Returns:
         child -> selected parents (declaration order).
     """
-    if isinstance(penalties, (str, bytes)) or not isinstance(penalties, Sequence) or not penalties:
-        raise ValueError(f"penalties must be a non-empty sequence of numbers > 0, got {describe(penalties)}")
-    penalties = [
-        check_float(f"penalties[{k}]", p, minimum=0.0, min_open=True) for k, p in enumerate(penalties)
-    ]
-    if penalties != sorted(penalties, reverse=True):
-        raise ValueError(f"penalties must be positive and decreasing, got {list(penalties)}")
+    penalties = _check_penalties(penalties)
     hidden = check_int("hidden", hidden, minimum=1)
     steps = check_int("steps", steps, minimum=1)
     lr = check_float("lr", lr, minimum=0.0, min_open=True)
@@ -74,45 +71,98 @@ def select_parents(
     children = [c for c in names if candidates.get(c)]
     if not children:
         return {c: () for c in names}
-    gen = torch.Generator().manual_seed(seed)
-    n, d_in = data.x.shape
-    v = len(children)
-    x = data.x.double()
-    in_mask = torch.zeros(v, d_in, dtype=torch.float64)
-    out_mask = torch.zeros(v, d_in, dtype=torch.float64)
-    rows = torch.stack([data.rows[c] for c in children], 1).double()  # (n, V)
-    for k, c in enumerate(children):
-        in_mask[k, data.columns(candidates[c])] = 1.0
-        out_mask[k, data.columns([c])] = 1.0 / len(data.columns([c]))
-    perm = torch.randperm(n, generator=gen)
-    val = torch.zeros(n, dtype=torch.bool)
-    val[perm[: max(1, round(val_fraction * n))]] = True
-    w1 = (
-        torch.randn(v, hidden, d_in, generator=gen, dtype=torch.float64) * 0.3 * in_mask[:, None]
-    ).requires_grad_()
-    b1 = torch.zeros(v, hidden, dtype=torch.float64, requires_grad=True)
-    w2 = (
-        torch.randn(v, hidden, d_in, generator=gen, dtype=torch.float64) * 0.3 / math.sqrt(hidden)
-    ).requires_grad_()
-    b2 = torch.zeros(v, d_in, dtype=torch.float64, requires_grad=True)
-    groups = {c: [(p, data.columns([p])) for p in candidates[c]] for c in children}
-    col_group = torch.zeros(d_in, len(names), dtype=torch.float64)  # column -> its variable
-    for j, nm in enumerate(names):
-        col_group[data.columns([nm]), j] = 1.0
+    net = _GatedNet.build(data, candidates, children, hidden, val_fraction, seed)
+    chosen = _penalty_path(net, penalties, steps, lr)
+    order = {nm: i for i, nm in enumerate(names)}
+    return {c: tuple(sorted(chosen.get(c, ()), key=order.__getitem__)) for c in names}
 
-    def sq_error(idx: torch.Tensor) -> torch.Tensor:
-        h = torch.tanh(torch.einsum("nd,vhd->nvh", x[idx], w1 * in_mask[:, None]) + b1)
+
+def _check_penalties(penalties: Any) -> list[float]:
+    if isinstance(penalties, (str, bytes)) or not isinstance(penalties, Sequence) or not penalties:
+        raise ValueError(f"penalties must be a non-empty sequence of numbers > 0, got {describe(penalties)}")
+    penalties = [
+        check_float(f"penalties[{k}]", p, minimum=0.0, min_open=True) for k, p in enumerate(penalties)
+    ]
+    if penalties != sorted(penalties, reverse=True):
+        raise ValueError(f"penalties must be positive and decreasing, got {list(penalties)}")
+    return penalties
+
+
+@dataclass
+class _GatedNet:
+    """The batched gated MLPs of every child, their masks, groups and the validation split."""
+
+    children: list[str]
+    x: Tensor  # (n, D) float64
+    in_mask: Tensor  # (V, D): the candidate columns of each child
+    out_mask: Tensor  # (V, D): each child's own columns, weighted 1 / dim
+    rows: Tensor  # (n, V): rows evident about each child
+    val: Tensor  # (n,) bool: held-out rows
+    weights: list[Tensor]  # w1 (V, H, D), b1 (V, H), w2 (V, H, D), b2 (V, D)
+    groups: dict[str, list[tuple[str, list[int]]]]  # child -> (candidate, its columns)
+    col_group: Tensor  # (D, variables): column -> its variable
+
+    @classmethod
+    def build(
+        cls,
+        data: StructureData,
+        candidates: Mapping[str, Sequence[str]],
+        children: list[str],
+        hidden: int,
+        val_fraction: float,
+        seed: int,
+    ) -> _GatedNet:
+        gen = torch.Generator().manual_seed(seed)
+        names = data.names
+        n, d_in = data.x.shape
+        v = len(children)
+        in_mask = torch.zeros(v, d_in, dtype=torch.float64)
+        out_mask = torch.zeros(v, d_in, dtype=torch.float64)
+        rows = torch.stack([data.rows[c] for c in children], 1).double()  # (n, V)
+        for k, c in enumerate(children):
+            in_mask[k, data.columns(candidates[c])] = 1.0
+            out_mask[k, data.columns([c])] = 1.0 / len(data.columns([c]))
+        perm = torch.randperm(n, generator=gen)
+        val = torch.zeros(n, dtype=torch.bool)
+        val[perm[: max(1, round(val_fraction * n))]] = True
+        w1 = (
+            torch.randn(v, hidden, d_in, generator=gen, dtype=torch.float64) * 0.3 * in_mask[:, None]
+        ).requires_grad_()
+        b1 = torch.zeros(v, hidden, dtype=torch.float64, requires_grad=True)
+        w2 = (
+            torch.randn(v, hidden, d_in, generator=gen, dtype=torch.float64) * 0.3 / math.sqrt(hidden)
+        ).requires_grad_()
+        b2 = torch.zeros(v, d_in, dtype=torch.float64, requires_grad=True)
+        groups = {c: [(p, data.columns([p])) for p in candidates[c]] for c in children}
+        col_group = torch.zeros(d_in, len(names), dtype=torch.float64)
+        for j, nm in enumerate(names):
+            col_group[data.columns([nm]), j] = 1.0
+        return cls(
+            children, data.x.double(), in_mask, out_mask, rows, val, [w1, b1, w2, b2], groups, col_group
+        )
+
+    def sq_error(self, idx: Tensor) -> Tensor:
+        """Weighted squared error ``(n_idx, V)`` of every child on the rows ``idx``."""
+        w1, b1, w2, b2 = self.weights
+        x = self.x[idx]
+        h = torch.tanh(torch.einsum("nd,vhd->nvh", x, w1 * self.in_mask[:, None]) + b1)
         out = torch.einsum("nvh,vhd->nvd", h, w2) + b2
-        return ((out - x[idx][:, None, :]) ** 2 * out_mask).sum(-1)  # (n_idx, V)
+        return ((out - x[:, None, :]) ** 2 * self.out_mask).sum(-1)
 
-    train_rows, val_rows = rows[~val], rows[val]
-    optim = torch.optim.Adam([w1, b1, w2, b2], lr=lr)
-    best = torch.full((v,), math.inf, dtype=torch.float64)
-    chosen: dict[str, tuple[str, ...]] = {c: tuple(candidates[c]) for c in children}
+
+def _penalty_path(
+    net: _GatedNet, penalties: Sequence[float], steps: int, lr: float
+) -> dict[str, tuple[str, ...]]:
+    """Proximal Adam over the penalty path; each child's parents at its best held-out likelihood."""
+    w1, val, col_group = net.weights[0], net.val, net.col_group
+    train_rows, val_rows = net.rows[~val], net.rows[val]
+    optim = torch.optim.Adam(net.weights, lr=lr)
+    best = torch.full((len(net.children),), math.inf, dtype=torch.float64)
+    chosen = {c: tuple(p for p, _ in net.groups[c]) for c in net.children}
     for lam in penalties:
         for _ in range(steps):
             optim.zero_grad()
-            err = sq_error(~val)
+            err = net.sq_error(~val)
             loss = ((err * train_rows).sum(0) / train_rows.sum(0).clamp_min(1)).sum()
             loss.backward()
             optim.step()
@@ -121,13 +171,12 @@ def select_parents(
                 shrink = torch.clamp(1 - lr * lam / norms.clamp_min(1e-12), min=0.0) @ col_group.T  # (V, D)
                 w1.mul_(shrink[:, None, :])
         with torch.no_grad():
-            mse_tr = (sq_error(~val) * train_rows).sum(0) / train_rows.sum(0).clamp_min(1)
-            mse_val = (sq_error(val) * val_rows).sum(0) / val_rows.sum(0).clamp_min(1)
+            mse_tr = (net.sq_error(~val) * train_rows).sum(0) / train_rows.sum(0).clamp_min(1)
+            mse_val = (net.sq_error(val) * val_rows).sum(0) / val_rows.sum(0).clamp_min(1)
             var = mse_tr.clamp_min(1e-12)
             nll = 0.5 * torch.log(2 * math.pi * var) + mse_val / (2 * var)
-            for k, c in enumerate(children):
+            for k, c in enumerate(net.children):
                 if nll[k] < best[k]:
                     best[k] = nll[k]
-                    chosen[c] = tuple(p for p, cols in groups[c] if float(w1[k][:, cols].norm()) > 0)
-    order = {nm: i for i, nm in enumerate(names)}
-    return {c: tuple(sorted(chosen.get(c, ()), key=order.__getitem__)) for c in names}
+                    chosen[c] = tuple(p for p, cols in net.groups[c] if float(w1[k][:, cols].norm()) > 0)
+    return chosen

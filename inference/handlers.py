@@ -35,6 +35,7 @@ from pyro.poutine.runtime import Message
 from pyro.poutine.subsample_messenger import _Subsample
 from torch import Tensor
 
+from inference.active import register, unregister
 from inference.program import Program, as_program
 from models.checks import (
     as_float_tensor,
@@ -113,6 +114,19 @@ class ProgramMessenger(Messenger):
     def site_names(self) -> tuple[str, ...]:
         """The sites this handler acts on (empty: every site)."""
         return ()
+
+    def __enter__(self) -> Any:
+        """Enter Pyro's handler stack and pal's registry (:mod:`inference.active`)."""
+        out = super().__enter__()
+        register(self)
+        return out
+
+    def __exit__(self, *args: Any) -> None:
+        """Leave Pyro's handler stack and pal's registry."""
+        try:
+            super().__exit__(*args)
+        finally:
+            unregister(self)
 
     def __call__(self, fn: Any) -> Any:
         """``fn`` under this handler: a :class:`Program` for a model or program, else Pyro's wrapper."""

@@ -299,7 +299,7 @@ def revise(
         min_gain: held-out log-likelihood gain (nats) a revision needs to be kept.
         hidden: hidden widths of new MLP mechanisms.
         seed: seeds the split, the new weights and the fits (local generators).
-        fit_kwargs: passed to :func:`inference.fit` (default: 60 epochs, batch 256).
+        fit_kwargs: passed to :func:`inference.fit` (default schedule: 60 epochs, batch 256).
 
     Returns:
         ``(revised model, log)``; the best accepted revision per variable is applied, and the
@@ -322,88 +322,29 @@ def revise(
     hidden = check_hidden(hidden)
     seed = check_seed("seed", seed)
     fit_kwargs = check_keywords("fit_kwargs", fit_kwargs, [k for k in FIT_KWARGS if k != "variables"])
-    discrete = model.discrete
-    for child in variables:
-        model.graph.check_name(child, what="variable to revise")
-        if model.graph.is_root(child):
-            raise ValueError(f"{child!r} is a root; only mechanisms can be revised")
-        if child in discrete:
-            raise ValueError(
-                f"{child!r} is a discrete site; revise scores Gaussian mechanisms by their held-out "
-                "likelihood and does not revise discrete ones"
-            )
-    vals, n = as_values(model.graph, data, what="data", dtype=model.dtype)
-    missing = [v for v in model.graph.names if v not in vals]
-    if missing:
-        raise ValueError(f"revise needs rows of every variable; missing {missing}")
-    if n < 4:
-        raise ValueError(
-            f"revise needs at least 4 rows of data to split into training and validation, got {n}"
-        )
+    _check_revisable(model, variables)
+    vals, n = _rows(model, data)
     fkw = {"schedule": FitSchedule(epochs=60, batch_size=256), "seed": seed, **fit_kwargs}
     perm = torch.randperm(n, generator=torch.Generator().manual_seed(seed))
     n_val = max(1, round(val_fraction * n))
     val = {k: v[perm[:n_val]] for k, v in vals.items()}
     train = {k: v[perm[n_val:]] for k, v in vals.items()}
-    graph = model.graph
-    allowed = admissible_parents(graph, tiers=tiers)
+    allowed = admissible_parents(model.graph, tiers=tiers)
     current = model
     log_: list[Revision] = []
     for child in variables:
         parents = list(current.graph.parents(child))
-        baseline = _trained(
-            current.graph,
-            child,
-            parents,
-            copy.deepcopy(current.mechanism(child)),
-            train,
-            hidden,
-            fkw,
-            discrete,
-        )
+        fitting = _Fitting(train, hidden, fkw, model.discrete, seed)
+        baseline = fitting.trained(current.graph, child, parents, copy.deepcopy(current.mechanism(child)))
         before = _loglik(baseline, child, val)
-        candidates: list[tuple[str, str, WorldModel, list[str]]] = []
-        if "add_parent" in kinds:
-            desc = current.graph.descendants(child)
-            for j in allowed[child]:
-                if j in parents or j in desc:
-                    continue
-                new_parents = [p for p in graph.names if p in {*parents, j}]
-                cand = _trained(current.graph, child, new_parents, None, train, hidden, fkw, discrete)
-                candidates.append(("add_parent", f"{j} -> {child}", cand, new_parents))
-        if "capacity" in kinds:
-            mech = current.mechanism(child)
-            width = max(getattr(mech, "hidden", hidden) or hidden)
-            bigger = tuple([2 * width] * (len(getattr(mech, "hidden", hidden)) + 1))
-            cand_mech = MLPMechanism(mech.in_dim, mech.out_dim, hidden=bigger, seed=seed)
-            cand = _trained(current.graph, child, parents, cand_mech, train, hidden, fkw, discrete)
-            candidates.append(("capacity", f"MLP hidden {list(bigger)}", cand, parents))
-        if "split" in kinds and parents:
-            split = _split(current.graph, child, parents, train, hidden, fkw, discrete)
-            if split is not None:
-                candidates.append(("split", split[1], split[0], parents))
-        best = None
-        for kind, detail, cand, new_parents in candidates:
-            after = _loglik(cand, child, val)
-            gain = after - before
-            rev = Revision(kind, child, detail, before, after, gain, False, n - n_val, n_val)
-            log_.append(rev)
-            if gain > min_gain and (best is None or gain > best[0].gain):
-                best = (rev, cand, new_parents)
+        candidates = _candidates(current, model.graph, child, parents, kinds, allowed[child], fitting)
+        best = _best(candidates, child, before, val, min_gain, (n - n_val, n_val), log_)
         if best is None:
             log.info("revise %s: no revision beats the current mechanism by %.1f nats", child, min_gain)
             continue
         rev, cand, new_parents = best
         log_[log_.index(rev)] = Revision(**{**rev.to_dict(), "accepted": True})
-        edited = current.graph.with_edges(add=[(p, child) for p in new_parents if p not in parents])
-        mech = cand.mechanism(child)
-        fresh = current.with_graph(edited, seed=seed)
-        mechs = {v: fresh.mechanism(v) for v in edited.non_roots}
-        mechs[child] = mech
-        current = WorldModel(edited, mechs, seed=seed, hidden=hidden, discrete=discrete)
-        current.copy_root_priors_from(model)
-        if not isinstance(mech, SplitMechanism):
-            fit(current, {k: v for k, v in vals.items()}, variables=[child], **fkw)
+        current = _applied(model, current, child, parents, cand, new_parents, vals, fitting)
         current.provenance = {
             **model.provenance,
             "revisions": [*model.provenance.get("revisions", []), rev.to_dict() | {"accepted": True}],
@@ -412,3 +353,130 @@ def revise(
     if not math.isfinite(sum(r.gain for r in log_)):
         raise FloatingPointError("a revision produced a non-finite log-likelihood")
     return current, log_
+
+
+def _best(
+    candidates: Sequence[tuple[str, str, WorldModel, list[str]]],
+    child: str,
+    before: float,
+    val: Mapping[str, Tensor],
+    min_gain: float,
+    rows: tuple[int, int],
+    log_: list[Revision],
+) -> tuple[Revision, WorldModel, list[str]] | None:
+    """The candidate with the best held-out gain above ``min_gain``, each scored one logged in ``log_``.
+
+    ``rows`` are the numbers of training and held-out rows.
+    """
+    best = None
+    for kind, detail, cand, new_parents in candidates:
+        after = _loglik(cand, child, val)
+        gain = after - before
+        rev = Revision(kind, child, detail, before, after, gain, False, *rows)
+        log_.append(rev)
+        if gain > min_gain and (best is None or gain > best[0].gain):
+            best = (rev, cand, new_parents)
+    return best
+
+
+def _check_revisable(model: WorldModel, variables: Sequence[str]) -> None:
+    """Refuse unknown, root and discrete variables."""
+    for child in variables:
+        model.graph.check_name(child, what="variable to revise")
+        if model.graph.is_root(child):
+            raise ValueError(f"{child!r} is a root; only mechanisms can be revised")
+        if child in model.discrete:
+            raise ValueError(
+                f"{child!r} is a discrete site; revise scores Gaussian mechanisms by their held-out "
+                "likelihood and does not revise discrete ones"
+            )
+
+
+def _rows(model: WorldModel, data: Mapping[str, Any]) -> tuple[dict[str, Tensor], int]:
+    """Name -> ``(N, dim)`` rows of every variable, at least 4 of them."""
+    vals, n = as_values(model.graph, data, what="data", dtype=model.dtype)
+    missing = [v for v in model.graph.names if v not in vals]
+    if missing:
+        raise ValueError(f"revise needs rows of every variable; missing {missing}")
+    if n < 4:
+        raise ValueError(
+            f"revise needs at least 4 rows of data to split into training and validation, got {n}"
+        )
+    return vals, n
+
+
+@dataclass(frozen=True)
+class _Fitting:
+    """How :func:`revise` trains a candidate: training rows, hidden widths, fit keywords, seed."""
+
+    train: Mapping[str, Tensor]
+    hidden: tuple[int, ...]
+    fit_kwargs: Mapping[str, Any]
+    discrete: Mapping[str, int]
+    seed: int
+
+    def trained(
+        self, graph: CausalGraph, child: str, parents: Sequence[str], mech: Mechanism | None
+    ) -> WorldModel:
+        """The star ``parents -> child`` with ``mech`` (or a new MLP) trained on the rows."""
+        return _trained(graph, child, parents, mech, self.train, self.hidden, self.fit_kwargs, self.discrete)
+
+
+def _candidates(
+    current: WorldModel,
+    graph: CausalGraph,
+    child: str,
+    parents: list[str],
+    kinds: Sequence[str],
+    allowed: Sequence[str],
+    fitting: _Fitting,
+) -> list[tuple[str, str, WorldModel, list[str]]]:
+    """The trained candidates ``(kind, detail, model, parents)`` for one variable."""
+    candidates: list[tuple[str, str, WorldModel, list[str]]] = []
+    if "add_parent" in kinds:
+        desc = current.graph.descendants(child)
+        for j in allowed:
+            if j in parents or j in desc:
+                continue
+            new_parents = [p for p in graph.names if p in {*parents, j}]
+            cand = fitting.trained(current.graph, child, new_parents, None)
+            candidates.append(("add_parent", f"{j} -> {child}", cand, new_parents))
+    if "capacity" in kinds:
+        hidden = fitting.hidden
+        mech = current.mechanism(child)
+        width = max(getattr(mech, "hidden", hidden) or hidden)
+        bigger = tuple([2 * width] * (len(getattr(mech, "hidden", hidden)) + 1))
+        cand_mech = MLPMechanism(mech.in_dim, mech.out_dim, hidden=bigger, seed=fitting.seed)
+        cand = fitting.trained(current.graph, child, parents, cand_mech)
+        candidates.append(("capacity", f"MLP hidden {list(bigger)}", cand, parents))
+    if "split" in kinds and parents:
+        split = _split(
+            current.graph, child, parents, fitting.train, fitting.hidden, fitting.fit_kwargs, fitting.discrete
+        )
+        if split is not None:
+            candidates.append(("split", split[1], split[0], parents))
+    return candidates
+
+
+def _applied(
+    model: WorldModel,
+    current: WorldModel,
+    child: str,
+    parents: Sequence[str],
+    cand: WorldModel,
+    new_parents: Sequence[str],
+    vals: Mapping[str, Tensor],
+    fitting: _Fitting,
+) -> WorldModel:
+    """``current`` with the accepted candidate's edges and mechanism, refitted on all rows."""
+    seed, hidden, discrete = fitting.seed, fitting.hidden, fitting.discrete
+    edited = current.graph.with_edges(add=[(p, child) for p in new_parents if p not in parents])
+    mech = cand.mechanism(child)
+    fresh = current.with_graph(edited, seed=seed)
+    mechs = {v: fresh.mechanism(v) for v in edited.non_roots}
+    mechs[child] = mech
+    out = WorldModel(edited, mechs, seed=seed, hidden=hidden, discrete=discrete)
+    out.copy_root_priors_from(model)
+    if not isinstance(mech, SplitMechanism):
+        fit(out, {k: v for k, v in vals.items()}, variables=[child], **fitting.fit_kwargs)
+    return out

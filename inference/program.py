@@ -21,10 +21,10 @@ import pyro
 import torch
 from pyro import poutine
 from pyro.poutine.messenger import Messenger
-from pyro.poutine.runtime import _PYRO_STACK
 from pyro.poutine.subsample_messenger import _Subsample
 from torch import Tensor
 
+from inference.active import active_handlers
 from models.checks import describe
 from models.discrete import CategoricalCode
 from models.graph import CausalGraph
@@ -130,7 +130,7 @@ def check_active_handlers(graph: CausalGraph) -> None:
     Raises:
         ValueError: naming the handler and the unknown sites.
     """
-    for frame in _PYRO_STACK:
+    for frame in active_handlers():
         names = getattr(frame, "site_names", None)
         if callable(names):
             unknown = sorted(n for n in names() if n not in graph)

@@ -162,27 +162,7 @@ def grid_posterior(
             lo = hi = step = torch.zeros(n, 0, dtype=dtype)
         codes = list(itertools.product(*(range(sites.discrete[k]) for k in discrete))) or [()]
         g_cont, total = nodes.shape[0], nodes.shape[0] * len(codes)
-        per_run = max(1, min(total, options.chunk // max(n, 1)))
-        log_w, values = [], {k: [] for k in sites.latent}
-        for start in range(0, total, per_run):
-            ids = torch.arange(start, min(start + per_run, total))
-            node, code = ids % g_cont, ids // g_cont
-            z = lo + nodes[node][:, None, :].to(lo.dtype) * (hi - lo)  # (g, N, D)
-            data, col = {}, 0
-            for k in continuous:
-                data[k] = z[..., col : col + sites.dims[k]]
-                col += sites.dims[k]
-            for j, k in enumerate(discrete):
-                table = torch.tensor([c[j] for c in codes], dtype=dtype)
-                data[k] = table[code][:, None, None].expand(len(ids), n, 1)
-            with pyro.plate("_grid", len(ids), dim=-2):
-                trace = poutine.trace(poutine.condition(program, data=data)).get_trace(evidence, n)
-            lw = log_joint(trace, set())
-            log_w.append(lw.expand(len(ids), n))
-            for k in sites.latent:
-                values[k].append(data[k])
-        lw_all = torch.cat(log_w)
-        grid = {k: torch.cat(v) for k, v in values.items()}
+        lw_all, grid = _log_weights(program, evidence, n, sites, options, (nodes, lo, hi), codes, dtype)
         weights = torch.softmax(lw_all.double(), 0).to(lw_all.dtype)
         mean, sd = {}, {}
         for k, v in grid.items():
@@ -201,12 +181,56 @@ def grid_posterior(
             edge_mass = weights[edge].sum(0)
         else:
             edge_mass = torch.zeros(n, dtype=weights.dtype)
+    return Fitted(samples, mean, sd, (), _diagnostics(lw_all, edge_mass, per_dim**d * len(codes)))
+
+
+def _log_weights(
+    program: Callable[..., Any],
+    evidence: Mapping[str, Tensor],
+    n: int,
+    sites: SiteRoles,
+    options: GridOptions,
+    box: tuple[Tensor, Tensor, Tensor],
+    codes: list[tuple[int, ...]],
+    dtype: torch.dtype,
+) -> tuple[Tensor, dict[str, Tensor]]:
+    """The program's log joint ``(G, N)`` at every grid node x code combination, and the latent values there.
+
+    ``box`` holds the nodes ``(Gc, D)`` in [0, 1] and the per-unit range ``lo``, ``hi`` ``(N, D)``;
+    the nodes run in chunks of ``options.chunk`` nodes x units.
+    """
+    nodes, lo, hi = box
+    continuous, discrete = sites.continuous, tuple(sites.discrete)
+    g_cont, total = nodes.shape[0], nodes.shape[0] * len(codes)
+    per_run = max(1, min(total, options.chunk // max(n, 1)))
+    log_w, values = [], {k: [] for k in sites.latent}
+    for start in range(0, total, per_run):
+        ids = torch.arange(start, min(start + per_run, total))
+        node, code = ids % g_cont, ids // g_cont
+        z = lo + nodes[node][:, None, :].to(lo.dtype) * (hi - lo)  # (g, N, D)
+        data, col = {}, 0
+        for k in continuous:
+            data[k] = z[..., col : col + sites.dims[k]]
+            col += sites.dims[k]
+        for j, k in enumerate(discrete):
+            table = torch.tensor([c[j] for c in codes], dtype=dtype)
+            data[k] = table[code][:, None, None].expand(len(ids), n, 1)
+        with pyro.plate("_grid", len(ids), dim=-2):
+            trace = poutine.trace(poutine.condition(program, data=data)).get_trace(evidence, n)
+        lw = log_joint(trace, set())
+        log_w.append(lw.expand(len(ids), n))
+        for k in sites.latent:
+            values[k].append(data[k])
+    return torch.cat(log_w), {k: torch.cat(v) for k, v in values.items()}
+
+
+def _diagnostics(lw_all: Tensor, edge_mass: Tensor, nodes: int) -> Diagnostics:
+    """The grid's diagnostics: units with too much mass on the edge are flagged."""
     flagged = tuple(int(i) for i in torch.nonzero(edge_mass > EDGE_MASS_THRESHOLD).flatten())
     message = (
         f"grid: {len(flagged)} units have more than {EDGE_MASS_THRESHOLD:g} of their mass on the grid's edge; "
         "raise GridOptions.width"
         if flagged
-        else f"grid: {per_dim**d * len(codes)} nodes per unit, edge mass <= {EDGE_MASS_THRESHOLD:g} everywhere"
+        else f"grid: {nodes} nodes per unit, edge mass <= {EDGE_MASS_THRESHOLD:g} everywhere"
     )
-    diag = Diagnostics("grid", ess=ess(lw_all), edge_mass=edge_mass, flagged=flagged, message=message)
-    return Fitted(samples, mean, sd, (), diag)
+    return Diagnostics("grid", ess=ess(lw_all), edge_mass=edge_mass, flagged=flagged, message=message)

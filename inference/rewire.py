@@ -113,7 +113,7 @@ def rewire(
         intervened: name -> ``(N,)`` bool, rows where the variable was set by ``do``.
         refit: ``"changed"`` (rewired and new mechanisms), ``"all"`` or ``"none"``.
         seed: seeds the weights of new mechanisms and the refit (local generators).
-        **fit_kwargs: passed to :func:`inference.fit` (epochs, lr, ...).
+        **fit_kwargs: passed to :func:`inference.fit` (``schedule=``, ``loss=``, ...).
 
     Returns:
         :class:`RewireResult`.

@@ -28,24 +28,21 @@ from typing import Any
 
 import pyro
 import torch
-from pyro.poutine.runtime import _PYRO_STACK
 from torch import Tensor
 
+from inference.active import active_handlers
 from inference.diagnostics import Diagnostics, PoorPosteriorWarning
 from inference.frozen import frozen_parameters
 from inference.handlers import Intervene, MeasurementScale, ProgramMessenger
 from inference.importance import ImportanceOptions, importance_posterior
-from inference.interventions import check_interventions
-from inference.program import Program, as_program, check_active_handlers, read_sites
+from inference.program import Program, SiteRoles, as_program, check_active_handlers, read_sites
 from inference.quadrature import GridOptions, grid_posterior
 from inference.svi_state import SVI_GUIDES, SVIOptions, svi_posterior
 from models.checks import (
-    as_float_tensor,
     check_bool,
     check_choice,
     check_float,
     check_int,
-    check_mapping,
     check_seed,
     describe,
 )
@@ -73,10 +70,6 @@ GUIDES: dict[str, type] = {
     "importance": ImportanceOptions,
     "grid": GridOptions,
 }
-
-#: Keywords of the earlier signature, still accepted (with a DeprecationWarning) for one release.
-_DEPRECATED_SVI = ("lr", "lr_final", "num_particles", "init_scale")
-_DEPRECATED = ("interventions", "measurement_scale", *_DEPRECATED_SVI)
 
 
 @dataclass(frozen=True)
@@ -145,7 +138,7 @@ class StateResult:
 
 def measurement_sites(program: Program) -> tuple[str, ...]:
     """The sites of every MeasurementScale of ``program`` and of those entered with ``with``."""
-    frames = [*program.handlers, *_PYRO_STACK]
+    frames = [*program.handlers, *reversed(active_handlers())]
     return tuple(n for f in frames if isinstance(f, MeasurementScale) for n in f.site_names())
 
 
@@ -157,57 +150,12 @@ def split_actions(model: Any, observed: Mapping[str, Tensor]) -> tuple[dict[str,
     return evidence, acts
 
 
-def _legacy(
-    program: Program, n: int, observed: Mapping[str, Tensor], deprecated: Mapping[str, Any]
-) -> tuple[Program, dict[str, Any]]:
-    """Apply the deprecated ``interventions=`` / ``measurement_scale=`` keywords by composition."""
-    unknown = sorted(k for k in deprecated if k not in _DEPRECATED)
-    if unknown:
-        raise TypeError(f"infer_state() got unexpected keyword arguments {unknown}")
-    if deprecated:
-        warnings.warn(
-            f"infer_state({', '.join(f'{k}=' for k in deprecated)}) is deprecated: compose the program "
-            "(do(model, ...), MeasurementScale(...)(model)) and pass SVIOptions as options=",
-            DeprecationWarning,
-            stacklevel=3,
-        )
-    graph, dtype = program.graph, program.dtype
-    ivs = check_mapping("interventions", deprecated.get("interventions"), allow_none=True)
-    if ivs:
-        specs = check_interventions(graph, ivs, dtype, program.world.discrete)
-        program = Intervene(specs)(program)
-    scales_in = check_mapping("measurement_scale", deprecated.get("measurement_scale"), allow_none=True)
-    if scales_in:
-        scales = {}
-        for name, raw in scales_in.items():
-            graph.check_name(name, what="measurement site")
-            scale = as_float_tensor(raw, f"measurement_scale[{name!r}]", dtype)
-            if scale.ndim not in (1, 2) or scale.shape[-1] != graph[name].dim:
-                raise ValueError(
-                    f"measurement_scale[{name!r}] has shape {tuple(scale.shape)}, expected (dim,) or "
-                    f"(N, dim), here ({graph[name].dim},) or ({n}, {graph[name].dim})"
-                )
-            if scale.ndim == 2 and scale.shape[0] != n:
-                raise ValueError(f"measurement_scale[{name!r}] has {scale.shape[0]} rows, expected {n}")
-            scales[name] = scale
-        unobserved = sorted(k for k in scales if k not in observed or graph[k].role is Role.ACTION)
-        if unobserved:
-            raise ValueError(f"measurement_scale names {unobserved}, which are not observed sites")
-        program = MeasurementScale(scales)(program)
-    svi = {k: deprecated[k] for k in _DEPRECATED_SVI if k in deprecated}
-    return program, svi
-
-
-def _options(guide: str, options: Any, svi: Mapping[str, Any]) -> Any:
+def _options(guide: str, options: Any) -> Any:
     kind = GUIDES[guide]
     if options is None:
         options = kind()
     if not isinstance(options, kind):
         raise ValueError(f"guide={guide!r} takes options={kind.__name__}(...), got {describe(options)}")
-    if svi:
-        if kind is not SVIOptions:
-            raise ValueError(f"{sorted(svi)} are SVI settings; guide={guide!r} does not use them")
-        options = SVIOptions(**{**options.to_dict(), **svi})
     return options
 
 
@@ -221,7 +169,6 @@ def infer_state(
     options: SVIOptions | ImportanceOptions | GridOptions | None = None,
     seed: int = 0,
     progress_bar: bool = False,
-    **deprecated: Any,
 ) -> StateResult:
     """Posterior over the latent sites given the observed sites.
 
@@ -240,9 +187,6 @@ def infer_state(
         seed: seeds the method (torch's RNG in a forked context and local generators); the
             caller's torch, numpy and Python RNG states are left as they were.
         progress_bar: show a tqdm bar over SVI steps.
-        **deprecated: ``interventions=`` (use ``do``), ``measurement_scale=`` (use
-            :class:`inference.MeasurementScale`), and ``lr``, ``lr_final``,
-            ``num_particles``, ``init_scale`` (use ``options=SVIOptions(...)``).
 
     Returns:
         :class:`StateResult`.
@@ -262,14 +206,8 @@ def infer_state(
     num_samples = check_int("num_samples", num_samples, minimum=1)
     seed = check_seed("seed", seed)
     progress_bar = check_bool("progress_bar", progress_bar)
-    dtype = program.dtype
-    obs, n = as_values(graph, observed, what="observed", dtype=dtype)
-    if n is None:
-        raise ValueError("observed is empty; state inference needs evidence")
-    check_action_bounds(graph, obs, "observed")
-    program.world.check_codes(obs, "observed")
-    program, svi = _legacy(program, n, obs, deprecated)
-    options = _options(guide, options, svi)
+    obs, n = _evidence(program, observed)
+    options = _options(guide, options)
     check_active_handlers(graph)
     evidence, acts = split_actions(program, obs)
     if acts:
@@ -278,30 +216,10 @@ def infer_state(
     with param_store.scope() as param_state, torch.random.fork_rng(), frozen_parameters(program.world):
         torch.manual_seed(seed)
         generator = torch.Generator().manual_seed(seed)
-        sites = read_sites(program, evidence, n)
-        both = sorted(set(evidence) & set(sites.intervened))
-        if both:
-            raise ValueError(f"variables {both} are both observed and intervened on; pick one")
-        if not sites.latent:
-            raise ValueError("every variable is observed or intervened on; there is no latent site to infer")
-        unobserved = sorted(set(measurement_sites(program)) - set(evidence))
-        if unobserved:
-            raise ValueError(
-                f"MeasurementScale names {unobserved}, which are not observed sites; observed: {sorted(evidence)}"
-            )
-        if guide in SVI_GUIDES:
-            # autoguides trace the model inside poutine.block, which hides the handlers entered
-            # with ``with``: carry copies of them inside the program as well
-            outer = [copy.copy(f) for f in reversed(_PYRO_STACK) if isinstance(f, ProgramMessenger)]
-            if outer:
-                program = Program(program.world, (*program.handlers, *outer))
-            fitted = svi_posterior(
-                program, evidence, n, sites, guide, num_steps, num_samples, options, progress_bar, generator
-            )
-        elif guide == "importance":
-            fitted = importance_posterior(program, evidence, n, sites, num_samples, options, generator)
-        else:
-            fitted = grid_posterior(program, evidence, n, sites, num_samples, options, generator)
+        sites = _latent_sites(program, evidence, n)
+        fitted = _posterior(
+            program, guide, evidence, n, sites, num_steps, num_samples, options, progress_bar, generator
+        )
     if not fitted.diagnostics.ok:
         warnings.warn(fitted.diagnostics.message, PoorPosteriorWarning, stacklevel=2)
     log.debug("infer_state(%s): %s", guide, fitted.diagnostics.message)
@@ -318,3 +236,73 @@ def infer_state(
         fitted.autoguide,
         param_state if fitted.autoguide is not None else {},
     )
+
+
+def _evidence(program: Program, observed: Mapping[str, Any]) -> tuple[dict[str, Tensor], int]:
+    """The observed values name -> ``(N, dim)`` and N, checked against the program's graph."""
+    graph = program.graph
+    obs, n = as_values(graph, observed, what="observed", dtype=program.dtype)
+    if n is None:
+        raise ValueError("observed is empty; state inference needs evidence")
+    check_action_bounds(graph, obs, "observed")
+    program.world.check_codes(obs, "observed")
+    return obs, n
+
+
+def _latent_sites(program: Program, evidence: Mapping[str, Tensor], n: int) -> SiteRoles:
+    """The sites of one run of the program; refuses evidence on intervened sites and no latent site."""
+    sites = read_sites(program, evidence, n)
+    both = sorted(set(evidence) & set(sites.intervened))
+    if both:
+        raise ValueError(f"variables {both} are both observed and intervened on; pick one")
+    if not sites.latent:
+        raise ValueError("every variable is observed or intervened on; there is no latent site to infer")
+    unobserved = sorted(set(measurement_sites(program)) - set(evidence))
+    if unobserved:
+        raise ValueError(
+            f"MeasurementScale names {unobserved}, which are not observed sites; observed: {sorted(evidence)}"
+        )
+    return sites
+
+
+def _posterior(
+    program: Program,
+    guide: str,
+    evidence: Mapping[str, Tensor],
+    n: int,
+    sites: SiteRoles,
+    num_steps: int,
+    num_samples: int,
+    options: Any,
+    progress_bar: bool,
+    generator: torch.Generator,
+) -> Any:
+    """Run the posterior method ``guide``."""
+    if guide in SVI_GUIDES:
+        return svi_posterior(
+            _with_outer_handlers(program),
+            evidence,
+            n,
+            sites,
+            guide,
+            num_steps,
+            num_samples,
+            options,
+            progress_bar,
+            generator,
+        )
+    if guide == "importance":
+        return importance_posterior(program, evidence, n, sites, num_samples, options, generator)
+    return grid_posterior(program, evidence, n, sites, num_samples, options, generator)
+
+
+def _with_outer_handlers(program: Program) -> Program:
+    """The program with copies of pal's handlers entered with ``with`` as its outermost handlers.
+
+    Autoguides trace the model inside ``poutine.block``, which hides the handlers entered
+    with ``with``, so the program carries them itself.
+    """
+    outer = [copy.copy(f) for f in active_handlers() if isinstance(f, ProgramMessenger)]
+    if outer:
+        return Program(program.world, (*program.handlers, *outer))
+    return program

@@ -354,6 +354,38 @@ class ForwardQueries:
         grad = check_bool("grad", grad)
         members = check_bool("members", members)
         generator = check_generator("generator", generator)
+        seq, init, n, horizon = self._rollout_inputs(initial, inputs)
+        noise = self._check_noise(noise, n, extra_dims=(0, 1))
+        if isinstance(noise, Mapping):
+            for key, e in noise.items():
+                if e.ndim == 3 and e.shape[1] != horizon:
+                    raise ValueError(
+                        f"noise[{key!r}] has {e.shape[1]} steps, expected {horizon} like the inputs"
+                    )
+        lagged = self.graph.lagged
+        lag1_roots = [r for r in self.graph.roots if self.graph[r].lag == 1]
+        k = self.ensemble_size if members else 0
+        state = dict(init)
+        steps: list[dict[str, Tensor]] = []
+        with torch.set_grad_enabled(grad):
+            for tau in range(horizon):
+                values = {**state, **{key: v[:, tau] for key, v in seq.items()}}
+                step_noise: NoiseSpec = noise
+                if isinstance(noise, Mapping):
+                    step_noise = {key: (e[:, tau] if e.ndim == 3 else e) for key, e in noise.items()}
+                if members:
+                    pred = self._predict_members(values, step_noise, generator, k)
+                else:
+                    pred = self._predict(values, step_noise, generator)
+                steps.append(pred)
+                state = {r: pred[lagged[r]] for r in lag1_roots if r in lagged}
+            axis = 2 if members else 1
+            return {key: torch.stack([s[key] for s in steps], axis) for key in self.graph.names}
+
+    def _rollout_inputs(
+        self, initial: Mapping[str, Any], inputs: Mapping[str, Any]
+    ) -> tuple[dict[str, Tensor], dict[str, Tensor], int, int]:
+        """Check the rollout's inputs and initial values: ``(inputs, initial, N, H)``."""
         seq, n = as_values(self.graph, inputs, what="inputs", extra_dims=1, dtype=self.dtype)
         init, n = as_values(self.graph, initial, n=n, what="initial", dtype=self.dtype)
         lagged = self.graph.lagged
@@ -378,27 +410,4 @@ class ForwardQueries:
                 raise ValueError(f"lag-1 root {r!r} has no lag_of variable, so it cannot be rolled forward")
         check_action_bounds(self.graph, seq, "inputs")
         self.check_codes({**seq, **init}, "inputs")
-        noise = self._check_noise(noise, n, extra_dims=(0, 1))
-        if isinstance(noise, Mapping):
-            for key, e in noise.items():
-                if e.ndim == 3 and e.shape[1] != horizon:
-                    raise ValueError(
-                        f"noise[{key!r}] has {e.shape[1]} steps, expected {horizon} like the inputs"
-                    )
-        k = self.ensemble_size if members else 0
-        state = dict(init)
-        steps: list[dict[str, Tensor]] = []
-        with torch.set_grad_enabled(grad):
-            for tau in range(horizon):
-                values = {**state, **{key: v[:, tau] for key, v in seq.items()}}
-                step_noise: NoiseSpec = noise
-                if isinstance(noise, Mapping):
-                    step_noise = {key: (e[:, tau] if e.ndim == 3 else e) for key, e in noise.items()}
-                if members:
-                    pred = self._predict_members(values, step_noise, generator, k)
-                else:
-                    pred = self._predict(values, step_noise, generator)
-                steps.append(pred)
-                state = {r: pred[lagged[r]] for r in lag1_roots if r in lagged}
-            axis = 2 if members else 1
-            return {key: torch.stack([s[key] for s in steps], axis) for key in self.graph.names}
+        return seq, init, n, horizon

@@ -37,8 +37,12 @@ __all__ = ["UsageError", "build_parser", "main"]
 
 log = logging.getLogger("pal")
 
+#: What ``ArgumentParser.add_subparsers`` returns; argparse keeps its class private.
+Subparsers = Any
 
-def _configure(verbose: bool, threads: int) -> None:
+
+def _configure(verbose: bool, threads: int, quiet: bool = False) -> None:
+    """Threads and logging: DEBUG with ``-v``, else WARNING for ``quiet`` commands (the demo), else INFO."""
     os.environ.setdefault("MPLBACKEND", "Agg")
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, str(threads))  # before numpy/torch load their thread pools
@@ -47,11 +51,12 @@ def _configure(verbose: bool, threads: int) -> None:
     # The models work on small tensors: one intra-op thread is faster, and OpenMP threads
     # slow down by orders of magnitude when another process holds the second core.
     torch.set_num_threads(threads)
+    level = logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO
     logging.basicConfig(
-        level=logging.DEBUG if verbose else logging.INFO,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
+        level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
     )
+    # basicConfig leaves the level alone when the root logger has handlers (e.g. main() in a test)
+    logging.getLogger().setLevel(level)
     for noisy in ("matplotlib", "PIL", "OpenGL", "numexpr", "h5py", "jax"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
 
@@ -102,7 +107,11 @@ def _demo(args: argparse.Namespace) -> int:
 
     out = _output_dir(args.out)
     start = time.perf_counter()
-    for text in demo.run(out, quick=args.quick, progress_bar=sys.stderr.isatty()):
+
+    def started(i: int, n: int, kind: str, name: str) -> None:
+        print(f"pal demo: {kind} {name} ({i}/{n}) ...", file=sys.stderr, flush=True)
+
+    for text in demo.run(out, quick=args.quick, progress_bar=sys.stderr.isatty(), started=started):
         print(text, flush=True)
     print(f"\n(pal demo took {time.perf_counter() - start:.1f} s; reports and figures in {out})")
     return 0
@@ -322,7 +331,7 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
             "--set",
             action="append",
             metavar="KEY=VALUE",
-            help="override a setting, e.g. protocol.fit.epochs=40",
+            help="override a setting by its dotted path, e.g. protocol.fit.schedule.epochs=40",
         )
         add_body_flags(p, babble=False)
         p.add_argument(
@@ -330,27 +339,31 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
         )
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``pal``."""
-    parser = UsageParser(prog="pal", description="Causal perception-action learning toolkit.")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging and tracebacks")
-    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=UsageParser)
-
-    p = sub.add_parser("demo", help="short end-to-end run: prints reports, saves figures")
+def _add_demo_parser(sub: Subparsers) -> None:
+    """``pal demo``."""
+    p = sub.add_parser("demo", help="short end-to-end run: prints reports (log lines with -v), saves figures")
     p.add_argument("--out", default="pal-demo", help="directory for reports and figures (default: pal-demo)")
     p.add_argument("--quick", action="store_true", help="smallest sizes")
-    p.set_defaults(func=_demo)
+    p.set_defaults(func=_demo, quiet=True)  # tables and progress only; log lines with -v
 
+
+def _add_list_parser(sub: Subparsers) -> None:
+    """``pal list``."""
     p = sub.add_parser("list", help="list the registered experiments and benchmarks")
     p.set_defaults(func=_list)
 
+
+def _add_run_parsers(sub: Subparsers) -> None:
+    """``pal bench`` and ``pal experiment``."""
     for kind, help_text in (("bench", "run a benchmark"), ("experiment", "run an experiment")):
         p = sub.add_parser(kind, help=help_text)
         p.add_argument("name")
         _add_run_flags(p)
         p.set_defaults(func=lambda a, k=kind: _run_entry(k, a.name, a))
 
+
+def _add_loop_parser(sub: Subparsers) -> None:
+    """``pal loop``."""
     p = sub.add_parser("loop", help="the closed perception-action loop (= pal experiment loop)")
     p.add_argument("--steps", type=int, default=60, help="loop steps, babbling included (default 60)")
     p.add_argument(
@@ -364,6 +377,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run_flags(p, body=False)
     p.set_defaults(func=_loop)
 
+
+def _add_babble_parser(sub: Subparsers) -> None:
+    """``pal babble``."""
     p = sub.add_parser("babble", help="record motor-babbling transitions to a dataset directory")
     add_body_flags(p, babble=True)
     p.add_argument("--steps", type=int, default=100_000, help="transitions (default 100000)")
@@ -397,6 +413,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(func=_babble)
 
+
+def _add_sweep_parser(sub: Subparsers) -> None:
+    """``pal sweep``."""
     p = sub.add_parser(
         "sweep", help="run an experiment over a grid of settings x seeds: mean ± sd table, figures"
     )
@@ -420,6 +439,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--retry-failed", action="store_true", help="run only the failed runs of --out again")
     p.set_defaults(func=_sweep)
 
+
+def _add_record_parser(sub: Subparsers) -> None:
+    """``pal record``."""
     p = sub.add_parser("record", help="record a scripted tabletop run as an RGB-D sequence with ground truth")
     p.add_argument("--motion", required=True, help="scripted motion of thesis Table 5.1, e.g. box-rotation")
     p.add_argument("--seed", type=int, default=0, help="run seed: path, speed, sensor noise (default 0)")
@@ -434,6 +456,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overwrite", action="store_true", help="replace a sequence already in --out")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(func=_record)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``pal``."""
+    parser = UsageParser(prog="pal", description="Causal perception-action learning toolkit.")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging and tracebacks")
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=UsageParser)
+    _add_demo_parser(sub)
+    _add_list_parser(sub)
+    _add_run_parsers(sub)
+    _add_loop_parser(sub)
+    _add_babble_parser(sub)
+    _add_sweep_parser(sub)
+    _add_record_parser(sub)
     return parser
 
 
@@ -445,7 +482,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         verbose = args.verbose
         if args.threads < 1:
             raise UsageError(f"--threads must be >= 1, got {args.threads}")
-        _configure(args.verbose, args.threads)
+        _configure(args.verbose, args.threads, quiet=getattr(args, "quiet", False))
         return int(args.func(args))
     except UsageError as err:
         print(f"pal: error: {err}" if not str(err).startswith("pal") else f"{err}", file=sys.stderr)

@@ -125,15 +125,18 @@ def _type_checking_only(tree: ast.AST) -> set[int]:
     return skip
 
 
-def module_imports(name: str, source: str | None = None, is_package: bool | None = None) -> set[str]:
+def module_imports(
+    name: str, source: str | None = None, is_package: bool | None = None, *, type_checking: bool = True
+) -> set[str]:
     """Modules of pal/models/inference that module ``name`` imports anywhere: top level, in
-    functions, absolute or relative (``if TYPE_CHECKING:`` blocks excluded)."""
+    functions, absolute or relative, and in ``if TYPE_CHECKING:`` blocks unless ``type_checking``
+    is false (a type-only import is still a dependency: the two modules cannot be read apart)."""
     path = MODULES.get(name)
     if source is None or is_package is None:
         assert path is not None, name
         source, is_package = path.read_text(), path.name == "__init__.py"
     tree = ast.parse(source)
-    skip = _type_checking_only(tree)
+    skip = set() if type_checking else _type_checking_only(tree)
     package = name if is_package else name.rpartition(".")[0]
     out: set[str] = set()
     for node in ast.walk(tree):
@@ -183,7 +186,7 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
     return None
 
 
-def test_the_import_graph_sees_function_level_and_relative_imports():
+def test_the_import_graph_sees_function_level_relative_and_type_only_imports():
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert find_cycle({"a": {"b"}, "b": set(), "c": {"a", "b"}}) is None
     assert "pal.io.files" in GRAPH["pal.io.dataset"] | GRAPH["pal.io.dataset_files"]
@@ -198,16 +201,13 @@ def test_the_import_graph_sees_function_level_and_relative_imports():
         "    import pal.frames\n"
         "    from pal.perception import frames\n"
     )
-    assert module_imports("pal.perception.sequence", snippet, False) == {
-        "pal.perception.tum",
-        "pal.io.files",
-        "pal.sim.env",
-        "pal.frames",
-        "pal.perception.frames",
-    }
+    runtime = {"pal.perception.tum", "pal.io.files", "pal.sim.env", "pal.frames", "pal.perception.frames"}
+    assert module_imports("pal.perception.sequence", snippet, False, type_checking=False) == runtime
+    assert module_imports("pal.perception.sequence", snippet, False) == runtime | {"models.world"}
 
 
 def test_there_are_no_import_cycles():
+    """Type-only imports (``if TYPE_CHECKING:``) count: a cycle through one is still a cycle."""
     cycle = find_cycle(GRAPH)
     assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
 
@@ -225,3 +225,59 @@ def test_only_the_ray_engine_imports_ray(path):
     if path.relative_to(ROOT).as_posix() == "pal/lab/ray_engine.py":
         return
     assert "ray" not in imports(path), f"{path} imports ray; Ray code lives in pal/lab/ray_engine.py"
+
+
+# ---------------------------------------------------------------------------- size and documentation
+MAX_MODULE_LINES = 500
+
+
+@pytest.mark.parametrize(
+    "path", sources("models") + sources("inference") + sources("pal"), ids=lambda p: str(p.relative_to(ROOT))
+)
+def test_modules_hold_one_concept(path):
+    lines = len(path.read_text().splitlines())
+    assert lines <= MAX_MODULE_LINES, f"{path.relative_to(ROOT)} has {lines} lines; split it by concept"
+
+
+def package_directories() -> list[str]:
+    """Every directory of models/inference/pal that holds Python modules, as a posix path."""
+    found = {p.parent.relative_to(ROOT).as_posix() for pkg in PACKAGES for p in sources(pkg)}
+    return sorted(found)
+
+
+def test_architecture_md_names_every_package_directory():
+    text = (ROOT / "ARCHITECTURE.md").read_text()
+    missing = [d for d in package_directories() if f"{d}/" not in text and f"`{d}`" not in text]
+    assert not missing, f"ARCHITECTURE.md does not name {missing}"
+
+
+def test_the_architecture_check_sees_a_new_package():
+    assert "pal/experiments/closed_loop" in package_directories()
+
+
+MAX_FUNCTION_LINES = 80
+
+
+def long_functions(source: str, limit: int = MAX_FUNCTION_LINES) -> list[tuple[str, int]]:
+    """``(name, lines)`` of every function or method in ``source`` longer than ``limit`` lines."""
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+            lines = node.end_lineno - node.lineno + 1
+            if lines > limit:
+                out.append((node.name, lines))
+    return out
+
+
+def test_the_function_length_check_counts_from_def_to_the_last_line():
+    body = "".join(f"    x{i} = {i}\n" for i in range(80))
+    assert long_functions("def f():\n" + body) == [("f", 81)]
+    assert long_functions("class A:\n    def g(self):\n        pass\n") == []
+
+
+@pytest.mark.parametrize(
+    "path", sources("models") + sources("inference") + sources("pal"), ids=lambda p: str(p.relative_to(ROOT))
+)
+def test_functions_fit_on_a_screen(path):
+    found = long_functions(path.read_text())
+    assert not found, f"{path.relative_to(ROOT)}: {found} over {MAX_FUNCTION_LINES} lines; split by their steps"

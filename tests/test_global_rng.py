@@ -22,8 +22,11 @@ import inference
 import models
 from inference import (
     AbductNoise,
+    ActionOptions,
     CuriositySampler,
+    DiscoveryOptions,
     Ensemble,
+    FitSchedule,
     Intervene,
     MeasurementScale,
     ReplayNoise,
@@ -88,7 +91,7 @@ def _finger_data(n: int = 24) -> dict[str, torch.Tensor]:
 
 def _fitted_finger() -> WorldModel:
     model = _finger()
-    fit(model, _finger_data(), epochs=2, batch_size=8)
+    fit(model, _finger_data(), schedule=FitSchedule(epochs=2, batch_size=8))
     return model
 
 
@@ -106,7 +109,7 @@ def _discovery_data() -> dict[str, np.ndarray]:
 
 def _discovered() -> inference.DiscoveryResult:
     vs = [Variable("x", "observed"), Variable("y", "observed")]
-    return discover(vs, _discovery_data(), features=8, seed=0)
+    return discover(vs, _discovery_data(), options=DiscoveryOptions(features=8), seed=0)
 
 
 def _save_load(tmp: Path) -> None:
@@ -116,7 +119,7 @@ def _save_load(tmp: Path) -> None:
 
 def _ensemble() -> None:
     ens = Ensemble.create(lambda s: WorldModel(finger_graph("state"), seed=s, hidden=(4,)), k=2, seed=0)
-    ens.fit(_finger_data(), epochs=1, batch_size=8)
+    ens.fit(_finger_data(), schedule=FitSchedule(epochs=1, batch_size=8))
     ens.predict({"act.finger": torch.zeros(2, 1), "q_prev.finger": torch.zeros(2, 1)})
     ens.information({"act.finger": torch.zeros(2, 1), "q_prev.finger": torch.zeros(2, 1)}, ["q.finger"])
     ens.choose(STATE, {"act.finger": torch.zeros(3, 2, 1)}, ["q.finger"], spread=0.5)
@@ -131,7 +134,7 @@ def _calibrated_models(tmp: Path) -> None:
     values = {"act.finger": torch.zeros(2, 1), "q_prev.finger": torch.zeros(2, 1)}
     for kind, members in (("hetero", 1), ("mlp", 3), ("hetero", 2)):
         model = WorldModel(finger_graph("state"), seed=2, kind=kind, members=members, hidden=(4,))
-        fit(model, _finger_data(), epochs=2, batch_size=8, validation=0.25, patience=1)
+        fit(model, _finger_data(), schedule=FitSchedule(epochs=2, batch_size=8, validation=0.25, patience=1))
         model.predict(values, members=True)
         model.predict(values, "sampled", torch.Generator().manual_seed(0), members=True)
         model.rollout(
@@ -223,12 +226,14 @@ def _metalearn() -> None:
     monitor = ResidualMonitor(model, window=10)
     monitor.update(model, data)
     monitor.flagged()
-    revise(model, data, ["dq.finger"], hidden=(4,), fit_kwargs={"epochs": 1, "batch_size": 16})
+    revise(
+        model, data, ["dq.finger"], hidden=(4,), fit_kwargs={"schedule": FitSchedule(epochs=1, batch_size=16)}
+    )
 
 
 def _rewire() -> None:
     model = _fitted_finger()
-    rewire(model, finger_graph("thesis"), _finger_data(), epochs=1, batch_size=8)
+    rewire(model, finger_graph("thesis"), _finger_data(), schedule=FitSchedule(epochs=1, batch_size=8))
 
 
 def _design() -> None:
@@ -257,8 +262,7 @@ CASES: dict[str, Callable[[Path], object]] = {
         _chain(),
         {"x": FACTUAL["x"], "z": FACTUAL["z"]},
         {"x": 0.0},
-        num_samples=5,
-        state_kwargs={"num_steps": 5},
+        posterior=infer_state(_chain(), {"x": FACTUAL["x"], "z": FACTUAL["z"]}, num_steps=5, num_samples=5),
     ),
     "infer_state": lambda tmp: infer_state(
         _chain(), {"z": FACTUAL["z"]}, num_steps=5, num_samples=4
@@ -266,22 +270,29 @@ CASES: dict[str, Callable[[Path], object]] = {
     "infer_state mvn": lambda tmp: infer_state(
         _chain(), {"z": FACTUAL["z"]}, guide="mvn", num_steps=5, num_samples=4
     ),
-    "infer_action midpoint": lambda tmp: infer_action(_finger(), STATE, TARGET, steps=3),
-    "infer_action random init": lambda tmp: infer_action(_finger(), STATE, TARGET, steps=3, init="random"),
+    "infer_action midpoint": lambda tmp: infer_action(_finger(), STATE, TARGET, num_steps=3),
+    "infer_action random init": lambda tmp: infer_action(
+        _finger(), STATE, TARGET, num_steps=3, options=ActionOptions(init="random")
+    ),
     "infer_action sampling, horizon, ensemble risk": lambda tmp: infer_action(
         WorldModel(finger_graph("state"), seed=0, members=2, hidden=(4,)),
         STATE,
         TARGET,
-        steps=2,
-        sampling=inference.SamplingConfig(population=8, elites=2, iterations=1),
-        risk="mean",
+        num_steps=2,
+        options=ActionOptions(
+            sampling=inference.SamplingConfig(population=8, elites=2, iterations=1), risk="mean"
+        ),
         seed=1,
     ),
     "gaussian_log_preference": lambda tmp: gaussian_log_preference(TARGET, 0.5)(TARGET),
-    "fit": lambda tmp: fit(_finger(), _finger_data(), epochs=2, batch_size=8, validation=0.25),
-    "fit nll": lambda tmp: fit(_finger(), _finger_data(), loss="nll", epochs=2, batch_size=8),
+    "fit": lambda tmp: fit(
+        _finger(), _finger_data(), schedule=FitSchedule(epochs=2, batch_size=8, validation=0.25)
+    ),
+    "fit nll": lambda tmp: fit(
+        _finger(), _finger_data(), loss="nll", schedule=FitSchedule(epochs=2, batch_size=8)
+    ),
     "fit thesis protocol": lambda tmp: fit(
-        _finger(), _finger_data(), loss="mse", epochs=2, batch_size=8, validation=0.0
+        _finger(), _finger_data(), loss="mse", schedule=FitSchedule(epochs=2, batch_size=8, validation=0.0)
     ),
     "heteroscedastic and ensemble models": _calibrated_models,
     "curiosity": lambda tmp: _curiosity(),
@@ -293,9 +304,7 @@ CASES: dict[str, Callable[[Path], object]] = {
     "discover gated": lambda tmp: discover(
         [Variable("x", "observed"), Variable("y", "observed")],
         _discovery_data(),
-        features=8,
-        sparsify="gated",
-        gated={"steps": 5},
+        options=DiscoveryOptions(features=8, sparsify="gated", gated={"steps": 5}),
         seed=0,
     ),
     "design": lambda tmp: _design(),

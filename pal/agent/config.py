@@ -1,14 +1,27 @@
-"""The agent's settings, one frozen sub-config per part: model and fit, estimate, plan, curiosity, learning."""
+"""The agent's settings, one frozen sub-config per part: model and fit, estimate, plan, curiosity, learning.
+
+Each part nests the option object of :mod:`inference` that it passes on unchanged
+(``model.schedule``: :class:`inference.FitSchedule`; ``estimate.svi``: :class:`inference.SVIOptions`;
+``plan.action``: :class:`inference.ActionOptions` with its :class:`inference.SamplingConfig`;
+``curiosity.sampling``) and declares beside it only the agent's own settings.
+"""
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import Any
 
+from inference import ActionOptions, FitSchedule, SamplingConfig, SVIOptions
+from inference.action_objective import check_risk
 from pal.checks import check_choice, check_float, check_int
 from pal.perception import PipelineConfig
 
 __all__ = [
+    "ESTIMATE_SVI",
+    "MODEL_SCHEDULE",
+    "PLAN_ACTION",
+    "PLAN_SAMPLING",
     "AgentConfig",
     "BabbleConfig",
     "CuriosityConfig",
@@ -21,8 +34,19 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 
+def _check_type(name: str, value: Any, cls: type) -> Any:
+    """``value`` if it is a ``cls``, else ``ValueError`` naming the field and the class."""
+    if not isinstance(value, cls):
+        raise ValueError(f"{name} must be a {cls.__name__}, got {type(value).__name__}")
+    return value
+
+
 def _widths(name: str, value: tuple[int, ...]) -> tuple[int, ...]:
     return tuple(check_int(name, h) for h in value)
+
+
+#: The agent's fit: 150 epochs of 256-row batches, lr 0.005, 10 % held out, patience 25, beta-NLL with beta 1.
+MODEL_SCHEDULE = FitSchedule(epochs=150, batch_size=256, lr=0.005, validation=0.1, patience=25, beta=1.0)
 
 
 @dataclass(frozen=True)
@@ -36,11 +60,11 @@ class ModelConfig:
         position_sigma: residual sd of ``pos = pos_prev + dpos``, m.
         structure: ``"preset"`` (the spec's graph) or ``"discover"`` (the learned sites' parents
             are learnt with :func:`inference.discover` at the first fit).
-        epochs, batch_size, lr: fitting schedule. validation: held-out share (sigma, early stopping).
-        patience: early-stopping patience, epochs (None: every epoch).
+        schedule: the :func:`inference.fit` schedule, passed as it is (its ``validation`` share
+            sets sigma and early stopping; ``patience`` needs ``validation > 0``; ``beta`` is the
+            beta-NLL's: 1 gives the location the MSE gradient, so rare large pushes are not given
+            up to a wide scale).
         min_sigma: floor on fitted homoscedastic sigmas, m (keeps state inference well conditioned).
-        beta: the beta of the heteroscedastic fit's beta-NLL (0: the NLL; 1: the location gets the
-            MSE gradient, so rare large pushes are not given up to a wide scale).
     """
 
     kind: str = "hetero"
@@ -49,31 +73,27 @@ class ModelConfig:
     arm_hidden: tuple[int, ...] | None = None
     position_sigma: float = 1e-3
     structure: str = "preset"
-    epochs: int = 150
-    batch_size: int = 256
-    lr: float = 0.005
-    validation: float = 0.1
-    patience: int | None = 25
+    schedule: FitSchedule = MODEL_SCHEDULE
     min_sigma: float = 0.003
-    beta: float = 1.0
 
     def __post_init__(self) -> None:
         check_choice("kind", self.kind, ("hetero", "mlp"))
-        check_float("beta", self.beta, 0.0, 1.0)
         check_choice("structure", self.structure, ("preset", "discover"))
         check_int("members", self.members)
         object.__setattr__(self, "hidden", _widths("hidden", self.hidden))
         if self.arm_hidden is not None:
             object.__setattr__(self, "arm_hidden", _widths("arm_hidden", self.arm_hidden))
-        for name in ("epochs", "batch_size"):
-            check_int(name, getattr(self, name))
-        if self.patience is not None:
-            check_int("patience", self.patience)
-        for name in ("lr", "position_sigma", "min_sigma"):
+        _check_type("schedule", self.schedule, FitSchedule)
+        for name in ("position_sigma", "min_sigma"):
             check_float(name, getattr(self, name), 0.0, open_low=True)
-        check_float("validation", self.validation, 0.0, 1.0, open_high=True)
-        if self.patience is not None and self.validation == 0:
-            raise ValueError("patience needs validation rows; set validation > 0 or patience=None")
+        if self.schedule.patience is not None and self.schedule.validation == 0:
+            raise ValueError(
+                "schedule.patience needs validation rows; set schedule.validation > 0 or schedule.patience=None"
+            )
+
+
+#: The agent's state inference: lr 0.035 decaying to 0.002, 16 particles, guide scale 5 mm.
+ESTIMATE_SVI = SVIOptions(lr=0.035, lr_final=0.002, num_particles=16, init_scale=0.005)
 
 
 @dataclass(frozen=True)
@@ -81,36 +101,43 @@ class EstimateConfig:
     """State inference through the measurement sites (Eq. 4.41-4.42), perceived objects only.
 
     Attributes:
-        steps, lr, lr_final: SVI steps and learning rate (decaying to ``lr_final``). The guide
-            starts at 0, so ``lr`` must let it travel across the table (~0.5 m).
-        init_scale: initial guide scale, m. particles: ELBO particles.
+        num_steps: SVI steps.
         guide: ``"mvn"`` (full covariance: pos.o and dpos.o are tightly coupled) or ``"normal"``.
+        svi: the optimiser and guide settings of :func:`inference.infer_state`, passed as they are:
+            the learning rate decays from ``svi.lr`` to ``svi.lr_final``; the guide starts at 0,
+            so ``svi.lr`` must let it travel across the table (~0.5 m); ``svi.init_scale`` (m) is
+            the guide's initial scale.
     """
 
-    steps: int = 40
-    lr: float = 0.035
-    lr_final: float = 0.002
-    init_scale: float = 0.005
-    particles: int = 16
+    num_steps: int = 40
     guide: str = "mvn"
+    svi: SVIOptions = ESTIMATE_SVI
 
     def __post_init__(self) -> None:
-        check_int("steps", self.steps)
-        check_int("particles", self.particles)
+        check_int("num_steps", self.num_steps)
         check_choice("guide", self.guide, ("mvn", "normal"))
-        for name in ("lr", "lr_final", "init_scale"):
-            check_float(name, getattr(self, name), 0.0, open_low=True)
-        ratio = (self.lr_final / self.lr) ** (1.0 / self.steps)
-        travel = self.lr * (1 - ratio**self.steps) / max(1 - ratio, 1e-12)
+        _check_type("svi", self.svi, SVIOptions)
+        lr, lr_final = self.svi.lr, self.svi.lr_final
+        ratio = (lr_final / lr) ** (1.0 / self.num_steps)
+        travel = lr * (1 - ratio**self.num_steps) / max(1 - ratio, 1e-12)
         if travel < 0.45:
             log.warning(
                 "state inference can move its guide only %.2f m from 0 in %d steps (lr %g -> %g); positions "
-                "on the table reach 0.45 m, so estimates may be cut short: raise steps or lr",
+                "on the table reach 0.45 m, so estimates may be cut short: raise num_steps or svi.lr",
                 travel,
-                self.steps,
-                self.lr,
-                self.lr_final,
+                self.num_steps,
+                lr,
+                lr_final,
             )
+
+
+#: The agent's search: CEM / iCEM, then projected Adam on the best elite for 20 steps.
+PLAN_SAMPLING = SamplingConfig(
+    population=64, elites=8, iterations=3, alpha=0.1, noise_beta=0.0, init_std=0.5, refine_steps=20
+)
+
+#: The agent's action inference: horizon 2, preference scale 2 cm, the search above, Adam lr 0.05.
+PLAN_ACTION = ActionOptions(scale=0.02, lr=0.05, horizon=2, sampling=PLAN_SAMPLING)
 
 
 @dataclass(frozen=True)
@@ -118,18 +145,18 @@ class PlanConfig:
     """Model-predictive control: the sampling planner over a horizon, replanned every step (Alg. 4.2).
 
     Attributes:
-        horizon: planning steps H.
-        population, elites, iterations, alpha, noise_beta, init_std: the CEM / iCEM stage
-            (:class:`inference.SamplingConfig`).
-        refine_steps, lr: projected Adam on the best elite after it (0: none).
-        risk: None (the members' mean prediction), ``"mean"`` (expected cost over the ensemble
-            members) or ``"disagreement"`` (cost of the mean plus ``risk_weight`` x the members'
-            variance on the targets).
-        risk_weight: the weight of ``"disagreement"`` (> 0 risk averse, < 0 seeking).
+        action: the options of :func:`inference.infer_action`, passed as they are except for
+            the preference and the start, which the agent makes from its targets and its
+            previous plan (leave ``log_preference`` None and ``init`` ``"midpoint"``):
+            ``horizon`` (planning steps H), ``scale`` (preference scale, m), ``lr`` (the
+            refinement's Adam), ``target_at`` (``"final"``: the targets at the horizon's end, or
+            ``"every"`` step), ``risk`` (None: the members' mean prediction; ``"mean"``: expected
+            cost over the ensemble members; ``("disagreement", w)``: cost of the mean plus w x the
+            members' variance on the targets, w > 0 risk averse, < 0 seeking) and ``sampling``
+            (the CEM / iCEM stage; ``sampling.refine_steps`` Adam steps on the best elite after
+            it, 0: none).
         preference: ``"gaussian"`` (``-0.5 |x - target|^2 / scale^2``) or ``"distance"``
             (``-|x - target| / scale``).
-        target_at: ``"final"`` (the targets at the horizon's end) or ``"every"`` (every step).
-        scale: preference scale, m.
         effector_weight: weight of the effector's distance to each targeted object in the
             preference (0: none; it brings the effector to the object).
         action_weight: weight of ``|a|^2`` (action units squared) in the preference.
@@ -140,20 +167,8 @@ class PlanConfig:
         goal_tolerance: a goal closer than this (m, by the estimate) is held.
     """
 
-    horizon: int = 2
-    population: int = 64
-    elites: int = 8
-    iterations: int = 3
-    alpha: float = 0.1
-    noise_beta: float = 0.0
-    init_std: float = 0.5
-    refine_steps: int = 20
-    lr: float = 0.05
-    risk: str | None = None
-    risk_weight: float = 0.0
+    action: ActionOptions = PLAN_ACTION
     preference: str = "gaussian"
-    target_at: str = "final"
-    scale: float = 0.02
     effector_weight: float = 0.0
     action_weight: float = 0.0
     move_weight: float = 0.0
@@ -162,20 +177,27 @@ class PlanConfig:
     goal_tolerance: float = 0.005
 
     def __post_init__(self) -> None:
-        for name in ("horizon", "population", "elites", "iterations"):
-            check_int(name, getattr(self, name))
-        check_int("refine_steps", self.refine_steps, minimum=0)
-        if self.elites > self.population:
-            raise ValueError(f"elites {self.elites} exceed population {self.population}")
-        check_float("alpha", self.alpha, 0.0, 1.0, open_high=True)
-        check_float("noise_beta", self.noise_beta, 0.0)
-        for name in ("init_std", "lr", "scale"):
-            check_float(name, getattr(self, name), 0.0, open_low=True)
-        if self.risk is not None:
-            check_choice("risk", self.risk, ("mean", "disagreement"))
-        check_float("risk_weight", self.risk_weight)
+        a = _check_type("action", self.action, ActionOptions)
+        check_int("action.horizon", a.horizon)
+        for name in ("lr", "scale"):
+            check_float(f"action.{name}", getattr(a, name), 0.0, open_low=True)
+        check_choice("action.target_at", a.target_at, ("final", "every"))
+        check_risk(a.risk)
+        if a.log_preference is not None or not (isinstance(a.init, str) and a.init == "midpoint"):
+            raise ValueError(
+                "plan.action.log_preference and plan.action.init are made by the agent from its targets and "
+                "its previous plan; leave them None and 'midpoint'"
+            )
+        if not isinstance(a.sampling, SamplingConfig):
+            raise ValueError(
+                f"plan.action.sampling is {a.sampling!r}; the agent plans with the sampling stage: give a "
+                "SamplingConfig(population=..., elites=..., refine_steps=...)"
+            )
+        if a.sampling.refine_steps is None:
+            raise ValueError(
+                "plan.action.sampling.refine_steps is None; give the Adam steps after it (0: none)"
+            )
         check_choice("preference", self.preference, ("gaussian", "distance"))
-        check_choice("target_at", self.target_at, ("final", "every"))
         for name in ("effector_weight", "action_weight", "move_weight", "min_progress", "goal_tolerance"):
             check_float(name, getattr(self, name), 0.0)
 
@@ -187,34 +209,33 @@ class CuriosityConfig:
     Attributes:
         method: ``"disagreement"`` (ensemble disagreement over object variables gated by the
             causal action-influence score) or ``"density"`` (targets from Eq. 4.34-4.38 on a grid).
-        horizon, population, elites, iterations: the search over action sequences (disagreement).
+        horizon: steps of the searched action sequences (disagreement).
+        sampling: the CEM search over them (:func:`inference.planning.cross_entropy_search`).
         influence_samples: actions M per state in the influence estimate.
         influence_scale: nats at which the gate opens fully (gate = min(1, I / scale)).
-        min_score: below this score (disagreement in ``plan.scale`` units) the agent babbles.
-        region, bins, alpha: the density method's grid over the table (m, cells, locality gain).
+        min_score: below this score (disagreement in ``plan.action.scale`` units) the agent babbles.
+        region, bins, locality: the density method's grid over the table (m, cells) and its
+            locality gain (the alpha of Eq. 4.36).
     """
 
     method: str = "disagreement"
     horizon: int = 2
-    population: int = 64
-    elites: int = 8
-    iterations: int = 3
+    sampling: SamplingConfig = SamplingConfig(population=64, elites=8, iterations=3)
     influence_samples: int = 8
     influence_scale: float = 0.5
     min_score: float = 1e-3
     region: tuple[tuple[float, float], tuple[float, float]] = ((-0.3, 0.0), (0.3, 0.45))
     bins: tuple[int, int] = (8, 8)
-    alpha: float = 0.5
+    locality: float = 0.5
 
     def __post_init__(self) -> None:
         check_choice("method", self.method, ("disagreement", "density"))
-        for name in ("horizon", "population", "elites", "iterations", "influence_samples"):
+        for name in ("horizon", "influence_samples"):
             check_int(name, getattr(self, name))
-        if self.elites > self.population:
-            raise ValueError(f"elites {self.elites} exceed population {self.population}")
+        _check_type("sampling", self.sampling, SamplingConfig)
         check_float("influence_scale", self.influence_scale, 0.0, open_low=True)
         check_float("min_score", self.min_score, 0.0)
-        check_float("alpha", self.alpha, 0.0)
+        check_float("locality", self.locality, 0.0)
         object.__setattr__(self, "bins", tuple(check_int("bins", b, minimum=2) for b in self.bins))
 
 

@@ -20,7 +20,7 @@ import numpy as np
 import pyro
 import torch
 
-from inference import MeasurementScale, SVIOptions, infer_state
+from inference import MeasurementScale, infer_state
 from models import WorldModel
 from pal.agent.config import EstimateConfig
 from pal.agent.graph import blanket
@@ -138,11 +138,9 @@ class Estimator:
             post = infer_state(
                 MeasurementScale(scales)(program) if scales else program,
                 obs,
-                num_steps=c.steps,
+                num_steps=c.num_steps,
                 num_samples=64,
-                options=SVIOptions(
-                    lr=c.lr, lr_final=c.lr_final, num_particles=c.particles, init_scale=c.init_scale
-                ),
+                options=c.svi,
                 guide=c.guide,
                 seed=seed,
             )

@@ -33,7 +33,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from inference.planning import SamplingConfig, cross_entropy_search
+from inference.planning import cross_entropy_search
 from models import WorldModel
 from pal.agent.config import CuriosityConfig
 
@@ -128,11 +128,8 @@ def explore(
             state = _next_roots(model, {k: v.mean(0) for k, v in members.items()})
         return -score[:, None]
 
-    sampling = SamplingConfig(
-        population=config.population, elites=config.elites, iterations=config.iterations
-    )
     with torch.no_grad():
-        found = cross_entropy_search(objective, start, low, high, sampling, generator)
+        found = cross_entropy_search(objective, start, low, high, config.sampling, generator)
         now = influence(model, {k: v for k, v in init.items()}, objects, config.influence_samples, generator)
     best = found.elites[0, 0].numpy().astype(np.float64)
     return best, float(-found.losses[0, 0]), {o: float(v[0]) for o, v in now.items()}

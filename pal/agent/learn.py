@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from inference import FitSchedule, ResidualMonitor, fit, revise
+from inference import ResidualMonitor, fit, revise
 from models import WorldModel
 from pal.agent.config import LearnConfig, ModelConfig
 from pal.agent.graph import learned_sites
@@ -74,18 +74,11 @@ def fit_model(
     known = lambda cols: {k: v for k, v in cols.items() if k in model.graph}  # noqa: E731
     arm, objects = known(arm), {o: known(c) for o, c in objects.items()}
     learned = [s for s in learned_sites(spec) if s in model.graph]
-    base = FitSchedule(
-        epochs=config.epochs,
-        batch_size=config.batch_size,
-        lr=config.lr,
-        validation=config.validation,
-        patience=config.patience,
-        beta=config.beta,
-    )
+    base = config.schedule
 
     def schedule(n: int) -> dict[str, Any]:
         # too few rows to hold any out: train on all of them, every epoch
-        held_out = round(config.validation * n) >= 1
+        held_out = round(base.validation * n) >= 1
         return {"schedule": base if held_out else replace(base, validation=0.0, patience=None), "seed": seed}
 
     arm_sites = [s for s in learned if s in ("dq", "v", "dee")]

@@ -142,7 +142,7 @@ class Agent:
         self.learner = Learner(spec, cfg.model, cfg.learn)
         (x0, y0), (x1, y1) = cfg.curiosity.region
         c = cfg.curiosity
-        self.curiosity = {o: GridCuriosity((x0, y0), (x1, y1), c.bins, c.alpha) for o in spec.object_names}
+        self.curiosity = {o: GridCuriosity((x0, y0), (x1, y1), c.bins, c.locality) for o in spec.object_names}
         self.goal = {} if goal is None else self._check_targets(goal)
         self.episode, self.steps, self.episode_steps, self.clock = -1, 0, 0, 0.0
         self.percept: Percept | None = None
@@ -233,7 +233,7 @@ class Agent:
         elif self.config.servo and len(self.low) == len(
             self.percept.q
         ):  # start the search from holding still
-            init = np.tile(np.clip(self.percept.q, self.low, self.high), (cfg.horizon, 1))
+            init = np.tile(np.clip(self.percept.q, self.low, self.high), (cfg.action.horizon, 1))
         p = plan(self.model, self.belief(), targets, cfg, seed=self._seed(), init=init, mode=mode)
         self._sequence = p.sequence
         return p
@@ -271,7 +271,7 @@ class Agent:
         if c.method == "disagreement":
             generator = torch.Generator().manual_seed(self._seed())
             seq, score, _ = explore(
-                self.model, self.belief(), tuple(known), c, self.config.plan.scale, generator
+                self.model, self.belief(), tuple(known), c, self.config.plan.action.scale, generator
             )
             if score < c.min_score:
                 return Decision("babble", self.random_action(), score=score)

@@ -22,13 +22,13 @@ and each member's value: the intervals that the experiments hold against what ha
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 from torch import Tensor
 
-from inference import ActionOptions, SamplingConfig, infer_action
+from inference import infer_action
 from models import WorldModel
 from pal.agent.config import PlanConfig
 
@@ -64,11 +64,12 @@ def preference(
     targets: Mapping[str, Tensor], config: PlanConfig, effector: bool
 ) -> Callable[[Mapping[str, Tensor]], Tensor]:
     """The log-preference of the module docstring: ``values (..., N, dim) -> (..., N)``."""
+    scale = config.action.scale
 
     def cost(x: Tensor) -> Tensor:
         if config.preference == "gaussian":
-            return 0.5 * (x / config.scale).pow(2).sum(-1)
-        return torch.sqrt(x.pow(2).sum(-1) + 1e-12) / config.scale
+            return 0.5 * (x / scale).pow(2).sum(-1)
+        return torch.sqrt(x.pow(2).sum(-1) + 1e-12) / scale
 
     def log_p(values: Mapping[str, Tensor]) -> Tensor:
         total: Tensor | float = 0.0
@@ -133,21 +134,13 @@ def plan(
             :func:`inference.infer_action`).
     """
     dtype = model.dtype
-    h = config.horizon
     state = {
         k: torch.as_tensor(np.asarray(v, dtype=np.float64)[None], dtype=dtype) for k, v in belief.items()
     }
     tgt = {o: torch.as_tensor(np.asarray(t, dtype=np.float64)[None], dtype=dtype) for o, t in targets.items()}
-    sampling = SamplingConfig(
-        population=config.population,
-        elites=config.elites,
-        iterations=config.iterations,
-        alpha=config.alpha,
-        noise_beta=config.noise_beta,
-        init_std=config.init_std,
-        refine_steps=config.refine_steps,
-    )
-    risk = {None: None, "mean": "mean", "disagreement": ("disagreement", config.risk_weight)}[config.risk]
+    options = config.action
+    h = options.horizon
+    disagreement = isinstance(options.risk, tuple) and options.risk[0] == "disagreement"
     start: object = "midpoint"
     if init is not None:
         a = torch.as_tensor(np.asarray(init, dtype=np.float64), dtype=dtype)
@@ -155,18 +148,9 @@ def plan(
     result = infer_action(
         model,
         state,
-        {f"pos.{o}": t for o, t in tgt.items()} if risk and risk[0] == "disagreement" else None,
-        num_steps=max(config.refine_steps, 1),
-        options=ActionOptions(
-            log_preference=preference(tgt, config, "ee" in model.graph),
-            scale=config.scale,
-            lr=config.lr,
-            init=start,
-            sampling=sampling,
-            horizon=h,
-            target_at=config.target_at,
-            risk=risk,
-        ),
+        {f"pos.{o}": t for o, t in tgt.items()} if disagreement else None,
+        num_steps=max(options.sampling.refine_steps, 1),
+        options=replace(options, log_preference=preference(tgt, config, "ee" in model.graph), init=start),
         seed=seed,
     )
     acts = result.actions["act"][0].numpy().astype(np.float64).reshape(h, -1)

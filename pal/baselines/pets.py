@@ -11,7 +11,7 @@ and with the same planner settings as the agent:
   (Adam, weight decay), on standardised targets;
 - **planner**: the cross-entropy method over action sequences of ``horizon`` steps within the
   action box, the same population, elites, iterations, momentum, initial spread and noise
-  colour (iCEM's 1/f^beta samples over the horizon) as :class:`pal.agent.PlanConfig`; each candidate is rolled forward by every member on its own
+  colour (iCEM's 1/f^beta samples over the horizon) as ``PlanConfig.action.sampling``; each candidate is rolled forward by every member on its own
   mean trajectory and scored by the mean over members of the summed step cost; the best
   sequence's first action is executed and the rest warm-starts the next step (MPC).
 
@@ -197,18 +197,18 @@ class CEMPlanner:
 
     def act(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(first action (A,), predicted final observation of the plan (D,))`` from ``obs`` (D,)."""
-        c = self.config
+        h, c = self.config.action.horizon, self.config.action.sampling
         o = torch.as_tensor(obs, dtype=torch.float32)[None]
         a_dim = self.low.shape[0]
-        mean = ((self.low + self.high) / 2).expand(c.horizon, a_dim).clone()
-        if c.warm_start and self._mean is not None:
+        mean = ((self.low + self.high) / 2).expand(h, a_dim).clone()
+        if self.config.warm_start and self._mean is not None:
             mean = torch.cat([self._mean[1:], self._mean[-1:]])
-        std = (c.init_std * (self.high - self.low)).expand(c.horizon, a_dim).clone()
-        elites = torch.empty(0, c.horizon, a_dim)
+        std = (c.init_std * (self.high - self.low)).expand(h, a_dim).clone()
+        elites = torch.empty(0, h, a_dim)
         elite_costs = torch.empty(0)
         with torch.no_grad():
             for _ in range(c.iterations):
-                cand = mean + std * _noise((c.population, c.horizon, a_dim), c.noise_beta, self.generator)
+                cand = mean + std * _noise((c.population, h, a_dim), c.noise_beta, self.generator)
                 cand[0] = mean
                 cand = torch.maximum(torch.minimum(cand, self.high), self.low)
                 costs, _ = self._costs(o, cand)

@@ -108,7 +108,7 @@ class TransitionDataset:
         """The columns, name -> ``(N, 1)`` float32 (the stored arrays, not copies)."""
         return dict(self._columns)
 
-    def as_dict(self, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+    def to_dict(self, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
         """Copies of the columns ``names`` (default all), name -> ``(N, 1)`` float32, for ``inference.fit``."""
         names = self.column_names if names is None else list(names)
         missing = [n for n in names if n not in self._columns]

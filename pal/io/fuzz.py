@@ -56,7 +56,7 @@ class FuzzResult:
         """True when no load changed content silently or raised an undocumented type."""
         return self.changed == 0 and self.wrong_error == 0
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-compatible counts."""
         return {
             "flips": self.flips,

@@ -2,9 +2,26 @@
 
 Every registered experiment has a frozen ``Config`` whose fields are plain values or nested
 frozen sub-configs (protocol, fitting, action inference, ...). ``pal experiment NAME --set
-protocol.fit.epochs=40`` reaches a nested field through :func:`override`, which parses the
-value as JSON (a bare word stays a string), checks it against the field's annotation and
-rebuilds every config on the path, so their ``__post_init__`` checks run again.
+protocol.fit.schedule.epochs=40`` reaches a nested field through :func:`override`, which parses
+the value as JSON (a bare word stays a string), checks it against the field's annotation and
+rebuilds every config on the path, so their ``__post_init__`` checks run again. A bare word
+given to a tuple of strings is a one-entry tuple (``--set protocol.graphs=state``), and a path
+through an option group that is None starts from that group's defaults
+(``--set action.options.sampling.population=64`` turns the sampling stage on).
+
+One declaration per setting, one vocabulary:
+
+- **Options and configs.** ``*Options`` (and :class:`inference.FitSchedule`) are the frozen
+  knobs of one algorithm, passed to one function of :mod:`inference` (``options=``,
+  ``schedule=``, ``sampling=``); :class:`inference.SamplingConfig` keeps its older name.
+  ``*Config`` are the trees of the agent and of the experiments. A config NESTS the option
+  object it passes on (``PlanConfig(action=ActionOptions(sampling=SamplingConfig(...)))``,
+  ``ModelConfig(schedule=FitSchedule(...))``, ``EstimateConfig(svi=SVIOptions(...))``) and
+  passes it straight through; it never copies the option's fields one by one, and declares
+  beside it only settings of its own. ``tests/pal/lab/test_config_settings.py`` holds this.
+- **Counts** follow :mod:`inference`: ``num_steps`` (optimiser iterations), ``num_samples``
+  (draws), ``num_particles``; a fit's passes stay ``epochs`` as in :class:`inference.FitSchedule`.
+- **As a dict** is ``to_dict()`` (a method) or :func:`to_dict` (a config tree), never ``as_dict``.
 """
 
 from __future__ import annotations
@@ -16,7 +33,7 @@ import typing
 from collections.abc import Iterator
 from typing import Any
 
-__all__ = ["ConfigError", "as_dict", "find", "override", "parse_value", "walk"]
+__all__ = ["ConfigError", "find", "override", "parse_value", "to_dict", "walk"]
 
 
 class ConfigError(ValueError):
@@ -27,7 +44,7 @@ def _is_config(obj: Any) -> bool:
     return dataclasses.is_dataclass(obj) and not isinstance(obj, type)
 
 
-def as_dict(config: Any) -> dict[str, Any]:
+def to_dict(config: Any) -> dict[str, Any]:
     """The config as nested JSON-compatible dicts (tuples become lists)."""
     if not _is_config(config):
         raise ConfigError(f"expected a dataclass config, got {type(config).__name__}")
@@ -94,6 +111,8 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:
         raise ConfigError(f"{where}: {value!r} is not one of {list(typing.get_args(tp))}")
     if origin is tuple:
         args = typing.get_args(tp)
+        if isinstance(value, str) and len(args) == 2 and args[1] is Ellipsis and args[0] is str:
+            return (value,)  # a bare word for a tuple of strings: one entry
         if isinstance(value, (str, bytes)) or not isinstance(value, (list, tuple)):
             raise ConfigError(f"{where}: {value!r} is not a list; write it as JSON, e.g. [1, 2]")
         if len(args) == 2 and args[1] is Ellipsis:
@@ -128,12 +147,19 @@ def _hints(cls: type) -> dict[str, Any]:
     return typing.get_type_hints(cls)
 
 
+def _default_group(tp: Any) -> Any:
+    """The default instance of the dataclass in an optional annotation (``X | None``), else None."""
+    options = typing.get_args(tp) if typing.get_origin(tp) in (typing.Union, types.UnionType) else (tp,)
+    groups = [t for t in options if isinstance(t, type) and dataclasses.is_dataclass(t)]
+    return groups[0]() if len(groups) == 1 else None
+
+
 def override(config: Any, path: str, value: Any) -> Any:
     """A copy of ``config`` with the field at dotted ``path`` set to ``value``.
 
     Args:
         config: a frozen dataclass config.
-        path: e.g. ``"seed"`` or ``"protocol.fit.epochs"``.
+        path: e.g. ``"seed"`` or ``"protocol.fit.schedule.epochs"``.
         value: the new value (already parsed, see :func:`parse_value`).
 
     Raises:
@@ -148,6 +174,8 @@ def override(config: Any, path: str, value: Any) -> Any:
     if head not in names:
         raise ConfigError(f"unknown setting {path!r}; {type(config).__qualname__} has {names}")
     current = getattr(config, head)
+    if rest and current is None:
+        current = _default_group(_hints(type(config))[head])
     if rest:
         if not _is_config(current):
             raise ConfigError(f"{head!r} is a value, not a group of settings; cannot set {path!r}")

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from pal.io.files import atomic_write_bytes, atomic_write_json
-from pal.lab.report import Cell, Report, Table, Target
+from pal.lab.report import VERDICTS, Cell, Report, Table, Target
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -28,6 +28,7 @@ __all__ = [
     "markdown",
     "markdown_table",
     "save_figure",
+    "tally",
     "targets_table",
     "write",
 ]
@@ -78,17 +79,48 @@ def markdown_table(columns: Sequence[str], rows: Iterable[Sequence[Cell]]) -> st
     return "\n".join(lines)
 
 
-def _verdict(met: bool | None) -> str:
-    return {True: "met", False: "**NOT met**", None: "not measured"}[met]
+#: How each verdict of :data:`pal.lab.report.VERDICTS` shows in markdown.
+_SHOWN = {
+    "met": "met",
+    "not met": "**NOT met**",
+    "not measured": "not measured",
+    "not evaluated": "not evaluated",
+}
+
+
+def _verdict(target: Target) -> str:
+    return _SHOWN[target.verdict]
+
+
+def tally(targets: Iterable[Target]) -> str:
+    """One sentence counting verdicts, e.g. ``"2 of 4 targets met (1 not met, 1 not evaluated)."``.
+
+    Only ``met`` counts as met; not evaluated and not measured targets are counted apart.
+    """
+    targets = list(targets)
+    counts = {v: sum(t.verdict == v for t in targets) for v in VERDICTS}
+    rest = ", ".join(f"{counts[v]} {v}" for v in VERDICTS[1:] if counts[v])
+    return f"{counts['met']} of {len(targets)} targets met" + (f" ({rest})." if rest else ".")
+
+
+def _not_evaluated(targets: Iterable[tuple[str, Target]]) -> list[str]:
+    """One line per target whose precondition failed: what it required."""
+    return [
+        f"- {f'{run}: ' if run else ''}`{t.name}` not evaluated: requires {t.precondition.reason}"
+        for run, t in targets
+        if t.precondition is not None and not t.evaluated
+    ]
 
 
 def targets_table(targets: Iterable[tuple[str, Target]], title: str = "Targets") -> Table:
-    """One table of ``(run name, target)`` pairs with their verdicts."""
+    """One table of ``(run name, target)`` pairs with their verdicts; the caption tallies them."""
+    targets = list(targets)
     rows = [
-        (run, t.name, t.description, t.value, f"{t.direction} {t.threshold:.4g}", _verdict(t.met))
+        (run, t.name, t.description, t.value, f"{t.direction} {t.threshold:.4g}", _verdict(t))
         for run, t in targets
     ]
-    return Table(title, ("run", "target", "what", "value", "goal", "verdict"), rows)
+    caption = "\n".join([tally(t for _, t in targets), *_not_evaluated(targets)])
+    return Table(title, ("run", "target", "what", "value", "goal", "verdict"), rows, caption=caption)
 
 
 def _table(table: Table, level: int = 3) -> list[str]:
@@ -109,10 +141,11 @@ def markdown(record: RunRecord | Report) -> str:
         lines += _table(table)
     if report.targets:
         rows = [
-            (t.name, t.description, t.value, f"{t.direction} {t.threshold:.4g}", _verdict(t.met))
+            (t.name, t.description, t.value, f"{t.direction} {t.threshold:.4g}", _verdict(t))
             for t in report.targets
         ]
         lines += ["Targets:", "", markdown_table(("target", "what", "value", "goal", "verdict"), rows), ""]
+        lines += [tally(report.targets), *_not_evaluated(("", t) for t in report.targets), ""]
     if report.figures:
         lines += ["Figures: " + ", ".join(f"`{name}`" for name in report.figures), ""]
     if not isinstance(record, Report):
@@ -130,8 +163,8 @@ def document(record: RunRecord) -> dict[str, Any]:
         "title": report.title,
         "notes": list(report.notes),
         "metrics": jsonable(dict(report.metrics)),
-        "tables": [t.as_dict() for t in report.tables],
-        "targets": [t.as_dict() for t in report.targets],
+        "tables": [t.to_dict() for t in report.tables],
+        "targets": [t.to_dict() for t in report.targets],
         "figures": list(record.figures),
         "config": record.config,
         "seed": record.seed,

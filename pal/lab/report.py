@@ -14,11 +14,63 @@ from typing import TYPE_CHECKING, Any, Literal
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["DIRECTIONS", "Cell", "Report", "Table", "Target"]
+__all__ = ["DIRECTIONS", "VERDICTS", "Cell", "Precondition", "Report", "Table", "Target"]
 
 #: How a target's value compares with its threshold.
 DIRECTIONS = ("<=", ">=", "<", ">")
+#: Every verdict a target can have; only ``"met"`` counts as met.
+VERDICTS = ("met", "not met", "not measured", "not evaluated")
 Cell = str | int | float | bool | None
+
+
+@dataclass(frozen=True)
+class Precondition:
+    """What must hold for a target's comparison to mean anything, and whether it held.
+
+    E.g. ``Precondition(moved, "the object moved > 5 mm in an episode of each controller")``:
+    a ratio to a baseline that never moved the object is 1.0 without either controller
+    doing anything. When ``holds`` is false the target's verdict is ``"not evaluated"``,
+    which counts as not met.
+
+    Attributes:
+        holds: whether the condition held in this run.
+        reason: the condition in words (what was required), shown beside the verdict.
+    """
+
+    holds: bool
+    reason: str
+
+    def __post_init__(self) -> None:
+        holds = self.holds.item() if hasattr(self.holds, "item") else self.holds  # numpy bool
+        if not isinstance(holds, bool):
+            raise ValueError(f"precondition holds={self.holds!r} is not a bool")
+        if not isinstance(self.reason, str) or not self.reason:
+            raise ValueError(f"precondition reason must be a non-empty str, got {self.reason!r}")
+        object.__setattr__(self, "holds", holds)
+
+    @classmethod
+    def nonzero(cls, value: Any, what: str) -> Precondition:
+        """The baseline of a ratio did something: ``value`` is finite and nonzero.
+
+        ``value`` is the baseline's error, distance, time ..., e.g.
+        ``Precondition.nonzero(persistence_mse, "the q MSE of persistence")``.
+
+        ``None`` (the baseline was not run, e.g. a peer library not installed) holds: the
+        target's value is then ``None`` as well, and its verdict "not measured".
+        """
+        if hasattr(value, "item") and getattr(value, "ndim", None) == 0:
+            value = value.item()
+        if value is None:
+            return cls(True, f"{what} finite and nonzero (not measured)")
+        number = isinstance(value, (int, float)) and not isinstance(value, bool)
+        holds = number and math.isfinite(value) and value != 0
+        return cls(
+            bool(holds), f"{what} finite and nonzero (was {value:.4g})" if number else f"{what} a number"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready fields."""
+        return {"holds": self.holds, "reason": self.reason}
 
 
 @dataclass(frozen=True)
@@ -31,6 +83,8 @@ class Target:
         threshold: the bound.
         direction: ``value <direction> threshold`` is the goal, one of :data:`DIRECTIONS`.
         description: what is measured, in words, with its unit.
+        precondition: what must hold for the comparison to count (``None``: nothing); when
+            it fails the verdict is ``"not evaluated"`` and the target is not met.
     """
 
     name: str
@@ -38,6 +92,7 @@ class Target:
     threshold: float
     direction: Literal["<=", ">=", "<", ">"]
     description: str = ""
+    precondition: Precondition | None = None
 
     def __post_init__(self) -> None:
         for key in ("value", "threshold"):  # numpy and torch scalars become Python numbers
@@ -59,17 +114,39 @@ class Target:
                 raise ValueError(f"target {self.name!r}: value {self.value!r} is not a number or None")
             object.__setattr__(self, "value", float(self.value))
         object.__setattr__(self, "threshold", float(self.threshold))
+        if self.precondition is not None and not isinstance(self.precondition, Precondition):
+            raise ValueError(
+                f"target {self.name!r}: precondition {self.precondition!r} is not a Precondition"
+            )
+
+    @property
+    def evaluated(self) -> bool:
+        """Whether the precondition (if any) held, so the comparison counts."""
+        return self.precondition is None or self.precondition.holds
 
     @property
     def met(self) -> bool | None:
-        """Whether the value meets the threshold; ``None`` when there is no finite value."""
+        """Whether the value meets the threshold.
+
+        ``False`` when the precondition failed (not evaluated counts as not met), else
+        ``None`` when there is no finite value.
+        """
+        if not self.evaluated:
+            return False
         if self.value is None or not math.isfinite(self.value):
             return None
         v, t = self.value, self.threshold
         return {"<=": v <= t, ">=": v >= t, "<": v < t, ">": v > t}[self.direction]
 
-    def as_dict(self) -> dict[str, Any]:
-        """JSON-ready fields, with the verdict ``met``."""
+    @property
+    def verdict(self) -> str:
+        """One of :data:`VERDICTS`: ``"not evaluated"`` when the precondition failed."""
+        if not self.evaluated:
+            return "not evaluated"
+        return {True: "met", False: "not met", None: "not measured"}[self.met]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready fields, with ``met`` (true, false or null), the ``verdict`` and the precondition."""
         value = self.value if self.value is None or math.isfinite(self.value) else None
         return {
             "name": self.name,
@@ -77,6 +154,8 @@ class Target:
             "threshold": self.threshold,
             "direction": self.direction,
             "met": self.met,
+            "verdict": self.verdict,
+            "precondition": None if self.precondition is None else self.precondition.to_dict(),
             "description": self.description,
         }
 
@@ -122,7 +201,7 @@ class Table:
         object.__setattr__(self, "columns", columns)
         object.__setattr__(self, "rows", tuple(rows))
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields."""
         return {
             "title": self.title,

@@ -128,7 +128,7 @@ def execute(entry: Entry, config: Any = None, *, progress_bar: bool = False) -> 
     return RunRecord(
         name=entry.name,
         kind=entry.kind,
-        config=configs.as_dict(config),
+        config=configs.to_dict(config),
         seed=int(config.seed),
         versions=versions(
             ("pal", "torch", "pyro-ppl", "numpy", "mujoco", "opencv-python-headless", "gymnasium")

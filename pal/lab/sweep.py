@@ -23,28 +23,29 @@ processes, or through an ``engine`` (Ray Tune: :mod:`pal.lab.ray_engine`).
 
 from __future__ import annotations
 
-import itertools
 import logging
 import os
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 from pal.io.files import atomic_write_json, read_json
 from pal.lab import configs, registry, render, runner
 from pal.lab.registry import Entry
+from pal.lab.sweep_plan import Base, Run, SweepPlan, configure_from, run_config
 from pal.lab.sweep_summary import MANIFEST, RUNS, SweepResult, summarise
 
 __all__ = [
     "FORMAT",
     "Engine",
+    "Run",
     "SweepError",
     "SweepPlan",
     "SweepResult",
     "compute_run",
+    "configure_from",
     "parse_grid",
     "parse_seeds",
     "plan",
@@ -57,7 +58,6 @@ log = logging.getLogger(__name__)
 
 #: Format tag of ``sweep.json``.
 FORMAT = "pal.sweep/1"
-Base = Literal["default", "quick", "tiny"]
 
 
 class SweepError(ValueError):
@@ -124,7 +124,7 @@ def parse_grid(items: Sequence[str], base: Any) -> tuple[tuple[str, tuple[Any, .
         key, sep, raw = item.partition("=")
         key = key.strip()
         if not sep or not key or not raw.strip():
-            raise SweepError(f"--grid {item!r}: expected KEY=V1,V2,..., e.g. --grid epochs=5,10")
+            raise SweepError(f"--grid {item!r}: expected KEY=V1,V2,..., e.g. --grid schedule.epochs=5,10")
         if key == "seed":
             raise SweepError("--grid seed=...: give the seeds with --seeds, e.g. --seeds 0-9")
         if key not in valid:
@@ -143,83 +143,6 @@ def parse_grid(items: Sequence[str], base: Any) -> tuple[tuple[str, tuple[Any, .
                 raise SweepError(f"--grid {item!r}: {err}") from None
         grid.append((key, values))
     return tuple(grid)
-
-
-@dataclass(frozen=True)
-class Run:
-    """One run of a sweep: an id (``rNNN``), the cell index, the cell's settings and the seed."""
-
-    id: str
-    cell: int
-    settings: dict[str, Any]
-    seed: int
-
-
-@dataclass(frozen=True)
-class SweepPlan:
-    """What a sweep runs.
-
-    Attributes:
-        kind, name: the registry entry.
-        base: the starting config (``default``, ``quick`` or ``tiny``).
-        sets: fixed ``KEY=VALUE`` settings applied to the base before the grid.
-        grid: ``(dotted path, values)`` per swept setting.
-        seeds: the seeds of every cell.
-    """
-
-    kind: str
-    name: str
-    base: Base
-    sets: tuple[str, ...]
-    grid: tuple[tuple[str, tuple[Any, ...]], ...]
-    seeds: tuple[int, ...]
-
-    @property
-    def cells(self) -> list[dict[str, Any]]:
-        """The grid's cells (settings per cell), first key varying slowest."""
-        keys = [k for k, _ in self.grid]
-        return [dict(zip(keys, vs, strict=True)) for vs in itertools.product(*(v for _, v in self.grid))]
-
-    @property
-    def runs(self) -> list[Run]:
-        """Every run: cells × seeds, in order."""
-        out = []
-        for c, settings in enumerate(self.cells):
-            for seed in self.seeds:
-                out.append(Run(f"r{len(out):03d}", c, settings, seed))
-        return out
-
-    def as_dict(self) -> dict[str, Any]:
-        """JSON-ready fields (the manifest without the run list)."""
-        return {
-            "kind": self.kind,
-            "name": self.name,
-            "base": self.base,
-            "sets": list(self.sets),
-            "grid": [[k, list(v)] for k, v in self.grid],
-            "seeds": list(self.seeds),
-        }
-
-    def config(self, run: Run) -> Any:
-        """The config of ``run``."""
-        return _config(registry.get(self.kind, self.name), self.base, self.sets, run.settings, run.seed)
-
-
-def _config(entry: Entry, base: Base, sets: Sequence[str], settings: Mapping[str, Any], seed: int) -> Any:
-    config = {"default": entry.default, "quick": lambda: entry.quick, "tiny": lambda: entry.tiny}[base]()
-    for item in sets:
-        config = configure_from(config, item)
-    for path, value in settings.items():
-        config = configs.override(config, path, value)
-    return configs.override(config, "seed", seed)
-
-
-def configure_from(config: Any, item: str) -> Any:
-    """``config`` with one ``KEY=VALUE`` item (``--set``) applied."""
-    key, sep, raw = item.partition("=")
-    if not sep or not key:
-        raise configs.ConfigError(f"--set {item!r}: expected KEY=VALUE, e.g. --set epochs=3")
-    return configs.override(config, key.strip(), configs.parse_value(raw))
 
 
 def plan(
@@ -244,7 +167,7 @@ def plan(
         raise SweepError(f"base {base!r} unknown; expected default, quick or tiny")
     seed_list = parse_seeds(seeds)
     try:
-        start = _config(entry, base, sets, {}, seed_list[0])
+        start = run_config(entry, base, sets, {}, seed_list[0])
     except ValueError as err:
         raise SweepError(f"pal sweep {name}: {err}") from None
     return SweepPlan(kind, name, base, tuple(sets), parse_grid(grid, start), seed_list)
@@ -259,7 +182,7 @@ def compute_run(
 ) -> tuple[dict[str, Any] | None, str | None]:
     """Run one cell of ``entry`` with ``seed``: ``(report document, None)`` or ``(None, one-line error)``."""
     try:
-        config = _config(entry, base, sets, settings, seed)
+        config = run_config(entry, base, sets, settings, seed)
         record = runner.execute(entry, config)
         document = render.document(record)
         _close(record.report.figures.values())  # a sweep keeps each run's JSON, not its figures
@@ -346,9 +269,9 @@ def run_sweep(
         if not manifest.is_file():
             raise SweepError(f"--retry-failed: {out} holds no sweep ({MANIFEST} missing)")
         stored = _read_plan(out)
-        if sweep is not None and sweep.as_dict() != stored.as_dict():
+        if sweep is not None and sweep.to_dict() != stored.to_dict():
             raise SweepError(
-                f"--retry-failed: {out} holds a different sweep {stored.as_dict()}; give the same one or none"
+                f"--retry-failed: {out} holds a different sweep {stored.to_dict()}; give the same one or none"
             )
         sweep = stored
     elif manifest.exists():
@@ -358,7 +281,7 @@ def run_sweep(
     (out / RUNS).mkdir(parents=True, exist_ok=True)
     if not retry_failed:
         runs_doc = [{"id": r.id, "cell": r.cell, "settings": r.settings, "seed": r.seed} for r in sweep.runs]
-        atomic_write_json(manifest, {"format": FORMAT, **sweep.as_dict(), "runs": runs_doc})
+        atomic_write_json(manifest, {"format": FORMAT, **sweep.to_dict(), "runs": runs_doc})
     todo = [r for r in sweep.runs if not (out / RUNS / f"{r.id}.json").is_file()]
     log.info("sweep %s: %d of %d runs to do", sweep.name, len(todo), len(sweep.runs))
     args = (sweep.kind, sweep.name, sweep.base, list(sweep.sets))

@@ -33,7 +33,7 @@ components.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import torch
 from torch import Tensor
@@ -46,6 +46,9 @@ from pal.perception.grounding import GroundingConfig
 __all__ = ["builtin_predicates"]
 
 PLACES = "object|body_part"
+
+#: A graded map: ``(values, constants) -> grade``.
+Ground = Callable[[Mapping[str, Tensor], tuple[Constant, ...]], Tensor]
 
 
 def _attr(c: Constant, key: str, default: float | None = None, what: str = "") -> float:
@@ -67,6 +70,133 @@ def _common(pa: Tensor, pb: Tensor, k: int | None = None) -> tuple[Tensor, Tenso
     return pa[..., :d], pb[..., :d]
 
 
+def _sab(a: Constant, b: Constant, floor: float) -> float:
+    """``s_ab``: the combined position uncertainty of two constants, m."""
+    return math.hypot(_attr(a, "sigma", floor), _attr(b, "sigma", floor))
+
+
+def _footprint_gap(pa: Tensor, pb: Tensor, ra: float, rb: float) -> Tensor:
+    """Distance between two square footprints of half-widths ``ra``, ``rb`` (horizontal components)."""
+    pa, pb = _common(pa, pb, 2)
+    return (((pa - pb).abs() - (ra + rb)).clamp_min(0.0) ** 2).sum(-1).sqrt()
+
+
+def _placement(config: GroundingConfig) -> tuple[Ground, Ground, Ground]:
+    """The graded maps of left_of, near and on (module docstring)."""
+    floor = config.position_floor
+
+    def left_of(values: Mapping[str, Tensor], constants: tuple[Constant, ...]) -> Tensor:
+        a, b = constants
+        pa, pb = _pos(values, a), _pos(values, b)
+        ra, rb = _attr(a, "radius", 0.0), _attr(b, "radius", 0.0)
+        s = math.sqrt(_sab(a, b, floor) ** 2 + ((ra + rb) / 2.0) ** 2)
+        return ndtr((pb[..., 0] - pa[..., 0]) / s)
+
+    def near(values: Mapping[str, Tensor], constants: tuple[Constant, ...]) -> Tensor:
+        a, b = constants
+        ra, rb = _attr(a, "radius", 0.0), _attr(b, "radius", 0.0)
+        ext = [max(2 * _attr(c, "radius", 0.0), _attr(c, "height", 0.0)) for c in (a, b)]
+        r = max(config.near_distance, *ext)
+        gap = _footprint_gap(_pos(values, a), _pos(values, b), ra, rb)
+        return ndtr((r - gap) / (0.25 * r + _sab(a, b, floor)))
+
+    def on(values: Mapping[str, Tensor], constants: tuple[Constant, ...]) -> Tensor:
+        a, b = constants
+        pa, pb = _pos(values, a), _pos(values, b)
+        if pa.shape[-1] < 3 or pb.shape[-1] < 3:
+            raise LanguageError(
+                f"on({a.name}, {b.name}) needs 3-D positions (z up); got dims {pa.shape[-1]} and {pb.shape[-1]}"
+            )
+        ra, rb = _attr(a, "radius", 0.0), _attr(b, "radius", 0.0)
+        ha, hb = _attr(a, "height", 0.0), _attr(b, "height", 0.0)
+        tol = config.on_tolerance
+        bottom, top = pa[..., 2] - ha / 2.0, pb[..., 2] + hb / 2.0
+        contact = ndtr((tol - (bottom - top).abs()) / (tol / 2.0 + _sab(a, b, floor)))
+        lo = torch.maximum(pa[..., :2] - ra, pb[..., :2] - rb)
+        hi = torch.minimum(pa[..., :2] + ra, pb[..., :2] + rb)
+        overlap = (hi - lo).clamp_min(0.0).prod(-1) / max(2 * ra, 1e-3) ** 2
+        return torch.where(pa[..., 2] > pb[..., 2], contact * overlap, torch.zeros_like(contact)).clamp(
+            0.0, 1.0
+        )
+
+    return left_of, near, on
+
+
+def _contact_of(a: Constant, b: Constant) -> str | None:
+    """The contact variable bound by b, else by a, or None."""
+    for c in (b, a):
+        if "contact" in c.variables:
+            return c.variables["contact"]
+    return None
+
+
+def _touch_support(constants: tuple[Constant, ...]) -> tuple[str, ...]:
+    """The contact variable when there is one, else both positions."""
+    v = _contact_of(*constants)
+    return (v,) if v is not None else roles_support("position")(constants)
+
+
+def _touch(config: GroundingConfig, touch_threshold: float | None) -> Ground:
+    """The graded map of touch (module docstring)."""
+    floor = config.position_floor
+
+    def touch(values: Mapping[str, Tensor], constants: tuple[Constant, ...]) -> Tensor:
+        a, b = constants
+        v = _contact_of(a, b)
+        if v is not None:
+            c = values[v][..., 0]
+            if touch_threshold is None:
+                return c.clamp(0.0, 1.0)
+            return ndtr((c - touch_threshold) / (touch_threshold / 2.0))
+        pa, pb = _common(_pos(values, a), _pos(values, b))
+        gap = ((pa - pb).norm(dim=-1) - _attr(a, "radius", 0.0) - _attr(b, "radius", 0.0)).clamp_min(0.0)
+        return ndtr((config.touch_gap - gap) / (_sab(a, b, floor) * 0.5 + 0.005))
+
+    return touch
+
+
+def _reach_support(constants: tuple[Constant, ...]) -> tuple[str, ...]:
+    """Both positions and the hand's base variable, if it has one."""
+    h, o = constants
+    base = (h.variables["base"],) if "base" in h.variables else ()
+    return (h.variable("position", "reachable"), o.variable("position", "reachable"), *base)
+
+
+def _reachable(config: GroundingConfig) -> Ground:
+    """The graded map of reachable (module docstring)."""
+    floor = config.position_floor
+
+    def reachable(values: Mapping[str, Tensor], constants: tuple[Constant, ...]) -> Tensor:
+        h, o = constants
+        reach = _attr(h, "reach", what=f"reachable({h.name}, {o.name})")
+        po = _pos(values, o)
+        if "base" in h.variables:
+            base = values[h.variables["base"]]
+        else:
+            xyz = [_attr(h, f"base_{k}", 0.0) for k in "xyz"][: po.shape[-1]]
+            base = torch.tensor(xyz, dtype=po.dtype)
+        po, base = _common(po, base)
+        dist = (po - base).norm(dim=-1)
+        s = 0.25 * config.near_distance + _sab(h, o, floor)
+        return ndtr((reach + _attr(o, "radius", 0.0) - dist) / s)
+
+    return reachable
+
+
+def _moving(config: GroundingConfig, moving_distance: float) -> Ground:
+    """The graded map of moving over the last step (module docstring)."""
+    floor = config.position_floor
+
+    def moving(values: Mapping[str, Tensor], constants: tuple[Constant, ...]) -> Tensor:
+        (o,) = constants
+        path = _pos(values, o)  # (..., 2, d)
+        step = (path[..., -1, :] - path[..., -2, :]).norm(dim=-1)
+        s = 0.25 * moving_distance + math.sqrt(2.0) * _attr(o, "sigma", floor)
+        return ndtr((step - moving_distance) / s)
+
+    return moving
+
+
 def builtin_predicates(
     config: GroundingConfig | None = None,
     *,
@@ -86,105 +216,28 @@ def builtin_predicates(
     if touch_threshold is not None and not touch_threshold > 0:
         raise LanguageError(f"touch_threshold must be > 0 or None, got {touch_threshold!r}")
     config = GroundingConfig() if config is None else config
-    floor = config.position_floor
-
-    def sab(a: Constant, b: Constant) -> float:
-        return math.hypot(_attr(a, "sigma", floor), _attr(b, "sigma", floor))
-
-    def left_of(values: Mapping[str, Tensor], constants: tuple[Constant, ...]) -> Tensor:
-        a, b = constants
-        pa, pb = _pos(values, a), _pos(values, b)
-        ra, rb = _attr(a, "radius", 0.0), _attr(b, "radius", 0.0)
-        s = math.sqrt(sab(a, b) ** 2 + ((ra + rb) / 2.0) ** 2)
-        return ndtr((pb[..., 0] - pa[..., 0]) / s)
-
-    def footprint_gap(pa: Tensor, pb: Tensor, ra: float, rb: float) -> Tensor:
-        pa, pb = _common(pa, pb, 2)
-        return (((pa - pb).abs() - (ra + rb)).clamp_min(0.0) ** 2).sum(-1).sqrt()
-
-    def near(values: Mapping[str, Tensor], constants: tuple[Constant, ...]) -> Tensor:
-        a, b = constants
-        ra, rb = _attr(a, "radius", 0.0), _attr(b, "radius", 0.0)
-        ext = [max(2 * _attr(c, "radius", 0.0), _attr(c, "height", 0.0)) for c in (a, b)]
-        r = max(config.near_distance, *ext)
-        gap = footprint_gap(_pos(values, a), _pos(values, b), ra, rb)
-        return ndtr((r - gap) / (0.25 * r + sab(a, b)))
-
-    def on(values: Mapping[str, Tensor], constants: tuple[Constant, ...]) -> Tensor:
-        a, b = constants
-        pa, pb = _pos(values, a), _pos(values, b)
-        if pa.shape[-1] < 3 or pb.shape[-1] < 3:
-            raise LanguageError(
-                f"on({a.name}, {b.name}) needs 3-D positions (z up); got dims {pa.shape[-1]} and {pb.shape[-1]}"
-            )
-        ra, rb = _attr(a, "radius", 0.0), _attr(b, "radius", 0.0)
-        ha, hb = _attr(a, "height", 0.0), _attr(b, "height", 0.0)
-        tol = config.on_tolerance
-        bottom, top = pa[..., 2] - ha / 2.0, pb[..., 2] + hb / 2.0
-        contact = ndtr((tol - (bottom - top).abs()) / (tol / 2.0 + sab(a, b)))
-        lo = torch.maximum(pa[..., :2] - ra, pb[..., :2] - rb)
-        hi = torch.minimum(pa[..., :2] + ra, pb[..., :2] + rb)
-        overlap = (hi - lo).clamp_min(0.0).prod(-1) / max(2 * ra, 1e-3) ** 2
-        return torch.where(pa[..., 2] > pb[..., 2], contact * overlap, torch.zeros_like(contact)).clamp(
-            0.0, 1.0
-        )
-
-    def contact_of(a: Constant, b: Constant) -> str | None:
-        for c in (b, a):
-            if "contact" in c.variables:
-                return c.variables["contact"]
-        return None
-
-    def touch_support(constants: tuple[Constant, ...]) -> tuple[str, ...]:
-        v = contact_of(*constants)
-        return (v,) if v is not None else roles_support("position")(constants)
-
-    def touch(values: Mapping[str, Tensor], constants: tuple[Constant, ...]) -> Tensor:
-        a, b = constants
-        v = contact_of(a, b)
-        if v is not None:
-            c = values[v][..., 0]
-            if touch_threshold is None:
-                return c.clamp(0.0, 1.0)
-            return ndtr((c - touch_threshold) / (touch_threshold / 2.0))
-        pa, pb = _common(_pos(values, a), _pos(values, b))
-        gap = ((pa - pb).norm(dim=-1) - _attr(a, "radius", 0.0) - _attr(b, "radius", 0.0)).clamp_min(0.0)
-        return ndtr((config.touch_gap - gap) / (sab(a, b) * 0.5 + 0.005))
-
-    def reach_support(constants: tuple[Constant, ...]) -> tuple[str, ...]:
-        h, o = constants
-        base = (h.variables["base"],) if "base" in h.variables else ()
-        return (h.variable("position", "reachable"), o.variable("position", "reachable"), *base)
-
-    def reachable(values: Mapping[str, Tensor], constants: tuple[Constant, ...]) -> Tensor:
-        h, o = constants
-        reach = _attr(h, "reach", what=f"reachable({h.name}, {o.name})")
-        po = _pos(values, o)
-        if "base" in h.variables:
-            base = values[h.variables["base"]]
-        else:
-            xyz = [_attr(h, f"base_{k}", 0.0) for k in "xyz"][: po.shape[-1]]
-            base = torch.tensor(xyz, dtype=po.dtype)
-        po, base = _common(po, base)
-        dist = (po - base).norm(dim=-1)
-        s = 0.25 * config.near_distance + sab(h, o)
-        return ndtr((reach + _attr(o, "radius", 0.0) - dist) / s)
-
-    def moving(values: Mapping[str, Tensor], constants: tuple[Constant, ...]) -> Tensor:
-        (o,) = constants
-        path = _pos(values, o)  # (..., 2, d)
-        step = (path[..., -1, :] - path[..., -2, :]).norm(dim=-1)
-        s = 0.25 * moving_distance + math.sqrt(2.0) * _attr(o, "sigma", floor)
-        return ndtr((step - moving_distance) / s)
-
+    left_of, near, on = _placement(config)
     pos = roles_support("position")
     return (
         PredicateDef("near", (PLACES, PLACES), pos, near, doc="a and b are within about an object's size"),
-        PredicateDef("touch", (PLACES, PLACES), touch_support, touch, doc="a touches b"),
         PredicateDef(
-            "reachable", ("body_part", PLACES), reach_support, reachable, doc="o lies within h's reach"
+            "touch", (PLACES, PLACES), _touch_support, _touch(config, touch_threshold), doc="a touches b"
         ),
-        PredicateDef("moving", (PLACES,), pos, moving, window=1, doc="o moved over the last step"),
+        PredicateDef(
+            "reachable",
+            ("body_part", PLACES),
+            _reach_support,
+            _reachable(config),
+            doc="o lies within h's reach",
+        ),
+        PredicateDef(
+            "moving",
+            (PLACES,),
+            pos,
+            _moving(config, moving_distance),
+            window=1,
+            doc="o moved over the last step",
+        ),
         PredicateDef("on", (PLACES, PLACES), pos, on, doc="a rests on top of b"),
         PredicateDef("left_of", (PLACES, PLACES), pos, left_of, doc="a is left of b (smaller x)"),
     )

@@ -50,7 +50,7 @@ from pal.checks import check_float, check_int
 from pal.perception.features import Features, guided_matches
 from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.plane import Plane
-from pal.perception.pnp import pnp_ransac, refine_pose, reprojection_errors
+from pal.perception.pnp import RgbdFit, pnp_ransac, refine_pose, reprojection_errors
 
 __all__ = ["CameraMotion", "EgoMotion", "EgoMotionConfig"]
 
@@ -374,6 +374,19 @@ class EgoMotion:
                 len(pairs),
                 reason=f"no motion with {cfg.min_inliers} inliers among {len(pairs)} matches",
             )
+        return self._static_or_moved(frame, obj, img, pw, fit, px)
+
+    def _static_or_moved(
+        self, frame: RGBDFrame, obj: np.ndarray, img: np.ndarray, pw: np.ndarray, fit: RgbdFit, px: float
+    ) -> CameraMotion:
+        """The camera's motion given the fit on the matches ``obj`` <-> ``img`` (pair weights ``pw``).
+
+        ``static`` when no motion (the identity) explains the matches about as well as the fit,
+        else the fitted motion.
+        """
+        cfg = self.config
+        identity = np.eye(4)
+        here = self.world_from_camera
         err = reprojection_errors(identity, obj, img, frame.K)
         still = err < px
         background = pw >= 0.999  # both ends off every object
@@ -386,7 +399,7 @@ class EgoMotion:
                 identity,
                 here,
                 "static",
-                len(pairs),
+                len(obj),
                 int(still.sum()),
                 rmse,
                 reason="no motion explains the matches",
@@ -396,7 +409,7 @@ class EgoMotion:
             fit.matrix(),
             here,
             "estimated",
-            len(pairs),
+            len(obj),
             fit.num_inliers,
             fit.rmse,
             cov,

@@ -36,20 +36,21 @@ motion is unobservable, and the caller rejects the pose. The live normals are ta
 +-``normal_px`` pixels. The fit also reports how many model points that land on valid live
 depth agree with it (``agree``) and how many claim a surface where the sensor sees farther (``free_space``
 violations, the evidence that the object is not there).
+
+The correspondences and the photometric term are in :mod:`pal.perception.icp_terms`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from pal.checks import check_float, check_int
 from pal.perception.frames import RGBDFrame, backproject
+from pal.perception.icp_terms import LiveSurface, Match, Photometric, associate, cross, smooth
 from pal.perception.masks import Mask
 from pal.perception.noise import DepthNoise
-from pal.perception.quantiles import median
 
 __all__ = ["IcpConfig", "IcpFit", "geometric_condition", "icp_fit", "surface_points"]
 
@@ -195,93 +196,8 @@ def surface_points(
     pts = backproject(us + origin[0], vs + origin[1], depth[vs, us], K)
     values = None
     if gray is not None:
-        values = _smooth(gray, blur_sigma)[vs, us].astype(np.float64)
+        values = smooth(gray, blur_sigma)[vs, us].astype(np.float64)
     return pts, values, step
-
-
-def _smooth(gray: np.ndarray, sigma: float) -> np.ndarray:
-    g = np.asarray(gray, dtype=np.float32)
-    return cv2.GaussianBlur(g, (0, 0), sigma) if sigma > 0 else g
-
-
-def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Bilinear samples of (h, w) ``img`` at float pixels (u, v), which must lie in [0, w-1) x [0, h-1)."""
-    u0, v0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
-    a, b = u - u0, v - v0
-    return (
-        img[v0, u0] * (1 - a) * (1 - b)
-        + img[v0, u0 + 1] * a * (1 - b)
-        + img[v0 + 1, u0] * (1 - a) * b
-        + img[v0 + 1, u0 + 1] * a * b
-    )
-
-
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of (N, 3) arrays (cheaper than ``np.cross`` for small N)."""
-    return np.stack(
-        [
-            a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
-            a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
-        ],
-        axis=1,
-    )
-
-
-class _LiveSurface:
-    """Live points and normals in a mask's box, computed only at the pixels looked up.
-
-    With ``grow`` > 0 the box is grown by that many pixels and any valid depth in it counts,
-    in the mask or not.
-    """
-
-    def __init__(self, frame: RGBDFrame, mask: Mask, max_jump: float, baseline: int, grow: int = 0) -> None:
-        self.baseline = baseline
-        H, W = frame.depth.shape
-        bx0, by0, bx1, by1 = mask.bbox
-        self.x0, self.y0 = max(0, bx0 - grow), max(0, by0 - grow)
-        x1, y1 = min(W, bx1 + grow), min(H, by1 + grow)
-        self.z = frame.depth[self.y0 : y1, self.x0 : x1]
-        self.valid = (mask.region(self.x0, self.y0, x1, y1) if grow == 0 else np.ones(self.z.shape, bool)) & (
-            self.z > 0
-        )
-        self.h, self.w = self.z.shape
-        self.K = frame.K
-        self.max_jump = max_jump
-
-    def lookup(self, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(ok (N,), points (N, 3), unit normals (N, 3) facing the camera) at crop pixels (u, v)."""
-        b = self.baseline
-        ok = (u >= b) & (v >= b) & (u < self.w - b) & (v < self.h - b)
-        ok[ok] = self.valid[v[ok], u[ok]]
-        u, v = u[ok], v[ok]
-        z = self.z
-        zc, zr, zl, zd, zu = z[v, u], z[v, u + b], z[v, u - b], z[v + b, u], z[v - b, u]
-        x0, y0, K = self.x0, self.y0, self.K
-
-        def lift(uu: np.ndarray, vv: np.ndarray, zz: np.ndarray) -> np.ndarray:
-            return backproject(uu + x0, vv + y0, zz, K)
-
-        P = lift(u, v, zc)
-        dx = lift(u + b, v, zr) - lift(u - b, v, zl)
-        dy = lift(u, v + b, zd) - lift(u, v - b, zu)
-        n = _cross(dx, dy)
-        norm = np.linalg.norm(n, axis=1)
-        good = (
-            (zr > 0)
-            & (zl > 0)
-            & (zd > 0)
-            & (zu > 0)
-            & (np.abs(dx[:, 2]) < self.max_jump * b * zc)
-            & (np.abs(dy[:, 2]) < self.max_jump * b * zc)
-            & (norm > 1e-12)
-        )
-        n = n / np.where(norm > 1e-12, norm, 1.0)[:, None]
-        n = np.where((np.sum(n * P, axis=1) > 0)[:, None], -n, n)  # face the camera
-        out = np.flatnonzero(ok)
-        keep = np.zeros(len(ok), dtype=bool)
-        keep[out[good]] = True
-        return keep, P[good], n[good]
 
 
 def _exp(w: np.ndarray) -> np.ndarray:
@@ -291,6 +207,142 @@ def _exp(w: np.ndarray) -> np.ndarray:
     k = w / theta
     Kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
     return np.eye(3) + np.sin(theta) * Kx + (1.0 - np.cos(theta)) * Kx @ Kx
+
+
+def _depth_jacobian(m: Match, near: np.ndarray, sig: np.ndarray) -> np.ndarray:
+    """Point-to-plane Jacobian rows (P, 6) of the correspondences ``near``, whitened by ``sig``."""
+    return np.concatenate([cross(m.y[near], m.n[near]), m.n[near]], axis=1) / sig[near, None]
+
+
+def _gauss_newton(
+    model: np.ndarray,
+    R: np.ndarray,
+    t: np.ndarray,
+    live: LiveSurface,
+    noise: DepthNoise,
+    cfg: IcpConfig,
+    photo: Photometric | None,
+) -> tuple[np.ndarray, np.ndarray, int] | None:
+    """Robust Gauss-Newton steps from (R, t), the gate shrinking once they settle (module docstring).
+
+    Returns:
+        (R, t, steps taken), or None when too few correspondences remain or a step is singular.
+    """
+    steps = 0
+    wide = True  # the wide gate until the steps settle, then the tight one
+    for k in range(cfg.iterations):
+        m = associate(model, R, t, live)
+        if len(m.idx) < cfg.min_points:
+            return None
+        sig = noise.sigma(m.q[:, 2]).astype(np.float64)
+        gate = (cfg.gate if wide else 0.0) + 3.0 * sig + cfg.tolerance
+        r = np.sum((m.X - m.q) * m.n, axis=1)
+        near = np.linalg.norm(m.X - m.q, axis=1) < gate
+        if int(near.sum()) < cfg.min_points:
+            return None
+        rs = r[near] / sig[near]
+        J = _depth_jacobian(m, near, sig)
+        if photo is not None:
+            rp, Jp = photo(m.idx[near], m.y[near], m.X[near])
+            rs, J = np.concatenate([rs, rp]), np.concatenate([J, Jp])
+        wgt = np.where(np.abs(rs) <= 1.345, 1.0, 1.345 / np.maximum(np.abs(rs), 1e-12))
+        H = J.T @ (J * wgt[:, None])
+        g = J.T @ (wgt * rs)
+        try:
+            delta = -np.linalg.solve(H + 1e-9 * np.trace(H) * np.eye(6), g)
+        except np.linalg.LinAlgError:
+            return None
+        R = _exp(delta[:3]) @ R
+        t = t + delta[3:]
+        steps = k + 1
+        small = np.linalg.norm(delta[:3]) < 5e-4 and np.linalg.norm(delta[3:]) < 5e-4
+        if small and not wide:
+            break
+        wide = wide and not small and k < cfg.iterations // 2
+    return R, t, steps
+
+
+def _free_space(frame: RGBDFrame, live: LiveSurface, m: Match, noise: DepthNoise, gate: float) -> int:
+    """Model points in front of which the sensor sees farther than the fit's surface (anywhere in the box)."""
+    ib = np.flatnonzero(m.inside)
+    zl = frame.depth[m.v[ib] + live.y0, m.u[ib] + live.x0].astype(np.float64)
+    zp = m.z[ib]
+    behind = (zl > 0) & (zl > zp + 3.0 * noise.sigma(zp).astype(np.float64) + gate)
+    return int(behind.sum())
+
+
+def _covariance(rs: np.ndarray, J: np.ndarray, correlation_px: float, step: int) -> np.ndarray | None:
+    """``s^2 (J^T J)^-1``, inflated for correlated samples (module docstring); None when singular."""
+    H = J.T @ J
+    dof = max(len(rs) - 6, 1)
+    inflation = max(1.0, (correlation_px / max(step, 1)) ** 2)
+    s2 = max(float(np.sum(np.minimum(rs**2, 9.0))) / dof, 1.0) * inflation
+    try:
+        cov = s2 * np.linalg.inv(H)
+        cov = 0.5 * (cov + cov.T)
+        if not np.all(np.isfinite(cov)) or np.any(np.diag(cov) < 0):
+            cov = None
+    except np.linalg.LinAlgError:
+        cov = None
+    return cov
+
+
+def _condition(H_depth: np.ndarray, X: np.ndarray, t: np.ndarray) -> float:
+    """The geometric condition number of the depth terms' normal equations (module docstring)."""
+    c = X - X.mean(axis=0)
+    L = float(np.sqrt(np.mean(np.sum(c**2, axis=1)))) or 1.0
+    # the same step about the centroid m with rotations scaled by the radius L: w = w' / L and
+    # d = d' + [m - t]x w, so that H' = A^T H A compares metres with metres
+    mt = X.mean(axis=0) - t
+    A = np.eye(6)
+    A[:3, :3] /= L
+    A[3:, :3] = np.array([[0.0, -mt[2], mt[1]], [mt[2], 0.0, -mt[0]], [-mt[1], mt[0], 0.0]]) / L
+    Hc = A.T @ H_depth @ A  # depth terms only: shading on a smooth ball must not pin its turns
+    ev = np.linalg.eigvalsh(0.5 * (Hc + Hc.T))
+    return float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 1e-12 * max(ev[-1], 1e-300) else float("inf")
+
+
+def _final_fit(
+    model: np.ndarray,
+    pose: tuple[np.ndarray, np.ndarray, int],
+    frame: RGBDFrame,
+    live: LiveSurface,
+    noise: DepthNoise,
+    cfg: IcpConfig,
+    photo: Photometric | None,
+    step: int,
+) -> IcpFit | None:
+    """The fit at the converged pose ``(R, t, steps)``, scored within the final gate.
+
+    Agreement, free space, residuals, covariance and condition (module docstring).
+    """
+    R, t, steps = pose
+    m = associate(model, R, t, live)
+    if len(m.idx) < 6:
+        return None
+    sig = noise.sigma(m.q[:, 2]).astype(np.float64)
+    tol = 3.0 * sig + cfg.tolerance
+    r = np.sum((m.X - m.q) * m.n, axis=1)
+    near = np.linalg.norm(m.X - m.q, axis=1) < tol
+    agree = int(near.sum())
+    free = _free_space(frame, live, m, noise, cfg.gate)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    if agree < 6:
+        return IcpFit(T, agree, len(m.idx), agree, free, np.inf, np.inf, np.inf, None, steps)
+    rn = r[near]
+    rmse = float(np.sqrt(np.mean(rn**2)))
+    rmse_sigma = float(np.sqrt(np.mean((rn / sig[near]) ** 2)))
+    rs = rn / sig[near]
+    J = _depth_jacobian(m, near, sig)
+    H_depth = J.T @ J
+    n_photo = 0
+    if photo is not None:
+        rp, Jp = photo(m.idx[near], m.y[near], m.X[near])
+        rs, J, n_photo = np.concatenate([rs, rp]), np.concatenate([J, Jp]), len(rp)
+    cov = _covariance(rs, J, cfg.correlation_px, step)
+    condition = _condition(H_depth, m.X[near], t)
+    return IcpFit(T, agree, len(m.idx), agree, free, rmse, rmse_sigma, condition, cov, steps, n_photo)
 
 
 def icp_fit(
@@ -332,140 +384,18 @@ def icp_fit(
         raise ValueError(f"T0 has shape {T0.shape} or non-finite entries, expected a finite (4, 4) pose")
     if len(model) < cfg.min_points:
         return None
-    live = _LiveSurface(frame, mask, 0.05, cfg.normal_px, round(cfg.grow_px * frame.width / 640))
-    x0, y0 = live.x0, live.y0
-    h, w = live.h, live.w
-    K = frame.K
-    R, t = T0[:3, :3].copy(), T0[:3, 3].copy()
-    steps = 0
+    grow = round(cfg.grow_px * frame.width / 640)
+    live = LiveSurface(frame, mask, 0.05, cfg.normal_px, grow)
     photo = None
     if model_gray is not None and cfg.photometric_sigma is not None:
         model_gray = np.asarray(model_gray, dtype=np.float64)
         if model_gray.shape != (len(model),):
             raise ValueError(f"model_gray has shape {model_gray.shape}, expected ({len(model)},)")
-        pad = 4 + round(cfg.grow_px * frame.width / 640)
-        H, Wd = frame.depth.shape
-        gx0, gy0 = max(0, mask.bbox[0] - pad), max(0, mask.bbox[1] - pad)
-        gx1, gy1 = min(Wd, mask.bbox[2] + pad), min(H, mask.bbox[3] + pad)
-        img = _smooth(frame.gray()[gy0:gy1, gx0:gx1], cfg.blur_sigma)
-        gu = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3) / 8.0
-        gv = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3) / 8.0
-        photo = (img, gu, gv, gx0, gy0)
-
-    def photometric(sel: np.ndarray, y: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Photometric residuals (P,) and Jacobian rows (P, 6) of model points ``sel``, whitened."""
-        assert photo is not None and model_gray is not None
-        img, gu, gv, gx0, gy0 = photo
-        z = X[:, 2]
-        u = K[0, 0] * X[:, 0] / z + K[0, 1] * X[:, 1] / z + K[0, 2] - gx0
-        v = K[1, 1] * X[:, 1] / z + K[1, 2] - gy0
-        ok = (u >= 0) & (v >= 0) & (u < img.shape[1] - 1) & (v < img.shape[0] - 1)
-        u, v, z, y, X, sel = u[ok], v[ok], z[ok], y[ok], X[ok], sel[ok]
-        r = _bilinear(img, u, v) - model_gray[sel]
-        r = r - median(r) if len(r) else r
-        g = np.stack([_bilinear(gu, u, v), _bilinear(gv, u, v)], axis=1)
-        # d(u, v)/dX for the pinhole, then dX/d(w, d) = [-[y]x, I]
-        du = np.stack([K[0, 0] / z, np.zeros_like(z), -K[0, 0] * X[:, 0] / z**2], axis=1)
-        dv = np.stack([np.zeros_like(z), K[1, 1] / z, -K[1, 1] * X[:, 1] / z**2], axis=1)
-        gX = g[:, :1] * du + g[:, 1:] * dv
-        J = np.concatenate([_cross(y, gX), gX], axis=1)
-        s = float(cfg.photometric_sigma)  # type: ignore[arg-type]
-        return r / s, J / s
-
-    def associate(R: np.ndarray, t: np.ndarray):
-        y = model @ R.T
-        X = y + t
-        z = X[:, 2]
-        zs = np.where(z > 1e-6, z, 1e-6)
-        u = np.rint(K[0, 0] * X[:, 0] / zs + K[0, 1] * X[:, 1] / zs + K[0, 2]).astype(np.int64) - x0
-        v = np.rint(K[1, 1] * X[:, 1] / zs + K[1, 2]).astype(np.int64) - y0
-        inside = (z > 1e-6) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
-        idx = np.flatnonzero(inside)
-        good, q, n = live.lookup(u[idx], v[idx])
-        idx = idx[good]
-        return idx, y[idx], X[idx], q, n, (u, v, inside, z)
-
-    wide = True  # the wide gate until the steps settle, then the tight one
-    for k in range(cfg.iterations):
-        idx, y, X, q, n, _ = associate(R, t)
-        if len(idx) < cfg.min_points:
-            return None
-        sig = noise.sigma(q[:, 2]).astype(np.float64)
-        gate = (cfg.gate if wide else 0.0) + 3.0 * sig + cfg.tolerance
-        r = np.sum((X - q) * n, axis=1)
-        near = np.linalg.norm(X - q, axis=1) < gate
-        if int(near.sum()) < cfg.min_points:
-            return None
-        rs = r[near] / sig[near]
-        J = np.concatenate([_cross(y[near], n[near]), n[near]], axis=1) / sig[near, None]
-        if photo is not None:
-            rp, Jp = photometric(idx[near], y[near], X[near])
-            rs, J = np.concatenate([rs, rp]), np.concatenate([J, Jp])
-        wgt = np.where(np.abs(rs) <= 1.345, 1.0, 1.345 / np.maximum(np.abs(rs), 1e-12))
-        H = J.T @ (J * wgt[:, None])
-        g = J.T @ (wgt * rs)
-        try:
-            delta = -np.linalg.solve(H + 1e-9 * np.trace(H) * np.eye(6), g)
-        except np.linalg.LinAlgError:
-            return None
-        R = _exp(delta[:3]) @ R
-        t = t + delta[3:]
-        steps = k + 1
-        small = np.linalg.norm(delta[:3]) < 5e-4 and np.linalg.norm(delta[3:]) < 5e-4
-        if small and not wide:
-            break
-        wide = wide and not small and k < cfg.iterations // 2
-    idx, y, X, q, n, (u, v, inside, z) = associate(R, t)
-    if len(idx) < 6:
+        photo = Photometric(frame, mask, model_gray, grow, cfg.blur_sigma, cfg.photometric_sigma)
+    pose = _gauss_newton(model, T0[:3, :3].copy(), T0[:3, 3].copy(), live, noise, cfg, photo)
+    if pose is None:
         return None
-    sig = noise.sigma(q[:, 2]).astype(np.float64)
-    tol = 3.0 * sig + cfg.tolerance
-    r = np.sum((X - q) * n, axis=1)
-    near = np.linalg.norm(X - q, axis=1) < tol
-    m = int(near.sum())
-    # free space: the sensor sees farther than the fit's surface (anywhere in the box, in or out of the mask)
-    ib = np.flatnonzero(inside)
-    zl = frame.depth[v[ib] + y0, u[ib] + x0].astype(np.float64)
-    zp = z[ib]
-    behind = (zl > 0) & (zl > zp + 3.0 * noise.sigma(zp).astype(np.float64) + cfg.gate)
-    free = int(behind.sum())
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, t
-    if m < 6:
-        return IcpFit(T, m, len(idx), m, free, np.inf, np.inf, np.inf, None, steps)
-    rn = r[near]
-    rmse = float(np.sqrt(np.mean(rn**2)))
-    rmse_sigma = float(np.sqrt(np.mean((rn / sig[near]) ** 2)))
-    rs = rn / sig[near]
-    J = np.concatenate([_cross(y[near], n[near]), n[near]], axis=1) / sig[near, None]
-    H_depth = J.T @ J
-    n_photo = 0
-    if photo is not None:
-        rp, Jp = photometric(idx[near], y[near], X[near])
-        rs, J, n_photo = np.concatenate([rs, rp]), np.concatenate([J, Jp]), len(rp)
-    H = J.T @ J
-    dof = max(len(rs) - 6, 1)
-    inflation = max(1.0, (cfg.correlation_px / max(step, 1)) ** 2)
-    s2 = max(float(np.sum(np.minimum(rs**2, 9.0))) / dof, 1.0) * inflation
-    try:
-        cov = s2 * np.linalg.inv(H)
-        cov = 0.5 * (cov + cov.T)
-        if not np.all(np.isfinite(cov)) or np.any(np.diag(cov) < 0):
-            cov = None
-    except np.linalg.LinAlgError:
-        cov = None
-    c = X[near] - X[near].mean(axis=0)
-    L = float(np.sqrt(np.mean(np.sum(c**2, axis=1)))) or 1.0
-    # the same step about the centroid m with rotations scaled by the radius L: w = w' / L and
-    # d = d' + [m - t]x w, so that H' = A^T H A compares metres with metres
-    mt = X[near].mean(axis=0) - t
-    A = np.eye(6)
-    A[:3, :3] /= L
-    A[3:, :3] = np.array([[0.0, -mt[2], mt[1]], [mt[2], 0.0, -mt[0]], [-mt[1], mt[0], 0.0]]) / L
-    Hc = A.T @ H_depth @ A  # depth terms only: shading on a smooth ball must not pin its turns
-    ev = np.linalg.eigvalsh(0.5 * (Hc + Hc.T))
-    condition = float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 1e-12 * max(ev[-1], 1e-300) else float("inf")
-    return IcpFit(T, m, len(idx), m, free, rmse, rmse_sigma, condition, cov, steps, n_photo)
+    return _final_fit(model, pose, frame, live, noise, cfg, photo, step)
 
 
 def geometric_condition(

@@ -7,7 +7,8 @@ motion, appearance and the fragment rule (stable ids) -> for each associated obj
 descriptor, pose (optional; world-frame gates and consistency with the camera's motion) and
 EEMS admission -> missing objects get a ``lost`` (or flagged ``propagated``) pose sample ->
 relational layer (grounded predicates in the support-plane frame, salience order) -> scene
-descriptor (Table 5.6). Each stage's time is in :attr:`PerceptionState.timings`.
+descriptor (Table 5.6). Each stage's time is in :attr:`PerceptionState.timings`; the state's types
+are in :mod:`pal.perception.state`.
 
 Bad input raises a specific error before any state changes: a frame that is not an
 :class:`RGBDFrame` (``TypeError``), a frame earlier than the previous one
@@ -32,7 +33,7 @@ import logging
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -44,7 +45,7 @@ from pal.perception.filters import OneEuroConfig, OneEuroFilter
 from pal.perception.frames import RGBDFrame
 from pal.perception.kinematic import KinematicConfig, KinematicDescriptor, trajectory_descriptor
 from pal.perception.masks import Mask
-from pal.perception.memory import AdmissionConfig, AdmissionDecision, Gallery, ObjectRecord
+from pal.perception.memory import AdmissionConfig, Gallery, ObjectRecord
 from pal.perception.plane import Plane
 from pal.perception.pose import PoseConfig, PoseEstimator, position_std
 from pal.perception.regions import metric_area
@@ -52,7 +53,8 @@ from pal.perception.relations import RelationConfig, SceneRelations, scene_relat
 from pal.perception.scene import scene_descriptor
 from pal.perception.segmentation import GeometricSegmenter, OracleSegmenter, SegmentationConfig
 from pal.perception.spatial import SpatialDescriptor, spatial_descriptor
-from pal.perception.tracking import Tracker, TrackerConfig
+from pal.perception.state import ObjectState, PerceptionState
+from pal.perception.tracking import Observation, Tracker, TrackerConfig
 from pal.perception.trajectory import Pose, PoseDiagnostics
 
 __all__ = ["ObjectState", "PerceptionState", "Pipeline", "PipelineConfig"]
@@ -113,89 +115,6 @@ class PipelineConfig:
             raise ValueError("visible_window_s and forget_after_s must be >= 0 seconds")
 
 
-@dataclass(frozen=True, eq=False)
-class ObjectState:
-    """ŝ_i^obj(t) for one remembered object (Eq. 4.7).
-
-    Attributes:
-        obj_id: stable id.
-        visible: associated in this frame.
-        status: ``"born"``, ``"tracked"``, ``"reidentified"``, or None when not visible.
-        label: latest segmenter label (the ground-truth id with the oracle segmenter).
-        mask: this frame's mask, or None.
-        spatial: egocentric spatial descriptor, or None (not visible / no depth).
-        pose: this frame's pose sample (estimated / propagated / lost), or None when pose
-            estimation is off.
-        position: (3,) metres, camera frame, or None (missing — never NaN).
-        position_std: (3,) 1-sigma uncertainty, metres, or None.
-        position_source: ``"pose"``, ``"centroid"`` or None.
-        num_snapshots: EEMS gallery size.
-        admission: this frame's EEMS admission decision, or None.
-    """
-
-    obj_id: int
-    visible: bool
-    status: str | None
-    label: int
-    mask: Mask | None
-    spatial: SpatialDescriptor | None
-    pose: Pose | None
-    position: np.ndarray | None
-    position_std: np.ndarray | None
-    position_source: str | None
-    num_snapshots: int
-    admission: AdmissionDecision | None
-
-
-@dataclass(frozen=True, eq=False)
-class PerceptionState:
-    """ŝ_vis(t) = ŝ_scene(t) ∪ [ŝ_i^obj(t)] (Eq. 4.6).
-
-    Attributes:
-        timestamp: s. frame_index: 0-based frame counter.
-        objects: the objects alive in memory (seen within the re-identification window), by id.
-        scene: the Table 5.6 descriptor (JSON-compatible dict).
-        relations: the relational layer, or None when disabled.
-        timings: seconds spent per stage in this frame.
-        camera: the camera's motion since the previous frame (None when the camera is
-            configured static).
-        support: the support plane of this frame (None with the oracle segmenter or without one).
-    """
-
-    timestamp: float
-    frame_index: int
-    objects: tuple[ObjectState, ...]
-    scene: dict[str, Any]
-    relations: SceneRelations | None
-    timings: dict[str, float]
-    camera: CameraMotion | None = None
-    support: Plane | None = None
-
-    def object(self, obj_id: int) -> ObjectState:
-        """The state of object ``obj_id``; KeyError if it is not in this frame's state."""
-        for o in self.objects:
-            if o.obj_id == obj_id:
-                return o
-        raise KeyError(f"object {obj_id} is not in this state; ids are {[o.obj_id for o in self.objects]}")
-
-    def observations(self) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-        """``{obj_id: (position (3,), std (3,))}`` in metres, only for objects with evidence now."""
-        return {
-            o.obj_id: (o.position, o.position_std)
-            for o in self.objects
-            if o.position is not None and o.position_std is not None
-        }
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-compatible summary: scene descriptor, relations, camera motion and timings."""
-        return {
-            "scene": self.scene,
-            "relations": None if self.relations is None else self.relations.to_dict(),
-            "camera": None if self.camera is None else self.camera.to_dict(),
-            "timings": dict(self.timings),
-        }
-
-
 class Pipeline:
     """Π: call it on each :class:`RGBDFrame` in time order (module docstring).
 
@@ -254,16 +173,8 @@ class Pipeline:
             pal.frames.TimestampOrderError: ``frame`` is earlier than the previous frame.
             pal.frames.EmptyDepthError: ``frame`` has no valid depth pixel.
         """
-        if not isinstance(frame, RGBDFrame):
-            raise TypeError(f"Pipeline expects an RGBDFrame, got {type(frame).__name__}")
+        self._check_frame(frame)
         t = frame.timestamp
-        if self._last_time is not None and t < self._last_time:
-            raise TimestampOrderError(
-                f"frame timestamp {t} s is earlier than the previous frame's {self._last_time} s; frames "
-                "must come in non-decreasing time order (equal timestamps are allowed)"
-            )
-        frame.require_depth()
-        self._last_time = t
         cfg = self.config
         timings: dict[str, float] = {}
         clock = time.perf_counter()
@@ -280,111 +191,22 @@ class Pipeline:
                 frame, frame_features, self._weights(frame, frame_features, candidates)
             )
         timings["camera_motion"], clock = time.perf_counter() - clock, time.perf_counter()
-        world = None if camera is None else camera.world_from_camera
         observations = self.tracker.update(candidates, t, frame=frame, motion=camera)
         timings["tracking"], clock = time.perf_counter() - clock, time.perf_counter()
         states: dict[int, ObjectState] = {}
         t_pose = t_mem = 0.0
         for obs in observations:
-            rec = self.records.get(obs.track_id)
-            if rec is None:
-                rec = ObjectRecord(
-                    obs.track_id, Gallery(cfg.admission), t, t, obs.mask, obs.label, num_observations=0
-                )
-                rec.first_frame = self.frame_count
-                self.records[obs.track_id] = rec
-            rec.last_updated, rec.last_mask, rec.label = t, obs.mask, obs.label
-            rec.num_observations += 1
-            spatial = spatial_descriptor(
-                frame, obs.mask, min_depth=cfg.pose.min_depth, max_depth=cfg.pose.max_depth
+            states[obs.track_id], spent_pose, spent_mem = self._observe(
+                obs, frame, gray, frame_features, camera
             )
-            if spatial is not None:
-                rec.centroids.append((t, spatial.centroid))
-            pose: Pose | None = None
-            c0 = time.perf_counter()
-            mask = obs.mask
-
-            def feats_of(mask: Mask = mask) -> Features:
-                if frame_features is None:
-                    return self.estimator.features(gray, mask)
-                return self.estimator.extractor.for_mask(frame_features, gray, mask)
-
-            if cfg.estimate_pose:
-                feats = feats_of()
-                pose, decision = self.estimator.estimate(rec, frame, gray, obs.mask, feats, world)
-                c1 = time.perf_counter()
-                if decision is None:
-                    decision = rec.gallery.consider(
-                        frame,
-                        gray,
-                        obs.mask,
-                        feats,
-                        self.estimator.extractor,
-                        self.estimator.anchor_for(pose, rec, world, camera is not None and camera.known),
-                        novel=not pose.is_valid and rec.gallery.canonical is not None,
-                    )
-                rec.trajectory.append(pose)
-                rec.last_pose_diagnostics = pose.diagnostics
-            else:
-                c1 = time.perf_counter()
-                decision = rec.gallery.consider(
-                    frame, gray, obs.mask, feats_of, self.estimator.extractor, None
-                )
-            t_pose += c1 - c0
-            t_mem += time.perf_counter() - c1
-            rec.last_decision = decision
-            position, std, source = self._position(obs.track_id, frame, pose, spatial)
-            states[obs.track_id] = ObjectState(
-                obs.track_id,
-                True,
-                obs.status,
-                obs.label,
-                obs.mask,
-                spatial,
-                pose,
-                position,
-                std,
-                source,
-                len(rec.gallery),
-                decision,
-            )
+            t_pose += spent_pose
+            t_mem += spent_mem
         timings["pose"], timings["memory"] = t_pose, t_mem
         clock = time.perf_counter()
-        for tid in sorted(self.tracker.tracks):
-            if tid in states:
-                continue
-            rec = self.records[tid]
-            pose = None
-            if cfg.estimate_pose:
-                pose = self.estimator.missing(
-                    rec, t, PoseDiagnostics(reason="object not detected in this frame")
-                )
-                rec.trajectory.append(pose)
-                rec.last_pose_diagnostics = pose.diagnostics
-            self._filters.pop(tid, None)
-            states[tid] = ObjectState(
-                tid, False, None, rec.label, None, None, pose, None, None, None, len(rec.gallery), None
-            )
+        self._add_missing(states, t)
         self._forget(t)
         support = getattr(self.segmenter, "last_plane", None)
-        relations = None
-        if cfg.relations is not None:
-            histories = {}
-            for tid in states:
-                cents = self.records[tid].centroids
-                histories[tid] = (
-                    np.array([c[0] for c in cents]),
-                    np.array([c[1] for c in cents]).reshape(-1, 3),
-                )
-            relations = scene_relations(
-                frame,
-                {i: s.spatial for i, s in states.items()},
-                {i: s.mask for i, s in states.items() if s.mask is not None},
-                histories,
-                cfg.relations,
-                support=support,
-                salience={i: self._salience(i, frame) for i in states},
-            )
+        relations = None if cfg.relations is None else self._relations(frame, states, support)
         timings["relations"], clock = time.perf_counter() - clock, time.perf_counter()
         self.frame_count += 1
         scene = scene_descriptor(list(self.records.values()), t, self.frame_count, cfg.visible_window_s)
@@ -400,6 +222,141 @@ class Pipeline:
                     f"internal error: object {o.obj_id} has a non-finite position {o.position} / std {o.position_std}"
                 )
         return PerceptionState(t, self.frame_count - 1, objects, scene, relations, timings, camera, support)
+
+    def _check_frame(self, frame: RGBDFrame) -> None:
+        """Refuse a frame that is not an RGBDFrame, is out of time order or has no depth (:meth:`__call__`)."""
+        if not isinstance(frame, RGBDFrame):
+            raise TypeError(f"Pipeline expects an RGBDFrame, got {type(frame).__name__}")
+        t = frame.timestamp
+        if self._last_time is not None and t < self._last_time:
+            raise TimestampOrderError(
+                f"frame timestamp {t} s is earlier than the previous frame's {self._last_time} s; frames "
+                "must come in non-decreasing time order (equal timestamps are allowed)"
+            )
+        frame.require_depth()
+        self._last_time = t
+
+    def _observe(
+        self,
+        obs: Observation,
+        frame: RGBDFrame,
+        gray: np.ndarray,
+        frame_features: Features | None,
+        camera: CameraMotion | None,
+    ) -> tuple[ObjectState, float, float]:
+        """Update the record of an associated object: spatial descriptor, pose and EEMS admission.
+
+        Returns:
+            (the object's state, seconds spent on its pose, seconds on its memory).
+        """
+        cfg = self.config
+        t = frame.timestamp
+        world = None if camera is None else camera.world_from_camera
+        rec = self._record(obs, t)
+        spatial = spatial_descriptor(
+            frame, obs.mask, min_depth=cfg.pose.min_depth, max_depth=cfg.pose.max_depth
+        )
+        if spatial is not None:
+            rec.centroids.append((t, spatial.centroid))
+        pose: Pose | None = None
+        c0 = time.perf_counter()
+        mask = obs.mask
+
+        def feats_of(mask: Mask = mask) -> Features:
+            if frame_features is None:
+                return self.estimator.features(gray, mask)
+            return self.estimator.extractor.for_mask(frame_features, gray, mask)
+
+        if cfg.estimate_pose:
+            feats = feats_of()
+            pose, decision = self.estimator.estimate(rec, frame, gray, obs.mask, feats, world)
+            c1 = time.perf_counter()
+            if decision is None:
+                decision = rec.gallery.consider(
+                    frame,
+                    gray,
+                    obs.mask,
+                    feats,
+                    self.estimator.extractor,
+                    self.estimator.anchor_for(pose, rec, world, camera is not None and camera.known),
+                    novel=not pose.is_valid and rec.gallery.canonical is not None,
+                )
+            rec.trajectory.append(pose)
+            rec.last_pose_diagnostics = pose.diagnostics
+        else:
+            c1 = time.perf_counter()
+            decision = rec.gallery.consider(frame, gray, obs.mask, feats_of, self.estimator.extractor, None)
+        spent_pose, spent_mem = c1 - c0, time.perf_counter() - c1
+        rec.last_decision = decision
+        position, std, source = self._position(obs.track_id, frame, pose, spatial)
+        state = ObjectState(
+            obs.track_id,
+            True,
+            obs.status,
+            obs.label,
+            obs.mask,
+            spatial,
+            pose,
+            position,
+            std,
+            source,
+            len(rec.gallery),
+            decision,
+        )
+        return state, spent_pose, spent_mem
+
+    def _record(self, obs: Observation, t: float) -> ObjectRecord:
+        """The record of an observed track (a new one at its birth), updated with the observation."""
+        rec = self.records.get(obs.track_id)
+        if rec is None:
+            rec = ObjectRecord(
+                obs.track_id, Gallery(self.config.admission), t, t, obs.mask, obs.label, num_observations=0
+            )
+            rec.first_frame = self.frame_count
+            self.records[obs.track_id] = rec
+        rec.last_updated, rec.last_mask, rec.label = t, obs.mask, obs.label
+        rec.num_observations += 1
+        return rec
+
+    def _add_missing(self, states: dict[int, ObjectState], t: float) -> None:
+        """Add the tracked objects not associated in this frame, with a ``lost`` or ``propagated`` pose."""
+        for tid in sorted(self.tracker.tracks):
+            if tid in states:
+                continue
+            rec = self.records[tid]
+            pose = None
+            if self.config.estimate_pose:
+                pose = self.estimator.missing(
+                    rec, t, PoseDiagnostics(reason="object not detected in this frame")
+                )
+                rec.trajectory.append(pose)
+                rec.last_pose_diagnostics = pose.diagnostics
+            self._filters.pop(tid, None)
+            states[tid] = ObjectState(
+                tid, False, None, rec.label, None, None, pose, None, None, None, len(rec.gallery), None
+            )
+
+    def _relations(
+        self, frame: RGBDFrame, states: dict[int, ObjectState], support: Plane | None
+    ) -> SceneRelations:
+        """The relational layer over the objects in ``states`` (their centroid histories, salience order)."""
+        assert self.config.relations is not None
+        histories = {}
+        for tid in states:
+            cents = self.records[tid].centroids
+            histories[tid] = (
+                np.array([c[0] for c in cents]),
+                np.array([c[1] for c in cents]).reshape(-1, 3),
+            )
+        return scene_relations(
+            frame,
+            {i: s.spatial for i, s in states.items()},
+            {i: s.mask for i, s in states.items() if s.mask is not None},
+            histories,
+            self.config.relations,
+            support=support,
+            salience={i: self._salience(i, frame) for i in states},
+        )
 
     def _weights(self, frame: RGBDFrame, features: Features, candidates: list) -> np.ndarray:
         """Camera-motion weight of each frame feature.

@@ -114,16 +114,7 @@ def fit_plane_ransac(
     Raises:
         ValueError: fewer than 3 points, non-finite points, or a non-positive threshold.
     """
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 3:
-        raise ValueError(f"points has shape {pts.shape}, expected (N, 3) with N >= 3")
-    if not np.all(np.isfinite(pts)):
-        raise ValueError("points contain NaN/inf")
-    thr = np.asarray(threshold, dtype=np.float64)
-    if thr.shape not in ((), (pts.shape[0],)) or not np.all(thr > 0):
-        raise ValueError(f"threshold must be > 0 metres, a scalar or one per point; got shape {thr.shape}")
-    if not 0 < confidence < 1:
-        raise ValueError(f"confidence is {confidence}, expected in (0, 1)")
+    pts, thr = _checked(points, threshold, confidence)
     score = np.arange(pts.shape[0])
     if pts.shape[0] > score_points:
         score = np.sort(rng.choice(pts.shape[0], size=score_points, replace=False))
@@ -132,24 +123,10 @@ def fit_plane_ransac(
     best_count, best_n, best_d = -1, None, 0.0
     needed, tried, batch = max(min_iterations, 1), 0, 64
     while tried < min(needed, iterations):
-        idx = rng.integers(0, pts.shape[0], size=(batch, 3))
+        normals, offsets = _sample_planes(pts, rng, batch)
         tried += batch
-        p0 = pts[idx[:, 0]]
-        a, b = pts[idx[:, 1]] - p0, pts[idx[:, 2]] - p0
-        normals = np.stack(
-            [
-                a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
-                a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-                a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
-            ],
-            axis=1,
-        )
-        norms = np.linalg.norm(normals, axis=1)
-        ok = norms > 1e-12
-        if not ok.any():
+        if normals is None:
             continue
-        normals, p0 = normals[ok] / norms[ok, None], p0[ok]
-        offsets = -np.einsum("ij,ij->i", normals, p0)
         dist = spts @ normals.T
         dist += offsets
         counts = np.count_nonzero(np.abs(dist, out=dist) < thr_col, axis=0)
@@ -163,7 +140,54 @@ def fit_plane_ransac(
                 needed = max(min_iterations, int(np.ceil(np.log(1 - confidence) / np.log(1 - w**3))))
     if best_n is None:
         raise ValueError("every RANSAC sample was degenerate (collinear or repeated points)")
-    n, d = best_n, best_d
+    return _refine(pts, thr, best_n, best_d, refinements)
+
+
+def _checked(
+    points: np.ndarray, threshold: float | np.ndarray, confidence: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The points (N, 3) and thresholds (scalar or (N,)) as float64, checked (:func:`fit_plane_ransac`)."""
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 3:
+        raise ValueError(f"points has shape {pts.shape}, expected (N, 3) with N >= 3")
+    if not np.all(np.isfinite(pts)):
+        raise ValueError("points contain NaN/inf")
+    thr = np.asarray(threshold, dtype=np.float64)
+    if thr.shape not in ((), (pts.shape[0],)) or not np.all(thr > 0):
+        raise ValueError(f"threshold must be > 0 metres, a scalar or one per point; got shape {thr.shape}")
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence is {confidence}, expected in (0, 1)")
+    return pts, thr
+
+
+def _sample_planes(
+    pts: np.ndarray, rng: np.random.Generator, batch: int
+) -> tuple[np.ndarray, np.ndarray] | tuple[None, None]:
+    """Planes through ``batch`` random point triples: unit normals (B, 3) and offsets (B,).
+
+    Degenerate triples are left out; (None, None) when all are.
+    """
+    idx = rng.integers(0, pts.shape[0], size=(batch, 3))
+    p0 = pts[idx[:, 0]]
+    a, b = pts[idx[:, 1]] - p0, pts[idx[:, 2]] - p0
+    normals = np.stack(
+        [
+            a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
+            a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
+        ],
+        axis=1,
+    )
+    norms = np.linalg.norm(normals, axis=1)
+    ok = norms > 1e-12
+    if not ok.any():
+        return None, None
+    normals, p0 = normals[ok] / norms[ok, None], p0[ok]
+    return normals, -np.einsum("ij,ij->i", normals, p0)
+
+
+def _refine(pts: np.ndarray, thr: np.ndarray, n: np.ndarray, d: float, refinements: int) -> Plane:
+    """Refit the plane ``(n, d)`` on its inliers ``refinements`` times, weighted by ``1 / thr²`` per point."""
     inliers = _inliers(pts, n, d, thr)
     weights = None if thr.ndim == 0 else 1.0 / thr**2
     for _ in range(refinements):

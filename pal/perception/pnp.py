@@ -138,68 +138,23 @@ def pnp_ransac(
         return None
     gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     w = np.ones(n) if weights is None else np.asarray(weights, dtype=np.float64)
-    live_z = np.full(n, np.nan)
-    if image_points_3d is not None:
-        live_z = np.asarray(image_points_3d, dtype=np.float64)[:, 2]
-    tol = np.full(n, np.inf)
-    if depth_tolerance is not None:
-        tol = np.where(np.isfinite(live_z), np.broadcast_to(np.asarray(depth_tolerance, float), (n,)), np.inf)
-    Rs = [np.asarray(T, float)[:3, :3] for T in hypotheses]
-    ts = [np.asarray(T, float)[:3, 3] for T in hypotheses]
+    live_z, tol = _depth_gate(n, image_points_3d, depth_tolerance)
+    pool = _Hypotheses(obj, img, K, w, live_z, tol, reprojection_error, confidence, iterations)
+    priors = [np.asarray(T, float) for T in hypotheses]
+    pool.add([T[:3, :3] for T in priors], [T[:3, 3] for T in priors])
     tried = 0
     if image_points_3d is not None:
         live = np.asarray(image_points_3d, dtype=np.float64)
-        both = np.flatnonzero(np.all(np.isfinite(live), axis=1))
-        if both.size >= 3:
-            a = gen.integers(0, both.size, (min(iterations, 96), 3))
-            ok = (a[:, 0] != a[:, 1]) & (a[:, 1] != a[:, 2]) & (a[:, 0] != a[:, 2])
-            idx = both[a[ok]]
-            if idx.shape[0]:
-                R3, t3 = kabsch(obj[idx], live[idx])
-                Rs.extend(R3)
-                ts.extend(t3)
-                tried = int(idx.shape[0])
-    best: dict = {"score": -1.0, "fit": None, "fraction": 0.0}
-
-    def score() -> int:
-        """Score the pending hypotheses; returns the hypotheses needed for ``confidence``."""
-        if Rs:
-            uv, z = _project(np.array(Rs), np.array(ts), obj, K)
-            inl = (np.linalg.norm(uv - img, axis=-1) < reprojection_error) & (z > 1e-6)
-            inl &= ~(np.abs(z - live_z) > tol)  # NaN (no depth) never disqualifies
-            scores = inl @ w
-            k = int(np.argmax(scores))
-            if scores[k] > best["score"]:
-                best.update(score=float(scores[k]), fit=(Rs[k], ts[k]), fraction=float(inl[k].mean()))
-            Rs.clear()
-            ts.clear()
-        frac = best["fraction"]
-        if frac >= 1.0:
-            return 0
-        if frac <= 0.0:
-            return iterations
-        return min(iterations, int(np.ceil(np.log(1 - confidence) / np.log(1 - frac**4))))
-
-    needed = score()
+        tried = pool.add(*_kabsch_hypotheses(gen, obj, live, iterations))
+    needed = pool.score()
     while tried < needed:
-        idx = gen.choice(n, size=4, replace=False)
         tried += 1
-        count, rvecs, tvecs = cv2.solveP3P(obj[idx[:3]], img[idx[:3]], K, None, flags=cv2.SOLVEPNP_AP3P)
-        for rv, tv in zip(rvecs[:count], tvecs[:count], strict=True):
-            R = cv2.Rodrigues(rv)[0]
-            T = np.eye(4)
-            T[:3, :3], T[:3, 3] = R, tv.ravel()
-            if reprojection_errors(T, obj[idx[3:]], img[idx[3:]], K)[0] < reprojection_error:
-                Rs.append(R)
-                ts.append(tv.ravel())
-        if len(Rs) >= 32 or tried >= needed:
-            needed = score()
-    best_n = best["fit"]
-    if best_n is None:
+        pool.add(*_ap3p_hypotheses(gen, obj, img, K, reprojection_error))
+        if len(pool.Rs) >= 32 or tried >= needed:
+            needed = pool.score()
+    T = pool.best()
+    if T is None:
         return None
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = best_n
-    z_obs = live_z if depth_sigma is not None else None
     return refine_pose(
         obj,
         img,
@@ -207,10 +162,114 @@ def pnp_ransac(
         T,
         reprojection_error,
         min_inliers,
-        live_z=z_obs,
+        live_z=live_z if depth_sigma is not None else None,
         depth_sigma=depth_sigma,
         depth_tolerance=tol,
     )
+
+
+def _depth_gate(
+    n: int, image_points_3d: np.ndarray | None, depth_tolerance: np.ndarray | float | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) observed depths (NaN without) and (N,) depth tolerances of the inliers (inf: no gate)."""
+    live_z = np.full(n, np.nan)
+    if image_points_3d is not None:
+        live_z = np.asarray(image_points_3d, dtype=np.float64)[:, 2]
+    tol = np.full(n, np.inf)
+    if depth_tolerance is not None:
+        tol = np.where(np.isfinite(live_z), np.broadcast_to(np.asarray(depth_tolerance, float), (n,)), np.inf)
+    return live_z, tol
+
+
+def _kabsch_hypotheses(
+    gen: np.random.Generator, obj: np.ndarray, live: np.ndarray, iterations: int
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """3-point Kabsch fits of up to ``min(iterations, 96)`` samples of the pairs with depth."""
+    both = np.flatnonzero(np.all(np.isfinite(live), axis=1))
+    if both.size < 3:
+        return [], []
+    a = gen.integers(0, both.size, (min(iterations, 96), 3))
+    ok = (a[:, 0] != a[:, 1]) & (a[:, 1] != a[:, 2]) & (a[:, 0] != a[:, 2])
+    idx = both[a[ok]]
+    if not idx.shape[0]:
+        return [], []
+    R3, t3 = kabsch(obj[idx], live[idx])
+    return list(R3), list(t3)
+
+
+def _ap3p_hypotheses(
+    gen: np.random.Generator, obj: np.ndarray, img: np.ndarray, K: np.ndarray, reprojection_error: float
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The AP3P solutions of one random 4-point sample that reproject its fourth point within the threshold."""
+    idx = gen.choice(obj.shape[0], size=4, replace=False)
+    count, rvecs, tvecs = cv2.solveP3P(obj[idx[:3]], img[idx[:3]], K, None, flags=cv2.SOLVEPNP_AP3P)
+    Rs, ts = [], []
+    for rv, tv in zip(rvecs[:count], tvecs[:count], strict=True):
+        R = cv2.Rodrigues(rv)[0]
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, tv.ravel()
+        if reprojection_errors(T, obj[idx[3:]], img[idx[3:]], K)[0] < reprojection_error:
+            Rs.append(R)
+            ts.append(tv.ravel())
+    return Rs, ts
+
+
+class _Hypotheses:
+    """Pending hypotheses and the best scored so far (weighted inlier count)."""
+
+    def __init__(
+        self,
+        obj: np.ndarray,
+        img: np.ndarray,
+        K: np.ndarray,
+        w: np.ndarray,
+        live_z: np.ndarray,
+        tol: np.ndarray,
+        reprojection_error: float,
+        confidence: float,
+        iterations: int,
+    ) -> None:
+        self.obj, self.img, self.K, self.w, self.live_z, self.tol = obj, img, K, w, live_z, tol
+        self.reprojection_error, self.confidence, self.iterations = reprojection_error, confidence, iterations
+        self.Rs: list[np.ndarray] = []
+        self.ts: list[np.ndarray] = []
+        self.best_score = -1.0
+        self.fit: tuple[np.ndarray, np.ndarray] | None = None
+        self.fraction = 0.0
+
+    def add(self, Rs: list[np.ndarray], ts: list[np.ndarray]) -> int:
+        """Queue hypotheses; returns how many."""
+        self.Rs.extend(Rs)
+        self.ts.extend(ts)
+        return len(Rs)
+
+    def best(self) -> np.ndarray | None:
+        """The best hypothesis so far as a (4, 4) transform, or None."""
+        if self.fit is None:
+            return None
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = self.fit
+        return T
+
+    def score(self) -> int:
+        """Score the pending hypotheses; returns the hypotheses needed for ``confidence``."""
+        if self.Rs:
+            uv, z = _project(np.array(self.Rs), np.array(self.ts), self.obj, self.K)
+            inl = (np.linalg.norm(uv - self.img, axis=-1) < self.reprojection_error) & (z > 1e-6)
+            inl &= ~(np.abs(z - self.live_z) > self.tol)  # NaN (no depth) never disqualifies
+            scores = inl @ self.w
+            k = int(np.argmax(scores))
+            if scores[k] > self.best_score:
+                self.best_score, self.fit = float(scores[k]), (self.Rs[k], self.ts[k])
+                self.fraction = float(inl[k].mean())
+            self.Rs.clear()
+            self.ts.clear()
+        frac = self.fraction
+        if frac >= 1.0:
+            return 0
+        if frac <= 0.0:
+            return self.iterations
+        return min(self.iterations, int(np.ceil(np.log(1 - self.confidence) / np.log(1 - frac**4))))
 
 
 def _exp(w: np.ndarray) -> np.ndarray:

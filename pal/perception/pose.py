@@ -67,11 +67,11 @@ from pal.perception.frames import RGBDFrame
 from pal.perception.icp import geometric_condition, icp_fit
 from pal.perception.masks import Mask
 from pal.perception.memory import AdmissionDecision, ObjectRecord
-from pal.perception.pnp import pnp_ransac
+from pal.perception.pnp import RgbdFit, pnp_ransac
 from pal.perception.pose_checks import Evidence, Limits, check_fit, motion_between
 from pal.perception.pose_config import PoseConfig
 from pal.perception.pose_dense import dense_checks, snapshot_surface
-from pal.perception.pose_matching import choose_snapshots, correspond
+from pal.perception.pose_matching import FeaturePairs, choose_snapshots, fuse_pairs
 from pal.perception.rigid import to_homogeneous
 from pal.perception.spatial import lift, mask_points
 from pal.perception.trajectory import Pose, PoseDiagnostics
@@ -208,83 +208,90 @@ class PoseEstimator:
         snaps = choose_snapshots(record, cfg.max_snapshots, prior)
         if not snaps:
             return self._fallback(record, t, PoseDiagnostics(reason="no anchored snapshot")), None
-        live_pts, live_valid = lift(
-            feats.keypoints, frame.depth, (0, 0), frame.K, cfg.min_depth, cfg.max_depth
-        )
-        obj, live_idx, owner, has3d = [], [], [], []
-        for snap in snaps:
-            pairs, ref_pts, ref_valid = correspond(self.extractor, cfg, snap, feats, prior, frame)
-            if len(pairs) == 0 or snap.anchor is None:  # choose_snapshots only yields anchored ones
-                continue
-            anchor = snap.anchor
-            obj.append(ref_pts @ anchor[:3, :3].T + anchor[:3, 3])
-            live_idx.append(pairs[:, 0])
-            owner.append(np.full(len(pairs), snap.index))
-            has3d.append(ref_valid)
-        matches = int(sum(len(i) for i in live_idx))
-        ok = np.concatenate(has3d) if has3d else np.zeros(0, dtype=bool)
-        n2 = int(ok.sum())
-        if n2 < cfg.min_pairs:
+        pairs = fuse_pairs(self.extractor, cfg, snaps, frame, feats, prior)
+        if pairs.obj is None:
             diag = PoseDiagnostics(
-                matches=matches,
-                reason=f"{n2} matches inside the masks with snapshot depth < {cfg.min_pairs}",
+                matches=pairs.matches,
+                reason=f"{pairs.n2} matches inside the masks with snapshot depth < {cfg.min_pairs}",
                 attempts=len(snaps),
             )
             return self._fallback(record, t, diag), None
-        obj_pts = np.concatenate(obj)[ok]
-        li = np.concatenate(live_idx)[ok]
-        own = np.concatenate(owner)[ok]
-        img = feats.keypoints[li].astype(np.float64)
-        live3d = np.where(live_valid[li, None], live_pts[li], np.nan)
-        n3 = int(live_valid[li].sum())
         px = max(1.5, cfg.pnp_reprojection_px * frame.width / 640.0)
-        sigma_z, tol_z = self._depth_noise(live3d[:, 2])
+        sigma_z, tol_z = self._depth_noise(pairs.live3d[:, 2])
         fit = pnp_ransac(
-            obj_pts,
-            img,
+            pairs.obj,
+            pairs.img,
             frame.K,
             rng=self.rng,
             iterations=cfg.ransac_iterations,
             reprojection_error=px,
             confidence=cfg.pnp_confidence,
             min_inliers=cfg.checks.min_inliers,
-            image_points_3d=live3d,
+            image_points_3d=pairs.live3d,
             hypotheses=() if prior is None else (prior,),
             depth_tolerance=tol_z,
             depth_sigma=sigma_z,
         )
         if fit is None:
             diag = PoseDiagnostics(
-                matches=matches,
-                pairs=n3,
-                reason=f"no fit with {cfg.checks.min_inliers} inliers among {n2} pairs",
+                matches=pairs.matches,
+                pairs=pairs.n3,
+                reason=f"no fit with {cfg.checks.min_inliers} inliers among {pairs.n2} pairs",
                 attempts=len(snaps),
             )
             return self._fallback(record, t, diag), None
-        sigma_z, tol_z = self._depth_noise(live3d[:, 2])
+        return self._checked_pose(record, frame, pairs, fit, prior, W, px, len(snaps)), None
+
+    def _checked_pose(
+        self,
+        record: ObjectRecord,
+        frame: RGBDFrame,
+        pairs: FeaturePairs,
+        fit: RgbdFit,
+        prior: np.ndarray | None,
+        W: np.ndarray,
+        px: float,
+        attempts: int,
+    ) -> Pose:
+        """The pose of a feature fit after the checks of :mod:`pal.perception.pose_checks`.
+
+        ``estimated`` (and accepted into the record's world-frame state) or ``rejected``.
+        """
+        cfg = self.config
+        t = frame.timestamp
+        sigma_z, tol_z = self._depth_noise(pairs.live3d[:, 2])
         fit, notes, failed, moved = check_fit(
-            Evidence(frame, obj_pts, img, live3d, sigma_z, tol_z, px),
+            Evidence(frame, pairs.obj, pairs.img, pairs.live3d, sigma_z, tol_z, px),
             fit,
             record,
             prior,
             W,
             Limits(cfg.checks, cfg.noise, cfg.ransac_threshold, cfg.max_speed, cfg.max_angular_speed),
         )
-        used = own[fit.inliers]
+        used = pairs.owner[fit.inliers]
         top = int(np.bincount(used - used.min()).argmax() + used.min()) if used.size else None
         T = fit.matrix()
         cov = fit.covariance
-        ratio = fit.num_inliers / n2
+        ratio = fit.num_inliers / pairs.n2
         reason = "; ".join(notes) if notes else "ok"
         if failed:
             reason = "rejected: " + "; ".join(failed) + (f" ({reason})" if notes else "")
         diag = PoseDiagnostics(
-            matches, n3, fit.num_inliers, fit.rmse, "pnp", reason, top, len(snaps), ratio, tuple(failed)
+            pairs.matches,
+            pairs.n3,
+            fit.num_inliers,
+            fit.rmse,
+            "pnp",
+            reason,
+            top,
+            attempts,
+            ratio,
+            tuple(failed),
         )
         if failed:
-            return Pose(t, "rejected", T, diag), None
+            return Pose(t, "rejected", T, diag)
         self._accept(record, T, W, t, moved)
-        return Pose(t, "estimated", T, diag, cov), None
+        return Pose(t, "estimated", T, diag, cov)
 
     def _accept(self, record: ObjectRecord, T: np.ndarray, W: np.ndarray, t: float, moved: bool) -> None:
         """Update the record's world-frame state with an accepted ``camera_from_object`` T."""

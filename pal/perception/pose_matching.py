@@ -3,10 +3,13 @@
 Which anchored snapshots of an object to match in a frame (the closest in orientation to the
 predicted or last estimated pose), and the pairs of live features and snapshot keypoints
 lifted to 3-D: ratio-test matches plus, with a predicted pose, the guided matches
-(:func:`pal.perception.features.guided_matches`), kept inside both masks.
+(:func:`pal.perception.features.guided_matches`), kept inside both masks; and those pairs of
+all the matched snapshots fused in the canonical frame through their anchors (:func:`fuse_pairs`).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -16,7 +19,7 @@ from pal.perception.memory import ObjectRecord, Snapshot
 from pal.perception.pose_config import PoseConfig
 from pal.perception.spatial import lift
 
-__all__ = ["choose_snapshots", "correspond", "rotation_angle"]
+__all__ = ["FeaturePairs", "choose_snapshots", "correspond", "fuse_pairs", "rotation_angle"]
 
 
 def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
@@ -97,3 +100,68 @@ def correspond(
         return empty
     pairs = pairs[on[pairs[:, 1]]]
     return pairs, pts[pairs[:, 1]], valid[pairs[:, 1]]
+
+
+@dataclass(frozen=True, eq=False)
+class FeaturePairs:
+    """Object-frame points <-> live keypoints fused over the tried snapshots (:func:`fuse_pairs`).
+
+    ``matches`` counts every match, ``n2`` those with snapshot depth (the pairs) and ``n3`` the
+    pairs whose live keypoint has depth too. The arrays (None with fewer than ``min_pairs``
+    pairs): ``obj`` (n2, 3) object-frame points, ``img`` (n2, 2) live pixels, ``live3d`` (n2, 3)
+    live points (NaN rows without depth), ``owner`` (n2,) the snapshot of each pair.
+    """
+
+    matches: int
+    n2: int
+    obj: np.ndarray | None = None
+    img: np.ndarray | None = None
+    live3d: np.ndarray | None = None
+    owner: np.ndarray | None = None
+    n3: int = 0
+
+
+def fuse_pairs(
+    extractor: FeatureExtractor,
+    cfg: PoseConfig,
+    snaps: list[Snapshot],
+    frame: RGBDFrame,
+    feats: Features,
+    prior: np.ndarray | None,
+) -> FeaturePairs:
+    """The correspondences of all ``snaps`` fused in the canonical frame through their anchors.
+
+    Args:
+        extractor: the estimator's feature extractor.
+        cfg: the estimator's parameters.
+        snaps: anchored snapshots to match (:func:`choose_snapshots`).
+        frame: the live frame.
+        feats: the object's live features.
+        prior: (4, 4) predicted ``camera_from_object``, or None.
+    """
+    live_pts, live_valid = lift(feats.keypoints, frame.depth, (0, 0), frame.K, cfg.min_depth, cfg.max_depth)
+    obj, live_idx, owner, has3d = [], [], [], []
+    for snap in snaps:
+        pairs, ref_pts, ref_valid = correspond(extractor, cfg, snap, feats, prior, frame)
+        if len(pairs) == 0 or snap.anchor is None:  # choose_snapshots only yields anchored ones
+            continue
+        anchor = snap.anchor
+        obj.append(ref_pts @ anchor[:3, :3].T + anchor[:3, 3])
+        live_idx.append(pairs[:, 0])
+        owner.append(np.full(len(pairs), snap.index))
+        has3d.append(ref_valid)
+    matches = int(sum(len(i) for i in live_idx))
+    ok = np.concatenate(has3d) if has3d else np.zeros(0, dtype=bool)
+    n2 = int(ok.sum())
+    if n2 < cfg.min_pairs:
+        return FeaturePairs(matches, n2)
+    li = np.concatenate(live_idx)[ok]
+    return FeaturePairs(
+        matches,
+        n2,
+        np.concatenate(obj)[ok],
+        feats.keypoints[li].astype(np.float64),
+        np.where(live_valid[li, None], live_pts[li], np.nan),
+        np.concatenate(owner)[ok],
+        int(live_valid[li].sum()),
+    )

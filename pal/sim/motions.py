@@ -146,6 +146,73 @@ def _path(
     return p0, c, p1, {"length_m": L, "start": p0.tolist(), "end": p1.tolist(), "bulge_m": bulge}
 
 
+def _draw_path(
+    rng: np.random.Generator, kind: str, obj: str, yaw0: float, params: dict[str, Any]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """Draw a translation or roll: its curve (start, control point, end), heading drift (deg) and duration (s).
+
+    The drawn parameters are added to ``params``.
+    """
+    if kind == "depth translation":
+        x0 = float(rng.uniform(-0.06, 0.06))
+        p0 = np.array([x0, rng.uniform(0.03, 0.06)])
+        p1 = np.array([x0 + rng.uniform(-0.04, 0.04), rng.uniform(-0.12, -0.09)])
+        c = 0.5 * (p0 + p1) + np.array([rng.uniform(-0.03, 0.03), 0.0])
+        params.update(start=p0.tolist(), end=p1.tolist())
+        speed = float(rng.uniform(0.04, 0.10))
+    else:
+        p0, c, p1, extra = _path(rng, *_SIDEWAYS[obj])
+        params.update(extra)
+        speed = float(rng.uniform(0.10, 0.22) if kind == "roll" else rng.uniform(0.04, 0.14))
+    curve = _bezier(p0, c, p1, np.linspace(0.0, 1.0, 201))
+    duration = float(np.linalg.norm(np.diff(curve, axis=0), axis=1).sum()) / speed
+    drift = 0.0 if kind == "roll" else float(rng.uniform(-10.0, 10.0))
+    params.update(speed_mps=speed, yaw0_deg=yaw0, yaw_drift_deg=drift)
+    return p0, c, p1, drift, duration
+
+
+def _draw_turn(
+    rng: np.random.Generator, yaw0: float, params: dict[str, Any]
+) -> tuple[float, np.ndarray, float, float]:
+    """Draw a rotation in place: its angle (deg), centre (2-D, m), hand wobble (m) and duration (s).
+
+    The drawn parameters are added to ``params``.
+    """
+    angle = float(rng.uniform(90.0, 180.0))
+    omega = float(rng.uniform(30.0, 60.0))
+    centre = np.array([rng.uniform(-0.08, 0.08), rng.uniform(-0.07, 0.0)])
+    wobble = float(rng.uniform(0.0, 0.01))
+    duration = abs(angle) / omega
+    params.update(
+        angle_deg=angle, angular_speed_dps=omega, centre=centre.tolist(), wobble_m=wobble, yaw0_deg=yaw0
+    )
+    return angle, centre, wobble, duration
+
+
+def _rolled(rng: np.random.Generator, xy: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) orientations of the ball rolling without slipping along (N, 2) ``xy`` from a random one."""
+    R0 = Rotation.from_rotvec(rng.normal(size=3) * math.pi / math.sqrt(3.0))
+    Rs = [R0]
+    for k in range(1, xy.shape[0]):  # rolling without slipping: axis z x dp, angle |dp| / r
+        dp = np.append(xy[k] - xy[k - 1], 0.0)
+        Rs.append(Rotation.from_rotvec(np.cross([0.0, 0.0, 1.0], dp) / BALL_RADIUS) * Rs[-1])
+    return np.stack([r.as_matrix() for r in Rs])
+
+
+def _parked(rng: np.random.Generator, obj: str, n: int) -> dict[str, np.ndarray]:
+    """(n, 4, 4) still poses of the objects other than ``obj``, jittered about :data:`PARKED`."""
+    poses = {}
+    for other in OBJECTS:
+        if other == obj:
+            continue
+        px, py, pyaw = PARKED[other]
+        jx, jy, jyaw = rng.uniform(-0.01, 0.01), rng.uniform(-0.01, 0.01), rng.uniform(-10.0, 10.0)
+        poses[other] = _pose(
+            np.full(n, px + jx), np.full(n, py + jy), RESTING_HEIGHT[other], _yaw(np.full(n, pyaw + jyaw))
+        )
+    return poses
+
+
 def script(
     motion: str, seed: int = 0, fps: float = 15.0, hold_start: float = 0.6, hold_end: float = 0.5
 ) -> Script:
@@ -173,30 +240,9 @@ def script(
     params: dict[str, Any] = {"object": obj, "kind": spec.kind}
     yaw0 = float(rng.uniform(-30.0, 30.0))
     if spec.kind in ("translation", "roll", "depth translation"):
-        if spec.kind == "depth translation":
-            x0 = float(rng.uniform(-0.06, 0.06))
-            p0 = np.array([x0, rng.uniform(0.03, 0.06)])
-            p1 = np.array([x0 + rng.uniform(-0.04, 0.04), rng.uniform(-0.12, -0.09)])
-            c = 0.5 * (p0 + p1) + np.array([rng.uniform(-0.03, 0.03), 0.0])
-            params.update(start=p0.tolist(), end=p1.tolist())
-            speed = float(rng.uniform(0.04, 0.10))
-        else:
-            p0, c, p1, extra = _path(rng, *_SIDEWAYS[obj])
-            params.update(extra)
-            speed = float(rng.uniform(0.10, 0.22) if spec.kind == "roll" else rng.uniform(0.04, 0.14))
-        curve = _bezier(p0, c, p1, np.linspace(0.0, 1.0, 201))
-        duration = float(np.linalg.norm(np.diff(curve, axis=0), axis=1).sum()) / speed
-        drift = 0.0 if spec.kind == "roll" else float(rng.uniform(-10.0, 10.0))
-        params.update(speed_mps=speed, yaw0_deg=yaw0, yaw_drift_deg=drift)
+        p0, c, p1, drift, duration = _draw_path(rng, spec.kind, obj, yaw0, params)
     else:  # rotation
-        angle = float(rng.uniform(90.0, 180.0))
-        omega = float(rng.uniform(30.0, 60.0))
-        centre = np.array([rng.uniform(-0.08, 0.08), rng.uniform(-0.07, 0.0)])
-        wobble = float(rng.uniform(0.0, 0.01))
-        duration = abs(angle) / omega
-        params.update(
-            angle_deg=angle, angular_speed_dps=omega, centre=centre.tolist(), wobble_m=wobble, yaw0_deg=yaw0
-        )
+        angle, centre, wobble, duration = _draw_turn(rng, yaw0, params)
     params["duration_s"] = duration
     total = hold_start + duration + hold_end
     n = math.floor(total * fps + 1e-9) + 1
@@ -208,24 +254,9 @@ def script(
         moving = _pose(xy[:, 0], xy[:, 1], z, _yaw(yaw0 + angle * s))
     else:
         xy = _bezier(p0, c, p1, s)
-        if spec.kind == "roll":
-            R0 = Rotation.from_rotvec(rng.normal(size=3) * math.pi / math.sqrt(3.0))
-            Rs = [R0]
-            for k in range(1, n):  # rolling without slipping: axis z x dp, angle |dp| / r
-                dp = np.append(xy[k] - xy[k - 1], 0.0)
-                Rs.append(Rotation.from_rotvec(np.cross([0.0, 0.0, 1.0], dp) / BALL_RADIUS) * Rs[-1])
-            moving = _pose(xy[:, 0], xy[:, 1], z, np.stack([r.as_matrix() for r in Rs]))
-        else:
-            moving = _pose(xy[:, 0], xy[:, 1], z, _yaw(yaw0 + drift * s))
-    poses = {obj: moving}
-    for other in OBJECTS:
-        if other == obj:
-            continue
-        px, py, pyaw = PARKED[other]
-        jx, jy, jyaw = rng.uniform(-0.01, 0.01), rng.uniform(-0.01, 0.01), rng.uniform(-10.0, 10.0)
-        poses[other] = _pose(
-            np.full(n, px + jx), np.full(n, py + jy), RESTING_HEIGHT[other], _yaw(np.full(n, pyaw + jyaw))
-        )
+        R = _rolled(rng, xy) if spec.kind == "roll" else _yaw(yaw0 + drift * s)
+        moving = _pose(xy[:, 0], xy[:, 1], z, R)
+    poses = {obj: moving, **_parked(rng, obj, n)}
     params["parked"] = {k: v[0, :3, 3].tolist() for k, v in poses.items() if k != obj}
     return Script(motion, int(seed), float(fps), t, poses, params)
 

@@ -1,10 +1,11 @@
+import dataclasses
 import random
 
 import numpy as np
 import pytest
 import torch
 
-from inference import Intervene, ReplayNoise, SamplingConfig, infer_action
+from inference import ActionOptions, Intervene, ReplayNoise, SamplingConfig, infer_action
 from models import CausalGraph, FunctionMechanism, Variable, WorldModel, finger_graph
 
 FAST = SamplingConfig(population=64, elites=8, iterations=3, refine_steps=100)
@@ -40,7 +41,7 @@ def reachable_targets(n, seed):
 
 def test_reaches_95_percent_of_128_targets(plant):
     q_prev, target, a_true = reachable_targets(128, 0)
-    r = infer_action(plant, {"q_prev": q_prev}, {"q": target}, steps=200, lr=0.05)
+    r = infer_action(plant, {"q_prev": q_prev}, {"q": target}, num_steps=200, options=ActionOptions(lr=0.05))
     err = (r.predicted["q"] - target).abs()
     assert float((err < 0.05).float().mean()) >= 0.95
     assert r.actions["a"].shape == (128, 1)
@@ -52,7 +53,11 @@ def test_reaches_95_percent_of_128_targets(plant):
 def test_actions_stay_within_bounds_for_unreachable_targets(plant):
     q_prev = torch.zeros(4, 1)
     r = infer_action(
-        plant, {"q_prev": q_prev}, {"q": torch.tensor([[5.0], [-5.0], [5.0], [-5.0]])}, steps=100, lr=0.2
+        plant,
+        {"q_prev": q_prev},
+        {"q": torch.tensor([[5.0], [-5.0], [5.0], [-5.0]])},
+        num_steps=100,
+        options=ActionOptions(lr=0.2),
     )
     torch.testing.assert_close(r.actions["a"].ravel(), torch.tensor([1.0, -1.0, 1.0, -1.0]))
 
@@ -66,24 +71,30 @@ def test_units_are_independent(plant):
 
 def test_inits_and_custom_preference(plant):
     q_prev, target, _ = reachable_targets(16, 2)
-    r = infer_action(plant, {"q_prev": q_prev}, {"q": target}, init="random", seed=3)
-    r2 = infer_action(plant, {"q_prev": q_prev}, {"q": target}, init="random", seed=3)
+    r = infer_action(plant, {"q_prev": q_prev}, {"q": target}, options=ActionOptions(init="random"), seed=3)
+    r2 = infer_action(plant, {"q_prev": q_prev}, {"q": target}, options=ActionOptions(init="random"), seed=3)
     torch.testing.assert_close(r.actions["a"], r2.actions["a"])
     r3 = infer_action(
-        plant, {"q_prev": q_prev}, {"q": target}, init={"a": torch.zeros(16, 1)}, steps=1, lr=1e-9
+        plant,
+        {"q_prev": q_prev},
+        {"q": target},
+        options=ActionOptions(init={"a": torch.zeros(16, 1)}, lr=1e-9),
+        num_steps=1,
     )
     assert torch.all(r3.actions["a"].abs() < 1e-6)
 
     def prefer_high(pred):
         return pred["q"][:, 0]
 
-    r4 = infer_action(plant, {"q_prev": q_prev}, log_preference=prefer_high, steps=100, lr=0.1)
+    r4 = infer_action(
+        plant, {"q_prev": q_prev}, options=ActionOptions(log_preference=prefer_high, lr=0.1), num_steps=100
+    )
     assert torch.all(r4.actions["a"] == 1.0)
 
 
 def test_finger_preset_runs_batched():
     m = WorldModel(finger_graph("state"))
-    r = infer_action(m, {"q_prev.finger": torch.zeros(5, 1)}, {"q.finger": torch.zeros(5, 1)}, steps=3)
+    r = infer_action(m, {"q_prev.finger": torch.zeros(5, 1)}, {"q.finger": torch.zeros(5, 1)}, num_steps=3)
     assert set(r.actions) == {"act.finger"}
     lo, hi = -1.0, 0.33
     assert torch.all((r.actions["act.finger"] >= lo) & (r.actions["act.finger"] <= hi))
@@ -92,7 +103,7 @@ def test_finger_preset_runs_batched():
 def test_model_parameters_are_left_untouched(plant):
     m = WorldModel(finger_graph("thesis"))
     before = {k: v.clone() for k, v in m.state_dict().items()}
-    infer_action(m, {"q_prev.finger": torch.zeros(3, 1)}, {"q.finger": torch.ones(3, 1)}, steps=10)
+    infer_action(m, {"q_prev.finger": torch.zeros(3, 1)}, {"q.finger": torch.ones(3, 1)}, num_steps=10)
     for k, v in m.state_dict().items():
         assert torch.equal(v, before[k]), k
     assert all(p.requires_grad for p in m.parameters())
@@ -108,9 +119,9 @@ def test_model_parameters_are_left_untouched(plant):
         ({"targets": {"a": torch.zeros(2, 1)}}, "target 'a' is an optimised action"),
         ({"targets": None}, "give targets or a log_preference"),
         ({"actions": ["q"]}, "only actions can be optimised"),
-        ({"init": "zero"}, "init 'zero' unknown"),
-        ({"init": {"a": torch.full((2, 1), 3.0)}}, "outside the bounds"),
-        ({"steps": 0}, "steps must be a positive int"),
+        ({"options": ActionOptions(init="zero")}, "init 'zero' unknown"),
+        ({"options": ActionOptions(init={"a": torch.full((2, 1), 3.0)})}, "outside the bounds"),
+        ({"num_steps": 0}, "num_steps must be a positive int"),
     ],
 )
 def test_bad_input(plant, kwargs, match):
@@ -127,13 +138,13 @@ GOLDEN_INPUT = (torch.tensor([[0.0], [0.5], [-1.0], [2.0]]), torch.tensor([[0.3]
 # The Alg. 4.2 results (float32, exact) of the implementation before the sampling stage existed.
 GOLDEN = {
     "midpoint": (
-        {"steps": 50, "lr": 0.05},
+        {"num_steps": 50, "options": ActionOptions(lr=0.05)},
         ["0x1.4d95d2p-3", "0x1.cb061ep-2", "-0x1.aaa4bap-1", "0x1p+0"],
         ["0x1.c5e98ap-14", "0x1.bf4f08p-14", "0x1.fb041ep-12", "0x1.094abp+1"],
         "0x1.09673cp-1",
     ),
     "random": (
-        {"steps": 30, "lr": 0.1, "init": "random", "seed": 3, "scale": 0.5},
+        {"num_steps": 30, "options": ActionOptions(lr=0.1, init="random", scale=0.5), "seed": 3},
         ["0x1.bf8d5ap-3", "0x1p+0", "-0x1.bac53p-1", "0x1p+0"],
         ["0x1.953d5ap-6", "0x1.1d88d4p-3", "0x1.8ed438p-9", "0x1.094abp+3"],
         "0x1.0ffa5ap+1",
@@ -151,9 +162,8 @@ def test_without_sampling_the_result_is_bit_for_bit_the_thesis_protocol(plant, c
     assert torch.equal(r.final_loss, torch.tensor([float.fromhex(x) for x in final]))
     assert r.loss[-1] == float.fromhex(last)
     assert r.search_loss == ()
-    explicit = infer_action(
-        plant, {"q_prev": q_prev}, {"q": target}, sampling=None, horizon=1, risk=None, **kwargs
-    )
+    options = dataclasses.replace(kwargs["options"], sampling=None, horizon=1, risk=None)
+    explicit = infer_action(plant, {"q_prev": q_prev}, {"q": target}, **{**kwargs, "options": options})
     assert torch.equal(explicit.actions["a"], expected)
 
 
@@ -174,7 +184,7 @@ def test_sampling_escapes_the_joint_limit_plateau_where_adam_stalls():
     stalled = infer_action(model, {"q_prev": q_prev}, {"q": target})
     assert torch.equal(stalled.actions["a"], torch.zeros(64, 1))  # zero gradient: Adam never moves
     assert float((stalled.predicted["q"] - target).abs().min()) > 0.09
-    r = infer_action(model, {"q_prev": q_prev}, {"q": target}, sampling=FAST)
+    r = infer_action(model, {"q_prev": q_prev}, {"q": target}, options=ActionOptions(sampling=FAST))
     assert float((r.predicted["q"] - target).abs().max()) < 1e-3
     torch.testing.assert_close(r.actions["a"], a_true, atol=1e-3, rtol=0)
     assert len(r.search_loss) == 3 and list(r.search_loss) == sorted(r.search_loss, reverse=True)
@@ -192,7 +202,7 @@ def test_sampling_escapes_a_tanh_plateau_towards_the_midpoint():
     stalled = infer_action(model, {"q_prev": q_prev}, {"q": target})
     assert torch.equal(stalled.actions["a"], torch.zeros(32, 1))
     r = infer_action(
-        model, {"q_prev": q_prev}, {"q": target}, sampling=FAST, lr=0.01
+        model, {"q_prev": q_prev}, {"q": target}, options=ActionOptions(sampling=FAST, lr=0.01)
     )  # slope 20: small steps
     assert float((r.predicted["q"] - target).abs().max()) < 1e-3
     torch.testing.assert_close(r.actions["a"], a_true, atol=1e-3, rtol=0)
@@ -207,8 +217,15 @@ def test_linear_model_gives_the_analytic_action(sampling):
     u = torch.randn(32, 1, generator=g)
     a_true = torch.rand(32, 1, generator=g) * 1.6 - 0.8
     target = q_prev + 0.5 * a_true + 0.1 * u
-    for noise, expected in ((None, a_true + 0.2 * u), ({"q": u}, a_true)):
-        r = infer_action(model, {"q_prev": q_prev}, {"q": target}, noise=noise, sampling=sampling, steps=300)
+    abducted = ReplayNoise({"q": u}, default="expected")(model)
+    for program, expected in ((model, a_true + 0.2 * u), (abducted, a_true)):
+        r = infer_action(
+            program,
+            {"q_prev": q_prev},
+            {"q": target},
+            options=ActionOptions(sampling=sampling),
+            num_steps=300,
+        )
         torch.testing.assert_close(r.actions["a"], expected.clamp(-1, 1), atol=1e-3, rtol=0)
 
 
@@ -216,7 +233,9 @@ def test_sampled_plan_matches_the_program_under_do():
     model = WorldModel(finger_graph("state"), seed=0)
     q_prev = torch.linspace(-2.5, 0.4, 16)[:, None]
     target = torch.linspace(0.3, -2.0, 16)[:, None]
-    r = infer_action(model, {"q_prev.finger": q_prev}, {"q.finger": target}, sampling=FAST, seed=4)
+    r = infer_action(
+        model, {"q_prev.finger": q_prev}, {"q.finger": target}, options=ActionOptions(sampling=FAST), seed=4
+    )
     a = r.actions["act.finger"]
     assert bool(((a >= -1.0) & (a <= 0.33)).all())
     program = Intervene({"act.finger": a})(ReplayNoise({}, default="expected")(model))
@@ -224,26 +243,38 @@ def test_sampled_plan_matches_the_program_under_do():
     torch.testing.assert_close(r.predicted["q.finger"], out["q.finger"], atol=1e-6, rtol=0)
     loss = 0.5 * (out["q.finger"] - target).pow(2).sum(-1)
     torch.testing.assert_close(r.final_loss, loss, atol=1e-6, rtol=0)
-    again = infer_action(model, {"q_prev.finger": q_prev}, {"q.finger": target}, sampling=FAST, seed=4)
+    again = infer_action(
+        model, {"q_prev.finger": q_prev}, {"q.finger": target}, options=ActionOptions(sampling=FAST), seed=4
+    )
     assert torch.equal(again.actions["act.finger"], a)
 
 
 def test_sampling_never_loses_the_thesis_start(plant):
     """With one iteration, no refinement and a tiny population the midpoint (a member) bounds the loss."""
     q_prev, target, _ = reachable_targets(16, 5)
-    start = infer_action(plant, {"q_prev": q_prev}, {"q": target}, steps=1, lr=1e-12)
+    start = infer_action(
+        plant, {"q_prev": q_prev}, {"q": target}, num_steps=1, options=ActionOptions(lr=1e-12)
+    )
     cfg = SamplingConfig(population=2, elites=1, iterations=1, refine_steps=0)
-    r = infer_action(plant, {"q_prev": q_prev}, {"q": target}, sampling=cfg)
+    r = infer_action(plant, {"q_prev": q_prev}, {"q": target}, options=ActionOptions(sampling=cfg))
     assert r.loss == () and len(r.search_loss) == 1
     assert bool((r.final_loss <= start.final_loss + 1e-6).all())
 
 
 def test_custom_preference_broadcasts_over_candidates(plant):
     q_prev = torch.zeros(4, 1)
-    r = infer_action(plant, {"q_prev": q_prev}, log_preference=lambda p: p["q"][..., 0], sampling=FAST)
+    r = infer_action(
+        plant,
+        {"q_prev": q_prev},
+        options=ActionOptions(log_preference=lambda p: p["q"][..., 0], sampling=FAST),
+    )
     torch.testing.assert_close(r.actions["a"], torch.ones(4, 1))
     with pytest.raises(ValueError, match=r"log_preference returned \(4,\), expected shape \(64, 4\)"):
-        infer_action(plant, {"q_prev": q_prev}, log_preference=lambda p: p["q"][0, :, 0], sampling=FAST)
+        infer_action(
+            plant,
+            {"q_prev": q_prev},
+            options=ActionOptions(log_preference=lambda p: p["q"][0, :, 0], sampling=FAST),
+        )
 
 
 def test_several_and_fixed_actions():
@@ -259,10 +290,10 @@ def test_several_and_fixed_actions():
         g, {"y": FunctionMechanism(lambda z: z[..., 0:1] - z[..., 1:2] + 0.5 * z[..., 2:3], 3, 1)}
     )
     target = torch.tensor([[-2.5], [1.5]])
-    r = infer_action(model, None, {"y": target}, sampling=FAST)
+    r = infer_action(model, None, {"y": target}, options=ActionOptions(sampling=FAST))
     assert r.actions["a"].shape == (2, 2) and r.actions["b"].shape == (2, 1)
     torch.testing.assert_close(r.predicted["y"], target, atol=1e-3, rtol=0)
-    fixed = infer_action(model, {"b": torch.ones(2, 1)}, {"y": target}, sampling=FAST)
+    fixed = infer_action(model, {"b": torch.ones(2, 1)}, {"y": target}, options=ActionOptions(sampling=FAST))
     assert set(fixed.actions) == {"a"}
     torch.testing.assert_close(fixed.predicted["y"], target, atol=1e-3, rtol=0)
 
@@ -282,7 +313,11 @@ def test_horizon_every_step_reaches_the_target_at_once(sampling):
     q0 = torch.tensor([[0.0], [0.2], [-0.3]])
     target = torch.tensor([[0.4], [-0.2], [0.1]])
     r = infer_action(
-        model, {"q_prev": q0}, {"q": target}, horizon=3, target_at="every", sampling=sampling, steps=400
+        model,
+        {"q_prev": q0},
+        {"q": target},
+        options=ActionOptions(horizon=3, target_at="every", sampling=sampling),
+        num_steps=400,
     )
     a = r.actions["a"]
     assert a.shape == (3, 3, 1) and r.predicted["q"].shape == (3, 3, 1)
@@ -297,25 +332,39 @@ def test_horizon_final_step_needs_several_steps():
     model = _integrator()
     q0 = torch.zeros(2, 1)
     target = torch.tensor([[1.2], [-1.2]])
-    r = infer_action(model, {"q_prev": q0}, {"q": target}, horizon=3, sampling=SamplingConfig(noise_beta=2.0))
+    r = infer_action(
+        model,
+        {"q_prev": q0},
+        {"q": target},
+        options=ActionOptions(horizon=3, sampling=SamplingConfig(noise_beta=2.0)),
+    )
     torch.testing.assert_close(r.predicted["q"][:, -1], target, atol=1e-3, rtol=0)
-    one = infer_action(model, {"q_prev": q0}, {"q": target}, sampling=FAST)
+    one = infer_action(model, {"q_prev": q0}, {"q": target}, options=ActionOptions(sampling=FAST))
     torch.testing.assert_close(one.predicted["q"], torch.tensor([[0.5], [-0.5]]))
 
 
-def test_horizon_inits_and_noise():
+def test_horizon_inits_and_no_noise_keyword():
     model = _integrator()
     q0 = torch.zeros(2, 1)
     target = torch.ones(2, 1)
     seq = torch.full((2, 4, 1), 0.25)
-    r = infer_action(model, {"q_prev": q0}, {"q": target}, horizon=4, init={"a": seq}, steps=1, lr=1e-9)
+    r = infer_action(
+        model,
+        {"q_prev": q0},
+        {"q": target},
+        options=ActionOptions(horizon=4, init={"a": seq}, lr=1e-9),
+        num_steps=1,
+    )
     torch.testing.assert_close(r.actions["a"], seq)
-    held = infer_action(model, {"q_prev": q0}, {"q": target}, horizon=4, init={"a": torch.full((2, 1), 0.5)})
+    held = infer_action(
+        model,
+        {"q_prev": q0},
+        {"q": target},
+        options=ActionOptions(horizon=4, init={"a": torch.full((2, 1), 0.5)}),
+    )
     torch.testing.assert_close(held.predicted["q"][:, -1], target, atol=1e-3, rtol=0)
-    u = torch.zeros(2, 4, 1)
-    u[:, -1] = 2.0  # the last step is pushed up by 0.1 * 2
-    r = infer_action(model, {"q_prev": q0}, {"q": target}, horizon=4, noise={"q": u}, sampling=FAST)
-    torch.testing.assert_close(r.predicted["q"][:, -1], target, atol=1e-3, rtol=0)
+    with pytest.raises(TypeError, match="noise"):
+        infer_action(model, {"q_prev": q0}, {"q": target}, options=ActionOptions(horizon=4), noise={"q": q0})
 
 
 # ---------------------------------------------------------------- randomness
@@ -330,7 +379,11 @@ def test_planner_leaves_the_global_rngs_alone(plant):
     cfg = SamplingConfig(population=16, elites=4, iterations=2, noise_beta=1.0, refine_steps=3)
     for horizon in (1, 3):
         infer_action(
-            plant, {"q_prev": q_prev}, {"q": target}, sampling=cfg, horizon=horizon, init="random", seed=2
+            plant,
+            {"q_prev": q_prev},
+            {"q": target},
+            options=ActionOptions(sampling=cfg, horizon=horizon, init="random"),
+            seed=2,
         )
     assert random.getstate() == before[0]
     assert np.array_equal(np.random.get_state()[1], before[1])
@@ -340,7 +393,10 @@ def test_planner_leaves_the_global_rngs_alone(plant):
 def test_seed_decides_the_samples(plant):
     q_prev, target, _ = reachable_targets(8, 7)
     cfg = SamplingConfig(population=8, elites=2, iterations=1, refine_steps=0)
-    runs = [infer_action(plant, {"q_prev": q_prev}, {"q": target}, sampling=cfg, seed=s) for s in (0, 0, 1)]
+    runs = [
+        infer_action(plant, {"q_prev": q_prev}, {"q": target}, options=ActionOptions(sampling=cfg), seed=s)
+        for s in (0, 0, 1)
+    ]
     assert torch.equal(runs[0].actions["a"], runs[1].actions["a"])
     assert not torch.equal(runs[0].actions["a"], runs[2].actions["a"])
 
@@ -358,10 +414,6 @@ def test_seed_decides_the_samples(plant):
         ({"risk": ("disagreement", "big")}, "disagreement weight must be a finite number"),
         ({"risk": ("variance", 1.0)}, "risk must be None, 'mean' or \\('disagreement', weight\\)"),
         (
-            {"horizon": 2, "noise": {"q": torch.zeros(2, 3, 1)}},
-            "noise\\['q'\\] has 3 steps, expected horizon 2",
-        ),
-        (
             {"horizon": 2, "init": {"a": torch.zeros(2, 3, 1)}},
             "init\\['a'\\] has 3 steps, expected horizon 2",
         ),
@@ -369,13 +421,13 @@ def test_seed_decides_the_samples(plant):
             {"horizon": 2, "state": {"q_prev": torch.zeros(2, 1), "q": torch.zeros(2, 1)}},
             "state may give roots only",
         ),
-        ({"sampling": FAST, "noise": {"q_prev": torch.zeros(2, 1)}}, "given in state"),
     ],
 )
 def test_bad_planner_input(plant, kwargs, match):
-    args = {"state": {"q_prev": torch.zeros(2, 1)}, "targets": {"q": torch.zeros(2, 1)}, **kwargs}
+    kwargs = dict(kwargs)
+    state = kwargs.pop("state", {"q_prev": torch.zeros(2, 1)})
     with pytest.raises(ValueError, match=match):
-        infer_action(plant, **args)
+        infer_action(plant, state, {"q": torch.zeros(2, 1)}, options=ActionOptions(**kwargs))
 
 
 def test_disagreement_needs_targets(plant):
@@ -383,6 +435,5 @@ def test_disagreement_needs_targets(plant):
         infer_action(
             plant,
             {"q_prev": torch.zeros(2, 1)},
-            log_preference=lambda p: p["q"][..., 0],
-            risk=("disagreement", 1.0),
+            options=ActionOptions(log_preference=lambda p: p["q"][..., 0], risk=("disagreement", 1.0)),
         )

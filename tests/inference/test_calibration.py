@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from inference import fit, predictive_check
+from inference import FitSchedule, fit, predictive_check
 from models import CausalGraph, LinearMechanism, Variable, WorldModel, chain_graph
 
 SIGMA = 0.5
@@ -94,7 +94,7 @@ def coverage_by_bin(model, data):
 
 def test_a_heteroscedastic_fit_is_calibrated_where_a_homoscedastic_one_is_not():
     train, test = hetero_rows(6000, 0), hetero_rows(20_000, 1)
-    kwargs = {"epochs": 60, "batch_size": 256, "lr": 0.005, "patience": 10, "seed": 0}
+    kwargs = {"schedule": FitSchedule(epochs=60, batch_size=256, lr=0.005, patience=10), "seed": 0}
     homo = WorldModel(xy_graph(), seed=0, hidden=(32, 32))
     fit(homo, train, **kwargs)
     hetero = WorldModel(xy_graph(), seed=0, kind="hetero", hidden=(32, 32))

@@ -6,7 +6,6 @@ Given X = 1 and Z = z: Y | . ~ N((2 + 1.5 (-z)) / 3.25, 1 / 3.25) (precision 1 +
 """
 
 import math
-import warnings
 
 import pytest
 import torch
@@ -126,10 +125,6 @@ def test_infer_action_accepts_a_program_with_replayed_noise():
     for program in (ReplayNoise({"y": u}, default="expected")(model),):
         act = infer_action(program, None, {"y": target}, num_steps=300)
         torch.testing.assert_close(act.actions["a"], -u / 3, atol=1e-2, rtol=0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        old = infer_action(model, None, {"y": target}, noise={"y": u}, steps=300)
-    torch.testing.assert_close(old.actions["a"], -u / 3, atol=1e-2, rtol=0)
     from inference import SamplingConfig
 
     sampled = infer_action(
@@ -142,12 +137,15 @@ def test_infer_action_accepts_a_program_with_replayed_noise():
     torch.testing.assert_close(sampled.actions["a"], -u / 3, atol=1e-2, rtol=0)
 
 
-def test_deprecated_keywords_still_work_and_warn(chain):
-    with pytest.warns(DeprecationWarning, match="interventions="):
-        old = infer_state(chain, {"z": Z}, interventions={"x": 1.0}, guide="grid")
-    assert float(old.mean["y"]) == pytest.approx(POST_MEAN, abs=1e-3)
-    with pytest.warns(DeprecationWarning, match="state_kwargs"):
+def test_the_keywords_replaced_by_composition_are_refused(chain):
+    with pytest.raises(TypeError, match="unexpected keyword argument 'interventions'"):
+        infer_state(chain, {"z": Z}, interventions={"x": 1.0}, guide="grid")
+    with pytest.raises(TypeError, match="unexpected keyword argument 'measurement_scale'"):
+        infer_state(chain, {"z": Z}, measurement_scale={"z": 0.1}, guide="grid")
+    with pytest.raises(TypeError, match="unexpected keyword argument 'state_kwargs'"):
         counterfactual(chain, {"x": torch.ones(1, 1), "z": Z}, {"x": 0.0}, state_kwargs={"num_steps": 5})
+    with pytest.raises(TypeError, match="unexpected keyword argument 'noise'"):
+        infer_action(chain, None, {"z": Z}, noise={"y": Z})
 
 
 def test_composing_a_posterior_of_another_graph_is_refused(chain):

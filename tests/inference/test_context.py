@@ -58,8 +58,8 @@ def test_active_subgraph_keeps_the_target_joint_only_and_gives_the_same_actions(
     state_full = {k: v[:32] for k, v in samples.items() if k.startswith("q_prev.") or k.startswith("act.")}
     state_full = {k: v for k, v in state_full.items() if k != "act.j3"}
     target = {"q.j3": samples["q.j3"][32:64]}
-    full = infer_action(model, state_full, target, actions=["act.j3"], steps=60)
-    part = infer_action(small, {"q_prev.j3": state_full["q_prev.j3"]}, target, steps=60)
+    full = infer_action(model, state_full, target, actions=["act.j3"], num_steps=60)
+    part = infer_action(small, {"q_prev.j3": state_full["q_prev.j3"]}, target, num_steps=60)
     torch.testing.assert_close(part.actions["act.j3"], full.actions["act.j3"], atol=1e-5, rtol=0)
     torch.testing.assert_close(part.predicted["q.j3"], full.predicted["q.j3"], atol=1e-5, rtol=0)
 

@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from inference import counterfactual, infer_state
+from inference import counterfactual, do, infer_state
 from models import (
     CausalGraph,
     EnsembleMechanism,
@@ -168,7 +168,7 @@ def test_state_errors(chain):
     with pytest.raises(ValueError, match="no latent site"):
         infer_state(chain, FACTUAL)
     with pytest.raises(ValueError, match="both observed and intervened"):
-        infer_state(chain, {"x": torch.ones(1, 1)}, interventions={"x": 0.0})
+        infer_state(do(chain, {"x": 0.0}), {"x": torch.ones(1, 1)})
     with pytest.raises(ValueError, match="observed is empty"):
         infer_state(chain, {})
 
@@ -327,13 +327,9 @@ def test_a_latent_heteroscedastic_site_is_inferred_then_abducted():
     # Y | X, Z: prior N(2x, s_y^2), likelihood Z ~ N(-1.5 Y, 1)
     precision = 1 / s_y**2 + 1.5**2
     mean = (2 * x / s_y**2 + (-1.5) * z) / precision
-    cf = counterfactual(
-        model,
-        {"x": torch.tensor([[x]]), "z": torch.tensor([[z]])},
-        {"x": 0.0},
-        num_samples=2000,
-        state_kwargs={"num_steps": 300, "seed": 0},
-    )
+    factual = {"x": torch.tensor([[x]]), "z": torch.tensor([[z]])}
+    posterior = infer_state(model, factual, num_steps=300, num_samples=2000, seed=0)
+    cf = counterfactual(model, factual, {"x": 0.0}, posterior=posterior)
     assert not cf.exact
     y_post = cf.posterior.samples["y"]
     assert float(y_post.mean()) == pytest.approx(mean, abs=0.05)

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from inference import admissible_parents, discover, shd
+from inference import DiscoveryOptions, admissible_parents, discover, shd
 from inference.admissible import StructureData
 from inference.design import choose_interventions, orientation_margins
 from models import CausalGraph, Role, Variable, finger_graph
@@ -146,11 +146,16 @@ def test_bad_inputs_name_the_problem(rng):
     with pytest.raises(ValueError, match="intervened\\['y'\\] has shape"):
         discover(scalars("x", "y", "z"), data, intervened={"y": np.zeros(3, bool)})
     with pytest.raises(ValueError, match="sparsify 'lasso' unknown"):
-        discover(scalars("x", "y", "z"), data, sparsify="lasso")
+        discover(scalars("x", "y", "z"), data, options=DiscoveryOptions(sparsify="lasso"))
 
 
 def test_gated_sparsification_recovers_the_chain(rng):
-    res = discover(scalars("x", "y", "z"), chain_data(rng), sparsify="gated", gated={"steps": 150}, seed=0)
+    res = discover(
+        scalars("x", "y", "z"),
+        chain_data(rng),
+        options=DiscoveryOptions(sparsify="gated", gated={"steps": 150}),
+        seed=0,
+    )
     assert set(res.graph.edges) == {("x", "y"), ("y", "z")}
 
 

@@ -38,7 +38,7 @@ def test_do_and_condition_differ_on_a_confounded_fork(fork):
     assert float(y.var()) == pytest.approx(1.25, rel=0.05)
     assert torch.all(tr.nodes["x"]["value"] == 2.0)
     # the intervened site carries no evidence: the posterior of C ignores X under do
-    post_do = infer_state(fork, {"y": torch.tensor([[1.0]])}, interventions={"x": 5.0})
+    post_do = infer_state(do(fork, {"x": 5.0}), {"y": torch.tensor([[1.0]])})
     assert float(post_do.mean["c"][0, 0]) == pytest.approx(1 / 1.25, abs=0.05)
 
 

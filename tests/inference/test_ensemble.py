@@ -7,6 +7,7 @@ import math
 import pytest
 import torch
 
+from inference import FitSchedule
 from inference.ensemble import Ensemble
 from models import CausalGraph, LinearMechanism, Role, Variable, WorldModel
 
@@ -33,7 +34,10 @@ def test_fit_trains_members_on_bootstrap_resamples():
     torch.manual_seed(0)
     ens = Ensemble.create(lambda s: WorldModel(member(1.0).graph, kind="linear"), k=3)
     a = torch.rand(200, 1) * 2 - 1
-    ens.fit({"a": a, "y": 2 * a + 0.1 * torch.randn(200, 1)}, epochs=60, batch_size=64, lr=0.05)
+    ens.fit(
+        {"a": a, "y": 2 * a + 0.1 * torch.randn(200, 1)},
+        schedule=FitSchedule(epochs=60, batch_size=64, lr=0.05),
+    )
     slopes = [
         m.predict({"a": torch.tensor([[1.0]])})["y"].item()
         - m.predict({"a": torch.tensor([[0.0]])})["y"].item()

@@ -26,7 +26,13 @@ def graph():
 def test_mlp_recovers_a_nonlinear_mechanism_and_its_noise(loss):
     torch.manual_seed(0)
     model = WorldModel(graph())
-    result = fit(model, nonlinear_data(10000, 0), loss=loss, epochs=40, batch_size=256, lr=0.01, seed=0)
+    result = fit(
+        model,
+        nonlinear_data(10000, 0),
+        loss=loss,
+        schedule=FitSchedule(epochs=40, batch_size=256, lr=0.01),
+        seed=0,
+    )
     test = nonlinear_data(5000, 1)
     with torch.no_grad():
         pred = model.mechanism("y")(torch.tensor(test["x"], dtype=torch.float32)).numpy()
@@ -42,7 +48,9 @@ def test_mlp_recovers_a_nonlinear_mechanism_and_its_noise(loss):
 
 def test_validation_curves_and_plot():
     model = WorldModel(graph())
-    result = fit(model, nonlinear_data(2000, 0), epochs=3, batch_size=500, validation=0.25)
+    result = fit(
+        model, nonlinear_data(2000, 0), schedule=FitSchedule(epochs=3, batch_size=500, validation=0.25)
+    )
     assert result.n_val == 500 and result.n_train == 1500
     assert len(result.val_loss["y"]) == 3
     assert all(math.isfinite(v) for v in result.val_loss["y"])
@@ -54,8 +62,8 @@ def test_fit_is_seeded():
     a, b = WorldModel(graph()), WorldModel(graph())
     b.load_state_dict(a.state_dict())
     data = nonlinear_data(1000, 0)
-    ra = fit(a, data, epochs=2, batch_size=100, seed=5)
-    rb = fit(b, data, epochs=2, batch_size=100, seed=5)
+    ra = fit(a, data, schedule=FitSchedule(epochs=2, batch_size=100), seed=5)
+    rb = fit(b, data, schedule=FitSchedule(epochs=2, batch_size=100), seed=5)
     assert ra.train_loss == rb.train_loss
 
 
@@ -63,12 +71,12 @@ def test_fit_trains_only_what_the_data_supports():
     model = WorldModel(finger_graph("thesis"))
     rng = np.random.default_rng(0)
     data = {"act.finger": rng.uniform(-1, 0.33, (500, 1)), "dq.finger": rng.normal(size=(500, 1))}
-    result = fit(model, data, epochs=1)
+    result = fit(model, data, schedule=FitSchedule(epochs=1))
     assert result.trained == ("dq.finger",)
     with pytest.raises(
         ValueError, match="cannot fit 'q.finger': data has no column for \\['q.finger', 'q_prev.finger'\\]"
     ):
-        fit(model, data, variables=["q.finger"], epochs=1)
+        fit(model, data, variables=["q.finger"], schedule=FitSchedule(epochs=1))
 
 
 @pytest.mark.parametrize(
@@ -111,8 +119,20 @@ def test_fit_trains_only_what_the_data_supports():
     ],
 )
 def test_fit_rejects_bad_input(data, kwargs, match):
+    # schedule fields go into a FitSchedule made inside the check: it refuses bad values itself
+    fields = {k: v for k, v in kwargs.items() if k in FitSchedule.__dataclass_fields__}
+    rest = {k: v for k, v in kwargs.items() if k not in fields}
     with pytest.raises(ValueError, match=match):
-        fit(WorldModel(graph()), data, **kwargs)
+        fit(WorldModel(graph()), data, **rest, **({"schedule": FitSchedule(**fields)} if fields else {}))
+
+
+@pytest.mark.parametrize(
+    "keyword", ["epochs", "batch_size", "lr", "validation", "patience", "bootstrap", "beta"]
+)
+def test_fit_refuses_the_schedule_fields_as_keywords(keyword):
+    data = {"x": np.zeros((10, 1)), "y": np.zeros((10, 1))}
+    with pytest.raises(TypeError, match=f"unexpected keyword argument '{keyword}'"):
+        fit(WorldModel(graph()), data, **{keyword: getattr(FitSchedule(), keyword)})
 
 
 # ---------------------------------------------------------------------------- thesis protocol
@@ -139,7 +159,13 @@ THESIS_SIGMA = {
 @pytest.mark.parametrize("loss", ["mse", "nll"])
 def test_the_thesis_protocol_without_validation_behaves_as_before(loss):
     model = WorldModel(finger_graph("thesis"), seed=1)
-    r = fit(model, _finger_rows(), loss=loss, epochs=6, batch_size=128, lr=0.01, seed=2, validation=0.0)
+    r = fit(
+        model,
+        _finger_rows(),
+        loss=loss,
+        schedule=FitSchedule(epochs=6, batch_size=128, lr=0.01, validation=0.0),
+        seed=2,
+    )
     assert r.n_val == 0 and r.epochs == 6 and r.best_epoch == {"dq.finger": 6, "q.finger": 6}
     assert r.losses == {"dq.finger": loss, "q.finger": loss} and r.loss == loss
     assert r.sigma["dq.finger"][0] == pytest.approx(THESIS_SIGMA[loss][0], rel=1e-5)
@@ -153,7 +179,7 @@ def test_the_thesis_protocol_without_validation_behaves_as_before(loss):
 def test_homoscedastic_sigma_is_the_rms_validation_residual():
     data = nonlinear_data(1000, 0)
     model = WorldModel(graph(), seed=0, hidden=(8,))
-    r = fit(model, data, epochs=5, batch_size=100, validation=0.2, seed=4)
+    r = fit(model, data, schedule=FitSchedule(epochs=5, batch_size=100, validation=0.2), seed=4)
     assert r.n_val == 200 and r.n_train == 800
     perm = torch.randperm(1000, generator=torch.Generator().manual_seed(4))
     val = perm[:200]
@@ -165,13 +191,18 @@ def test_homoscedastic_sigma_is_the_rms_validation_residual():
     assert float(model.sigma("y").detach()) == pytest.approx(rms, rel=1e-5)
     assert r.val_loss["y"][-1] == pytest.approx(rms**2, rel=1e-4)
     # the default holds out 10 % of the rows
-    assert fit(WorldModel(graph(), seed=0, hidden=(4,)), data, epochs=1).n_val == 100
+    assert fit(WorldModel(graph(), seed=0, hidden=(4,)), data, schedule=FitSchedule(epochs=1)).n_val == 100
 
 
 def test_early_stopping_restores_the_best_epoch():
     data = nonlinear_data(400, 0)
     model = WorldModel(graph(), seed=0, hidden=(64, 64))
-    r = fit(model, data, epochs=200, batch_size=32, lr=0.02, validation=0.5, patience=3, seed=0)
+    r = fit(
+        model,
+        data,
+        schedule=FitSchedule(epochs=200, batch_size=32, lr=0.02, validation=0.5, patience=3),
+        seed=0,
+    )
     best = r.best_epoch["y"]
     curve = r.val_loss["y"]
     assert r.epochs == len(curve) < 200  # stopped early
@@ -188,7 +219,12 @@ def test_early_stopping_restores_the_best_epoch():
 
 def test_each_mechanism_stops_on_its_own_criterion():
     model = WorldModel(finger_graph("thesis"), seed=0, kind="hetero", hidden=(8,))
-    r = fit(model, _finger_rows(), epochs=30, batch_size=64, validation=0.3, patience=2, seed=1)
+    r = fit(
+        model,
+        _finger_rows(),
+        schedule=FitSchedule(epochs=30, batch_size=64, validation=0.3, patience=2),
+        seed=1,
+    )
     assert r.losses == {"dq.finger": "beta_nll", "q.finger": "beta_nll"}
     for name in r.trained:
         nll = r.val_nll[name]
@@ -207,7 +243,12 @@ def hetero_data(n, seed):
 @pytest.mark.parametrize("beta", [0.0, 0.5, 1.0])
 def test_beta_nll_recovers_a_heteroscedastic_scale(beta):
     model = WorldModel(graph(), seed=0, kind="hetero", hidden=(32, 32))
-    r = fit(model, hetero_data(6000, 0), beta=beta, epochs=60, batch_size=256, lr=0.005, patience=10, seed=0)
+    r = fit(
+        model,
+        hetero_data(6000, 0),
+        schedule=FitSchedule(beta=beta, epochs=60, batch_size=256, lr=0.005, patience=10),
+        seed=0,
+    )
     assert r.losses["y"] == "beta_nll" and r.beta == beta
     x = torch.tensor([[-1.5], [-0.5], [0.5], [1.5]])
     with torch.no_grad():
@@ -228,7 +269,7 @@ def test_mse_cannot_train_a_predicted_scale():
     with pytest.raises(
         ValueError, match="loss='mse' cannot train the scale of the heteroscedastic mechanisms of \\['y'\\]"
     ):
-        fit(model, hetero_data(100, 0), loss="mse", epochs=1)
+        fit(model, hetero_data(100, 0), loss="mse", schedule=FitSchedule(epochs=1))
     assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
 
 
@@ -242,11 +283,11 @@ def test_each_member_trains_on_its_own_bootstrap():
 
     data = nonlinear_data(500, 0)
     same = twins()
-    fit(same, data, epochs=3, batch_size=100, bootstrap=False, seed=0)
+    fit(same, data, schedule=FitSchedule(epochs=3, batch_size=100, bootstrap=False), seed=0)
     w = [m.net[0].weight for m in same.mechanism("y").members]
     assert torch.equal(w[0], w[1]) and torch.equal(w[1], w[2])
     boot = twins()
-    r = fit(boot, data, epochs=3, batch_size=100, seed=0)
+    r = fit(boot, data, schedule=FitSchedule(epochs=3, batch_size=100), seed=0)
     w = [m.net[0].weight for m in boot.mechanism("y").members]
     assert not torch.equal(w[0], w[1]) and not torch.equal(w[1], w[2])
     # each member gets its own sigma from the validation rows; the site's moment-matched
@@ -262,7 +303,7 @@ def test_each_member_trains_on_its_own_bootstrap():
         expected = c * (torch.tensor(sig).pow(2).mean() + (locs - locs.mean(0)).pow(2).mean(0)).sqrt()
         torch.testing.assert_close(ens.loc_scale(x)[1], expected, atol=1e-6, rtol=1e-5)
     again = twins()
-    fit(again, data, epochs=3, batch_size=100, seed=0)
+    fit(again, data, schedule=FitSchedule(epochs=3, batch_size=100), seed=0)
     for (k, a), (_, b) in zip(boot.state_dict().items(), again.state_dict().items(), strict=True):
         assert torch.equal(a, b), k
 
@@ -274,8 +315,7 @@ def test_ensemble_disagreement_grows_away_from_the_data():
     fit(
         model,
         {"x": x, "y": np.sin(2 * x) + 0.1 * rng.normal(size=x.shape)},
-        epochs=40,
-        batch_size=256,
+        schedule=FitSchedule(epochs=40, batch_size=256),
         seed=0,
     )
     epi = model.predict_scale({"x": torch.tensor([[0.0], [4.0]])}, component="epistemic")["y"]
@@ -293,17 +333,17 @@ def test_fit_leaves_function_mechanisms_alone():
     y = 2 * x + 0.3 * rng.normal(size=x.shape)
     data = {"x": x, "y": y, "z": -y + 0.1 * rng.normal(size=x.shape)}
     before = {k: v.clone() for k, v in fn.state_dict().items()}
-    r = fit(model, data, epochs=2, batch_size=50, loss="nll")
+    r = fit(model, data, schedule=FitSchedule(epochs=2, batch_size=50), loss="nll")
     assert r.trained == ("z",)
     assert all(torch.equal(before[k], v) for k, v in fn.state_dict().items())
     with pytest.raises(ValueError, match="cannot fit 'y': its mechanism is a fixed FunctionMechanism"):
-        fit(model, data, variables=["y"], epochs=1)
+        fit(model, data, variables=["y"], schedule=FitSchedule(epochs=1))
     only = WorldModel(graph(), {"y": FunctionMechanism(torch.sin, 1)})
     prior = [t.clone() for t in only.root_priors.get("x")]
     with pytest.raises(
         ValueError, match="the mechanisms of \\['y'\\] are fixed functions, which fit does not train"
     ):
-        fit(only, nonlinear_data(50, 0), epochs=1)
+        fit(only, nonlinear_data(50, 0), schedule=FitSchedule(epochs=1))
     assert all(torch.equal(a, b) for a, b in zip(prior, only.root_priors.get("x"), strict=True))
 
 

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from inference import infer_action, infer_state
+from inference import SVIOptions, infer_action, infer_state
 from inference.frozen import frozen_parameters
 from models import WorldModel, finger_graph
 
@@ -13,14 +13,19 @@ from models import WorldModel, finger_graph
 def test_infer_state_accumulates_no_gradient_in_the_model(chain):
     flags = [p.requires_grad for p in chain.parameters()]
     assert any(flags)
-    infer_state(chain, {"x": torch.ones(4, 1), "z": -2 * torch.ones(4, 1)}, num_steps=5, num_particles=2)
+    infer_state(
+        chain,
+        {"x": torch.ones(4, 1), "z": -2 * torch.ones(4, 1)},
+        num_steps=5,
+        options=SVIOptions(num_particles=2),
+    )
     assert all(p.grad is None for p in chain.parameters())
     assert [p.requires_grad for p in chain.parameters()] == flags
 
 
 def test_infer_action_accumulates_no_gradient_in_the_model():
     m = WorldModel(finger_graph("thesis"))
-    infer_action(m, {"q_prev.finger": torch.zeros(3, 1)}, {"q.finger": torch.ones(3, 1)}, steps=5)
+    infer_action(m, {"q_prev.finger": torch.zeros(3, 1)}, {"q.finger": torch.ones(3, 1)}, num_steps=5)
     assert all(p.grad is None for p in m.parameters())
     assert all(p.requires_grad for p in m.parameters())
 

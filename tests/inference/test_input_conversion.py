@@ -7,8 +7,12 @@ import pytest
 import torch
 
 from inference import (
+    ActionOptions,
     CuriositySampler,
+    DiscoveryOptions,
     Ensemble,
+    FitSchedule,
+    ReplayNoise,
     ResidualMonitor,
     active_subgraph,
     counterfactual,
@@ -45,7 +49,7 @@ def finger_data(n: int = 64) -> dict[str, torch.Tensor]:
 
 def test_fit_takes_float64_tensors():
     model = WorldModel(finger_graph("state"), seed=0, hidden=(4,))
-    result = fit(model, finger_data(), epochs=2, batch_size=16)
+    result = fit(model, finger_data(), schedule=FitSchedule(epochs=2, batch_size=16))
     assert result.trained == ("dq.finger", "q.finger")
 
 
@@ -70,12 +74,11 @@ def test_do_and_simulate_take_numpy_float64(chain):
 def test_infer_action_takes_float64():
     model = WorldModel(finger_graph("state"), seed=0, hidden=(4,))
     r = infer_action(
-        model,
+        ReplayNoise({"dq.finger": f64(np.zeros((3, 1)))}, default="expected")(model),
         {"q_prev.finger": f64(np.zeros((3, 1)))},
         {"q.finger": f64(np.full((3, 1), -0.2))},
-        init={"act.finger": f64(np.zeros((3, 1)))},
-        noise={"dq.finger": f64(np.zeros((3, 1)))},
-        steps=3,
+        options=ActionOptions(init={"act.finger": f64(np.zeros((3, 1)))}),
+        num_steps=3,
     )
     assert r.actions["act.finger"].dtype == torch.float32
 
@@ -97,7 +100,11 @@ def test_discovery_and_curiosity_take_float32_tensors():
     gen = torch.Generator().manual_seed(0)
     x = torch.randn(40, 1, generator=gen)
     y = torch.tanh(2 * x) + 0.1 * torch.randn(40, 1, generator=gen)
-    res = discover([Variable("x", "observed"), Variable("y", "observed")], {"x": x, "y": y}, features=8)
+    res = discover(
+        [Variable("x", "observed"), Variable("y", "observed")],
+        {"x": x, "y": y},
+        options=DiscoveryOptions(features=8),
+    )
     assert len(res.graph.edges) == 1
     s = CuriositySampler(-3.0, 3.0, bins=6).fit(x)
     assert s.counts_.sum() == 40

@@ -24,7 +24,7 @@ def test_posterior_weights_each_frame_by_its_own_uncertainty(sensor):
     x = torch.tensor([[0.0], [0.0], [1.0]])
     m = torch.tensor([[2.0], [2.0], [-1.0]])
     s = torch.tensor([[0.5], [2.0], [1.0]])
-    post = infer_state(sensor, {"x": x, "meas": m}, measurement_scale={"meas": s}, num_steps=800, seed=0)
+    post = infer_state(MeasurementScale({"meas": s})(sensor), {"x": x, "meas": m}, num_steps=800, seed=0)
     precision = 1 + 1 / s**2
     mean = (x + m / s**2) / precision
     sd = precision.rsqrt()
@@ -46,13 +46,13 @@ def test_without_a_scale_the_learned_sigma_is_used(sensor):
         ({"meas": torch.tensor([[0.0]])}, "finite and > 0"),
         ({"meas": torch.tensor([[float("nan")]])}, "finite and > 0"),
         ({"meas": torch.tensor(1.0)}, "\\(dim,\\) or \\(N, dim\\)"),
-        ({"meas": torch.ones(2, 1)}, "has 2 rows, expected 1"),
+        ({"meas": torch.ones(2, 1)}, "has shape \\(2, 1\\), expected \\(1,\\) or \\(1, 1\\)"),
         ({"o": torch.ones(1, 1)}, "not observed sites"),
     ],
 )
 def test_bad_scales(sensor, scales, match):
     with pytest.raises(ValueError, match=match):
-        infer_state(sensor, {"x": torch.zeros(1, 1), "meas": torch.ones(1, 1)}, measurement_scale=scales)
+        infer_state(MeasurementScale(scales)(sensor), {"x": torch.zeros(1, 1), "meas": torch.ones(1, 1)})
 
 
 def test_handler_rejects_a_mismatched_shape(sensor):

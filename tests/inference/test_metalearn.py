@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from inference import fit
+from inference import FitSchedule, fit
 from inference.metalearn import ResidualMonitor, SplitMechanism, revise
 from models import CausalGraph, FunctionMechanism, LinearMechanism, Role, Variable, WorldModel, finger_graph
 
@@ -28,7 +28,7 @@ def spring_truth() -> WorldModel:
     return truth
 
 
-FIT = {"epochs": 20, "batch_size": 200}
+FIT = {"schedule": FitSchedule(epochs=20, batch_size=200)}
 
 
 def test_monitor_flags_the_missing_parent_and_revise_adds_it():
@@ -66,7 +66,7 @@ def test_capacity_revision_when_the_mechanism_underfits(rng):
         ["y"],
         kinds=("capacity", "split"),
         hidden=(16,),
-        fit_kwargs={"epochs": 60, "batch_size": 200},
+        fit_kwargs={"schedule": FitSchedule(epochs=60, batch_size=200)},
     )
     accepted = [r for r in log if r.accepted]
     assert [r.kind for r in accepted] == ["capacity"]

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from inference import SamplingConfig, infer_action
+from inference import ActionOptions, SamplingConfig, infer_action
 from inference.action_objective import ActionObjective, check_risk, gaussian_log_preference
 from inference.planning import colored_noise, cross_entropy_search
 from models import CausalGraph, FunctionMechanism, Variable, WorldModel, finger_graph
@@ -107,7 +107,13 @@ def test_risk_gives_the_closed_form_action(risk, factor, sampling):
     model = _ensemble_joint()
     q_prev = torch.tensor([[0.0], [0.3], [-0.2], [1.0]])
     d = torch.tensor([[0.5], [-0.6], [0.2], [-0.3]])
-    r = infer_action(model, {"q_prev": q_prev}, {"q": q_prev + d}, risk=risk, sampling=sampling, steps=300)
+    r = infer_action(
+        model,
+        {"q_prev": q_prev},
+        {"q": q_prev + d},
+        options=ActionOptions(risk=risk, sampling=sampling),
+        num_steps=300,
+    )
     torch.testing.assert_close(r.actions["a"], factor * d, atol=2e-3, rtol=0)
     torch.testing.assert_close(r.predicted["q"], q_prev + factor * d, atol=2e-3, rtol=0)
 
@@ -144,6 +150,12 @@ def test_risk_over_a_horizon_uses_the_members_rollouts():
     model = _ensemble_joint()
     q0 = torch.zeros(2, 1)
     d = torch.tensor([[1.2], [-0.9]])
-    r = infer_action(model, {"q_prev": q0}, {"q": d}, horizon=3, risk="mean", sampling=FAST, steps=300)
+    r = infer_action(
+        model,
+        {"q_prev": q0},
+        {"q": d},
+        options=ActionOptions(horizon=3, risk="mean", sampling=FAST),
+        num_steps=300,
+    )
     torch.testing.assert_close(r.actions["a"].sum(1), 0.8 * d, atol=3e-3, rtol=0)
     assert r.predicted["q"].shape == (2, 3, 1)

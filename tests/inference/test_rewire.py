@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from inference import fit
+from inference import FitSchedule, fit
 from inference.rewire import evidence_groups, rewire
 from models import CausalGraph, FunctionMechanism, Role, Variable, WorldModel, finger_graph
 
@@ -19,7 +19,7 @@ def fitted_thesis_model(rng: np.random.Generator) -> tuple[WorldModel, dict[str,
     data = {"act.finger": a, "q_prev.finger": q_prev, "dq.finger": dq, "q.finger": q_prev + dq}
     torch.manual_seed(0)
     model = WorldModel(finger_graph("thesis"), hidden=(8,))
-    fit(model, data, epochs=5, batch_size=128, seed=0)
+    fit(model, data, schedule=FitSchedule(epochs=5, batch_size=128), seed=0)
     return model, data
 
 
@@ -68,7 +68,12 @@ def test_rewire_refits_only_changed_mechanisms_on_their_evidence_rows(rng):
     cut = np.zeros(len(data["dq.finger"]), bool)
     cut[:100] = True
     res = rewire(
-        model, finger_graph("state"), data, intervened={"dq.finger": cut}, epochs=3, batch_size=128, seed=0
+        model,
+        finger_graph("state"),
+        data,
+        intervened={"dq.finger": cut},
+        schedule=FitSchedule(epochs=3, batch_size=128),
+        seed=0,
     )
     assert res.warm_start == {"dq.finger": "rewired", "q.finger": "kept"}
     # 400 rows, 100 of them intervened on dq: 300 evidence rows, 10 % held out for sigma

@@ -169,11 +169,10 @@ def test_discover_takes_a_table_with_progress_stability_and_cpdag(capsys):
     assert d["cpdag"]["undirected"] and d["edges"][0]["stability"] is not None
 
 
-def test_discover_takes_variables_with_a_table_and_deprecated_keywords_warn():
+def test_discover_takes_variables_with_a_table_and_refuses_unknown_keywords():
     rows = chain_rows(200)
     g = CausalGraph.from_edges([("p44/42", "y [kg]"), ("y [kg]", " z")])
-    with pytest.warns(DeprecationWarning, match="options=DiscoveryOptions"):
-        res = discover(g, pd.DataFrame(rows), min_gain=12.0)
+    res = discover(g, pd.DataFrame(rows), options=DiscoveryOptions(min_gain=12.0))
     assert res.settings["min_gain"] == 12.0
     with pytest.raises(ValueError, match="no columns for variables"):
         discover(g, pd.DataFrame({"p44/42": rows["p44/42"]}))
@@ -181,6 +180,8 @@ def test_discover_takes_variables_with_a_table_and_deprecated_keywords_warn():
         discover(g)
     with pytest.raises(TypeError, match="unexpected keyword"):
         discover(g, rows, nonsense=1)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'min_gain'"):
+        discover(g, rows, min_gain=12.0)
 
 
 def test_table_variables_and_select():

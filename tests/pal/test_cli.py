@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 import pytest
@@ -14,9 +15,14 @@ from pal.cli import main
 # the quick agents' state estimates run few SVI steps on purpose
 @pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
 @pytest.mark.slow
-def test_demo_quick_writes_every_report_and_the_target_table(tmp_path, capsys):
+def test_demo_quick_writes_every_report_and_the_target_table(tmp_path, capsys, caplog):
+    caplog.set_level(logging.INFO)  # as a bare interpreter would after basicConfig(INFO): the demo lowers it
     assert main(["demo", "--quick", "--out", str(tmp_path)]) == 0
-    out = capsys.readouterr().out
+    captured = capsys.readouterr()
+    out = captured.out
+    assert "INFO" not in out + captured.err and "INFO" not in caplog.text  # quiet without -v
+    assert not [r for r in caplog.records if r.levelno < logging.WARNING]
+    assert "pal demo: experiment queries (1/6) ..." in captured.err
     assert "## Causal queries on X -> Y -> Z against closed forms" in out
     assert "## pal demo: every target and its verdict" in out
     summary = json.loads((tmp_path / "demo.json").read_text())
@@ -24,7 +30,8 @@ def test_demo_quick_writes_every_report_and_the_target_table(tmp_path, capsys):
     assert names == ["queries", "spring", "b1", "b2", "a1", "loop"]
     rows = summary["targets"]["rows"]
     assert len(rows) == sum(len(r["targets"]) for r in summary["runs"])
-    assert {r[-1] for r in rows} <= {"met", "**NOT met**", "not measured"}
+    assert {r[-1] for r in rows} <= {"met", "**NOT met**", "not measured", "not evaluated"}
+    assert sum(summary["verdicts"].values()) == len(rows)
     queries = summary["runs"][0]
     exact = next(t for t in queries["targets"] if t["name"] == "exact_counterfactual_error")
     assert exact["met"] is True and exact["value"] <= 1e-5
@@ -62,8 +69,9 @@ BAD_INVOCATIONS = [
     (["experiment", "b1", "--set", "seed"], "--set 'seed': expected KEY=VALUE"),
     (["experiment", "b1", "--set", "nope=1"], "unknown setting 'nope'"),
     (["experiment", "b1", "--set", "seed=abc"], "seed: 'abc' is not an int"),
-    (["experiment", "b1", "--set", "protocol.fit.epochs=0"], "epochs must be a positive int, got 0"),
+    (["experiment", "b1", "--set", "protocol.fit.schedule.epochs=0"], "epochs must be a positive int, got 0"),
     (["experiment", "b1", "--set", "protocol.fit=3"], "protocol.fit|fit is a group of settings"),
+    (["experiment", "b1", "--set", "protocol.fit.epochs=40"], "unknown setting 'epochs'"),
     (["experiment", "b1", "--set", 'protocol.graphs=["fancy"]'], "graphs ['fancy'] invalid"),
     (["experiment", "b1", "--set", "protocol.split=1.5"], "split must be < 1.0, got 1.5"),
     (["experiment", "b2", "--set", "targets=-3"], "targets must be a positive int, got -3"),

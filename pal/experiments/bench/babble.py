@@ -36,8 +36,10 @@ from __future__ import annotations
 import logging
 import os
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import mujoco.rollout
@@ -46,7 +48,7 @@ import numpy as np
 from pal.checks import check_int
 from pal.experiments.world_model.data import BodyChoice
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 from pal.lab.timing import Timing, measure_interleaved, ratio
 from pal.sim.babbling import babble, make_source
 from pal.sim.batched import FULLPHYSICS
@@ -113,19 +115,8 @@ def _time_workers(config: Config, tmp: Path) -> dict[str, Timing]:
     return measure_interleaved(fns, repeats=config.repeats, warmup=1)
 
 
-@register(
-    "babble",
-    kind="bench",
-    config=Config,
-    quick=Config(steps=300, repeats=1, worker_steps=2000),
-    tiny=Config(body=BodyChoice(frame_skip=5), steps=40, repeats=1, worker_steps=40),
-)
-def run(config: Config, progress_bar: bool = False) -> Report:
-    """Babbling throughput: the data source against a bare mj_step loop on the same model."""
-    babble_cfg = config.body.babble_config(
-        config.steps, config.seed, chunk_size=max(1, (config.steps + 1) // 2)
-    )
-    source = make_source(babble_cfg)
+def _calls(config: Config, babble_cfg: Any, source: Any) -> tuple[dict[str, Callable[[], Any]], Any]:
+    """The timed calls on one model (the source, bare mj_step loops, mujoco.rollout) and the rollout pool."""
     model = source.env.model
     raw_data = mujoco.MjData(model)
     env = source.env
@@ -174,6 +165,79 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         "mujoco.rollout": native,
         "source_rollout": lambda: rollout_source.run(config.steps),
     }
+    return fns, pool
+
+
+def _tables(config: Config, seconds: dict, rate: dict, worker_rate: dict, sharded: dict) -> list[Table]:
+    order = ("source", "raw_loop", "raw_nstep", "recorded")
+    rows = [(k, seconds[k], rate[k], ratio(rate[k], rate["raw_loop"])) for k in order if k in rate]
+    native_rows = [
+        (k, seconds[k], rate[k], ratio(rate[k], rate["mujoco.rollout"]))
+        for k in ("source", "source_rollout", "mujoco.rollout")
+    ]
+    return [
+        Table("Environment steps per second", ("", "seconds per call", "env steps/s", "/ raw_loop"), rows),
+        Table(
+            "Against mujoco.rollout (one thread)",
+            ("", "seconds per call", "env steps/s", "/ mujoco.rollout"),
+            native_rows,
+        ),
+        Table(
+            f"Local worker processes ({config.sharded_steps} transitions to disk)",
+            ("", "seconds per call", "transitions/s", "/ one process"),
+            [
+                (k, t.median, worker_rate[k], ratio(worker_rate[k], worker_rate["one process"]))
+                for k, t in sharded.items()
+            ],
+        ),
+    ]
+
+
+def _targets(config: Config, rate: dict, worker_rate: dict, worker_speedup: float | None) -> list[Target]:
+    return [
+        Target(
+            "ratio",
+            rate["source"] / rate["raw_loop"],
+            TARGET_RATIO,
+            ">=",
+            "transitions/s of the data source / env steps/s of a bare mj_step loop",
+            Precondition.nonzero(rate["raw_loop"], "the bare mj_step loop's steps/s"),
+        ),
+        Target(
+            "ratio_rollout",
+            rate["source"] / rate["mujoco.rollout"],
+            TARGET_ROLLOUT_RATIO,
+            ">=",
+            "transitions/s of the data source / env steps/s of one mujoco.rollout call, one core",
+            Precondition.nonzero(rate["mujoco.rollout"], "mujoco.rollout's steps/s"),
+        ),
+        Target(
+            "workers_speedup",
+            worker_speedup,
+            1.7,
+            ">=",
+            f"transitions/s of a {config.workers}-worker sharded run (merged to disk) / one babble() "
+            f"process, {config.sharded_steps} transitions, {os.cpu_count()} cores",
+            Precondition.nonzero(worker_rate.get("one process"), "the one-process transitions/s"),
+        ),
+    ]
+
+
+@register(
+    "babble",
+    kind="bench",
+    config=Config,
+    quick=Config(steps=300, repeats=1, worker_steps=2000),
+    tiny=Config(body=BodyChoice(frame_skip=5), steps=40, repeats=1, worker_steps=40),
+)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """Babbling throughput: the data source against a bare mj_step loop on the same model."""
+    babble_cfg = config.body.babble_config(
+        config.steps, config.seed, chunk_size=max(1, (config.steps + 1) // 2)
+    )
+    source = make_source(babble_cfg)
+    env = source.env
+    fns, pool = _calls(config, babble_cfg, source)
     with tempfile.TemporaryDirectory(prefix="pal-bench-babble-") as tmp:
         counter = iter(range(10**9))
         if config.record:
@@ -188,12 +252,6 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     rate = {k: config.steps / sec for k, sec in seconds.items()}
     worker_rate = {k: config.sharded_steps / t.median for k, t in sharded.items()}
     worker_speedup = worker_rate["workers"] / worker_rate["one process"] if sharded else None
-    order = ("source", "raw_loop", "raw_nstep", "recorded")
-    rows = [(k, seconds[k], rate[k], ratio(rate[k], rate["raw_loop"])) for k in order if k in rate]
-    native_rows = [
-        (k, seconds[k], rate[k], ratio(rate[k], rate["mujoco.rollout"]))
-        for k in ("source", "source_rollout", "mujoco.rollout")
-    ]
     c = config
     return Report(
         title="Babbling throughput",
@@ -217,48 +275,8 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             "body": env.loaded.name,
             "frame_skip": env.frame_skip,
         },
-        tables=[
-            Table(
-                "Environment steps per second", ("", "seconds per call", "env steps/s", "/ raw_loop"), rows
-            ),
-            Table(
-                "Against mujoco.rollout (one thread)",
-                ("", "seconds per call", "env steps/s", "/ mujoco.rollout"),
-                native_rows,
-            ),
-            Table(
-                f"Local worker processes ({config.sharded_steps} transitions to disk)",
-                ("", "seconds per call", "transitions/s", "/ one process"),
-                [
-                    (k, t.median, worker_rate[k], ratio(worker_rate[k], worker_rate["one process"]))
-                    for k, t in sharded.items()
-                ],
-            ),
-        ],
-        targets=[
-            Target(
-                "ratio",
-                rate["source"] / rate["raw_loop"],
-                TARGET_RATIO,
-                ">=",
-                "transitions/s of the data source / env steps/s of a bare mj_step loop",
-            ),
-            Target(
-                "ratio_rollout",
-                rate["source"] / rate["mujoco.rollout"],
-                TARGET_ROLLOUT_RATIO,
-                ">=",
-                "transitions/s of the data source / env steps/s of one mujoco.rollout call, one core",
-            ),
-            Target(
-                "workers_speedup",
-                worker_speedup,
-                1.7,
-                ">=",
-                f"transitions/s of a {config.workers}-worker sharded run (merged to disk) / one babble() "
-                f"process, {config.sharded_steps} transitions, {os.cpu_count()} cores",
-            ),
-        ],
+        tables=_tables(config, seconds, rate, worker_rate, sharded),
+        targets=_targets(config, rate, worker_rate, worker_speedup),
         notes=[
             f"Body {env.loaded.name}, {c.steps} environment steps per call, frame skip {env.frame_skip} "
             f"({env.dt:.3g} s per step), uniform commands, median of {c.repeats} repeats; "

@@ -36,7 +36,7 @@ from models.world import WorldModel
 from pal.baselines.counterfactual_peers import available, make_peer
 from pal.checks import check_float, check_int
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 from pal.lab.timing import Timing, measure, ratio, torch_threads
 
 if TYPE_CHECKING:
@@ -338,6 +338,49 @@ def _peer(
     return figs, max(chain_diff, mlp_diff)
 
 
+def _targets(
+    config: Config,
+    pal: PeerFigures,
+    libs: dict[str, PeerFigures | None],
+    rel: dict[str, Any],
+    growth: float | None,
+) -> list[Target]:
+    """Our unit time, batch rate and scenario growth; our time per unit against each peer's."""
+    first, last = (str(k) for k in (config.scenarios[0], config.scenarios[-1]))
+    return [
+        Target("chain_unit_ms", pal.chain_unit_ms, 2.0, "<=", "one chain unit, ms"),
+        Target(
+            "units_per_s",
+            pal.units_per_s,
+            3e5,
+            ">=",
+            f"chain units per second in a batch of {config.chain_units}",
+        ),
+        Target(
+            f"scenarios_{last}_vs_{first}",
+            growth,
+            1.5,
+            "<=",
+            f"time of {last} scenarios / time of {first}",
+            Precondition.nonzero(pal.scenarios_ms[first], f"the time of {first} scenarios"),
+        ),
+        *(
+            Target(
+                f"{figure}_vs_{name}",
+                None if rel[name] is None else rel[name][figure],
+                0.5,
+                "<=",
+                f"our time per unit / {name}'s ({label}; not measured without the bench extra)",
+                Precondition.nonzero(
+                    None if libs[name] is None else getattr(libs[name], figure), f"{name}'s time per unit"
+                ),
+            )
+            for name in ("chirho", "dowhy")
+            for figure, label in (("chain_unit_ms", "3-node chain"), ("mlp50_unit_ms", "MLP SCM"))
+        ),
+    ]
+
+
 @register(
     "counterfactual",
     kind="bench",
@@ -423,34 +466,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             "intervened": node,
         },
         tables=[_table(config, libs, rel)],
-        targets=[
-            Target("chain_unit_ms", pal.chain_unit_ms, 2.0, "<=", "one chain unit, ms"),
-            Target(
-                "units_per_s",
-                pal.units_per_s,
-                3e5,
-                ">=",
-                f"chain units per second in a batch of {config.chain_units}",
-            ),
-            Target(
-                f"scenarios_{last}_vs_{first}",
-                growth,
-                1.5,
-                "<=",
-                f"time of {last} scenarios / time of {first}",
-            ),
-            *(
-                Target(
-                    f"{figure}_vs_{name}",
-                    None if rel[name] is None else rel[name][figure],
-                    0.5,
-                    "<=",
-                    f"our time per unit / {name}'s ({label}; not measured without the bench extra)",
-                )
-                for name in ("chirho", "dowhy")
-                for figure, label in (("chain_unit_ms", "3-node chain"), ("mlp50_unit_ms", "MLP SCM"))
-            ),
-        ],
+        targets=_targets(config, pal, libs, rel, growth),
         notes=notes,
         figures={"scenarios": _figure(config, libs)},
     )

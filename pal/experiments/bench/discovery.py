@@ -31,7 +31,7 @@ from pal.baselines import discovery_peers as peers
 from pal.checks import check_int
 from pal.experiments.structure.scm import SCMConfig, standardised
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 from pal.lab.timing import measure_interleaved, ratio, torch_threads
 
 __all__ = ["Config", "ContextConfig", "run"]
@@ -49,17 +49,17 @@ class ContextConfig:
     Attributes:
         joints: joints of the model (4 variables each, 2 x 32 MLP mechanisms).
         targets: target angles inferred in one batch.
-        steps: Adam iterations of Alg. 4.2.
+        num_steps: Adam iterations of Alg. 4.2.
     """
 
     joints: int = 50
     targets: int = 64
-    steps: int = 100
+    num_steps: int = 100
 
     def __post_init__(self) -> None:
         check_int("joints", self.joints)
         check_int("targets", self.targets)
-        check_int("steps", self.steps)
+        check_int("num_steps", self.num_steps)
 
 
 @dataclass(frozen=True)
@@ -134,9 +134,9 @@ def _context(config: ContextConfig, seed: int, repeats: int) -> dict[str, Any]:
     target = {tgt: samples[tgt][k : 2 * k]}
     timings = measure_interleaved(
         {
-            "whole": lambda: infer_action(model, state, target, actions=[act], num_steps=config.steps),
+            "whole": lambda: infer_action(model, state, target, actions=[act], num_steps=config.num_steps),
             "subgraph": lambda: infer_action(
-                small, small_state, target, actions=[act], num_steps=config.steps
+                small, small_state, target, actions=[act], num_steps=config.num_steps
             ),
         },
         repeats=repeats,
@@ -147,7 +147,7 @@ def _context(config: ContextConfig, seed: int, repeats: int) -> dict[str, Any]:
         "variables": len(model.graph),
         "subgraph_variables": len(small.graph),
         "targets": k,
-        "steps": config.steps,
+        "steps": config.num_steps,
         "whole_seconds": timings["whole"].median,
         "subgraph_seconds": timings["subgraph"].median,
         "ratio": ratio(timings["subgraph"].median, timings["whole"].median),
@@ -218,6 +218,7 @@ def _discovery_targets(disc: dict[str, dict[str, Any]]) -> list[Target]:
             GRASP_RATIO,
             "<=",
             f"seconds of discover / seconds of GRaSP at d = {d}",
+            Precondition.nonzero(row["grasp_seconds"], "GRaSP's seconds"),
         )
     ]
     if row["grasp_shd"] is not None:
@@ -270,6 +271,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 1.0,
                 "<",
                 "seconds of action inference on the active subgraph / on the whole graph",
+                Precondition.nonzero(ctx["whole_seconds"], "the seconds on the whole graph"),
             ),
         ],
         notes=notes,

@@ -131,7 +131,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             )
             seconds = time.perf_counter() - start
             counts[name] = {
-                **result.as_dict(),
+                **result.to_dict(),
                 "bytes": target.path.stat().st_size,
                 "seconds": seconds,
                 "flips_per_s": config.flips / seconds,

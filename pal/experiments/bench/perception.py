@@ -281,6 +281,74 @@ def _time(config: Config) -> tuple[dict[str, Timing], dict[str, Any], str]:
     return timings, limits, backend
 
 
+def _tables(
+    config: Config, m: dict[str, Any], quality: dict[str, Any], fps: dict[str, float | None], real_cpu: float
+) -> list[Table]:
+    """Throughput against rendering, milliseconds by stage, and the real frame pairs' ids and poses."""
+    seconds, stage_ms, real_frames = m["seconds_per_call"], m["stage_ms"], m["real_frames"]
+    ratios = {"no_pose": m["ratio_no_pose"], "with_pose": m["ratio_with_pose"]}
+    stages = sorted({s for v in stage_ms.values() for s in v})
+    pair_rows = [
+        [
+            name,
+            "-".join(p["frames"]),
+            p["objects"],
+            p["seen_in_both"],
+            p["kept_id"],
+            p["with_pose"],
+            p["rot_err_deg_median"],
+            p["trans_err_m_median"],
+            p["wrong_estimated"],
+            p["rejected"],
+            p["reference"],
+        ]
+        for name, q in quality["samples"].items()
+        for p in q["pairs"]
+    ]
+    return [
+        Table(
+            "Perception throughput",
+            ["contender", "seconds per call", "frames/s", "/ render"],
+            [
+                ["render (baseline)", seconds["render"], fps["render"], 1.0],
+                ["Pi without pose", seconds["no_pose"], fps["no_pose"], ratios["no_pose"]],
+                ["Pi with pose", seconds["with_pose"], fps["with_pose"], ratios["with_pose"]],
+                ["Pi with pose and relations, real frames", seconds["real"], fps["real"], None],
+                ["the same, CPU time of the process", real_cpu, m["fps_real_cpu"], None],
+            ],
+            f"A simulated call processes all {config.frames} frames from a fresh state, a real call the "
+            f"{real_frames} real frames (a fresh pipeline per sample); median of {config.repeats} repeats.",
+        ),
+        Table(
+            "Median milliseconds per frame by stage",
+            ["stage", "without pose", "with pose", "real frames"],
+            [
+                [s, stage_ms["no_pose"].get(s), stage_ms["with_pose"].get(s), stage_ms["real"].get(s)]
+                for s in stages
+            ],
+        ),
+        Table(
+            "Real frame pairs: ids and poses against the inverse camera motion",
+            [
+                "sample",
+                "frames",
+                "objects",
+                "seen in both",
+                "kept id",
+                "with pose",
+                "rot. err. median [deg]",
+                "trans. err. median [m]",
+                "wrong",
+                "rejected",
+                "reference motion",
+            ],
+            pair_rows,
+            "Seen in both: moved by the reference motion, the object's mask and one of the next frame's are "
+            "each other's best overlap. Wrong: more than 10 deg or 5 cm from the inverse camera motion.",
+        ),
+    ]
+
+
 #: ``--quick``: 10 simulated frames, every real frame, the support plane over 3 seeds.
 QUICK = Config(frames=10, repeats=1, real=RealConfig(support_seeds=3))
 #: The contract test's run: 3 small simulated frames, the first 2 frames of each real sample.
@@ -323,69 +391,10 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         },
     }
     size = f"{config.width}x{config.height}"
-    stages = sorted({s for v in stage_ms.values() for s in v})
-    pair_rows = [
-        [
-            name,
-            "-".join(p["frames"]),
-            p["objects"],
-            p["seen_in_both"],
-            p["kept_id"],
-            p["with_pose"],
-            p["rot_err_deg_median"],
-            p["trans_err_m_median"],
-            p["wrong_estimated"],
-            p["rejected"],
-            p["reference"],
-        ]
-        for name, q in quality["samples"].items()
-        for p in q["pairs"]
-    ]
     return Report(
         title="Perception throughput (frames/s of Pi on real and simulated frames) and quality on the real ones",
         metrics=m,
-        tables=[
-            Table(
-                "Perception throughput",
-                ["contender", "seconds per call", "frames/s", "/ render"],
-                [
-                    ["render (baseline)", seconds["render"], fps["render"], 1.0],
-                    ["Pi without pose", seconds["no_pose"], fps["no_pose"], ratios["no_pose"]],
-                    ["Pi with pose", seconds["with_pose"], fps["with_pose"], ratios["with_pose"]],
-                    ["Pi with pose and relations, real frames", real_timing.median, fps["real"], None],
-                    ["the same, CPU time of the process", real_cpu, m["fps_real_cpu"], None],
-                ],
-                f"A simulated call processes all {config.frames} frames from a fresh state, a real call the "
-                f"{real_frames} real frames (a fresh pipeline per sample); median of {config.repeats} repeats.",
-            ),
-            Table(
-                "Median milliseconds per frame by stage",
-                ["stage", "without pose", "with pose", "real frames"],
-                [
-                    [s, stage_ms["no_pose"].get(s), stage_ms["with_pose"].get(s), stage_ms["real"].get(s)]
-                    for s in stages
-                ],
-            ),
-            Table(
-                "Real frame pairs: ids and poses against the inverse camera motion",
-                [
-                    "sample",
-                    "frames",
-                    "objects",
-                    "seen in both",
-                    "kept id",
-                    "with pose",
-                    "rot. err. median [deg]",
-                    "trans. err. median [m]",
-                    "wrong",
-                    "rejected",
-                    "reference motion",
-                ],
-                pair_rows,
-                "Seen in both: moved by the reference motion, the object's mask and one of the next frame's are "
-                "each other's best overlap. Wrong: more than 10 deg or 5 cm from the inverse camera motion.",
-            ),
-        ],
+        tables=_tables(config, m, quality, fps, real_cpu),
         targets=[
             *[
                 Target(

@@ -26,6 +26,7 @@ from __future__ import annotations
 import logging
 import os
 from dataclasses import dataclass
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -33,8 +34,8 @@ import numpy as np
 from pal.checks import check_int
 from pal.experiments.world_model.data import BodyChoice, JointData, Realizer, pick_rows
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
-from pal.lab.timing import measure_interleaved, ratio
+from pal.lab.report import Precondition, Report, Table, Target
+from pal.lab.timing import Timing, measure_interleaved, ratio
 from pal.sim.babbling import collect
 from pal.sim.batched import BatchReplayer
 from pal.sim.env import STATE_SPEC
@@ -73,15 +74,8 @@ class Config:
         check_int("threads", self.threads, minimum=0)
 
 
-@register(
-    "rollout",
-    kind="bench",
-    config=Config,
-    quick=Config(steps=300, targets=128, repeats=3),
-    tiny=Config(body=BodyChoice(frame_skip=5), steps=40, targets=8, repeats=1, threads=2),
-)
-def run(config: Config, progress_bar: bool = False) -> Report:
-    """Realized evaluation: batched ``mujoco.rollout`` replay against the one-by-one loop."""
+def _time(config: Config) -> tuple[dict[str, Timing], np.ndarray, Any]:
+    """Record, pick the targets and time the replays: (timings, rows, the realizer's env)."""
     dataset = collect(config.body.babble_config(config.steps, config.seed, chunk_size=config.steps))
     joint = JointData.select(dataset, config.body.joint)
     realizer = Realizer(dataset, joint, config.body.source)
@@ -119,6 +113,19 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     finally:
         if pool is not None:
             pool.close()
+    return timings, rows, env
+
+
+@register(
+    "rollout",
+    kind="bench",
+    config=Config,
+    quick=Config(steps=300, targets=128, repeats=3),
+    tiny=Config(body=BodyChoice(frame_skip=5), steps=40, targets=8, repeats=1, threads=2),
+)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """Realized evaluation: batched ``mujoco.rollout`` replay against the one-by-one loop."""
+    timings, rows, env = _time(config)
     serial = timings["serial"].result
     identical = {
         k: bool(np.array_equal(timings[k].result, serial))
@@ -162,6 +169,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 TARGET_SPEEDUP,
                 ">=",
                 f"serial seconds / batched seconds, {len(rows)} targets, one thread",
+                Precondition.nonzero(seconds["serial"], "the serial seconds"),
             ),
             Target(
                 "identical",

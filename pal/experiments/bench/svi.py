@@ -40,7 +40,7 @@ from models.graph import CausalGraph
 from models.mechanisms import LinearMechanism
 from models.variables import Role, Variable
 from models.world import WorldModel
-from pal.checks import check_float, check_int
+from pal.checks import check_int
 from pal.lab.registry import register
 from pal.lab.report import Report, Table, Target
 from pal.lab.timing import measure_interleaved, ratio, torch_threads
@@ -56,14 +56,14 @@ OBSERVED = ("a", "c", "d")
 
 @dataclass(frozen=True)
 class Config:
-    """Sizes and SVI settings (lr, lr_final, num_particles, init_scale: infer_state's defaults).
+    """Sizes and SVI settings (infer_state's defaults).
 
     Attributes:
         seed: data and SVI seed.
         units: number of units N.
         num_steps: SVI steps of each call.
         short_steps: steps of the short runs that isolate the step loop.
-        num_particles, lr, lr_final, init_scale: SVI settings used by both.
+        svi: the SVI settings of both (``lr``, ``lr_final``, ``num_particles``, ``init_scale``).
         repeats: timed repeats (median reported) after one warm-up of each.
         threads: torch threads during the run (None: leave as is).
     """
@@ -72,10 +72,7 @@ class Config:
     units: int = 1000
     num_steps: int = 500
     short_steps: int = 50
-    num_particles: int = 16
-    lr: float = 0.1
-    lr_final: float = 0.001
-    init_scale: float = 0.1
+    svi: SVIOptions = SVIOptions()
     repeats: int = 5
     threads: int | None = 1
 
@@ -83,10 +80,9 @@ class Config:
         check_int("units", self.units)
         check_int("num_steps", self.num_steps, minimum=2)
         check_int("short_steps", self.short_steps, maximum=self.num_steps - 1)
-        check_int("num_particles", self.num_particles)
         check_int("repeats", self.repeats)
-        for name in ("lr", "lr_final", "init_scale"):
-            check_float(name, getattr(self, name), 0.0, open_low=True)
+        if not isinstance(self.svi, SVIOptions):
+            raise ValueError(f"svi must be an SVIOptions, got {type(self.svi).__name__}")
 
 
 def chain4_model() -> WorldModel:
@@ -119,11 +115,12 @@ def _plain_svi(config: Config, data: dict[str, Tensor], num_steps: int) -> float
     n = data["a"].shape[0]
     with pyro.get_param_store().scope(), torch.random.fork_rng():
         torch.manual_seed(config.seed)  # Pyro samples with torch's RNG; numpy's and Python's stay untouched
-        guide = AutoNormal(plain_program, init_scale=config.init_scale)
-        optim = ClippedAdam({"lr": config.lr, "lrd": (config.lr_final / config.lr) ** (1.0 / num_steps)})
+        s = config.svi
+        guide = AutoNormal(plain_program, init_scale=s.init_scale)
+        optim = ClippedAdam({"lr": s.lr, "lrd": (s.lr_final / s.lr) ** (1.0 / num_steps)})
         elbo = Trace_ELBO(
-            num_particles=config.num_particles,
-            vectorize_particles=config.num_particles > 1,
+            num_particles=s.num_particles,
+            vectorize_particles=s.num_particles > 1,
             max_plate_nesting=1,
         )
         svi = SVI(plain_program, guide, optim, elbo)
@@ -134,13 +131,7 @@ def _plain_svi(config: Config, data: dict[str, Tensor], num_steps: int) -> float
 
 
 def _ours(config: Config, model: WorldModel, data: dict[str, Tensor], num_steps: int) -> float:
-    options = SVIOptions(
-        lr=config.lr,
-        lr_final=config.lr_final,
-        num_particles=config.num_particles,
-        init_scale=config.init_scale,
-    )
-    result = infer_state(model, data, num_steps=num_steps, options=options, seed=config.seed)
+    result = infer_state(model, data, num_steps=num_steps, options=config.svi, seed=config.seed)
     return result.losses[-1]
 
 
@@ -148,8 +139,8 @@ def _ours(config: Config, model: WorldModel, data: dict[str, Tensor], num_steps:
     "svi",
     kind="bench",
     config=Config,
-    quick=Config(units=100, num_steps=30, short_steps=2, num_particles=4, repeats=1),
-    tiny=Config(units=20, num_steps=6, short_steps=2, num_particles=2, repeats=1),
+    quick=Config(units=100, num_steps=30, short_steps=2, svi=SVIOptions(num_particles=4), repeats=1),
+    tiny=Config(units=20, num_steps=6, short_steps=2, svi=SVIOptions(num_particles=2), repeats=1),
 )
 def run(config: Config, progress_bar: bool = False) -> Report:
     """State inference: infer_state's SVI steps/s against the same SVI written in plain Pyro."""
@@ -213,7 +204,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         ],
         targets=[Target("ratio", rel, 1 / 1.3, ">=", "steps/s of infer_state / steps/s of plain Pyro")],
         notes=[
-            f"A -> B -> C -> D, B latent, {c.units} units, {c.num_steps} steps, {c.num_particles} particles, "
+            f"A -> B -> C -> D, B latent, {c.units} units, {c.num_steps} steps, {c.svi.num_particles} particles, "
             f"AutoNormal + ClippedAdam; torch threads: {c.threads}."
         ],
     )

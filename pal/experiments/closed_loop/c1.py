@@ -54,7 +54,7 @@ from pal.experiments.closed_loop.setup import (
     split_rows,
 )
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -178,6 +178,48 @@ def _over_objects(per_object: dict[str, dict[str, Any]], key: str) -> float | No
     return float(np.mean(values)) if values else None
 
 
+def _targets(metrics: dict[str, Any]) -> list[Target]:
+    """The cost of perception, the model against no motion, and the calibration of its intervals."""
+    mse_p, mse_g, pooled = (
+        metrics["mse_perceived"],
+        metrics["mse_ground_truth"],
+        metrics["coverage"]["pooled"],
+    )
+    return [
+        Target(
+            "perception_cost_ratio",
+            metrics["ratio"],
+            TARGET_RATIO,
+            "<=",
+            "displacement MSE of the model fitted on perceived positions / of the model fitted on "
+            "true positions, held-out transitions, mean over objects",
+            Precondition.nonzero(mse_g, "the displacement MSE of the model fitted on true positions"),
+        ),
+        Target(
+            "perceived_over_no_motion",
+            mse_p / metrics["mse_zero"] if mse_p is not None and metrics["mse_zero"] else None,
+            TARGET_VS_ZERO,
+            "<=",
+            "displacement MSE of the agent's model (perceived positions) / of predicting no motion, held-out transitions",
+            Precondition.nonzero(metrics["mse_zero"], "the MSE of predicting no motion (the objects moved)"),
+        ),
+        Target(
+            "push_interval_coverage_low",
+            pooled,
+            COVERAGE_RANGE[0],
+            ">=",
+            "share of the true held-out push displacements inside the agent's 90 % predictive interval",
+        ),
+        Target(
+            "push_interval_coverage_high",
+            pooled,
+            COVERAGE_RANGE[1],
+            "<=",
+            "the same share, upper bound (an interval too wide covers too much)",
+        ),
+    ]
+
+
 @register("c1", config=Config, quick=QUICK, tiny=TINY)
 def run(config: Config, progress_bar: bool = False) -> Report:
     """C1: displacement prediction from perceived vs ground-truth object positions (cost of perception)."""
@@ -229,37 +271,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         title="C1: object displacement from the actions, perceived vs ground-truth objects",
         metrics=metrics,
         tables=_tables(metrics),
-        targets=[
-            Target(
-                "perception_cost_ratio",
-                metrics["ratio"],
-                TARGET_RATIO,
-                "<=",
-                "displacement MSE of the model fitted on perceived positions / of the model fitted on "
-                "true positions, held-out transitions, mean over objects",
-            ),
-            Target(
-                "perceived_over_no_motion",
-                mse_p / metrics["mse_zero"] if mse_p is not None and metrics["mse_zero"] else None,
-                TARGET_VS_ZERO,
-                "<=",
-                "displacement MSE of the agent's model (perceived positions) / of predicting no motion, held-out transitions",
-            ),
-            Target(
-                "push_interval_coverage_low",
-                pooled,
-                COVERAGE_RANGE[0],
-                ">=",
-                "share of the true held-out push displacements inside the agent's 90 % predictive interval",
-            ),
-            Target(
-                "push_interval_coverage_high",
-                pooled,
-                COVERAGE_RANGE[1],
-                "<=",
-                "the same share, upper bound (an interval too wide covers too much)",
-            ),
-        ],
+        targets=_targets(metrics),
         notes=[
             f"{info['train_rows']} training and {info['test_rows']} held-out transitions of babbling "
             f"({config.setup.babble_steps} steps, seed {config.seed}).",

@@ -49,7 +49,7 @@ from pal.experiments.closed_loop.setup import (
     summary,
 )
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -231,6 +231,9 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 TARGET_RATIO,
                 "<=",
                 "median counterfactual error / median interventional error, the agent's model (perceived positions)",
+                Precondition.nonzero(
+                    metrics["perceived"]["interventional_err_cm_median"], "the median interventional error"
+                ),
             )
         ],
         notes=[

@@ -15,7 +15,7 @@ true box centre comes within ``tolerance`` m of the goal (it ends there):
   picks the current one), and the joint targets that bring the hand to the waypoint (action
   inference on the body layer's active submodel);
 - ``flat``: the agent's goal-mode planner (:func:`pal.agent.plan.plan`: the sampling planner over
-  ``setup.agent.plan.horizon`` steps through the whole world model towards the box target,
+  ``setup.agent.plan.action.horizon`` steps through the whole world model towards the box target,
   warm-started, holding still when it predicts no progress, as :meth:`pal.agent.Agent.decide`).
 
 Both read the same state from the simulator (joint angles, the sensed hand, the true object
@@ -30,13 +30,14 @@ from __future__ import annotations
 import logging
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 import torch
 
-from inference.hierarchy import Hierarchy
+from inference import SamplingConfig
+from inference.hierarchy import Hierarchy, LevelQuery
 from inference.hierarchy_count import count_evaluations
 from models import WorldModel
 from pal.agent.plan import plan
@@ -58,7 +59,7 @@ from pal.experiments.closed_loop.setup import (
 )
 from pal.experiments.language.lot_play import Section
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 from pal.sim.pushing import PushingEnv
 
 __all__ = ["METHODS", "QUICK", "TINY", "Config", "compare", "goals", "hierarchy_section", "run"]
@@ -105,7 +106,15 @@ QUICK = Config(setup=QUICK_SETUP, goals=10, episode_steps=12)
 TINY = Config(
     setup=TINY_SETUP,
     hierarchy=HierarchyConfig(
-        object_steps=10, body_population=8, body_elites=2, body_refine=3, context_samples=16
+        object_query=replace(HierarchyConfig().object_query, num_steps=10),
+        body_query=LevelQuery(
+            3,
+            replace(
+                HierarchyConfig().body_query.options,
+                sampling=SamplingConfig(population=8, elites=2, iterations=2, refine_steps=3),
+            ),
+        ),
+        context_samples=16,
     ),
     goals=1,
     episode_steps=2,
@@ -141,7 +150,7 @@ class _Flat:
         if cfg.warm_start and self.sequence is not None:
             init = np.concatenate([self.sequence[1:], self.sequence[-1:]])
         else:
-            init = np.tile(q, (cfg.horizon, 1))
+            init = np.tile(q, (cfg.action.horizon, 1))
         p = plan(self.model, state, {"box": goal}, cfg, seed=int(self.rng.integers(2**31)), init=init)
         self.sequence = p.sequence
         now = float(np.linalg.norm(state["pos_prev.box"] - goal))
@@ -309,6 +318,9 @@ def hierarchy_section(config: Config, progress_bar: bool = False) -> Section:
             1.0,
             "<",
             "mean mechanism evaluations per decision, hierarchy / flat (< 1: fewer)",
+            Precondition.nonzero(
+                s["flat"]["evaluations_mean"], "flat action inference's evaluations per decision"
+            ),
         ),
     )
     notes = (

@@ -75,10 +75,11 @@ class HierarchyConfig:
         align: largest sideways offset of the hand from the push line for the ``through`` phase, m.
         contact_threshold: share of a step in contact that makes a push event, in (0, 1].
         ridge: weight of the identity prior of the push gains, m².
-        object_steps, object_lr: Adam steps and rate of the object-level action inference.
-        body_population, body_elites, body_iterations, body_refine: the body level's sampling
-            stage (CEM) and its Adam refinement steps.
-        body_scale: preference scale of the hand waypoints, m.
+        object_query: the object level's action inference (Adam steps; options: preference
+            scale of the push events, m, and Adam's rate), passed to :class:`inference.hierarchy.Hierarchy`.
+        body_query: the body level's: its sampling stage (CEM) and Adam refinement
+            (``options.sampling.refine_steps`` Adam steps; ``num_steps`` counts only without it) and
+            ``options.scale``, the preference scale of the hand waypoints, m.
         context_samples: draws of each layer for contextualisation.
         threshold: smallest standardised relevance of an active edge (Eq. 6.6).
     """
@@ -88,13 +89,13 @@ class HierarchyConfig:
     align: float = 0.015
     contact_threshold: float = 0.5
     ridge: float = 1e-3
-    object_steps: int = 60
-    object_lr: float = 0.005
-    body_population: int = 16
-    body_elites: int = 4
-    body_iterations: int = 2
-    body_refine: int = 10
-    body_scale: float = 0.01
+    object_query: LevelQuery = LevelQuery(60, ActionOptions(scale=0.005, lr=0.005))
+    body_query: LevelQuery = LevelQuery(
+        10,
+        ActionOptions(
+            scale=0.01, sampling=SamplingConfig(population=16, elites=4, iterations=2, refine_steps=10)
+        ),
+    )
     context_samples: int = 128
     threshold: float = 0.01
 
@@ -104,15 +105,17 @@ class HierarchyConfig:
         check_float("align", self.align, 0.0, open_low=True)
         check_float("contact_threshold", self.contact_threshold, 0.0, 1.0, open_low=True)
         check_float("ridge", self.ridge, 0.0, open_low=True)
-        check_int("object_steps", self.object_steps)
-        check_float("object_lr", self.object_lr, 0.0, open_low=True)
-        check_int("body_population", self.body_population, 2)
-        check_int("body_elites", self.body_elites)
-        if self.body_elites > self.body_population:
-            raise ValueError(f"body_elites {self.body_elites} exceeds body_population {self.body_population}")
-        check_int("body_iterations", self.body_iterations)
-        check_int("body_refine", self.body_refine, 0)
-        check_float("body_scale", self.body_scale, 0.0, open_low=True)
+        for name in ("object_query", "body_query"):
+            query = getattr(self, name)
+            if not isinstance(query, LevelQuery):
+                raise ValueError(f"{name} must be a LevelQuery, got {type(query).__name__}")
+            check_float(f"{name}.options.scale", query.options.scale, 0.0, open_low=True)
+        sampling = self.body_query.options.sampling
+        if sampling is None or sampling.refine_steps is None:
+            raise ValueError(
+                "body_query.options.sampling must be a SamplingConfig with refine_steps set: the body level "
+                "plans with CEM, then that many Adam steps"
+            )
         check_int("context_samples", self.context_samples, 2)
         check_float("threshold", self.threshold, 0.0)
 
@@ -301,17 +304,9 @@ def pushing_hierarchy(
     if unknown:
         raise ValueError(f"objects {unknown} have no push geometry; expected some of {sorted(_NEAR_FACE)}")
     body, event = body_layer(model), _event_layer(objects, config.contact_threshold)
-    sampling = SamplingConfig(
-        population=config.body_population,
-        elites=config.body_elites,
-        iterations=config.body_iterations,
-        refine_steps=config.body_refine,
-    )
     kwargs = {
-        "object_query": LevelQuery(config.object_steps, ActionOptions(scale=0.005, lr=config.object_lr)),
-        "body_query": LevelQuery(
-            max(config.body_refine, 1), ActionOptions(scale=config.body_scale, sampling=sampling)
-        ),
+        "object_query": config.object_query,
+        "body_query": config.body_query,
         "context_samples": config.context_samples,
         "threshold": config.threshold,
         "seed": seed,

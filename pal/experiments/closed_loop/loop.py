@@ -18,10 +18,11 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from inference import SamplingConfig
 from pal.agent import (
     Agent,
     AgentConfig,
@@ -34,6 +35,7 @@ from pal.agent import (
     PlanConfig,
     pushing_spec,
 )
+from pal.agent.config import ESTIMATE_SVI, MODEL_SCHEDULE, PLAN_ACTION, PLAN_SAMPLING
 from pal.agent.curiosity import grid_occupancy
 from pal.agent.video import VideoRecorder, overlay
 from pal.checks import check_float, check_int
@@ -104,10 +106,15 @@ class Config:
 
 #: The agent of the demo's loop: a short fit, light inference, one episode, no refit.
 QUICK_AGENT = AgentConfig(
-    model=ModelConfig(epochs=40, members=3),
-    estimate=EstimateConfig(steps=30, lr=0.05),
-    plan=PlanConfig(population=32, elites=4, iterations=2, refine_steps=10),
-    curiosity=CuriosityConfig(population=32, elites=4, iterations=2),
+    model=ModelConfig(members=3, schedule=replace(MODEL_SCHEDULE, epochs=40)),
+    estimate=EstimateConfig(num_steps=30, svi=replace(ESTIMATE_SVI, lr=0.05)),
+    plan=PlanConfig(
+        action=replace(
+            PLAN_ACTION,
+            sampling=replace(PLAN_SAMPLING, population=32, elites=4, iterations=2, refine_steps=10),
+        )
+    ),
+    curiosity=CuriosityConfig(sampling=SamplingConfig(population=32, elites=4, iterations=2)),
     learn=LearnConfig(refit_every=1000),
     reset_every=None,
 )
@@ -118,9 +125,18 @@ TINY = Config(
     camera_size=(240, 180),
     agent=replace(
         QUICK_AGENT,
-        model=ModelConfig(epochs=10, members=2, hidden=(16,), patience=None),
-        plan=PlanConfig(population=8, elites=2, iterations=1, refine_steps=3),
-        curiosity=CuriosityConfig(population=8, elites=2, iterations=1, influence_samples=4),
+        model=ModelConfig(
+            members=2, hidden=(16,), schedule=replace(MODEL_SCHEDULE, epochs=10, patience=None)
+        ),
+        plan=PlanConfig(
+            action=replace(
+                PLAN_ACTION,
+                sampling=replace(PLAN_SAMPLING, population=8, elites=2, iterations=1, refine_steps=3),
+            )
+        ),
+        curiosity=CuriosityConfig(
+            sampling=SamplingConfig(population=8, elites=2, iterations=1), influence_samples=4
+        ),
         learn=LearnConfig(refit_every=10),
         reset_every=6,
     ),
@@ -140,6 +156,28 @@ def _frame(agent: Agent, decision: Decision | None, percept: Percept, step: int)
         predicted=decision.predicted if decision is not None else None,
         status=f"step {step}  episode {agent.episode}  {mode}",
     )
+
+
+def _tables(metrics: dict[str, Any], objects: tuple[str, ...]) -> list[Table]:
+    fit_rows, lost, coverage = metrics["fit_rows"], metrics["lost_fraction"], metrics["coverage"]
+    summary = [
+        ["loop steps", metrics["steps"]],
+        ["babbling steps", metrics["babble_steps"]],
+        ["episodes", metrics["episodes"]],
+        ["arm transitions fitted", fit_rows["arm"]],
+        *[[f"decisions after babbling: {m}", n] for m, n in sorted(metrics["modes"].items())],
+        ["video", metrics["video"]],
+        ["video frames", metrics["video_frames"]],
+    ]
+    return [
+        Table("Run", ["quantity", "value"], summary),
+        Table(
+            "Objects",
+            ["object", "frames lost [share]", "estimate coverage [share of cells]", "transitions fitted"],
+            [[o, lost[o], coverage[o], fit_rows.get(o)] for o in objects],
+            caption="Transitions fitted: the babbling steps in which the object was perceived before and after.",
+        ),
+    ]
 
 
 @register("loop", config=Config, quick=QUICK, tiny=TINY)
@@ -193,28 +231,10 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         "video": None if path is None else str(path),
         "video_frames": None if recorder is None else recorder.frames,
     }
-    summary = [
-        ["loop steps", metrics["steps"]],
-        ["babbling steps", babble],
-        ["episodes", metrics["episodes"]],
-        ["arm transitions fitted", fit_rows["arm"]],
-        *[[f"decisions after babbling: {m}", n] for m, n in sorted(modes.items())],
-        ["video", metrics["video"]],
-        ["video frames", metrics["video_frames"]],
-    ]
-    objects = [[o, lost[o], coverage[o], fit_rows.get(o)] for o in spec.object_names]
     return Report(
         title="The closed perception-action loop: Π -> measurement sites -> world model -> action",
         metrics=metrics,
-        tables=[
-            Table("Run", ["quantity", "value"], summary),
-            Table(
-                "Objects",
-                ["object", "frames lost [share]", "estimate coverage [share of cells]", "transitions fitted"],
-                objects,
-                caption="Transitions fitted: the babbling steps in which the object was perceived before and after.",
-            ),
-        ],
+        tables=_tables(metrics, spec.object_names),
         targets=[
             Target(
                 f"lost_fraction.{o}",

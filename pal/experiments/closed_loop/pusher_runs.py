@@ -117,7 +117,7 @@ class Episode:
     path: list[list[float]] = field(default_factory=list)
     goal: list[float] = field(default_factory=list)
 
-    def as_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-compatible fields (without the path)."""
         return {k: v for k, v in self.__dict__.items() if k not in ("path", "goal")}
 
@@ -169,7 +169,7 @@ def baseline_episode(env: gymnasium.Env, planner: CEMPlanner, seed: int, steps: 
     obs0 = np.asarray(obs, dtype=np.float64)
     planner.reset()
     path, cpu, wall, pred = [obs0[_OBJ][:2]], [], [], None
-    horizon = planner.config.horizon
+    horizon = planner.config.action.horizon
     for t in range(steps):
         c0, w0 = time.process_time(), time.perf_counter()
         action, final = planner.act(np.asarray(obs, dtype=np.float64))

@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 import torch
 
+from inference import SamplingConfig
 from models import WorldModel
 from pal.agent import (
     Agent,
@@ -30,6 +31,7 @@ from pal.agent import (
     fit_model,
     pushing_spec,
 )
+from pal.agent.config import ESTIMATE_SVI, MODEL_SCHEDULE, PLAN_ACTION, PLAN_SAMPLING
 from pal.agent.history import History
 from pal.checks import check_float, check_int
 from pal.sim.pushing import PushingEnv
@@ -89,15 +91,23 @@ class SetupConfig:
 
 #: The agent of the tiny runs: small ensembles fitted for a few epochs, light inference, short episodes.
 TINY_AGENT = AgentConfig(
-    model=ModelConfig(members=2, hidden=(8,), epochs=3, patience=None),
-    estimate=EstimateConfig(steps=30, lr=0.05),
-    plan=PlanConfig(population=8, elites=2, iterations=1, refine_steps=3),
-    curiosity=CuriosityConfig(population=8, elites=2, iterations=1, influence_samples=4),
+    model=ModelConfig(members=2, hidden=(8,), schedule=replace(MODEL_SCHEDULE, epochs=3, patience=None)),
+    estimate=EstimateConfig(num_steps=30, svi=replace(ESTIMATE_SVI, lr=0.05)),
+    plan=PlanConfig(
+        action=replace(
+            PLAN_ACTION, sampling=replace(PLAN_SAMPLING, population=8, elites=2, iterations=1, refine_steps=3)
+        )
+    ),
+    curiosity=CuriosityConfig(
+        sampling=SamplingConfig(population=8, elites=2, iterations=1), influence_samples=4
+    ),
     reset_every=12,
 )
 #: Babbling of the tiny runs (a few seconds) and of the quick ones (``--quick``).
 TINY_SETUP = SetupConfig(babble_steps=24, agent=TINY_AGENT)
-QUICK_SETUP = SetupConfig(babble_steps=240, agent=AgentConfig(model=ModelConfig(epochs=40)))
+QUICK_SETUP = SetupConfig(
+    babble_steps=240, agent=AgentConfig(model=ModelConfig(schedule=replace(MODEL_SCHEDULE, epochs=40)))
+)
 
 
 def babbled_agent(config: SetupConfig, seed: int, *, progress_bar: bool = False) -> Agent:

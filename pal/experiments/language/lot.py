@@ -66,7 +66,7 @@ class Config:
         seed: seeds babbling, the fits, the situations and the residual samples.
         setup: babbling and the agent's model in the pushing world.
         situations: N start situations (pushing world).
-        samples: S residual samples per situation in the model world (pushing world).
+        num_samples: S residual samples per situation in the model world (pushing world).
         horizon: steps of the compiled plans (pushing world).
         queries: the pushing-world query texts.
         babbling_starts: the situations are one babbling step after a settled draw (else settled).
@@ -80,7 +80,7 @@ class Config:
     seed: int = 0
     setup: SetupConfig = SetupConfig()
     situations: int = 60
-    samples: int = 32
+    num_samples: int = 32
     horizon: int = 1
     queries: tuple[str, ...] = QUERIES
     babbling_starts: bool = True
@@ -91,7 +91,7 @@ class Config:
 
     def __post_init__(self) -> None:
         check_int("situations", self.situations, 2)
-        check_int("samples", self.samples, 1)
+        check_int("num_samples", self.num_samples, 1)
         check_int("horizon", self.horizon, 1)
         check_float("tolerance", self.tolerance, 0.0)
         if self.position_sigma is not None:
@@ -105,14 +105,14 @@ class Config:
 QUICK = Config(
     setup=SetupConfig(babble_steps=1000),
     situations=40,
-    samples=16,
+    num_samples=16,
     pusher=QUICK_PUSHER,
     hierarchy=hierarchy_compare.QUICK,
 )
 TINY = Config(
     setup=TINY_SETUP,
     situations=4,
-    samples=2,
+    num_samples=2,
     queries=QUERIES[:2] + QUERIES[-1:],
     pusher=TINY_PUSHER,
     hierarchy=hierarchy_compare.TINY,
@@ -145,7 +145,7 @@ def _pushing_section(config: Config, progress_bar: bool) -> Section:
             ModelWorld(model),
             PushingWorld(env),
             sit,
-            samples=config.samples,
+            samples=config.num_samples,
             horizon=config.horizon,
             seed=config.seed,
         )
@@ -158,7 +158,7 @@ def _pushing_section(config: Config, progress_bar: bool) -> Section:
         results,
         config.tolerance,
         caption=f"{config.situations} situations ({start}); plans over {config.horizon} step(s); "
-        f"model {config.samples} residual samples each.",
+        f"model {config.num_samples} residual samples each.",
         metrics={"rows": {k: int(v) for k, v in rows.items()}, "babble_steps": config.setup.babble_steps},
         notes=(
             f"Pushing world, seed {config.seed}, {config.setup.babble_steps} babbling steps, model fitted on "

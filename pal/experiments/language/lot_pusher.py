@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from pal.agent import Agent, AgentConfig, ModelConfig, pusher_spec
+from pal.agent.config import MODEL_SCHEDULE
 from pal.checks import check_int
 from pal.experiments.closed_loop.pusher import MODEL
 from pal.experiments.closed_loop.pusher_runs import ENV_ID
@@ -50,7 +51,7 @@ class PusherPart:
         babble_steps: random-torque steps the model is fitted on.
         model: the agent's world model and fit (default that of :mod:`pal.experiments.closed_loop.pusher`).
         situations: N start situations.
-        samples: S residual samples per situation in the model world.
+        num_samples: S residual samples per situation in the model world.
         horizon: steps of the compiled plans (one step: 0.05 s).
         start_steps: K, situations are drawn k ~ U{0..K-1} babbling steps after a reset.
         queries: the query texts.
@@ -59,7 +60,7 @@ class PusherPart:
     babble_steps: int = 3000
     model: ModelConfig = MODEL
     situations: int = 60
-    samples: int = 32
+    num_samples: int = 32
     horizon: int = 5
     start_steps: int = 100
     queries: tuple[str, ...] = PUSHER_QUERIES
@@ -67,19 +68,24 @@ class PusherPart:
     def __post_init__(self) -> None:
         check_int("babble_steps", self.babble_steps)
         check_int("situations", self.situations, 2)
-        check_int("samples", self.samples, 1)
+        check_int("num_samples", self.num_samples, 1)
         check_int("horizon", self.horizon, 1)
         check_int("start_steps", self.start_steps, 0)
         if not self.queries:
             raise ValueError("pusher queries must hold at least one query text")
 
 
-QUICK_PUSHER = PusherPart(babble_steps=1000, model=replace(MODEL, epochs=30), situations=40, samples=16)
+QUICK_PUSHER = PusherPart(
+    babble_steps=1000,
+    model=replace(MODEL, schedule=replace(MODEL.schedule, epochs=30)),
+    situations=40,
+    num_samples=16,
+)
 TINY_PUSHER = PusherPart(
     babble_steps=40,
-    model=ModelConfig(members=2, hidden=(8,), epochs=2, patience=None),
+    model=ModelConfig(members=2, hidden=(8,), schedule=replace(MODEL_SCHEDULE, epochs=2, patience=None)),
     situations=3,
-    samples=2,
+    num_samples=2,
     horizon=2,
     start_steps=5,
     queries=(PUSHER_QUERIES[4], "P(touch(fingertip, object) | do(hold(fingertip)))"),
@@ -115,7 +121,7 @@ def pusher_section(
             ModelWorld(model, held=("goal.object",)),
             PusherWorld(env),
             sit,
-            samples=part.samples,
+            samples=part.num_samples,
             horizon=part.horizon,
             seed=seed,
         )
@@ -128,7 +134,7 @@ def pusher_section(
         results,
         tolerance,
         caption=f"{part.situations} situations ({part.start_steps} babbling steps at most after a reset); "
-        f"plans over {part.horizon} steps; model {part.samples} residual samples each.",
+        f"plans over {part.horizon} steps; model {part.num_samples} residual samples each.",
         metrics={
             "rows": {k: int(v) for k, v in fitted["rows"].items()},
             "babble_steps": part.babble_steps,

@@ -167,6 +167,143 @@ def _gt_label(labels: np.ndarray, mask: Mask) -> int:
     return int(np.bincount(labels[y0:y1, x0:x1][mask.crop]).argmax())
 
 
+@dataclass
+class _Perceived:
+    """What Π saw in every frame of a sequence, next to the ground truth of the moved object."""
+
+    votes: dict[int, Counter[int]]  # track id -> ground-truth label -> frames
+    visible: Counter[int]  # track id -> frames in which it was visible
+    masks: list[dict[int, Mask]]  # per frame: track id -> mask
+    centroids: list[dict[int, np.ndarray]]  # per frame: track id -> centroid
+    true_centroids: list[np.ndarray | None]  # per frame: the moved object's true centroid
+    seg_all: list[float]  # best IoU of every ground-truth object mask in every frame
+    in_view: np.ndarray  # (T,) bool: the moved object is in view
+    gt_masks: list[Mask | None]  # per frame: the moved object's true mask
+    seconds: float  # wall-clock time of Π over the sequence
+
+
+def _perceive(seq: RecordedSequence, pipe: Pipeline, label: int, min_area: int) -> _Perceived:
+    """Run ``pipe`` over ``seq``, collecting tracks, masks and centroids against the ground truth."""
+    pose_cfg = pipe.config.pose
+    seen = _Perceived({}, Counter(), [], [], [], [], np.zeros(len(seq), dtype=bool), [], 0.0)
+    start = time.perf_counter()
+    for k, frame in enumerate(seq):
+        state = pipe(frame)
+        labels = frame.labels
+        if labels is None:
+            raise ValueError(
+                f"{seq.path}: frame {k} has no ground-truth mask although the sequence declares masks"
+            )
+        frame_masks, frame_cents = {}, {}
+        for o in state.objects:
+            if o.visible and o.mask is not None:
+                seen.visible[o.obj_id] += 1
+                seen.votes.setdefault(o.obj_id, Counter())[_gt_label(labels, o.mask)] += 1
+                frame_masks[o.obj_id] = o.mask
+                if o.spatial is not None:
+                    frame_cents[o.obj_id] = o.spatial.centroid
+        seen.masks.append(frame_masks)
+        seen.centroids.append(frame_cents)
+        own = labels == label
+        gt_mask = Mask.from_full(own) if own.sum() >= min_area else None
+        seen.in_view[k] = gt_mask is not None
+        seen.gt_masks.append(gt_mask)
+        true = (
+            None
+            if gt_mask is None
+            else spatial_descriptor(
+                frame, gt_mask, min_depth=pose_cfg.min_depth, max_depth=pose_cfg.max_depth
+            )
+        )
+        seen.true_centroids.append(None if true is None else true.centroid)
+        for lab in np.unique(labels):
+            m = labels == lab
+            if lab == 0 or m.sum() < min_area:
+                continue
+            g = Mask.from_full(m)
+            seen.seg_all.append(max((iou(g, mm) for mm in frame_masks.values()), default=0.0))
+    seen.seconds = time.perf_counter() - start
+    return seen
+
+
+def _empty_result(ts: np.ndarray, gt: np.ndarray) -> dict[str, Any]:
+    """The pose scores of a sequence in which no track is the moved object."""
+    return {
+        "trans_err_cm": [],
+        "rot_err_deg": [],
+        "centroid_err_cm": [],
+        "valid": 0,
+        "total": 0,
+        "propagated": 0,
+        "attempts": 0,
+        "matches_mean": None,
+        "snapshots": 0,
+        "kinematic": None,
+        "kinematic_reliable": False,
+        "visual": None,
+        "failures": {},
+        "t_est": np.zeros(0),
+        "p_est": np.zeros((0, 3)),
+        "t_gt": ts.copy(),
+        "p_gt": gt[:, :3, 3].copy(),
+    }
+
+
+def _score_track(
+    result: dict[str, Any],
+    rec: Any,
+    seen: _Perceived,
+    main: int,
+    ts: np.ndarray,
+    gt: tuple[np.ndarray, np.ndarray],
+    kinematic: KinematicConfig | None,
+) -> None:
+    """Fill ``result`` with the poses, descriptors and centroid errors of track ``main`` (record ``rec``).
+
+    ``gt``: the true poses (T, 4, 4) and their validity (T,).
+    """
+    gt_poses, gt_valid = gt
+    poses = rec.trajectory.poses
+    index = {round(float(t), 6): k for k, t in enumerate(ts)}
+    est = [p for p in poses if p.is_valid]
+    tried = [p for p in poses if p.diagnostics.attempts > 0]
+    result.update(
+        valid=len(est),
+        total=len(poses),
+        propagated=sum(p.source == "propagated" for p in poses),
+        attempts=seen.visible[main],
+        snapshots=len(rec.gallery),
+        visual=rec.gallery.visual_descriptor(),
+        matches_mean=float(np.mean([p.diagnostics.matches for p in tried])) if tried else None,
+        failures=dict(
+            Counter(p.diagnostics.reason.split(";")[0] for p in poses if not p.is_valid).most_common(4)
+        ),
+    )
+    canon = next((p for p in est if p.diagnostics.solver == "canonical"), None)
+    if canon is not None and canon.camera_from_object is not None:
+        X = np.linalg.inv(gt_poses[index[round(canon.timestamp, 6)]]) @ canon.camera_from_object
+        aligned = gt_poses @ X
+        result["p_gt"] = aligned[:, :3, 3].copy()
+        for p in est:
+            k = index[round(p.timestamp, 6)]
+            T = p.camera_from_object
+            if p is canon or T is None or not gt_valid[k]:
+                continue
+            result["trans_err_cm"].append(100.0 * float(np.linalg.norm(T[:3, 3] - aligned[k, :3, 3])))
+            result["rot_err_deg"].append(rotation_angle_deg(T[:3, :3], aligned[k, :3, :3]))
+        result["t_est"] = np.array([p.timestamp for p in est])
+        result["p_est"] = np.array(
+            [p.camera_from_object[:3, 3] for p in est if p.camera_from_object is not None]
+        )
+    if len(est) >= 2:
+        desc = trajectory_descriptor(rec.trajectory, kinematic)
+        result["kinematic"], result["kinematic_reliable"] = desc.vector, desc.reliable
+    for k in range(len(seen.centroids)):  # every frame
+        c, true_c = seen.centroids[k].get(main), seen.true_centroids[k]
+        if c is not None and true_c is not None:
+            result["centroid_err_cm"].append(100.0 * float(np.linalg.norm(c - true_c)))
+
+
 def evaluate_sequence(
     seq: RecordedSequence,
     config: PipelineConfig,
@@ -197,53 +334,9 @@ def evaluate_sequence(
     label = names[obj]
     gt, gt_valid = seq.gt_poses(obj)
     pipe = Pipeline(config)
-    pose_cfg = config.pose
-    votes: dict[int, Counter[int]] = {}
-    visible: Counter[int] = Counter()
-    masks: list[dict[int, Mask]] = []
-    centroids: list[dict[int, np.ndarray]] = []
-    true_centroids: list[np.ndarray | None] = []
-    seg_all: list[float] = []
-    in_view = np.zeros(len(seq), dtype=bool)
-    gt_masks: list[Mask | None] = []
-    start = time.perf_counter()
-    for k, frame in enumerate(seq):
-        state = pipe(frame)
-        labels = frame.labels
-        if labels is None:
-            raise ValueError(
-                f"{seq.path}: frame {k} has no ground-truth mask although the sequence declares masks"
-            )
-        frame_masks, frame_cents = {}, {}
-        for o in state.objects:
-            if o.visible and o.mask is not None:
-                visible[o.obj_id] += 1
-                votes.setdefault(o.obj_id, Counter())[_gt_label(labels, o.mask)] += 1
-                frame_masks[o.obj_id] = o.mask
-                if o.spatial is not None:
-                    frame_cents[o.obj_id] = o.spatial.centroid
-        masks.append(frame_masks)
-        centroids.append(frame_cents)
-        own = labels == label
-        gt_mask = Mask.from_full(own) if own.sum() >= min_area else None
-        in_view[k] = gt_mask is not None
-        gt_masks.append(gt_mask)
-        true = (
-            None
-            if gt_mask is None
-            else spatial_descriptor(
-                frame, gt_mask, min_depth=pose_cfg.min_depth, max_depth=pose_cfg.max_depth
-            )
-        )
-        true_centroids.append(None if true is None else true.centroid)
-        for lab in np.unique(labels):
-            m = labels == lab
-            if lab == 0 or m.sum() < min_area:
-                continue
-            g = Mask.from_full(m)
-            seg_all.append(max((iou(g, mm) for mm in frame_masks.values()), default=0.0))
-    seconds = time.perf_counter() - start
-    mine = sorted((c[label], -oid, oid) for oid, c in votes.items() if c.most_common(1)[0][0] == label)
+    seen = _perceive(seq, pipe, label, min_area)
+    masks, gt_masks, seconds = seen.masks, seen.gt_masks, seen.seconds
+    mine = sorted((c[label], -oid, oid) for oid, c in seen.votes.items() if c.most_common(1)[0][0] == label)
     long = max(1, round(0.05 * len(seq)))
     main = mine[-1][2] if mine else None
     seg = [
@@ -252,67 +345,10 @@ def evaluate_sequence(
         if gt_masks[k] is not None
     ]  # type: ignore[arg-type]
     ts = seq.timestamps
-    result: dict[str, Any] = {
-        "trans_err_cm": [],
-        "rot_err_deg": [],
-        "centroid_err_cm": [],
-        "valid": 0,
-        "total": 0,
-        "propagated": 0,
-        "attempts": 0,
-        "matches_mean": None,
-        "snapshots": 0,
-        "kinematic": None,
-        "kinematic_reliable": False,
-        "visual": None,
-        "failures": {},
-        "t_est": np.zeros(0),
-        "p_est": np.zeros((0, 3)),
-        "t_gt": ts.copy(),
-        "p_gt": gt[:, :3, 3].copy(),
-    }
+    result = _empty_result(ts, gt)
     if main is not None:
-        rec = pipe.records[main]
-        poses = rec.trajectory.poses
-        index = {round(float(t), 6): k for k, t in enumerate(ts)}
-        est = [p for p in poses if p.is_valid]
-        tried = [p for p in poses if p.diagnostics.attempts > 0]
-        result.update(
-            valid=len(est),
-            total=len(poses),
-            propagated=sum(p.source == "propagated" for p in poses),
-            attempts=visible[main],
-            snapshots=len(rec.gallery),
-            visual=rec.gallery.visual_descriptor(),
-            matches_mean=float(np.mean([p.diagnostics.matches for p in tried])) if tried else None,
-            failures=dict(
-                Counter(p.diagnostics.reason.split(";")[0] for p in poses if not p.is_valid).most_common(4)
-            ),
-        )
-        canon = next((p for p in est if p.diagnostics.solver == "canonical"), None)
-        if canon is not None and canon.camera_from_object is not None:
-            X = np.linalg.inv(gt[index[round(canon.timestamp, 6)]]) @ canon.camera_from_object
-            aligned = gt @ X
-            result["p_gt"] = aligned[:, :3, 3].copy()
-            for p in est:
-                k = index[round(p.timestamp, 6)]
-                T = p.camera_from_object
-                if p is canon or T is None or not gt_valid[k]:
-                    continue
-                result["trans_err_cm"].append(100.0 * float(np.linalg.norm(T[:3, 3] - aligned[k, :3, 3])))
-                result["rot_err_deg"].append(rotation_angle_deg(T[:3, :3], aligned[k, :3, :3]))
-            result["t_est"] = np.array([p.timestamp for p in est])
-            result["p_est"] = np.array(
-                [p.camera_from_object[:3, 3] for p in est if p.camera_from_object is not None]
-            )
-        if len(est) >= 2:
-            desc = trajectory_descriptor(rec.trajectory, kinematic)
-            result["kinematic"], result["kinematic_reliable"] = desc.vector, desc.reliable
-        for k in range(len(seq)):
-            c, true_c = centroids[k].get(main), true_centroids[k]
-            if c is not None and true_c is not None:
-                result["centroid_err_cm"].append(100.0 * float(np.linalg.norm(c - true_c)))
-    n_view = int(in_view.sum())
+        _score_track(result, pipe.records[main], seen, main, ts, (gt, gt_valid), kinematic)
+    n_view = int(seen.in_view.sum())
     return RunResult(
         motion=str(meta.get("motion")),
         object=str(obj),
@@ -324,7 +360,7 @@ def evaluate_sequence(
         duration_s=float(ts[-1] - ts[0]) if len(ts) else 0.0,
         estimated_fraction=result["valid"] / n_view if n_view else 0.0,
         seg_iou=seg,
-        seg_iou_all=seg_all,
+        seg_iou_all=seen.seg_all,
         tracks=sum(n >= long for n, _, _ in mine),
         fragments=sum(n < long for n, _, _ in mine),
         fps=len(seq) / seconds if seconds > 0 else None,

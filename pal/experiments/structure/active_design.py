@@ -13,7 +13,7 @@ its action but not its state. Strategies:
   agents of a round choose in turn with the batch-diversity damping ``choice.spread``.
 
 All three train the same kind of ensemble (``ensemble.members`` MLPs 2 x 16 on the state
-graph, bootstrap resamples, warm refits of ``ensemble.epochs`` epochs after every round).
+graph, bootstrap resamples, warm refits of ``ensemble.schedule.epochs`` epochs after every round).
 The mechanism error is the MSE between the ensemble-mean f_dq and the true one on a
 40 x 40 grid over X_a x X_q, in rad². Sample efficiency: the transitions a strategy needs
 until its mean curve (over seeds) first reaches random babbling's final error, as a share
@@ -63,15 +63,16 @@ class EnsembleConfig:
 
     Attributes:
         members: ensemble members (>= 2), MLPs 2 x 16.
-        epochs: warm-refit epochs after every round (batch 256).
+        schedule: the warm refit after every round.
     """
 
     members: int = 4
-    epochs: int = 15
+    schedule: FitSchedule = FitSchedule(epochs=15, batch_size=256)
 
     def __post_init__(self) -> None:
         check_int("members", self.members, minimum=2)
-        check_int("epochs", self.epochs)
+        if not isinstance(self.schedule, FitSchedule):
+            raise ValueError(f"schedule must be a FitSchedule, got {type(self.schedule).__name__}")
 
 
 @dataclass(frozen=True)
@@ -186,7 +187,7 @@ def _run_one(strategy: str, config: Config, seed: int) -> tuple[list[int], list[
         ens.fit(
             {k: torch.cat(v) for k, v in rows.items()},
             seed=seed + r,
-            schedule=FitSchedule(epochs=config.ensemble.epochs, batch_size=256),
+            schedule=config.ensemble.schedule,
         )
         with torch.no_grad():
             errs.append(float((ens.predict(grid)[DQ] - true_dq).pow(2).mean()))
@@ -205,8 +206,12 @@ def _fraction(xs: list[int], curve: list[float], level: float) -> float | None:
 @register(
     "active_design",
     config=Config,
-    quick=Config(repeats=1, budget=200, agents=25, ensemble=EnsembleConfig(3, 5)),
-    tiny=Config(repeats=1, budget=40, agents=20, ensemble=EnsembleConfig(2, 2)),
+    quick=Config(
+        repeats=1, budget=200, agents=25, ensemble=EnsembleConfig(3, FitSchedule(epochs=5, batch_size=256))
+    ),
+    tiny=Config(
+        repeats=1, budget=40, agents=20, ensemble=EnsembleConfig(2, FitSchedule(epochs=2, batch_size=256))
+    ),
 )
 def run(config: Config, progress_bar: bool = False) -> Report:
     """Active design: transitions each strategy needs to reach random babbling's final mechanism error."""
@@ -269,7 +274,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         notes=[
             f"Spring finger, {config.agents} agents in parallel, budget {config.budget} transitions, "
             f"seeds {config.seeds}, ensembles of {config.ensemble.members} MLPs refitted "
-            f"{config.ensemble.epochs} epochs after every round.",
+            f"{config.ensemble.schedule.epochs} epochs after every round.",
         ],
         figures={"curves": _figure(xs, curves)},
     )

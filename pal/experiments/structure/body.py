@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from inference import FitSchedule
 from inference.discovery import DiscoveryResult, discover, shd
 from models import CausalGraph, WorldModel
 from models.presets import GRAPH_VARIANTS, joint_chain_graph
@@ -52,7 +53,7 @@ from pal.experiments.world_model.setup import (
     setup_note,
 )
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 
 __all__ = ["JUSTIFIED", "Config", "physics_effects", "run"]
 
@@ -78,7 +79,9 @@ class Config:
 
     seed: int = 0
     protocol: ProtocolConfig = ProtocolConfig(
-        DataConfig(steps=20_000), graphs=GRAPH_VARIANTS, fit=FitConfig(epochs=60, batch_size=512)
+        DataConfig(steps=20_000),
+        graphs=GRAPH_VARIANTS,
+        fit=FitConfig(schedule=FitSchedule(epochs=60, batch_size=512)),
     )
     replicates: int = 3
     joint_rows: int = 5000
@@ -94,7 +97,9 @@ class Config:
 
 QUICK = Config(
     protocol=ProtocolConfig(
-        DataConfig(steps=3000), graphs=GRAPH_VARIANTS, fit=FitConfig(epochs=15, batch_size=512)
+        DataConfig(steps=3000),
+        graphs=GRAPH_VARIANTS,
+        fit=FitConfig(schedule=FitSchedule(epochs=15, batch_size=512)),
     ),
     replicates=1,
 )
@@ -103,7 +108,7 @@ TINY = Config(
     protocol=ProtocolConfig(
         DataConfig(BodyChoice("arm", actuator=("elbow", "finger")), steps=400, cache=False),
         graphs=GRAPH_VARIANTS,
-        fit=FitConfig(epochs=2, batch_size=256),
+        fit=FitConfig(schedule=FitSchedule(epochs=2, batch_size=256)),
     ),
     replicates=2,
     joint_rows=300,
@@ -353,6 +358,9 @@ def _targets(reps: list[dict[str, Any]], body: dict[str, Any], error: dict[str, 
             1.0 + TARGET_B1,
             "<=",
             f"B1 test q MSE of the learnt graph / of the best preset ({best} graph; mean over the datasets)",
+            Precondition.nonzero(
+                error[best]["q_mse"] if have else None, f"the q MSE of the best preset ({best})"
+            ),
         ),
         Target(
             "unjustified_cross_joint_transition_edges",

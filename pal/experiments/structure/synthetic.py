@@ -82,14 +82,14 @@ class GatedConfig:
 
     Attributes:
         max_d: run it for d up to this size (0: never).
-        steps: Adam steps of the gated MLPs per penalty.
+        num_steps: Adam steps of the gated MLPs per penalty.
     """
 
     max_d: int = 20
-    steps: int = 300
+    num_steps: int = 300
 
     def __post_init__(self) -> None:
-        check_int("steps", self.steps)
+        check_int("num_steps", self.num_steps)
         check_int("max_d", self.max_d, minimum=0)
 
 
@@ -152,7 +152,7 @@ def _timed_discover(
     start = time.perf_counter()
     std = standardised(data)
     if method == "pal_gated":
-        options = DiscoveryOptions(sparsify="gated", gated={"steps": config.gated.steps})
+        options = DiscoveryOptions(sparsify="gated", gated={"steps": config.gated.num_steps})
         res = discover(scm.graph, std, intervened=masks, options=options, seed=seed)
     else:
         res = discover(scm.graph, std, intervened=masks, seed=seed)

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import torch
 
+from inference import FitSchedule
 from pal.experiments.world_model.calibration import (
     calibration,
     calibration_table,
@@ -37,7 +38,7 @@ from pal.experiments.world_model.setup import (
     state_of,
 )
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -68,8 +69,10 @@ class Config:
     protocol: ProtocolConfig = ProtocolConfig()
 
 
-QUICK_PROTOCOL = ProtocolConfig(DataConfig(steps=20_000), fit=FitConfig(epochs=40))
-TINY_PROTOCOL = ProtocolConfig(DataConfig(steps=600), fit=FitConfig(epochs=3, batch_size=256))
+QUICK_PROTOCOL = ProtocolConfig(DataConfig(steps=20_000), fit=FitConfig(schedule=FitSchedule(epochs=40)))
+TINY_PROTOCOL = ProtocolConfig(
+    DataConfig(steps=600), fit=FitConfig(schedule=FitSchedule(epochs=3, batch_size=256))
+)
 
 
 def evaluate(prep: Prepared) -> dict[str, dict[str, float]]:
@@ -130,7 +133,12 @@ def targets(error: dict[str, Any]) -> list[Target]:
     worst = max(error[g]["q_mse"] for g in error if g != "persistence")
     return [
         Target(
-            "q_mse_ratio", ratio, TARGET_RATIO, "<=", "q MSE of the state graph / q MSE of the thesis graph"
+            "q_mse_ratio",
+            ratio,
+            TARGET_RATIO,
+            "<=",
+            "q MSE of the state graph / q MSE of the thesis graph",
+            Precondition.nonzero(error["thesis"]["q_mse"] if have else None, "the thesis graph's q MSE"),
         ),
         Target(
             "q_mse_over_persistence",
@@ -138,6 +146,9 @@ def targets(error: dict[str, Any]) -> list[Target]:
             1.0,
             "<",
             "largest q MSE of the fitted graphs / q MSE of persistence",
+            Precondition.nonzero(
+                error["persistence"]["q_mse"], "the q MSE of persistence (the joints moved)"
+            ),
         ),
     ]
 

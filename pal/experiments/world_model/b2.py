@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from inference import ActionOptions, SamplingConfig
 from pal.checks import check_int
 from pal.experiments.world_model.b1 import QUICK_PROTOCOL, TINY_PROTOCOL
 from pal.experiments.world_model.calibration import (
@@ -68,8 +69,10 @@ TARGET_WITHIN = 0.9
 TARGET_MAE_DYNAMICS = 0.03
 TARGET_WITHIN_DYNAMICS = 0.95
 #: The action inference of B2: a CEM sampling stage (the midpoint of X_a in its first
-#: population, so the thesis protocol is the special case population = 0), then Alg. 4.2.
-SAMPLED = ActionConfig(population=128, elites=16, iterations=3)
+#: population, so the thesis protocol is the special case sampling = None), then Alg. 4.2.
+SAMPLED = ActionConfig(
+    options=ActionOptions(sampling=SamplingConfig(population=128, elites=16, iterations=3))
+)
 
 
 @dataclass(frozen=True)
@@ -151,7 +154,13 @@ def targets(error: dict[str, Any]) -> list[Target]:
     "b2",
     config=Config,
     quick=Config(protocol=QUICK_PROTOCOL, targets=32),
-    tiny=Config(protocol=TINY_PROTOCOL, targets=4, action=ActionConfig(steps=20, population=16, elites=4)),
+    tiny=Config(
+        protocol=TINY_PROTOCOL,
+        targets=4,
+        action=ActionConfig(
+            num_steps=20, options=ActionOptions(sampling=SamplingConfig(population=16, elites=4))
+        ),
+    ),
 )
 def run(config: Config, progress_bar: bool = False) -> Report:
     """B2: actions inferred for test targets, executed in the simulator from the recorded states (Fig. 5.6)."""

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from inference import CuriositySampler, normalized_entropy, occupancy
+from inference import ActionOptions, CuriositySampler, SamplingConfig, normalized_entropy, occupancy
 from pal.checks import check_float, check_int
 from pal.experiments.world_model.b1 import QUICK_PROTOCOL, TINY_PROTOCOL
 from pal.experiments.world_model.b2 import SAMPLED
@@ -149,7 +149,12 @@ def _coverage(
     config=Config,
     quick=Config(protocol=QUICK_PROTOCOL, targets=64),
     tiny=Config(
-        protocol=TINY_PROTOCOL, targets=6, bins=5, action=ActionConfig(steps=20, population=16, elites=4)
+        protocol=TINY_PROTOCOL,
+        targets=6,
+        bins=5,
+        action=ActionConfig(
+            num_steps=20, options=ActionOptions(sampling=SamplingConfig(population=16, elites=4))
+        ),
     ),
 )
 def run(config: Config, progress_bar: bool = False) -> Report:

@@ -25,12 +25,12 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from tqdm import tqdm
 
-from inference import CuriositySampler
+from inference import CuriositySampler, FitSchedule
 from models.presets import GRAPH_VARIANTS
 from pal.checks import check_choice, check_float, check_int
 from pal.experiments.world_model.data import BodyChoice, JointData
@@ -79,12 +79,12 @@ class Config:
     initial: int = 20
     budget: int = 300
     refit_every: int = 25
-    fit: FitConfig = FitConfig(epochs=200, batch_size=256)
+    fit: FitConfig = FitConfig(schedule=FitSchedule(epochs=200, batch_size=256))
     graph: str = "state"
     bins: int = 20
     alpha: float = 0.5
     sigma_fraction: float = 0.1
-    action: ActionConfig = ActionConfig(steps=100, starts=3)
+    action: ActionConfig = ActionConfig(num_steps=100, starts=3)
     q_range: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
@@ -210,34 +210,12 @@ def _median_steps(steps: list[int | None]) -> float | None:
     return med if np.isfinite(med) else None
 
 
-@register(
-    "explore",
-    config=Config,
-    quick=Config(
-        runs=2,
-        initial=10,
-        budget=40,
-        refit_every=20,
-        fit=FitConfig(epochs=100, batch_size=256),
-        action=ActionConfig(steps=50, starts=3),
-    ),
-    tiny=Config(
-        runs=1,
-        initial=5,
-        budget=6,
-        refit_every=3,
-        bins=5,
-        fit=FitConfig(epochs=5, batch_size=64),
-        action=ActionConfig(steps=5, starts=2),
-    ),
-)
-def run(config: Config, progress_bar: bool = False) -> Report:
-    """Online exploration: steps until the curiosity loop and random babbling have visited every bin of q."""
-    probe = _source(config, config.seed)
-    joint = JointData.from_env(probe.env, config.body.joint, probe.action_ranges)
-    q_range = config.q_range or probe.env.joint_ranges[joint.joint]
-    if q_range is None:
-        raise ValueError(f"joint {joint.joint!r} is unlimited; give the bins' support as q_range=(low, high)")
+def _explore(
+    config: Config, joint: JointData, q_range: Any, progress_bar: bool
+) -> tuple[
+    dict[str, list[int | None]], dict[str, list[float]], dict, dict[str, list[np.ndarray]], dict[str, float]
+]:
+    """Both conditions on every seed: steps to full occupancy, final entropy, curves, visited q, seconds."""
     steps: dict[str, list[int | None]] = {c: [] for c in CONDITIONS}
     ent_final: dict[str, list[float]] = {c: [] for c in CONDITIONS}
     curves: dict[str, dict[str, list[np.ndarray]]] = {c: {"occupancy": [], "entropy": []} for c in CONDITIONS}
@@ -259,6 +237,38 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             curves[cond]["entropy"].append(ent)
             visited[cond].append(values)
         log.info("seed %d: steps to full occupancy %s", seed, {c: steps[c][-1] for c in CONDITIONS})
+    return steps, ent_final, curves, visited, seconds
+
+
+@register(
+    "explore",
+    config=Config,
+    quick=Config(
+        runs=2,
+        initial=10,
+        budget=40,
+        refit_every=20,
+        fit=FitConfig(schedule=FitSchedule(epochs=100, batch_size=256)),
+        action=ActionConfig(num_steps=50, starts=3),
+    ),
+    tiny=Config(
+        runs=1,
+        initial=5,
+        budget=6,
+        refit_every=3,
+        bins=5,
+        fit=FitConfig(schedule=FitSchedule(epochs=5, batch_size=64)),
+        action=ActionConfig(num_steps=5, starts=2),
+    ),
+)
+def run(config: Config, progress_bar: bool = False) -> Report:
+    """Online exploration: steps until the curiosity loop and random babbling have visited every bin of q."""
+    probe = _source(config, config.seed)
+    joint = JointData.from_env(probe.env, config.body.joint, probe.action_ranges)
+    q_range = config.q_range or probe.env.joint_ranges[joint.joint]
+    if q_range is None:
+        raise ValueError(f"joint {joint.joint!r} is unlimited; give the bins' support as q_range=(low, high)")
+    steps, ent_final, curves, visited, seconds = _explore(config, joint, q_range, progress_bar)
     q_range = (float(q_range[0]), float(q_range[1]))
     metrics = {
         "steps_to_full_occupancy": {c: _median_steps(steps[c]) for c in CONDITIONS},
@@ -322,7 +332,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             f"{config.runs} seeds, {config.initial} initial random steps, budget {config.budget} steps, "
             f"{config.graph} graph refitted every {config.refit_every} steps, {b} bins over "
             f"[{q_range[0]:.3f}, {q_range[1]:.3f}] rad, alpha {config.alpha}, Alg. 4.2 with "
-            f"{config.action.steps} Adam steps."
+            f"{config.action.num_steps} Adam steps."
         ],
         figures={
             "coverage": _figure(stacked, {c: np.concatenate(v) for c, v in visited.items()}, q_range, b)

@@ -14,14 +14,14 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any
 
 import numpy as np
 import torch
 
-from inference import ActionOptions, FitResult, FitSchedule, SamplingConfig, fit, infer_action
+from inference import ActionOptions, FitResult, FitSchedule, fit, infer_action
 from models import WorldModel
 from models.presets import GRAPH_VARIANTS, joint_chain_graph
 from models.variables import Role
@@ -52,54 +52,42 @@ class FitConfig:
     """The mechanisms and their fit by :func:`inference.fit` (Eq. 4.33).
 
     Attributes:
-        epochs: passes over the training rows (thesis: 120).
-        batch_size: minibatch rows (thesis: 2048).
-        lr: Adam learning rate (thesis: 0.01).
         hidden: MLP hidden widths (tanh).
         kind: ``"mlp"`` (homoscedastic, MSE: the thesis) or ``"hetero"`` (each mechanism
             predicts its own scale sigma(pa), trained with beta-NLL).
         members: ensemble size K per site (1: no ensemble); each member sees its own
             bootstrap of the training rows, and their disagreement is the epistemic variance.
-        validation: share of the training rows held out to estimate sigma_i and, with
-            ``patience``, to stop early; 0 is the thesis protocol (sigma from training residuals).
-        patience: epochs without a better validation loss before a mechanism stops (None: never).
-        beta: the beta of beta-NLL, in [0, 1].
+        schedule: the :func:`inference.fit` schedule, passed as it is (thesis: 120 epochs,
+            batch 2048, lr 0.01). Its ``validation`` share of the training rows is held out to
+            estimate sigma_i and, with ``patience``, to stop early; 0 is the thesis protocol
+            (sigma from training residuals).
     """
 
-    epochs: int = 120
-    batch_size: int = 2048
-    lr: float = 0.01
     hidden: tuple[int, ...] = (32, 32)
     kind: str = "mlp"
     members: int = 1
-    validation: float = 0.1
-    patience: int | None = None
-    beta: float = 0.5
+    schedule: FitSchedule = FitSchedule()
 
     def __post_init__(self) -> None:
-        check_int("epochs", self.epochs)
-        check_int("batch_size", self.batch_size)
-        check_float("lr", self.lr, 0.0, open_low=True)
         object.__setattr__(self, "hidden", tuple(check_int("hidden", h) for h in self.hidden))
         check_choice("kind", self.kind, ("mlp", "hetero"))
         check_int("members", self.members)
-        check_float("validation", self.validation, 0.0, 1.0, open_high=True)
-        if self.patience is not None:
-            check_int("patience", self.patience)
-            if self.validation == 0:
-                raise ValueError("patience needs validation rows; give validation > 0 or patience=None")
-        check_float("beta", self.beta, 0.0, 1.0)
+        if not isinstance(self.schedule, FitSchedule):
+            raise ValueError(f"schedule must be a FitSchedule, got {type(self.schedule).__name__}")
+        if self.schedule.patience is not None and self.schedule.validation == 0:
+            raise ValueError(
+                "schedule.patience needs validation rows; give schedule.validation > 0 or schedule.patience=None"
+            )
 
     def describe(self) -> str:
         """A phrase for reports."""
         mech = "heteroscedastic MLPs (beta-NLL)" if self.kind == "hetero" else "MLPs (MSE)"
         ens = f", ensembles of {self.members}" if self.members > 1 else ""
+        validation = self.schedule.validation
         sigma = (
-            f"sigma from {self.validation:.0%} held-out rows"
-            if self.validation
-            else "sigma from training residuals"
+            f"sigma from {validation:.0%} held-out rows" if validation else "sigma from training residuals"
         )
-        return f"{'x'.join(map(str, self.hidden))} tanh {mech}{ens}, {self.epochs} epochs, {sigma}"
+        return f"{'x'.join(map(str, self.hidden))} tanh {mech}{ens}, {self.schedule.epochs} epochs, {sigma}"
 
 
 @dataclass(frozen=True)
@@ -107,50 +95,35 @@ class ActionConfig:
     """Action inference: Alg. 4.2 (thesis §5.2.3: 200 Adam steps, lr 0.05), optionally after a sampling stage.
 
     Attributes:
-        steps: Adam iterations.
-        lr: Adam learning rate.
+        num_steps: Adam iterations.
         starts: 1 starts at the midpoint of X_a (the thesis protocol); k > 1 restarts from
             k points across X_a and keeps the best under the model.
-        population: candidates per target and iteration of a CEM sampling stage over X_a
-            before Adam (:class:`inference.SamplingConfig`); 0 skips it (the thesis protocol).
-            The thesis's midpoint is a member of the first population.
-        elites: candidates kept per iteration to refit the sampling distribution.
-        iterations: CEM iterations.
+        options: the options of :func:`inference.infer_action`, passed as they are except for
+            ``init``, which ``starts`` makes (leave it ``"midpoint"``): ``lr`` is Adam's
+            learning rate; ``sampling`` None is pure gradient descent (the thesis protocol), a
+            :class:`inference.SamplingConfig` runs a CEM stage over X_a before Adam (the
+            thesis's midpoint is a member of its first population).
     """
 
-    steps: int = 200
-    lr: float = 0.05
+    num_steps: int = 200
     starts: int = 1
-    population: int = 0
-    elites: int = 16
-    iterations: int = 3
+    options: ActionOptions = ActionOptions(lr=0.05)
 
     def __post_init__(self) -> None:
-        check_int("steps", self.steps)
-        check_float("lr", self.lr, 0.0, open_low=True)
+        check_int("num_steps", self.num_steps)
         check_int("starts", self.starts)
-        check_int("population", self.population, minimum=0)
-        check_int("elites", self.elites)
-        check_int("iterations", self.iterations)
-        if self.population and self.population < self.elites:
-            raise ValueError(f"population {self.population} is smaller than elites {self.elites}")
-
-    @property
-    def sampling(self) -> SamplingConfig | None:
-        """The sampling stage, or None for pure gradient descent (Alg. 4.2 as in the thesis)."""
-        if not self.population:
-            return None
-        return SamplingConfig(population=self.population, elites=self.elites, iterations=self.iterations)
+        if not isinstance(self.options, ActionOptions):
+            raise ValueError(f"options must be an ActionOptions, got {type(self.options).__name__}")
+        check_float("options.lr", self.options.lr, 0.0, open_low=True)
+        if not (isinstance(self.options.init, str) and self.options.init == "midpoint"):
+            raise ValueError("options.init is made from `starts`; leave it 'midpoint' and set starts")
 
     def describe(self) -> str:
         """A phrase for reports."""
         start = "the midpoint of X_a" if self.starts == 1 else f"{self.starts} points across X_a"
-        search = (
-            f"CEM ({self.population} x {self.iterations}, {self.elites} elites) then "
-            if self.population
-            else ""
-        )
-        return f"{search}Adam {self.steps} steps, lr {self.lr}, from {start}, clipped to X_a"
+        s = self.options.sampling
+        search = f"CEM ({s.population} x {s.iterations}, {s.elites} elites) then " if s is not None else ""
+        return f"{search}Adam {self.num_steps} steps, lr {self.options.lr}, from {start}, clipped to X_a"
 
 
 @dataclass(frozen=True)
@@ -258,14 +231,7 @@ def fit_model(
         model,
         {k: v for k, v in data.items() if k in model.graph},
         loss="mse" if config.kind == "mlp" else "beta_nll",
-        schedule=FitSchedule(
-            epochs=config.epochs,
-            batch_size=config.batch_size,
-            lr=config.lr,
-            validation=config.validation,
-            patience=config.patience,
-            beta=config.beta,
-        ),
+        schedule=config.schedule,
         seed=seed,
         progress_bar=progress_bar,
     )
@@ -372,7 +338,7 @@ def infer_actions(
 
     The loss is ``0.5 (Phi(s, a) - target)^2`` per pair (the thesis's MSE objective),
     minimised by projected Adam clipped to X_a, after an optional CEM sampling stage
-    (``action.population > 0``). With ``action.starts = 1`` Adam starts from the midpoint of
+    (``action.options.sampling``). With ``action.starts = 1`` Adam starts from the midpoint of
     X_a (thesis §5.2.3). With ``starts = k > 1`` it starts from the k interior points of
     ``linspace(low, high, k + 2)`` (the midpoint among them when k is odd), all in one
     batch, and keeps per pair the action with the lowest final loss under the model. With
@@ -412,8 +378,8 @@ def infer_actions(
         {k: v.repeat(starts, 1) for k, v in given.items()},
         {q: tg.repeat(starts, 1)},
         actions=[act],
-        num_steps=action.steps,
-        options=ActionOptions(lr=action.lr, init=init, sampling=action.sampling),
+        num_steps=action.num_steps,
+        options=replace(action.options, init=init),
         seed=seed,
     )
     best = res.final_loss.numpy().reshape(starts, n).argmin(0) * n + np.arange(n)

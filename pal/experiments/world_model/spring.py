@@ -33,7 +33,7 @@ from models import FunctionMechanism, LinearMechanism, WorldModel, finger_graph
 from models.presets import FINGER_ACTION_RANGE
 from pal.checks import check_int
 from pal.lab.registry import register
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -52,20 +52,19 @@ class Config:
     Attributes:
         seed: seeds the samples, the initial weights, the minibatches and the random actions.
         transitions: samples of the true SCM (80:20 split).
-        epochs, batch_size: :func:`inference.fit` schedule (lr 0.01).
+        schedule: the :func:`inference.fit` schedule.
         targets: test targets of action inference and curiosity.
     """
 
     seed: int = 0
     transitions: int = 20000
-    epochs: int = 60
-    batch_size: int = 512
+    schedule: FitSchedule = FitSchedule(epochs=60, batch_size=512)
     targets: int = 128
 
     def __post_init__(self) -> None:
         check_int("transitions", self.transitions, minimum=10)
-        check_int("epochs", self.epochs)
-        check_int("batch_size", self.batch_size)
+        if not isinstance(self.schedule, FitSchedule):
+            raise ValueError(f"schedule must be a FitSchedule, got {type(self.schedule).__name__}")
         check_int("targets", self.targets)
 
 
@@ -103,11 +102,38 @@ def _outcomes(truth: WorldModel, state: dict[str, torch.Tensor], actions: torch.
         return truth.predict({**state, ACT: actions})[Q]
 
 
+def _targets(prediction: dict[str, Any], action: dict[str, Any], curiosity: dict[str, float]) -> list[Target]:
+    return [
+        Target(
+            "q_mse_ratio",
+            prediction["state"]["q_mse"] / prediction["thesis"]["q_mse"],
+            0.2,
+            "<",
+            "q MSE of the state graph / q MSE of the thesis graph",
+            Precondition.nonzero(prediction["thesis"]["q_mse"], "the thesis graph's q MSE"),
+        ),
+        Target(
+            "realized_mae_state",
+            action["state"]["mae_real"],
+            0.05,
+            "<=",
+            "true-SCM error of the actions inferred with the state graph, rad",
+        ),
+        Target(
+            "curiosity_entropy_gain",
+            curiosity["curiosity_entropy_real"] - curiosity["random_entropy_real"],
+            0.0,
+            ">=",
+            "entropy of curiosity-conditioned outcomes minus that of random actions",
+        ),
+    ]
+
+
 @register(
     "spring",
     config=Config,
-    quick=Config(transitions=4000, epochs=15, targets=32),
-    tiny=Config(transitions=400, epochs=2, batch_size=128, targets=8),
+    quick=Config(transitions=4000, schedule=FitSchedule(epochs=15, batch_size=512), targets=32),
+    tiny=Config(transitions=400, schedule=FitSchedule(epochs=2, batch_size=128), targets=8),
 )
 def run(config: Config, progress_bar: bool = False) -> Report:
     """Fit both finger graphs to a known spring SCM; judge prediction, action inference and curiosity by the truth."""
@@ -130,7 +156,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         fits[variant] = fit(
             model,
             train,
-            schedule=FitSchedule(epochs=config.epochs, batch_size=config.batch_size, lr=0.01),
+            schedule=config.schedule,
             seed=config.seed,
             progress_bar=progress_bar,
         )
@@ -174,29 +200,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         title="World model of a known spring finger: prediction, action inference, curiosity",
         metrics={"prediction": prediction, "action": action, "curiosity": curiosity},
         tables=_tables(prediction, action, curiosity),
-        targets=[
-            Target(
-                "q_mse_ratio",
-                prediction["state"]["q_mse"] / prediction["thesis"]["q_mse"],
-                0.2,
-                "<",
-                "q MSE of the state graph / q MSE of the thesis graph",
-            ),
-            Target(
-                "realized_mae_state",
-                action["state"]["mae_real"],
-                0.05,
-                "<=",
-                "true-SCM error of the actions inferred with the state graph, rad",
-            ),
-            Target(
-                "curiosity_entropy_gain",
-                curiosity["curiosity_entropy_real"] - curiosity["random_entropy_real"],
-                0.0,
-                ">=",
-                "entropy of curiosity-conditioned outcomes minus that of random actions",
-            ),
-        ],
+        targets=_targets(prediction, action, curiosity),
         notes=[
             f"{config.transitions} samples of the true SCM (80:20 split); Alg. 4.2: Adam 200 steps, lr 0.05, "
             "midpoint start; curiosity: 20 bins, alpha 0.5, sigma = range / 10."

@@ -9,6 +9,7 @@ import pytest
 import torch
 
 import pal.agent.estimate as estimate_module
+from inference import SamplingConfig
 from pal.agent import (
     Agent,
     AgentConfig,
@@ -18,16 +19,25 @@ from pal.agent import (
     PlanConfig,
     pushing_spec,
 )
+from pal.agent.config import MODEL_SCHEDULE, PLAN_ACTION, PLAN_SAMPLING
 from pal.agent.curiosity import GridCuriosity, grid_occupancy
 from pal.agent.history import History
 from pal.agent.perception import ObjectSlots, to_table
 from pal.sim.pushing import PushingEnv
 
 TINY = AgentConfig(
-    model=ModelConfig(epochs=3, batch_size=64, hidden=(8,), members=2, patience=None),
-    estimate=EstimateConfig(steps=5),
-    plan=PlanConfig(population=8, elites=2, iterations=1, refine_steps=2),
-    curiosity=CuriosityConfig(population=8, elites=2, iterations=1, influence_samples=4),
+    model=ModelConfig(
+        hidden=(8,), members=2, schedule=replace(MODEL_SCHEDULE, epochs=3, batch_size=64, patience=None)
+    ),
+    estimate=EstimateConfig(num_steps=5),
+    plan=PlanConfig(
+        action=replace(
+            PLAN_ACTION, sampling=replace(PLAN_SAMPLING, population=8, elites=2, iterations=1, refine_steps=2)
+        )
+    ),
+    curiosity=CuriosityConfig(
+        sampling=SamplingConfig(population=8, elites=2, iterations=1), influence_samples=4
+    ),
     reset_every=None,
 )
 
@@ -95,7 +105,7 @@ def test_a_lost_object_is_unobserved_and_no_nan_reaches_the_model(fitted, monkey
     agent = Agent(
         fitted.env,
         pushing_spec(),
-        replace(TINY, estimate=EstimateConfig(steps=200)),
+        replace(TINY, estimate=EstimateConfig(num_steps=200)),
         seed=1,
         model=fitted.model,
     )
@@ -142,7 +152,7 @@ def test_measurement_sites_weigh_perception_by_its_uncertainty(fitted, std):
     agent = Agent(
         fitted.env,
         pushing_spec(),
-        replace(TINY, estimate=EstimateConfig(steps=200)),
+        replace(TINY, estimate=EstimateConfig(num_steps=200)),
         seed=1,
         model=fitted.model,
     )
@@ -257,11 +267,13 @@ def test_density_curiosity_plans_towards_grid_targets(fitted):
 
 def test_bad_inputs(env, fitted):
     with pytest.raises(ValueError, match="epochs must be a positive int"):
-        ModelConfig(epochs=0)
-    with pytest.raises(ValueError, match="scale must be > 0"):
-        PlanConfig(scale=0.0)
-    with pytest.raises(ValueError, match="elites 9 exceed population 8"):
-        PlanConfig(population=8, elites=9)
+        ModelConfig(schedule=replace(MODEL_SCHEDULE, epochs=0))
+    with pytest.raises(ValueError, match="action.scale must be > 0"):
+        PlanConfig(action=replace(PLAN_ACTION, scale=0.0))
+    with pytest.raises(ValueError, match="population 8 is smaller than elites 9"):
+        PlanConfig(action=replace(PLAN_ACTION, sampling=replace(PLAN_SAMPLING, population=8, elites=9)))
+    with pytest.raises(ValueError, match="the agent plans with the sampling stage"):
+        PlanConfig(action=replace(PLAN_ACTION, sampling=None))
     with pytest.raises(ValueError, match="call reset"):
         Agent(env, pushing_spec(), TINY).plan({"box": [0.0, 0.1]})
     with pytest.raises(ValueError, match="expected a finite \\(2,\\)"):

@@ -1,10 +1,13 @@
 """The agent over any Gymnasium env: specs and their bad inputs, the graph from a spec, Pusher-v5, curiosity's gate."""
 
+from dataclasses import replace
+
 import gymnasium
 import numpy as np
 import pytest
 import torch
 
+from inference import SamplingConfig
 from models import LinearMechanism
 from pal.agent import (
     Agent,
@@ -21,20 +24,21 @@ from pal.agent import (
     plan,
     pusher_spec,
 )
+from pal.agent.config import MODEL_SCHEDULE, PLAN_ACTION, PLAN_SAMPLING
 from pal.agent.influence import explore, influence
 from pal.sim.pushing import PushingEnv
 
 TINY = AgentConfig(
-    model=ModelConfig(epochs=3, hidden=(8,), members=2, patience=None),
+    model=ModelConfig(hidden=(8,), members=2, schedule=replace(MODEL_SCHEDULE, epochs=3, patience=None)),
     plan=PlanConfig(
-        horizon=3,
-        population=8,
-        elites=2,
-        iterations=1,
-        refine_steps=0,
+        action=replace(
+            PLAN_ACTION,
+            horizon=3,
+            target_at="every",
+            scale=1.0,
+            sampling=replace(PLAN_SAMPLING, population=8, elites=2, iterations=1, refine_steps=0),
+        ),
         preference="distance",
-        target_at="every",
-        scale=1.0,
         effector_weight=0.5,
     ),
     reset_every=None,
@@ -201,6 +205,11 @@ def test_the_influence_gate_sees_only_what_the_action_moves():
     # a single model has no disagreement: nothing to explore
     belief = {r: np.zeros(graph[r].dim) for r in graph.roots if r != "act"}
     _, score, gate = explore(
-        model, belief, ("object",), CuriosityConfig(population=8, elites=2, iterations=1), 0.02, g
+        model,
+        belief,
+        ("object",),
+        CuriosityConfig(sampling=SamplingConfig(population=8, elites=2, iterations=1)),
+        0.02,
+        g,
     )
     assert score == 0.0 and gate["object"] > 1.0

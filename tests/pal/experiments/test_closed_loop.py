@@ -97,6 +97,16 @@ def test_c3_counterfactuals_beat_the_interventional_answer(tiny_run):
     assert [t.get_text() for t in rep.figures["errors"].axes[0].get_xticklabels()] == list(c3.ANSWERS)
 
 
+def test_c4_targets_need_three_seeds_of_fifty_steps():
+    metrics = {"coverage_gain": 0.1, "contact_gain": 0.2, "paired_test": {"coverage_p": 0.01, "contact_p": 0.5}}
+    for config in (c4.TINY, c4.QUICK, c4.Config(runs=2), c4.Config(budget=49)):
+        targets = c4._targets(config, metrics)
+        assert {t.verdict for t in targets} == {"not evaluated"} and not any(t.met for t in targets)
+        assert "at least 3 seeds of at least 50 budget steps" in targets[0].precondition.reason
+    verdicts = [t.verdict for t in c4._targets(c4.Config(runs=3, budget=50), metrics)]
+    assert verdicts == ["met", "met", "met", "not met"]
+
+
 @pytest.mark.slow
 def test_c4_coverage_report_and_curve(tiny_run):
     rep = tiny_run("experiment", "c4").report
@@ -109,6 +119,8 @@ def test_c4_coverage_report_and_curve(tiny_run):
         m["contact_rate"]["curiosity"] - m["contact_rate"]["random"]
     )
     assert m["contact_rate"]["random"] == pytest.approx(np.mean(m["contact_per_seed"]["random"]))
+    # 2 seeds x 2 steps: too few for any verdict
+    assert {t.verdict for t in rep.targets} == {"not evaluated"} and not any(t.met for t in rep.targets)
     for name in ("coverage", "contact"):
         assert len(rep.figures[name].axes[0].get_lines()) == 2
     assert (

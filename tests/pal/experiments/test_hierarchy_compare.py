@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 import torch
 
+from inference import ActionOptions
+from inference.hierarchy import LevelQuery
 from inference.hierarchy_count import count_evaluations
 from pal.baselines.scripted_pusher import HAND_RADIUS
 from pal.experiments.closed_loop import hierarchy_compare as hc
@@ -146,8 +148,8 @@ def test_section_reports_both_methods_on_the_same_goals(tiny_run) -> None:
         (lambda: hc.Config(distance=(0.08, 0.04)), r"distance must be \(low, high\) with low <= high"),
         (lambda: hc.Config(start_radius=(0.1,)), r"start_radius must be \(low, high\)"),
         (
-            lambda: HierarchyConfig(body_population=4, body_elites=8),
-            "body_elites 8 exceeds body_population 4",
+            lambda: HierarchyConfig(body_query=LevelQuery(3, ActionOptions(scale=0.01))),
+            "body_query.options.sampling must be a SamplingConfig",
         ),
         (lambda: HierarchyConfig(contact_threshold=1.5), "contact_threshold"),
         (lambda: HierarchyConfig(max_push=0.0), "max_push"),

@@ -4,6 +4,7 @@ vocabularies, and the LoT experiment's agreement rule and start grades shared by
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import gymnasium
 import numpy as np
@@ -11,6 +12,7 @@ import pytest
 import torch
 
 from pal.agent import ModelConfig, build_graph, build_model, pusher_spec, pushing_spec
+from pal.agent.config import MODEL_SCHEDULE
 from pal.experiments.language.lot_play import agree
 from pal.language.evaluate import Answer
 from pal.language.predicates import literal_grade
@@ -21,7 +23,7 @@ from pal.language.vocabularies import pusher_signature, pushing_signature
 from pal.language.world import ModelWorld, Situations
 from pal.sim.pushing import PushingEnv
 
-TINY_MODEL = ModelConfig(members=1, hidden=(4,), epochs=1, patience=None)
+TINY_MODEL = ModelConfig(members=1, hidden=(4,), schedule=replace(MODEL_SCHEDULE, epochs=1, patience=None))
 
 
 @pytest.fixture(scope="module")

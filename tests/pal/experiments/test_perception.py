@@ -58,7 +58,7 @@ def test_config_checks_and_overrides():
     c = configs.override(a1_kinematic.Config(), "runs.motions", ["ball-roll"])
     c = configs.override(c, "runs.per_motion", 2)
     assert c.runs.motions == ("ball-roll",) and c.runs.per_motion == 2 and c.runs.width == 640
-    assert configs.as_dict(c)["runs"]["motions"] == ["ball-roll"]
+    assert configs.to_dict(c)["runs"]["motions"] == ["ball-roll"]
     with pytest.raises(ValueError, match="must be a non-empty list"):
         configs.override(c, "runs.motions", ["box-flight"])
 

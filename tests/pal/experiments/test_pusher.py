@@ -9,6 +9,7 @@ import torch
 from pal.agent import PlanConfig
 from pal.baselines.pets import BaselineConfig, CEMPlanner, ProbabilisticEnsemble
 from pal.experiments.closed_loop import pusher
+from pal.experiments.closed_loop.pusher_runs import Episode
 
 
 @pytest.mark.slow
@@ -46,7 +47,41 @@ def test_the_baseline_learns_a_linear_system_and_plans_with_it():
     assert float(err) < 0.05
     # drive the first coordinate to 0: CEM picks the action that moves it there
     cost = lambda o, a: o[..., 0].abs()  # noqa: E731
-    config = PlanConfig(horizon=2, population=64, elites=8, iterations=3)
+    config = PlanConfig()  # horizon 2, population 64, 8 elites, 3 iterations
     planner = CEMPlanner(model, -np.ones(2), np.ones(2), config, cost, seed=0)
     action, final = planner.act(np.array([0.4, 0.0, 0.0]))
     assert action[0] < -0.3 and abs(final[0]) < 0.15
+
+
+def _episode(final: float, path: list[list[float]]) -> Episode:
+    return Episode(final, final, 0.2, 0.1, 0.01, 0.01, path, [0.0, 0.0])
+
+
+def _synthetic(moving: dict[str, float]) -> tuple[dict, dict]:
+    """Pooled evaluation episodes where controller c moves the object by moving[c] metres."""
+    config = pusher.TINY
+    pooled = {
+        c: [_episode(0.2 - moving[c], [[0.1, 0.1], [0.1 + moving[c], 0.1]])] for c in pusher.CONTROLLERS
+    }
+    per_seed = {config.seed: {"evaluation": pooled}}
+    metrics = {c: pusher._controller(config, per_seed, pooled[c], c) for c in pusher.CONTROLLERS}
+    return metrics, pooled
+
+
+def test_a_ratio_of_two_controllers_that_never_moved_the_object_is_not_evaluated():
+    metrics, pooled = _synthetic({"pal": 0.0, "baseline": 0.0, "random": 0.0})
+    targets = {t.name: t for t in pusher._targets(metrics, pooled)}
+    ratio = targets["pal_over_baseline"]
+    assert ratio.value == 1.0 and ratio.verdict == "not evaluated" and ratio.met is False
+    assert "moved > 5 mm" in ratio.precondition.reason
+    assert targets["pal_over_random"].verdict == "not evaluated"
+    assert targets["pal_final_distance"].precondition is None
+
+
+def test_a_ratio_counts_once_both_controllers_moved_the_object():
+    metrics, pooled = _synthetic({"pal": 0.05, "baseline": 0.02, "random": 0.001})
+    targets = {t.name: t for t in pusher._targets(metrics, pooled)}
+    assert metrics["pal"]["max_object_displacement"] == pytest.approx(0.05)
+    assert targets["pal_over_baseline"].evaluated and targets["pal_over_baseline"].verdict == "met"
+    assert targets["pal_over_baseline"].value == pytest.approx(0.15 / 0.18)
+    assert targets["pal_over_random"].verdict == "not evaluated"  # random moved it 1 mm only

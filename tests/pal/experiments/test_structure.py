@@ -152,7 +152,7 @@ def test_body_flags_reach_the_nested_body_choice(capsys):
     args = ["experiment", "discovery_body", "--json", "--quick", "--body", "arm"]
     args += ["--actuator", "elbow", "--actuator", "finger"]
     settings = ("protocol.data.body.joint=elbow", "protocol.data.steps=300", "protocol.data.cache=false")
-    for setting in (*settings, "protocol.fit.epochs=2", "physics_rows=3"):
+    for setting in (*settings, "protocol.fit.schedule.epochs=2", "physics_rows=3"):
         args += ["--set", setting]
     assert main(args) == 0
     doc = json.loads(capsys.readouterr().out)

@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from inference import ActionOptions, FitSchedule, SamplingConfig
 from pal.cli import main
 from pal.experiments.world_model import b1, b2, b3, explore
 from pal.experiments.world_model.data import (
@@ -66,7 +67,7 @@ def _protocol(cache_dir, graphs=("thesis", "state", "dynamics"), body="finger"):
     return ProtocolConfig(
         DataConfig(BodyChoice(body), steps=3000, cache_dir=cache_dir),
         graphs=graphs,
-        fit=FitConfig(epochs=15, batch_size=256),
+        fit=FitConfig(schedule=FitSchedule(epochs=15, batch_size=256)),
     )
 
 
@@ -159,8 +160,8 @@ def test_explore_runs_both_conditions_and_reports_the_keys():
         initial=5,
         budget=12,
         refit_every=6,
-        fit=FitConfig(epochs=20, batch_size=256),
-        action=ActionConfig(steps=10, starts=3),
+        fit=FitConfig(schedule=FitSchedule(epochs=20, batch_size=256)),
+        action=ActionConfig(num_steps=10, starts=3),
     )
     rep = explore.run(cfg)
     m = rep.metrics
@@ -187,15 +188,21 @@ def test_multi_start_action_inference_keeps_the_best_start():
     finger = JointData.select(data)
     model = build_model(finger, "state", (-3.0, 0.3), seed=0)
     q_prev, target = {"q_prev.finger": np.array([-2.0, -1.0])}, np.array([-1.5, -0.5])
-    one = infer_actions(model, finger, q_prev, target, ActionConfig(steps=5, lr=0.05))
-    three = infer_actions(model, finger, q_prev, target, ActionConfig(steps=5, lr=0.05, starts=3))
+    one = infer_actions(model, finger, q_prev, target, ActionConfig(num_steps=5))
+    three = infer_actions(model, finger, q_prev, target, ActionConfig(num_steps=5, starts=3))
     assert np.all(np.abs(three[1] - target) <= np.abs(one[1] - target) + 1e-6)
     assert np.all((three[0] >= -1.0) & (three[0] <= 0.33))
     with pytest.raises(ValueError, match="starts must be a positive int"):
-        ActionConfig(steps=5, lr=0.05, starts=0)
+        ActionConfig(num_steps=5, starts=0)
     with pytest.raises(ValueError, match="population 8 is smaller than elites 16"):
-        ActionConfig(population=8)
-    sampled = infer_actions(model, finger, q_prev, target, ActionConfig(steps=5, population=32, elites=4))
+        ActionConfig(options=ActionOptions(sampling=SamplingConfig(population=8)))
+    sampled = infer_actions(
+        model,
+        finger,
+        q_prev,
+        target,
+        ActionConfig(num_steps=5, options=ActionOptions(sampling=SamplingConfig(population=32, elites=4))),
+    )
     # the sampling stage keeps its best candidate, so it is never worse under the model than Adam alone
     assert np.all(np.abs(sampled[1] - target) <= np.abs(one[1] - target) + 1e-6)
 
@@ -223,7 +230,7 @@ def test_bad_input_names_the_value():
 @pytest.mark.slow
 def test_cli_runs_b1_on_the_arm_and_writes_outputs(tmp_path, capsys, cache_dir):
     argv = ["experiment", "b1", "--json", "--body", "arm", "--out", str(tmp_path)]
-    argv += ["--set", "protocol.data.steps=2000", "--set", "protocol.fit.epochs=5"]
+    argv += ["--set", "protocol.data.steps=2000", "--set", "protocol.fit.schedule.epochs=5"]
     argv += ["--set", f"protocol.data.cache_dir={cache_dir}"]
     assert main(argv) == 0
     printed = json.loads(capsys.readouterr().out)
@@ -233,7 +240,7 @@ def test_cli_runs_b1_on_the_arm_and_writes_outputs(tmp_path, capsys, cache_dir):
         stored["metrics"] == printed["metrics"]
         and stored["config"]["protocol"]["data"]["body"]["body"] == "arm"
     )
-    assert stored["config"]["protocol"]["fit"]["epochs"] == 5
+    assert stored["config"]["protocol"]["fit"]["schedule"]["epochs"] == 5
     assert [t["name"] for t in stored["targets"]][:2] == ["q_mse_ratio", "q_mse_over_persistence"]
     assert all(isinstance(t["met"], bool) for t in stored["targets"])
     md = (tmp_path / "b1.md").read_text()

@@ -104,9 +104,9 @@ def test_stored_state_replays_the_stored_transition_exactly(written):
         assert np.float32(q[0]) == ds.columns["q.finger"][i, 0], i
 
 
-def test_as_dict_and_split(written):
+def test_to_dict_and_split(written):
     _, ds = written
-    cols = ds.as_dict()
+    cols = ds.to_dict()
     assert set(cols) == set(column_names(["finger"])) and cols["q.finger"].shape == (250, 1)
     cols["q.finger"][:] = 0  # a copy
     assert ds.columns["q.finger"].any()
@@ -124,7 +124,7 @@ def test_as_dict_and_split(written):
     with pytest.raises(ValueError, match="fraction must be in"):
         ds.split(1.0, seed=0)
     with pytest.raises(KeyError, match="unknown column"):
-        ds.as_dict(["q.elbow"])
+        ds.to_dict(["q.elbow"])
     with pytest.raises(IndexError):
         ds.state(250)
 

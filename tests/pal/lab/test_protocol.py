@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pal.lab import configs, render
-from pal.lab.report import Report, Table, Target
+from pal.lab.report import Precondition, Report, Table, Target
 from pal.lab.runner import OutputError, RunRecord, check_output_dir
 
 
@@ -41,7 +41,7 @@ def test_override_reaches_nested_fields_and_coerces():
     assert configs.override(c, "lr", 1).lr == 1.0 and isinstance(configs.override(c, "lr", 1).lr, float)
     assert configs.override(c, "goal", [0.1, 0.2]).goal == (0.1, 0.2)
     assert configs.override(c, "goal", None).goal is None
-    assert configs.as_dict(c) == {
+    assert configs.to_dict(c) == {
         "seed": 0,
         "lr": 0.1,
         "inner": {"epochs": 7, "hidden": [4, 5, 6], "mode": "a"},
@@ -86,13 +86,43 @@ def test_target_verdicts():
     assert Target("a", 2.0, 1.0, ">=").met is True
     assert Target("a", None, 1.0, ">").met is None
     assert Target("a", math.nan, 1.0, ">").met is None
-    assert Target("a", np.float32(3.0), 1, ">").as_dict()["value"] == 3.0
+    assert Target("a", np.float32(3.0), 1, ">").to_dict()["value"] == 3.0
     with pytest.raises(ValueError, match="direction '=='"):
         Target("a", 1.0, 1.0, "==")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="threshold nan is not finite"):
         Target("a", 1.0, math.nan, "<")
     with pytest.raises(ValueError, match="value 'x' is not a number"):
         Target("a", "x", 1.0, "<")  # type: ignore[arg-type]
+
+
+def test_a_target_whose_precondition_fails_is_not_evaluated_and_not_met():
+    moved = Precondition(False, "the object moved > 5 mm")
+    failed = Target("ratio", 1.0, 1.0, "<=", "pal / baseline", moved)  # 1.0 <= 1.0, but nothing moved
+    assert failed.verdict == "not evaluated" and failed.met is False and not failed.evaluated
+    held = Target("ratio", 1.0, 1.0, "<=", "pal / baseline", Precondition(np.bool_(True), "moved"))
+    assert held.verdict == "met" and held.met is True and held.precondition.holds is True
+    assert Target("x", None, 1.0, "<", "", moved).verdict == "not evaluated"
+    assert [Target("a", 2.0, 1.0, "<").verdict, Target("a", None, 1.0, "<").verdict] == [
+        "not met",
+        "not measured",
+    ]
+    with pytest.raises(ValueError, match="is not a bool"):
+        Precondition("yes", "x")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="is not a Precondition"):
+        Target("a", 1.0, 1.0, "<", "", True)  # type: ignore[arg-type]
+
+    rep = Report("R", {}, targets=[failed, Target("ok", 0.5, 1.0, "<=", "fine")])
+    md = render.markdown(_record(rep))
+    assert "| ratio | pal / baseline | 1 | <= 1 | not evaluated |" in md
+    assert "1 of 2 targets met (1 not evaluated)." in md
+    assert "`ratio` not evaluated: requires the object moved > 5 mm" in md
+    doc = render.document(_record(rep))["targets"][0]
+    assert doc["met"] is False and doc["verdict"] == "not evaluated"
+    assert doc["precondition"] == {"holds": False, "reason": "the object moved > 5 mm"}
+    table = render.targets_table([("pusher", failed), ("b1", Target("ok", 0.5, 1.0, "<="))])
+    assert [r[-1] for r in table.rows] == ["not evaluated", "met"]
+    assert table.caption.startswith("1 of 2 targets met (1 not evaluated).")
+    assert "pusher: `ratio` not evaluated" in table.caption
 
 
 def test_table_and_report_checks():
@@ -159,3 +189,12 @@ def test_check_output_dir(tmp_path):
         ro.mkdir(mode=0o500)
         with pytest.raises(OutputError, match="is not writable"):
             check_output_dir(ro)
+
+
+def test_the_baseline_of_a_ratio_must_be_finite_and_nonzero():
+    assert Precondition.nonzero(np.float64(0.2), "the persistence q MSE").holds
+    for bad in (0.0, math.nan, math.inf):
+        pre = Precondition.nonzero(bad, "the persistence q MSE")
+        assert not pre.holds and pre.reason.startswith("the persistence q MSE finite and nonzero (was ")
+    missing = Target("over_peer", None, 1.0, "<=", "", Precondition.nonzero(None, "the peer's time"))
+    assert missing.evaluated and missing.verdict == "not measured"  # a peer that was not run

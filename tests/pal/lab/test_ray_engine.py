@@ -135,7 +135,7 @@ def test_sharded_babbling_on_ray_equals_the_local_engine(engine, tmp_path):
 
 
 def test_a_sweep_through_ray_tune_gives_the_local_reports_and_no_tune_files(engine, tmp_path):
-    plan = sweep.plan("spring", ["epochs=1"], "0-1", base="tiny")
+    plan = sweep.plan("spring", ["schedule.epochs=1"], "0-1", base="tiny")
     ray_result = sweep.run_sweep(plan, tmp_path / "ray", engine=engine.sweep_runs)
     assert not sweep.run_sweep(plan, tmp_path / "local").failed
     assert not ray_result.failed and len(ray_result.ran) == 2

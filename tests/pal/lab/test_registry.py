@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from pal.lab import configs, registry, render
-from pal.lab.report import DIRECTIONS, Report, Table, Target
+from pal.lab.report import DIRECTIONS, VERDICTS, Report, Table, Target
 
 ENTRIES = registry.entries()
 REPORT_KEYS = {
@@ -73,17 +73,20 @@ def test_tiny_run_report_schema(entry, tiny_run, tmp_path: Path):
     assert report.targets, "every entry states at least one target"
     for target in report.targets:
         assert isinstance(target, Target) and target.direction in DIRECTIONS and target.description
-        assert target.met in (True, False, None)
-        assert (target.met is None) == (target.value is None or not math.isfinite(target.value))
+        assert target.met in (True, False, None) and target.verdict in VERDICTS
+        not_measured = target.value is None or not math.isfinite(target.value)
+        assert (target.met is None) == (not_measured and target.evaluated)
+        assert (target.verdict == "not evaluated") == (not target.evaluated)
     paths = render.write(record, tmp_path)
     doc = json.loads(Path(paths["json"]).read_text())
     assert set(doc) == REPORT_KEYS
     assert doc["name"] == entry.name and doc["kind"] == entry.kind and doc["seed"] == entry.tiny.seed
-    assert doc["config"] == configs.as_dict(entry.tiny)
+    assert doc["config"] == configs.to_dict(entry.tiny)
     assert {"python", "torch", "numpy"} <= set(doc["versions"])
     assert [t["name"] for t in doc["targets"]] == [t.name for t in report.targets]
     assert all(
-        set(t) == {"name", "value", "threshold", "direction", "met", "description"} for t in doc["targets"]
+        set(t) == {"name", "value", "threshold", "direction", "met", "verdict", "precondition", "description"}
+        for t in doc["targets"]
     )
     md = Path(paths["markdown"]).read_text()
     assert md.startswith(f"## {report.title}") and "Targets:" in md

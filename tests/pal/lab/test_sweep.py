@@ -66,6 +66,7 @@ def test_table_holds_mean_and_sd_per_cell_and_failed_runs_are_reported_then_retr
     assert float(by[("3", "value")]["sd"]) == pytest.approx(math.sqrt(18.0), abs=1e-12)
     assert float(by[("1", "nested.double")]["mean"]) == pytest.approx(4.0, abs=1e-12)
     assert float(by[("1", "target.value_small")]["mean"]) == pytest.approx(2.0, abs=1e-12)
+    assert float(by[("1", "met.value_small")]["mean"]) == 1.0  # share of runs that met it
     assert ("1", "flag") not in by and ("1", "series") not in by  # bools and lists are not summarised
     assert (out / "value_small.png").read_bytes()[:4] == b"\x89PNG"
     md = (out / "summary.md").read_text()
@@ -127,11 +128,11 @@ def test_bad_seeds_are_refused(text, message):
 
 def test_grid_values_keep_json_lists_and_are_checked_against_the_config():
     base = registry.get("experiment", "spring").tiny
-    assert sweep.parse_grid(["epochs=1,2"], base) == (("epochs", (1, 2)),)
+    assert sweep.parse_grid(["schedule.epochs=1,2"], base) == (("schedule.epochs", (1, 2)),)
     with pytest.raises(sweep.SweepError, match=r"'nope' is not a config field; valid: \['transitions'"):
         sweep.parse_grid(["nope=1"], base)
     with pytest.raises(sweep.SweepError, match="epochs must be a positive int, got 0"):
-        sweep.parse_grid(["epochs=1,0"], base)
+        sweep.parse_grid(["schedule.epochs=1,0"], base)
     assert sweep._split_values("1,[2,3],x") == ["1", "[2,3]", "x"]
 
 
@@ -139,7 +140,7 @@ def test_grid_values_keep_json_lists_and_are_checked_against_the_config():
 def spring_sweep(tmp_path_factory):
     """2 configs x 2 seeds of the spring experiment's tiny config, in this process."""
     out = tmp_path_factory.mktemp("spring") / "sweep"
-    plan = sweep.plan("spring", ["epochs=1,2"], "0-1", base="tiny")
+    plan = sweep.plan("spring", ["schedule.epochs=1,2"], "0-1", base="tiny")
     return sweep.run_sweep(plan, out)
 
 
@@ -153,24 +154,25 @@ def test_a_real_experiment_2_configs_x_2_seeds_gives_one_table_and_a_figure_per_
     for name in targets:
         assert result.paths[name].read_bytes()[:4] == b"\x89PNG", name
     rows = list(csv.DictReader((out / "summary.csv").open()))
-    cells = {r["epochs"] for r in rows}
+    cells = {r["schedule.epochs"] for r in rows}
     assert cells == {"1", "2"}
     for name in targets:
         for epochs in cells:
-            row = next(r for r in rows if r["epochs"] == epochs and r["metric"] == f"target.{name}")
+            row = next(r for r in rows if r["schedule.epochs"] == epochs and r["metric"] == f"target.{name}")
             assert row["n"] == "2" and math.isfinite(float(row["mean"])) and float(row["sd"]) >= 0
     # each cell's mean is the mean of its two run reports
     docs = [json.loads((out / "runs" / f"r{i:03d}.json").read_text()) for i in range(2)]
-    assert [d["config"]["epochs"] for d in docs] == [1, 1] and [d["seed"] for d in docs] == [0, 1]
+    assert [d["config"]["schedule"]["epochs"] for d in docs] == [1, 1]
+    assert [d["seed"] for d in docs] == [0, 1]
     value = [next(t["value"] for t in d["targets"] if t["name"] == "q_mse_ratio") for d in docs]
-    row = next(r for r in rows if r["epochs"] == "1" and r["metric"] == "target.q_mse_ratio")
+    row = next(r for r in rows if r["schedule.epochs"] == "1" and r["metric"] == "target.q_mse_ratio")
     assert float(row["mean"]) == pytest.approx(sum(value) / 2, rel=1e-12)
     assert "| finished runs | 2/2 | 2/2 |" in (out / "summary.md").read_text()
 
 
 @pytest.mark.slow
 def test_two_local_workers_give_the_same_reports_as_one_process(spring_sweep, tmp_path):
-    plan = sweep.plan("spring", ["epochs=1"], "0-1", base="tiny")
+    plan = sweep.plan("spring", ["schedule.epochs=1"], "0-1", base="tiny")
     result = sweep.run_sweep(plan, tmp_path / "par", workers=2)
     assert not result.failed
     serial = spring_sweep.paths["manifest"].parent / "runs"
@@ -178,3 +180,17 @@ def test_two_local_workers_give_the_same_reports_as_one_process(spring_sweep, tm
         a = json.loads((tmp_path / "par" / "runs" / f"r{i:03d}.json").read_text())
         b = json.loads((serial / f"r{i:03d}.json").read_text())
         assert a["config"] == b["config"] and a["targets"] == b["targets"] and a["metrics"] == b["metrics"]
+
+
+def test_a_not_evaluated_target_counts_as_not_met_and_its_value_is_left_out():
+    from pal.lab.report import Precondition
+    from pal.lab.sweep_summary import _values
+
+    targets = [
+        Target("ratio", 1.0, 1.0, "<=", "r", Precondition(False, "something moved")).to_dict(),
+        Target("mse", 0.1, 1.0, "<=", "m").to_dict(),
+        Target("gap", None, 1.0, "<=", "g").to_dict(),
+    ]
+    values = _values({"metrics": {}, "targets": targets, "seconds": 1.0})
+    assert "target.ratio" not in values and values["met.ratio"] == 0.0
+    assert values["target.mse"] == 0.1 and values["met.mse"] == 1.0 and values["met.gap"] == 0.0

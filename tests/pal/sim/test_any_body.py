@@ -15,6 +15,7 @@ import torch
 from gymnasium.utils.env_checker import check_env
 
 import pal.lab.runner as runner
+from inference import FitSchedule
 from models import WorldModel, io
 from models.presets import joint_chain_graph
 from pal.cli import main
@@ -133,7 +134,7 @@ def test_mujoco_names_work_from_babbling_to_a_saved_world_model(named_body, tmp_
     model = WorldModel(graph, seed=0)
     from inference import fit
 
-    fit(model, columns, epochs=2, batch_size=128, seed=0)
+    fit(model, columns, schedule=FitSchedule(epochs=2, batch_size=128), seed=0)
     trace = pyro.poutine.trace(model).get_trace({k: torch.as_tensor(v) for k, v in columns.items()})
     assert {"act.robot:left_fingers", "q.arm/elbow", "dq.left-knee", "q.joint 1"} <= set(trace.nodes)
     path = io.save(model, tmp_path / "model.npz")
