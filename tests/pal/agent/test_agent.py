@@ -101,6 +101,7 @@ def test_seeded_loop_runs_end_to_end_through_the_gymnasium_interface_and_repeats
 
 # the tiny agent's state estimate runs few SVI steps on purpose
 @pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
+@pytest.mark.slow
 def test_a_lost_object_is_unobserved_and_no_nan_reaches_the_model(fitted, monkeypatch):
     agent = Agent(
         fitted.env,

@@ -71,6 +71,7 @@ def _protocol(cache_dir, graphs=("thesis", "state", "dynamics"), body="finger"):
     )
 
 
+@pytest.mark.slow
 def test_b1_reports_table_5_7_and_the_state_graph_wins(cache_dir):
     rep = b1.run(b1.Config(protocol=_protocol(cache_dir)))
     err = rep.metrics["error"]
