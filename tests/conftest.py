@@ -16,6 +16,9 @@ import pyro
 import pytest
 import torch
 
+# Module- and session-scoped fixtures run before the first test's seeding below: one thread from the start.
+torch.set_num_threads(1)
+
 
 @pytest.fixture(scope="session", autouse=True)
 def _private_cache(tmp_path_factory):
@@ -35,6 +38,7 @@ def _seed_everything():
     pyro.clear_param_store()
     torch.set_num_threads(1)  # small tensors: one thread is faster and immune to a busy second core
     yield
+    torch.set_num_threads(1)  # a test that changed it (the CLI's --threads) does not slow the next fixture
     import matplotlib.pyplot as plt
 
     plt.close("all")

@@ -25,7 +25,13 @@ def assert_sound(result: FuzzResult) -> None:
     assert result.refused > FLIPS // 2  # most flips hit content, which the checksum catches
 
 
-@pytest.mark.parametrize("name", sorted(TARGETS))
+#: targets whose flips take seconds (the fitted world model, a dataset chunk)
+SLOW_TARGETS = {"world_model", "dataset_chunk"}
+
+
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_TARGETS else n for n in sorted(TARGETS)]
+)
 def test_file_survives_byte_flips(name, tmp_path):
     target = TARGETS[name](tmp_path, 0)
     assert target.expected in (ModelFileError, DatasetFileError)

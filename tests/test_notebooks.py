@@ -89,6 +89,7 @@ def test_ci_list_names_existing_notebooks() -> None:
     assert not duplicates, f"{CI_LIST} lists {duplicates} more than once"
 
 
+@pytest.mark.slow
 def test_kernel_runs_this_interpreter(tmp_path: Path) -> None:
     """The kernel is this venv's Python, sees CI=1, and imports the installed packages."""
     probe = (
@@ -111,6 +112,7 @@ def test_kernel_runs_this_interpreter(tmp_path: Path) -> None:
         )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", listed_notebooks())
 def test_notebook_runs(name: str, tmp_path: Path) -> None:
     path = NOTEBOOKS / name

@@ -136,6 +136,7 @@ def test_bad_factual(chain):
         counterfactual(chain, {"x": torch.tensor([[float("nan")]])}, {"x": 0.0})
 
 
+@pytest.mark.slow
 def test_state_posterior_matches_closed_form(chain):
     post = infer_state(chain, {"x": torch.tensor([[1.0]]), "z": torch.tensor([[-2.0]])})
     assert post.latent == ("y",)
@@ -145,6 +146,7 @@ def test_state_posterior_matches_closed_form(chain):
     assert len(post.loss) == 500 and post.loss[-1] < post.loss[0]
 
 
+@pytest.mark.slow
 def test_state_mvn_guide_captures_correlation():
     """Two latents Y1, Y2 with a common child Z: the posterior is correlated."""
     g = CausalGraph(

@@ -111,6 +111,7 @@ def test_categorical_code_distribution():
 
 
 # ---------------------------------------------------------------------------- counterfactuals
+@pytest.mark.slow
 def test_bernoulli_counterfactual_matches_the_logistic_closed_form():
     """X -> T, logit P(T = 1) = 1.5 X - 0.2; do(X := x'): P(T' = 1 | T = t, x) in closed form."""
     model = WorldModel(

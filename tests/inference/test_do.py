@@ -24,6 +24,7 @@ def fork():
     )
 
 
+@pytest.mark.slow
 def test_do_and_condition_differ_on_a_confounded_fork(fork):
     # condition on X = 2: E[Y | X=2] = E[C | X=2] = 2 * 1 / (1 + 0.25) = 1.6
     post = infer_state(fork, {"x": torch.tensor([[2.0]])})

@@ -22,6 +22,7 @@ def graph():
 
 
 @pytest.mark.parametrize("loss", ["mse", "nll"])
+@pytest.mark.slow
 def test_mlp_recovers_a_nonlinear_mechanism_and_its_noise(loss):
     torch.manual_seed(0)
     model = WorldModel(graph())

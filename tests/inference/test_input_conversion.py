@@ -53,6 +53,8 @@ def test_fit_takes_float64_tensors():
     assert result.trained == ("dq.finger", "q.finger")
 
 
+# few SVI steps on purpose: the test checks dtypes, not the posterior
+@pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
 def test_state_and_counterfactual_take_float64(chain):
     post = infer_state(chain, {"z": f64([[-3.0]])}, num_steps=5, num_samples=4)
     assert post.mean["y"].dtype == torch.float32

@@ -18,6 +18,7 @@ def sensor():
     return WorldModel(graph, {"o": one, "meas": LinearMechanism.from_coefficients([[1.0]], sigma=5.0)})
 
 
+@pytest.mark.slow
 def test_posterior_weights_each_frame_by_its_own_uncertainty(sensor):
     # closed form: o | x, m ~ N((x + m / s^2) / (1 + 1 / s^2), 1 / (1 + 1 / s^2))
     x = torch.tensor([[0.0], [0.0], [1.0]])
@@ -31,6 +32,7 @@ def test_posterior_weights_each_frame_by_its_own_uncertainty(sensor):
     torch.testing.assert_close(post.sd["o"], sd, atol=0, rtol=0.1)
 
 
+@pytest.mark.slow
 def test_without_a_scale_the_learned_sigma_is_used(sensor):
     x, m = torch.zeros(1, 1), torch.full((1, 1), 2.0)
     post = infer_state(sensor, {"x": x, "meas": m}, num_steps=800, seed=0)

@@ -53,6 +53,7 @@ def test_monitor_flags_the_missing_parent_and_revise_adds_it():
     assert monitor2.update(revised, data)["dq.finger"] < 2.0
 
 
+@pytest.mark.slow
 def test_capacity_revision_when_the_mechanism_underfits(rng):
     x = rng.uniform(-2, 2, (800, 1)).astype(np.float32)
     y = (np.sin(3 * x) + 0.05 * rng.normal(size=(800, 1))).astype(np.float32)

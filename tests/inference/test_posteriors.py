@@ -66,6 +66,7 @@ def _intervals(model, x, z, guide, options):
     return state, lo[0, :, 0].numpy(), hi[0, :, 0].numpy()
 
 
+@pytest.mark.slow
 def test_grid_posterior_matches_the_exact_bimodal_oracle_on_1000_units():
     model = bimodal_model()
     x, z, truth = units(1000)

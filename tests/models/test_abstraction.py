@@ -116,6 +116,7 @@ def _event_layer() -> WorldModel:
     )
 
 
+@pytest.mark.slow
 def test_queries_on_a_layer_graph() -> None:
     m = _event_layer()
     out = do(m, {"extent": torch.tensor([[0.3]])})(None, 1)

@@ -45,6 +45,7 @@ def test_round_trip_gives_identical_predictions(model, tmp_path):
         assert all(npz[k].dtype != object for k in npz.files)
 
 
+@pytest.mark.slow
 def test_load_in_a_fresh_process(model, tmp_path):
     path = save(model, tmp_path / "wm.npz")
     with torch.no_grad():

@@ -12,6 +12,9 @@ import pal.lab.runner as runner
 from pal.cli import main
 
 
+# the quick agents' state estimates run few SVI steps on purpose
+@pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
+@pytest.mark.slow
 def test_demo_quick_writes_every_report_and_the_target_table(tmp_path, capsys, caplog):
     caplog.set_level(logging.INFO)  # as a bare interpreter would after basicConfig(INFO): the demo lowers it
     assert main(["demo", "--quick", "--out", str(tmp_path)]) == 0

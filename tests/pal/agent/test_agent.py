@@ -79,6 +79,9 @@ def short_run(env, seed):
     return agent, decisions
 
 
+# the tiny agent's state estimate runs few SVI steps on purpose
+@pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
+@pytest.mark.slow
 def test_seeded_loop_runs_end_to_end_through_the_gymnasium_interface_and_repeats(env):
     a, da = short_run(env, 0)
     b, db = short_run(env, 0)
@@ -97,6 +100,9 @@ def test_seeded_loop_runs_end_to_end_through_the_gymnasium_interface_and_repeats
     assert a.history.array("state").shape == (7, env.state_size)
 
 
+# the tiny agent's state estimate runs few SVI steps on purpose
+@pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
+@pytest.mark.slow
 def test_a_lost_object_is_unobserved_and_no_nan_reaches_the_model(fitted, monkeypatch):
     agent = Agent(
         fitted.env,
@@ -155,6 +161,8 @@ def test_poor_posteriors_are_counted_not_warned_per_step(fitted):
     assert 1 <= agent.estimator.poor_posteriors <= 3  # one SVI step: the diagnostics fail
 
 
+# the tiny agent's state estimate runs few SVI steps on purpose
+@pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
 @pytest.mark.parametrize("std", [1e-4, 1.0])
 def test_measurement_sites_weigh_perception_by_its_uncertainty(fitted, std):
     agent = Agent(

@@ -24,6 +24,7 @@ def test_tables_hold_their_documented_shapes_and_naive_answers():
         lalonde("psid")
 
 
+@pytest.mark.slow
 def test_nhefs_average_effect_of_quitting_is_about_3_4_kg():
     data = nhefs()
     data["education"] = data["education"] - 1  # codes 0..4
@@ -40,6 +41,7 @@ def test_nhefs_average_effect_of_quitting_is_about_3_4_kg():
     assert r.estimate == pytest.approx(NHEFS_EFFECT, abs=0.5) and r.covers(NHEFS_EFFECT)
 
 
+@pytest.mark.slow
 def test_lalonde_effect_on_the_trained_from_survey_controls():
     data = lalonde("cps")
     data |= {"u74": (data["re74"] == 0) * 1.0, "u75": (data["re75"] == 0) * 1.0}

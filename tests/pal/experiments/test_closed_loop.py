@@ -1,4 +1,7 @@
-"""Experiments C1-C4 and the closed loop (``pal loop``) on their tiny configs: reports, figures, video."""
+"""Experiments C1-C4 and the closed loop (``pal loop``) on their tiny configs: reports, figures, video.
+
+C1-C4 read the session's one tiny run of each entry (the ``tiny_run`` fixture, tests/pal/conftest.py).
+"""
 
 import json
 from dataclasses import replace
@@ -15,8 +18,9 @@ from pal.experiments.closed_loop import loop as closed_loop
 from pal.experiments.closed_loop.setup import SetupConfig, summary
 
 
-def test_c1_compares_perceived_and_ground_truth_models():
-    rep = c1.run(c1.TINY)
+@pytest.mark.slow
+def test_c1_compares_perceived_and_ground_truth_models(tiny_run):
+    rep = tiny_run("experiment", "c1").report
     m = rep.metrics
     per = m["per_object"]
     assert set(per) == {"box", "ball"} and m["unit"] == "cm^2"
@@ -46,8 +50,9 @@ def test_c1_compares_perceived_and_ground_truth_models():
     assert [len(c.get_offsets()) for c in ax[0].collections] == [per["box"]["n"]] * 2
 
 
-def test_c2_inferred_actions_beat_random_babbling():
-    rep = c2.run(c2.TINY)
+@pytest.mark.slow
+def test_c2_inferred_actions_beat_random_babbling(tiny_run):
+    rep = tiny_run("experiment", "c2").report
     m = rep.metrics
     assert len(m["episodes"]) == c2.TINY.targets
     # on the seeded tiny run the agent leaves the box nearer the goal than random servo targets do
@@ -75,8 +80,9 @@ def test_c2_inferred_actions_beat_random_babbling():
     json.dumps(m, allow_nan=False)
 
 
-def test_c3_counterfactuals_beat_the_interventional_answer():
-    rep = c3.run(c3.TINY)
+@pytest.mark.slow
+def test_c3_counterfactuals_beat_the_interventional_answer(tiny_run):
+    rep = tiny_run("experiment", "c3").report
     m = rep.metrics
     assert m["n"] == c3.TINY.query.count
     for key in ("perceived", "ground_truth_model"):
@@ -101,8 +107,9 @@ def test_c4_targets_need_three_seeds_of_fifty_steps():
     assert verdicts == ["met", "met", "met", "not met"]
 
 
-def test_c4_coverage_report_and_curve():
-    rep = c4.run(c4.TINY)
+@pytest.mark.slow
+def test_c4_coverage_report_and_curve(tiny_run):
+    rep = tiny_run("experiment", "c4").report
     m = rep.metrics
     assert m["seeds"] == [0, 1] and m["curves"]["steps"] == [1, 2]
     assert all(sum(d.values()) == c4.TINY.budget for d in m["curious_decisions"])
@@ -146,6 +153,8 @@ def test_c4_coverage_report_and_curve():
     np.testing.assert_allclose(curve, [0.0, 1 / 16])
 
 
+# the tiny agent's state estimate runs few SVI steps on purpose
+@pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
 def test_loop_towards_a_goal_reports_its_run():
     config = replace(closed_loop.TINY, steps=6, babble=4, goal=(0.0, 0.2))
     rep = closed_loop.run(config)
@@ -160,6 +169,7 @@ def test_loop_towards_a_goal_reports_its_run():
     assert all(len(line.get_xdata()) == 6 for line in ax.get_lines())
 
 
+@pytest.mark.slow
 def test_pal_loop_writes_an_annotated_video(tmp_path, capsys):
     video = tmp_path / "loop.mp4"
     assert main(["loop", "--steps", "3", "--babble", "3", "--video", str(video), "--json"]) == 0

@@ -19,7 +19,6 @@ from pal.experiments.closed_loop.hierarchy_pushing import (
     pushing_hierarchy,
 )
 from pal.experiments.closed_loop.setup import babbled_agent, fitted_model
-from pal.experiments.language.lot_play import Section
 from pal.sim.pushing import BOX_HALF, OBJECT_RADIUS
 
 CFG = HierarchyConfig()
@@ -122,20 +121,23 @@ def test_nested_chain_and_counted_evaluations(fitted) -> None:
     assert "dpos.ball" not in counts["hierarchy"].by_site  # the ball's sites are not in the active submodels
 
 
-def test_section_reports_both_methods_on_the_same_goals() -> None:
-    section = hc.hierarchy_section(hc.TINY)
-    assert isinstance(section, Section) and section.name == "hierarchy"
-    m = section.metrics
+@pytest.mark.slow
+def test_section_reports_both_methods_on_the_same_goals(tiny_run) -> None:
+    report = tiny_run("experiment", "hierarchy").report  # the report of hierarchy_section(hc.TINY)
+    m = report.metrics
     for method in hc.METHODS:
         assert len(m["episodes"][method]) == hc.TINY.goals
         assert m[method]["decisions"] >= 1 and m[method]["evaluations_mean"] > 0
     assert m["evaluations_ratio"] == pytest.approx(
         m["hierarchy"]["evaluations_mean"] / m["flat"]["evaluations_mean"]
     )
-    names = {t.name for t in section.targets}
+    names = {t.name for t in report.targets}
     assert names == {"success_hier_minus_flat", "evaluations_per_decision_hier_over_flat"}
     start = [ep["path"][0] for ep in m["episodes"]["hierarchy"]]
     assert start == [ep["path"][0] for ep in m["episodes"]["flat"]]  # the same seeded start states
+    # LoT's tiny run includes the section under its name, on the same goals
+    lot = tiny_run("experiment", "lot").report.metrics["hierarchy"]
+    assert set(lot) == set(m) and lot["episodes"]["flat"][0]["path"] == m["episodes"]["flat"][0]["path"]
 
 
 @pytest.mark.parametrize(

@@ -70,6 +70,7 @@ def a1_report(tmp_path_factory):
 
 
 @pytest.mark.render
+@pytest.mark.slow
 def test_a1_scores_the_box_and_flags_the_ball(a1_report):
     _, rep = a1_report
     m = json.loads(json.dumps(jsonable(dict(rep.metrics)), allow_nan=False))
@@ -118,6 +119,7 @@ def test_a1_scores_the_box_and_flags_the_ball(a1_report):
 
 
 @pytest.mark.render
+@pytest.mark.slow
 def test_a1_reuses_recordings_in_data_dir(a1_report):
     config, rep = a1_report
     root = Path(config.runs.data_dir)
@@ -263,8 +265,9 @@ def test_evaluate_sequence_needs_ground_truth(tmp_path):
 
 
 @pytest.mark.render
-def test_bench_perception_tiny():
-    rep = bench_perception.run(bench_perception.TINY, False)
+@pytest.mark.slow
+def test_bench_perception_tiny(tiny_run):
+    rep = tiny_run("bench", "perception").report
     m = rep.metrics
     assert m["frames"] == 3 and (m["width"], m["height"]) == (160, 120) and m["limits"]["opencv_threads"] == 1
     assert m["ratio_no_pose"] == pytest.approx(m["fps_no_pose"] / m["render_fps"])
@@ -310,6 +313,7 @@ def test_bench_perception_tiny():
 
 
 @pytest.mark.render
+@pytest.mark.slow
 def test_cli_runs_a1_quick_as_json(capsys):
     sets = ["runs.width=160", "runs.height=120", "runs.fps=3"]
     assert main(["experiment", "a1", "--quick", "--json", *[a for s in sets for a in ("--set", s)]]) == 0

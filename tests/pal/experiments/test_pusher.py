@@ -12,8 +12,9 @@ from pal.experiments.closed_loop import pusher
 from pal.experiments.closed_loop.pusher_runs import Episode
 
 
-def test_pusher_reports_the_three_controllers_at_equal_steps():
-    rep = pusher.run(pusher.TINY)
+@pytest.mark.slow
+def test_pusher_reports_the_three_controllers_at_equal_steps(tiny_run):
+    rep = tiny_run("experiment", "pusher").report
     m = rep.metrics
     assert m["env_steps"] == pusher.TINY.babble_steps + pusher.TINY.train_episodes * pusher.TINY.episode_steps
     for c in pusher.CONTROLLERS:

@@ -60,8 +60,9 @@ def test_configs_refuse_bad_values(make, message):
         make()
 
 
-def test_synthetic_report_shd_per_d_method_regime():
-    rep = discovery_synthetic.run(discovery_synthetic.TINY)
+@pytest.mark.slow
+def test_synthetic_report_shd_per_d_method_regime(tiny_run):
+    rep = tiny_run("experiment", "discovery").report
     shd = rep.metrics["shd"]["5"]
     assert set(shd) == set(discovery_synthetic.METHODS)
     assert set(shd["pal"]) == set(discovery_synthetic.REGIMES)
@@ -97,8 +98,9 @@ def test_peers_compare_on_a_strong_chain():
     assert out["shd_undirected_free"] <= out["shd"] and out["edges"] >= out["undirected"]
 
 
-def test_body_report_on_two_arm_joints():
-    rep = discovery_body.run(discovery_body.TINY)
+@pytest.mark.slow
+def test_body_report_on_two_arm_joints(tiny_run):
+    rep = tiny_run("experiment", "discovery_body").report
     m = rep.metrics
     assert m["body"] == "arm" and m["joint"] == "finger" and m["body_graph"]["joints"] == ["elbow", "finger"]
     assert [r["seed"] for r in m["replicates"]] == [0, 1]
@@ -174,9 +176,9 @@ def test_body_cli_refuses_a_bad_setting_in_one_line(capsys):
     assert "\n" not in err and "replicates must be a positive int, got 0" in err
 
 
-def test_active_design_tiny():
-    config = registry.get("experiment", "active_design").tiny
-    rep = active_design.run(config)
+@pytest.mark.slow
+def test_active_design_tiny(tiny_run):
+    rep = tiny_run("experiment", "active_design").report
     m = rep.metrics
     assert m["transitions"] == [20, 40] and m["seeds"] == [10]
     assert set(m["mechanism_mse"]) == set(active_design.STRATEGIES)
@@ -196,8 +198,9 @@ def test_active_design_tiny():
     assert ax.get_xlabel() == "transitions" and len(ax.lines) == len(active_design.STRATEGIES) + 1
 
 
-def test_bench_discovery_tiny():
-    rep = bench_discovery.run(registry.get("bench", "discovery").tiny)
+@pytest.mark.slow
+def test_bench_discovery_tiny(tiny_run):
+    rep = tiny_run("bench", "discovery").report
     ctx = rep.metrics["context"]
     assert ctx["subgraph_variables"] == 4 and ctx["variables"] == 12
     assert rep.target("context.max_action_diff").met

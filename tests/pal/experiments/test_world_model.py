@@ -71,6 +71,7 @@ def _protocol(cache_dir, graphs=("thesis", "state", "dynamics"), body="finger"):
     )
 
 
+@pytest.mark.slow
 def test_b1_reports_table_5_7_and_the_state_graph_wins(cache_dir):
     rep = b1.run(b1.Config(protocol=_protocol(cache_dir)))
     err = rep.metrics["error"]
@@ -107,6 +108,7 @@ def test_b1_reports_table_5_7_and_the_state_graph_wins(cache_dir):
     assert ax.get_xlabel() == "recorded dq [rad]" and len(ax.collections[0].get_offsets()) == 600
 
 
+@pytest.mark.slow
 def test_b2_realized_errors_and_keys(cache_dir):
     rep = b2.run(b2.Config(protocol=_protocol(cache_dir), targets=24))
     err = rep.metrics["error"]
@@ -226,6 +228,7 @@ def test_bad_input_names_the_value():
         pick_rows(10, 0, seed=0)
 
 
+@pytest.mark.slow
 def test_cli_runs_b1_on_the_arm_and_writes_outputs(tmp_path, capsys, cache_dir):
     argv = ["experiment", "b1", "--json", "--body", "arm", "--out", str(tmp_path)]
     argv += ["--set", "protocol.data.steps=2000", "--set", "protocol.fit.schedule.epochs=5"]

@@ -110,6 +110,7 @@ def _no_cache_in_home(tmp_path, monkeypatch):
     monkeypatch.setenv("PAL_CACHE_DIR", str(tmp_path / "cache"))
 
 
+@pytest.mark.slow
 def test_mujoco_names_work_from_babbling_to_a_saved_world_model(named_body, tmp_path):
     data = collect(BabbleConfig(body=named_body, steps=300, seed=0, frame_skip=4))
     assert data.metadata["body"] == "robot:test body"  # the model's name, not the file stem
@@ -403,6 +404,7 @@ def test_experiment_refuses_a_dataset_of_another_frame_skip(tmp_path, capsys, no
     assert config.protocol.data.dataset == str(root) and config.protocol.data.body.frame_skip == 5
 
 
+@pytest.mark.slow
 def test_bench_babble_runs_on_a_gymnasium_body(capsys):
     argv = ["bench", "babble", "--mjcf", REACHER, "--frame-skip", "5", "--json"]
     assert main([*argv, "--set", "steps=20", "--set", "repeats=1", "--set", "record=false"]) == 0

@@ -167,6 +167,7 @@ def test_pal_babble_cli_any_mjcf_and_names(tmp_path, capsys):
     assert "either --body or --mjcf" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_bench_babble_contract(capsys):
     assert main(["bench", "babble", "--json", "--set", "steps=20", "--set", "repeats=1"]) == 0
     doc = json.loads(capsys.readouterr().out)

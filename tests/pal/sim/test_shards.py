@@ -33,6 +33,7 @@ def test_shards_split_the_steps_and_derive_their_seeds():
     assert len({c.seed for c in shards} | {CONFIG.seed}) == 4
 
 
+@pytest.mark.slow
 def test_sharded_run_in_processes_equals_the_shards_run_serially(tmp_path):
     merged = babble_sharded(CONFIG, tmp_path / "out", workers=2)
     parts = _serial_reference(CONFIG, 2)
