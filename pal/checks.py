@@ -10,7 +10,10 @@ import math
 import numbers
 from typing import Any
 
-__all__ = ["check_choice", "check_float", "check_int"]
+__all__ = ["MAX_SEED", "check_choice", "check_float", "check_int", "check_seed"]
+
+#: The largest seed pal accepts (seeds are 32-bit: numpy, torch and MuJoCo all take them).
+MAX_SEED = 2**32 - 1
 
 
 def _expected_int(minimum: int | None, maximum: int | None) -> str:
@@ -33,6 +36,11 @@ def check_int(name: str, value: Any, minimum: int | None = 1, maximum: int | Non
     if (minimum is not None and value < minimum) or (maximum is not None and value > maximum):
         raise ValueError(f"{name} must be {expected}, got {value}")
     return value
+
+
+def check_seed(name: str, value: Any) -> int:
+    """A seed: an int in ``[0, MAX_SEED]``."""
+    return check_int(name, value, minimum=0, maximum=MAX_SEED)
 
 
 def check_float(

@@ -33,7 +33,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from pal.checks import check_int
+from pal.checks import check_int, check_seed
 from pal.io.dataset import FORMAT, DatasetFileError, DatasetWriter, TransitionDataset, column_names
 from pal.sim.batched import rollout_steps
 from pal.sim.bodies import check_name, load_model
@@ -42,18 +42,8 @@ from pal.sim.policies import POLICIES, make_policy
 from pal.sim.ranges import babbling_ranges, effective_ranges
 
 __all__ = [
-    "BACKENDS",
-    "BabbleConfig",
-    "BabblingSource",
-    "TransitionBlock",
-    "babble",
-    "check_config",
-    "collect",
-    "effective_ranges",
-    "episode_seed",
-    "make_source",
-    "probe_seed",
-    "replay",
+    "BACKENDS", "MAX_STEPS", "BabbleConfig", "BabblingSource", "TransitionBlock", "babble", "check_config",
+    "collect", "effective_ranges", "episode_seed", "make_source", "probe_seed", "replay",
 ]
 
 logger = logging.getLogger(__name__)
@@ -61,6 +51,9 @@ logger = logging.getLogger(__name__)
 
 #: Stepping backends of :class:`BabblingSource` (same transitions, bit for bit).
 BACKENDS = ("loop", "rollout")
+
+#: The most transitions one babbling run records: 10^8 rows, about a day of stepping and tens of GB.
+MAX_STEPS = 10**8
 
 
 def episode_seed(seed: int, episode: int) -> int:
@@ -76,8 +69,8 @@ class BabbleConfig:
         body: shipped body name (``"finger"``, ``"arm"``) or a path to an MJCF file.
         joints: recorded joints (default all hinge/slide joints).
         actuators: babbling actuators (default all that drive a recorded joint).
-        steps: number of transitions.
-        seed: master seed.
+        steps: number of transitions, at most :data:`MAX_STEPS`.
+        seed: master seed, in ``[0, 2**32 - 1]``.
         policy: ``"uniform"`` or ``"ou"``.
         policy_params: extra policy parameters (``{"theta": 1.0, "sigma": 0.5}`` for ``"ou"``).
         frame_skip: MuJoCo steps per transition (50: 0.25 s).
@@ -108,7 +101,8 @@ class BabbleConfig:
     probe_steps: int = 2000
 
     def __post_init__(self) -> None:
-        check_int("steps", self.steps, minimum=0)
+        check_int("steps", self.steps, minimum=0, maximum=MAX_STEPS)
+        check_seed("seed", self.seed)
         for key in ("reset_every", "chunk_size", "frame_skip", "probe_steps"):
             check_int(key, getattr(self, key))
         if self.name is not None:

@@ -35,7 +35,7 @@ from pal.experiments.world_model.body import _action_range as _action_range
 from pal.experiments.world_model.body import _one_name as _one_name
 from pal.io.dataset import FORMAT, METADATA, DatasetFileError, TransitionDataset
 from pal.io.dataset_files import read_metadata
-from pal.sim.babbling import babble, collect, replay
+from pal.sim.babbling import MAX_STEPS, babble, collect, replay
 from pal.sim.batched import BatchReplayer
 from pal.sim.env import BabblingEnv
 
@@ -58,7 +58,8 @@ class DataConfig:
 
     Attributes:
         body: the body, analysed joint and babbling actuators.
-        steps: transitions (thesis: 100 000); ignored with ``dataset``.
+        steps: transitions (thesis: 100 000), at most ``pal.sim.babbling.MAX_STEPS``; ignored
+            with ``dataset``.
         cache: keep the dataset on disk and reuse it.
         cache_dir: cache root; default ``$PAL_CACHE_DIR`` or ``~/.cache/pal``.
         dataset: an existing dataset directory (``pal babble --out DIR``) used instead of
@@ -66,7 +67,7 @@ class DataConfig:
             actuators, frame skip and command ranges.
 
     Raises:
-        ValueError: ``steps < 10``, or a ``dataset`` that is missing, unreadable, incomplete
+        ValueError: ``steps`` < 10 or > ``MAX_STEPS``, or a ``dataset`` that is missing, unreadable, incomplete
             or recorded for another body, actuator set, frame skip or command range.
     """
 
@@ -77,7 +78,7 @@ class DataConfig:
     dataset: str | None = None
 
     def __post_init__(self) -> None:
-        check_int("steps", self.steps, minimum=10)
+        check_int("steps", self.steps, minimum=10, maximum=MAX_STEPS)
         if self.dataset is not None:
             self._check_dataset()
 
