@@ -3,7 +3,7 @@
 Each is an argparse ``type=``: a bad value is refused while the command line is parsed, as
 one line that names the flag and the value (``pal babble: argument --seed: -1 is not an int in
 [0, 4294967295]``), before any work starts. The limits are the library's own
-(:data:`pal.checks.MAX_SEED`, :data:`pal.sim.babbling.MAX_STEPS`,
+(:data:`pal.checks.MAX_SEED`, :data:`pal.checks.MAX_STEPS`,
 :data:`pal.sim.recording.MAX_FPS`), so the command and the API refuse the same values.
 """
 
@@ -14,7 +14,7 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
-from pal.checks import MAX_SEED
+from pal.checks import MAX_SEED, MAX_STEPS
 from pal.cli_body import UsageError
 
 __all__ = [
@@ -74,11 +74,8 @@ def bounded_float(low: float, high: float) -> Callable[[str], float]:
 seed = bounded_int(0, MAX_SEED)
 
 
-def babble_steps(text: str) -> int:
-    """``pal babble --steps``: an int in ``[1, MAX_STEPS]`` (:data:`pal.sim.babbling.MAX_STEPS`)."""
-    from pal.sim.babbling import MAX_STEPS  # loads MuJoCo: only when the flag is given
-
-    return bounded_int(1, MAX_STEPS)(text)
+#: ``pal babble --steps``: an int in ``[1, MAX_STEPS]``.
+babble_steps = bounded_int(1, MAX_STEPS)
 
 
 def fps(text: str) -> float:
@@ -91,9 +88,7 @@ def fps(text: str) -> float:
 def out_dir(text: str) -> str:
     """An argparse type: a directory path that is not empty (``""`` would mean the working directory)."""
     if not text.strip():
-        raise argparse.ArgumentTypeError(
-            f"{text!r} is empty; name a directory (write . for the current one)"
-        )
+        raise argparse.ArgumentTypeError(f"{text!r} is empty; name a directory (write . for the current one)")
     return text
 
 

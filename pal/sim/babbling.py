@@ -33,7 +33,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from pal.checks import check_int, check_seed
+from pal.checks import MAX_STEPS, check_int, check_seed
 from pal.io.dataset import FORMAT, DatasetFileError, DatasetWriter, TransitionDataset, column_names
 from pal.sim.batched import rollout_steps
 from pal.sim.bodies import check_name, load_model
@@ -42,8 +42,18 @@ from pal.sim.policies import POLICIES, make_policy
 from pal.sim.ranges import babbling_ranges, effective_ranges
 
 __all__ = [
-    "BACKENDS", "MAX_STEPS", "BabbleConfig", "BabblingSource", "TransitionBlock", "babble", "check_config",
-    "collect", "effective_ranges", "episode_seed", "make_source", "probe_seed", "replay",
+    "BACKENDS",
+    "BabbleConfig",
+    "BabblingSource",
+    "TransitionBlock",
+    "babble",
+    "check_config",
+    "collect",
+    "effective_ranges",
+    "episode_seed",
+    "make_source",
+    "probe_seed",
+    "replay",
 ]
 
 logger = logging.getLogger(__name__)
@@ -51,9 +61,6 @@ logger = logging.getLogger(__name__)
 
 #: Stepping backends of :class:`BabblingSource` (same transitions, bit for bit).
 BACKENDS = ("loop", "rollout")
-
-#: The most transitions one babbling run records: 10^8 rows, about a day of stepping and tens of GB.
-MAX_STEPS = 10**8
 
 
 def episode_seed(seed: int, episode: int) -> int:
@@ -69,7 +76,7 @@ class BabbleConfig:
         body: shipped body name (``"finger"``, ``"arm"``) or a path to an MJCF file.
         joints: recorded joints (default all hinge/slide joints).
         actuators: babbling actuators (default all that drive a recorded joint).
-        steps: number of transitions, at most :data:`MAX_STEPS`.
+        steps: number of transitions, at most :data:`pal.checks.MAX_STEPS`.
         seed: master seed, in ``[0, 2**32 - 1]``.
         policy: ``"uniform"`` or ``"ou"``.
         policy_params: extra policy parameters (``{"theta": 1.0, "sigma": 0.5}`` for ``"ou"``).

@@ -81,7 +81,9 @@ def test_standardising_leaves_ordinary_columns_bit_for_bit_and_scales_extreme_on
     a = sdata.x[:, 0].numpy()
     t = torch.from_numpy(x[:, 0])
     assert np.array_equal(a, ((t - t.mean()) / t.std()).numpy())  # the plain formula, unchanged
-    assert np.allclose(sdata.x[:, 1].numpy(), a, atol=1e-12) and np.allclose(sdata.x[:, 2].numpy(), a, atol=1e-12)
+    assert np.allclose(sdata.x[:, 1].numpy(), a, atol=1e-12) and np.allclose(
+        sdata.x[:, 2].numpy(), a, atol=1e-12
+    )
     assert np.all(sdata.x[:, 3].numpy() == 0.0)  # a constant column is only centred
 
 

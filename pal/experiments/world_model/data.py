@@ -28,14 +28,14 @@ from typing import Any
 
 import numpy as np
 
-from pal.checks import check_int
+from pal.checks import MAX_STEPS, check_int
 from pal.experiments.world_model.body import DEFAULT_JOINT as DEFAULT_JOINT
 from pal.experiments.world_model.body import BodyChoice, _resolve_joint
 from pal.experiments.world_model.body import _action_range as _action_range
 from pal.experiments.world_model.body import _one_name as _one_name
 from pal.io.dataset import FORMAT, METADATA, DatasetFileError, TransitionDataset
 from pal.io.dataset_files import read_metadata
-from pal.sim.babbling import MAX_STEPS, babble, collect, replay
+from pal.sim.babbling import babble, collect, replay
 from pal.sim.batched import BatchReplayer
 from pal.sim.env import BabblingEnv
 
@@ -58,7 +58,7 @@ class DataConfig:
 
     Attributes:
         body: the body, analysed joint and babbling actuators.
-        steps: transitions (thesis: 100 000), at most ``pal.sim.babbling.MAX_STEPS``; ignored
+        steps: transitions (thesis: 100 000), at most ``pal.checks.MAX_STEPS``; ignored
             with ``dataset``.
         cache: keep the dataset on disk and reuse it.
         cache_dir: cache root; default ``$PAL_CACHE_DIR`` or ``~/.cache/pal``.
@@ -67,8 +67,9 @@ class DataConfig:
             actuators, frame skip and command ranges.
 
     Raises:
-        ValueError: ``steps`` < 10 or > ``MAX_STEPS``, or a ``dataset`` that is missing, unreadable, incomplete
-            or recorded for another body, actuator set, frame skip or command range.
+        ValueError: ``steps`` < 10 or > ``MAX_STEPS``, or a ``dataset`` that is missing,
+            unreadable, incomplete or recorded for another body, actuator set, frame skip or
+            command range.
     """
 
     body: BodyChoice = BodyChoice()

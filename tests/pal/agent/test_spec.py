@@ -104,7 +104,11 @@ INFO_OVERLAPS = [
         "'pos.o' and 'goal.o'",
     ),
     (
-        {"effector": _info("hand", 1), "objects": (ObjectSpec("o", _info("x", 1)),), "touch": _info("hand", 1)},
+        {
+            "effector": _info("hand", 1),
+            "objects": (ObjectSpec("o", _info("x", 1)),),
+            "touch": _info("hand", 1),
+        },
         "'effector' and 'touch'",
     ),
     (

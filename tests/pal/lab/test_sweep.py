@@ -287,6 +287,6 @@ def test_a_second_sweep_process_on_the_same_directory_is_refused_naming_the_hold
     ]
     answers = sorted((p.wait(120), p.stderr.read()) for p in procs)
     assert [code for code, _ in answers] == [0, 2], answers
-    holder = [p.pid for p in procs if p.returncode == 0][0]
+    holder = next(p.pid for p in procs if p.returncode == 0)
     assert f"--out {str(out)!r}: another sweep runs in it" in answers[1][1]
     assert f"pid {holder}" in answers[1][1]

@@ -116,7 +116,17 @@ def _alive(pid: int) -> bool:
 def test_workers_exit_when_the_babbling_process_is_killed(tmp_path):
     root = Path(__file__).resolve().parents[3]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
-    argv = ["babble", "--workers", "2", "--steps", "2000000", "--frame-skip", "1", "--out", str(tmp_path / "d")]
+    argv = [
+        "babble",
+        "--workers",
+        "2",
+        "--steps",
+        "2000000",
+        "--frame-skip",
+        "1",
+        "--out",
+        str(tmp_path / "d"),
+    ]
     parent = subprocess.Popen([sys.executable, "-m", "pal.cli", *argv], env=env, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 60
