@@ -481,8 +481,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
         verbose = args.verbose
-        if args.threads < 1:
-            raise UsageError(f"--threads must be >= 1, got {args.threads}")
+        if not 1 <= args.threads <= 1024:
+            raise UsageError(f"--threads must be >= 1 and <= 1024, got {args.threads}")
         _configure(args.verbose, args.threads, quiet=getattr(args, "quiet", False))
         return int(args.func(args))
     except UsageError as err:

@@ -147,10 +147,8 @@ class RecordConfig:
                 f"image size width={self.width} x height={self.height} pixels is too small; "
                 "expected width and height >= 16"
             )
-        if not (self.depth_noise >= 0 and self.rgb_noise >= 0):
-            raise ValueError(
-                f"depth_noise ({self.depth_noise}) and rgb_noise ({self.rgb_noise}) must be >= 0"
-            )
+        check_float("depth_noise", self.depth_noise, 0.0)
+        check_float("rgb_noise", self.rgb_noise, 0.0)
 
 
 @dataclass(frozen=True, eq=False)
