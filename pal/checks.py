@@ -10,12 +10,14 @@ import math
 import numbers
 from typing import Any
 
-__all__ = ["MAX_SEED", "MAX_STEPS", "check_choice", "check_float", "check_int", "check_seed"]
+__all__ = ["MAX_LOOP_STEPS", "MAX_SEED", "MAX_STEPS", "check_choice", "check_float", "check_int", "check_seed"]
 
 #: The largest seed pal accepts (seeds are 32-bit: numpy, torch and MuJoCo all take them).
 MAX_SEED = 2**32 - 1
 #: The most transitions one babbling run records: 10^8 rows, about a day of stepping and tens of GB.
 MAX_STEPS = 10**8
+#: The most steps of one closed-loop run: 10^5 steps, about 11 h at 0.4 s a step, its history in memory.
+MAX_LOOP_STEPS = 10**5
 
 
 def _expected_int(minimum: int | None, maximum: int | None) -> str:

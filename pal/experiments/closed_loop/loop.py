@@ -38,7 +38,7 @@ from pal.agent import (
 from pal.agent.config import ESTIMATE_SVI, MODEL_SCHEDULE, PLAN_ACTION, PLAN_SAMPLING
 from pal.agent.curiosity import grid_occupancy
 from pal.agent.video import VideoRecorder, overlay
-from pal.checks import check_float, check_int
+from pal.checks import MAX_LOOP_STEPS, check_float, check_int
 from pal.lab.registry import register
 from pal.lab.report import Report, Table, Target
 from pal.sim.pushing import PushingEnv
@@ -58,7 +58,7 @@ class Config:
 
     Attributes:
         seed: master seed of the agent (world resets, actions, fits, inference).
-        steps: total loop steps (babbling included).
+        steps: total loop steps (babbling included), at most :data:`pal.checks.MAX_LOOP_STEPS`.
         babble: babbling steps before the first fit, in [1, steps] (default: half of ``steps``).
         goal: optional (x, y) goal for the box, table frame, m; default curiosity-driven.
         video: optional mp4 path; the annotated video is written there.
@@ -78,7 +78,7 @@ class Config:
 
     def __post_init__(self) -> None:
         check_int("seed", self.seed, minimum=0)
-        check_int("steps", self.steps)
+        check_int("steps", self.steps, maximum=MAX_LOOP_STEPS)
         if self.babble is not None:
             check_int("babble", self.babble)
             if self.babble > self.steps:
