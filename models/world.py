@@ -44,6 +44,7 @@ from models.checks import (
 )
 from models.discrete import CategoricalCode, DiscreteMechanism, check_codes
 from models.forward import ForwardQueries, NoiseSpec
+from models.gated import GatedMechanism, bind_gated
 from models.graph import CausalGraph
 from models.mechanisms import ACTIVATIONS, Mechanism, Seed, as_generator
 from models.root_priors import RootPriorSetters, _RootPriors
@@ -172,6 +173,9 @@ class WorldModel(PyroModule, ForwardQueries, RootPriorSetters):
                     f"mechanism for {name!r} maps {mech.in_dim} -> {mech.out_dim}, expected "
                     f"{in_dim} (parents {list(graph.parents(name))}, categorical parents one-hot) -> {out_dim}"
                 )
+            if isinstance(mech, GatedMechanism):  # the switch must be a Bernoulli parent
+                widths = {p: _width(graph, categories, p) for p in graph.parents(name)}
+                bind_gated(name, mech, graph.parents(name), widths, categories)
             mods[module_key(name)] = mech
         self.mechanisms = nn.ModuleDict(mods)
         self.root_priors = _RootPriors(graph, categories)
