@@ -119,7 +119,8 @@ class GatedMechanism(Mechanism):
         self.switch = switch
         self.on = on
         self.off = off
-        self.register_buffer("floor", _floor(floor, self.out_dim).to(on.in_loc.dtype))
+        dtype = next(t.dtype for t in (*on.parameters(), *on.buffers()) if t.is_floating_point())
+        self.register_buffer("floor", _floor(floor, self.out_dim).to(dtype))
         self.switch_index = -1
         self.site = "a gated site"
         if switch_index is not None:
@@ -260,6 +261,8 @@ def bind_gated(
             f"gated site {site!r} has switch {switch!r}, which is {what}; the switch must be a Bernoulli "
             f"site (discrete={{{switch!r}: 2}} or a BernoulliMechanism)"
         )
+    if sum(widths[p] for p in parents) != mech.in_dim:
+        return  # the WorldModel refuses the mechanism's dims
     index = 0
     for p in parents:
         if p == switch:

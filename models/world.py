@@ -168,14 +168,14 @@ class WorldModel(PyroModule, ForwardQueries, RootPriorSetters):
                 mech = _default_mechanism(kind, in_dim, out_dim, hidden, activation, members, generator)
             if not isinstance(mech, Mechanism):
                 raise ValueError(f"mechanism for {name!r} must be a Mechanism, got {type(mech).__name__}")
+            if isinstance(mech, GatedMechanism):  # the switch must be a Bernoulli parent
+                widths = {p: _width(graph, categories, p) for p in graph.parents(name)}
+                bind_gated(name, mech, graph.parents(name), widths, categories)
             if (mech.in_dim, mech.out_dim) != (in_dim, out_dim):
                 raise ValueError(
                     f"mechanism for {name!r} maps {mech.in_dim} -> {mech.out_dim}, expected "
                     f"{in_dim} (parents {list(graph.parents(name))}, categorical parents one-hot) -> {out_dim}"
                 )
-            if isinstance(mech, GatedMechanism):  # the switch must be a Bernoulli parent
-                widths = {p: _width(graph, categories, p) for p in graph.parents(name)}
-                bind_gated(name, mech, graph.parents(name), widths, categories)
             mods[module_key(name)] = mech
         self.mechanisms = nn.ModuleDict(mods)
         self.root_priors = _RootPriors(graph, categories)
