@@ -94,7 +94,8 @@ def test_the_on_branch_is_normalised_and_its_sigma_set_on_the_on_rows_only():
     train_rows = perm[400:][on[perm[400:]]]
     val_rows = perm[:400][on[perm[:400]]]
     assert float(on_branch.out_loc) == pytest.approx(float(train["dpos"][train_rows].mean()), abs=1e-6)
-    resid = train["dpos"][val_rows] - on_branch(torch.cat([train["rel"], train["contact"]], -1)[val_rows])
+    with torch.no_grad():
+        resid = train["dpos"][val_rows] - on_branch(torch.cat([train["rel"], train["contact"]], -1)[val_rows])
     assert float(on_branch.sigma.detach()) == pytest.approx(float(resid.pow(2).mean().sqrt()), rel=1e-5)
     assert result.sigma["dpos"] == pytest.approx((float(on_branch.sigma.detach()),), rel=1e-6)
     assert torch.equal(model.mechanism("dpos").floor, torch.tensor([FLOOR]))
