@@ -92,7 +92,8 @@ class WorldModel(PyroModule, ForwardQueries, RootPriorSetters):
     Args:
         graph: the validated causal graph.
         mechanisms: optional name -> :class:`Mechanism` for some non-roots; the others
-            get a default mechanism.
+            get a default mechanism. A :class:`models.gated.GatedMechanism` is bound to its
+            switch, which must be a Bernoulli parent of its site.
         seed: int or ``torch.Generator`` for the weights of the default mechanisms, drawn
             from a local generator in topological order; None draws them from the global
             torch RNG (``WorldModel(g, seed=s)`` equals ``torch.manual_seed(s); WorldModel(g)``
