@@ -138,6 +138,11 @@ class GatedMechanism(Mechanism):
         return True
 
     @property
+    def size(self) -> int:
+        """K, the on branch's number of members (1 unless it is an ensemble)."""
+        return self.on.size
+
+    @property
     def trainable(self) -> bool:
         """True when the on branch is trainable."""
         return self.on.trainable
@@ -176,6 +181,35 @@ class GatedMechanism(Mechanism):
         loc1, scale1 = self.on.loc_scale(parents)
         loc0 = self.off(parents) if self.off is not None else torch.zeros_like(loc1)
         return torch.where(c, loc1, loc0), torch.where(c, scale1, self.floor.expand_as(scale1))
+
+    def member_loc_scale(self, parents: Tensor, paired: bool = False) -> tuple[Tensor, Tensor]:
+        """Per member of the on branch ``(where(c, m_k, f_0), where(c, s_k, sigma_0))``, each ``(K, ..., out_dim)``.
+
+        Args:
+            parents: ``(..., in_dim)`` shared by the members, or with ``paired``
+                ``(K, ..., in_dim)`` where member k reads ``parents[k]``.
+            paired: see ``parents``.
+        """
+        parents = self.check_input(parents)
+        c = self.switch_on(parents).unsqueeze(-1)
+        locs, scales = self.on.member_loc_scale(parents, paired)
+        loc0 = self.off(parents) if self.off is not None else torch.zeros_like(locs)
+        return torch.where(c, locs, loc0), torch.where(c, scales, self.floor.expand_as(scales))
+
+    def variance(self, parents: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """``(loc, aleatoric, epistemic)`` of the site, each ``(..., out_dim)``: the on branch's
+        (:meth:`models.ensemble.EnsembleMechanism.variance` for an ensemble) where the switch
+        is on, ``(f_0, sigma_0^2, 0)`` where it is off."""
+        parents = self.check_input(parents)
+        c = self.switch_on(parents).unsqueeze(-1)
+        if hasattr(self.on, "variance"):
+            loc1, ale1, epi1 = self.on.variance(parents)
+        else:
+            loc1, scale1 = self.on.loc_scale(parents)
+            ale1, epi1 = scale1.pow(2), torch.zeros_like(scale1)
+        loc0 = self.off(parents) if self.off is not None else torch.zeros_like(loc1)
+        floor2 = self.floor.pow(2).expand_as(ale1)
+        return torch.where(c, loc1, loc0), torch.where(c, ale1, floor2), torch.where(c, epi1, torch.zeros_like(epi1))
 
     def forward(self, parents: Tensor) -> Tensor:
         """The site's loc ``where(c, f_1(pa), f_0(pa))``: ``(..., in_dim) -> (..., out_dim)``."""

@@ -116,3 +116,29 @@ def test_a_file_whose_gated_site_lacks_its_on_branch_is_refused(tmp_path):
     np.savez(path, **arrays)
     with pytest.raises(ModelFileError, match="lacks its on branch"):
         load(path)
+
+
+def test_members_of_an_ensemble_on_branch_are_propagated_and_the_off_rows_stay_at_the_floor():
+    on = EnsembleMechanism.replicate(lambda s: HeteroscedasticMechanism(2, 1, hidden=(4,), seed=s), 3, 0)
+    model = WorldModel(gated_graph(), {"x": GatedMechanism("c", on, FLOOR)}, discrete={"c": 2}, seed=0)
+    assert model.ensemble_size == 3
+    vals = {"a": A, "b": B, "c": C}
+    members = model.predict(vals, members=True)["x"]  # (K, N, 1)
+    locs, _ = on.member_loc_scale(torch.cat([B, C], -1))
+    assert torch.allclose(members[:, 0], locs[:, 0], atol=1e-6)
+    assert torch.equal(members[:, 1:], torch.zeros(3, 2, 1))
+    epistemic = model.predict_scale(vals, component="epistemic")["x"][:, 0]
+    aleatoric = model.predict_scale(vals, component="aleatoric")["x"][:, 0]
+    assert float(epistemic[0]) > 0 and epistemic[1:].tolist() == [0.0, 0.0]
+    assert aleatoric[1:].tolist() == pytest.approx([FLOOR, FLOOR], rel=1e-6)
+    total = model.predict_scale(vals)["x"][:, 0]
+    assert torch.allclose(total.pow(2), aleatoric.pow(2) + epistemic.pow(2), atol=1e-7)
+
+
+def test_a_gated_site_with_an_unserialisable_branch_cannot_be_saved(tmp_path):
+    from models import FunctionMechanism
+
+    on = FunctionMechanism(lambda z: z[..., :1], 2)
+    model = WorldModel(gated_graph(), {"x": GatedMechanism("c", on, FLOOR)}, discrete={"c": 2}, seed=0)
+    with pytest.raises(ValueError, match="is \\(or holds\\) a FunctionMechanism, which cannot be saved"):
+        save(model, tmp_path / "f.npz")
