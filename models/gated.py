@@ -231,6 +231,14 @@ class GatedMechanism(Mechanism):
         """Set the on branch's normalisers (:func:`inference.fit` passes the on rows' statistics)."""
         self.on.set_normalization(in_loc, in_scale, out_loc, out_scale)
 
+    def input_weights(self) -> tuple[str, ...]:
+        """The branches' input weights, prefixed ``on.`` / ``off.``; empty if a branch has none."""
+        on = tuple(f"on.{k}" for k in self.on.input_weights())
+        if self.off is None or not on:
+            return on
+        off = tuple(f"off.{k}" for k in self.off.input_weights())
+        return on + off if off else ()
+
     # ------------------------------------------------------------------ persistence
     def config(self) -> dict[str, Any]:
         """``{"kind": "gated", "switch", "floor", "on": config, "off": config or None}``."""

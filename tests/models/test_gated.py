@@ -142,3 +142,20 @@ def test_a_gated_site_with_an_unserialisable_branch_cannot_be_saved(tmp_path):
     model = WorldModel(gated_graph(), {"x": GatedMechanism("c", on, FLOOR)}, discrete={"c": 2}, seed=0)
     with pytest.raises(ValueError, match="is \\(or holds\\) a FunctionMechanism, which cannot be saved"):
         save(model, tmp_path / "f.npz")
+
+
+def test_with_graph_rewires_a_gated_site_and_keeps_its_switch():
+    model = gated_model()
+    graph = CausalGraph(
+        [Variable(n, "observed") for n in ("a", "b", "c", "x")], [("a", "c"), ("a", "x"), ("b", "x"), ("c", "x")]
+    )
+    new = model.with_graph(graph, seed=0)
+    assert new.provenance["warm_start"]["x"] == "rewired"
+    mech = new.mechanism("x")
+    assert isinstance(mech, GatedMechanism) and mech.switch_index == 2
+    vals = {"a": A, "b": B, "c": C}
+    assert torch.allclose(new.predict(vals)["x"], model.predict(vals)["x"], atol=1e-6)
+    assert torch.allclose(new.predict_scale(vals)["x"], model.predict_scale(vals)["x"], atol=1e-6)
+    # without the switch edge the site gets a fresh default mechanism
+    cut = CausalGraph([Variable(n, "observed") for n in ("a", "b", "c", "x")], [("a", "c"), ("b", "x")])
+    assert model.with_graph(cut, seed=0).provenance["warm_start"]["x"] == "new"
