@@ -49,7 +49,13 @@ def site_rows(site: str, mech: Mechanism, parents: Tensor, idx: Tensor, what: st
 
 
 def member_rows(
-    site: str, mech: Mechanism, parents: Tensor, train_idx: Tensor, members: int, bootstrap: bool, gen: torch.Generator
+    site: str,
+    mech: Mechanism,
+    parents: Tensor,
+    train_idx: Tensor,
+    members: int,
+    bootstrap: bool,
+    gen: torch.Generator,
 ) -> list[Tensor | None]:
     """Per member, the ``n_train`` row indices it trains on in an epoch (None: the minibatch rows).
 

@@ -36,7 +36,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from models.checks import as_float_tensor, check_finite_tensor, check_int, describe
+from models.checks import as_float_tensor, check_int, describe
 from models.mechanisms import Mechanism, Seed, make_mechanism
 
 __all__ = ["DEFAULT_FLOOR", "GatedMechanism", "bind_gated"]
@@ -106,7 +106,9 @@ class GatedMechanism(Mechanism):
         switch_index: int | None = None,
     ) -> None:
         if not isinstance(switch, str) or not switch:
-            raise ValueError(f"switch must be the name of the site's Bernoulli parent, got {describe(switch)}")
+            raise ValueError(
+                f"switch must be the name of the site's Bernoulli parent, got {describe(switch)}"
+            )
         on = _check_branch("on", on)
         if off is not None:
             off = _check_branch("off", off)
@@ -197,9 +199,11 @@ class GatedMechanism(Mechanism):
         return torch.where(c, locs, loc0), torch.where(c, scales, self.floor.expand_as(scales))
 
     def variance(self, parents: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        """``(loc, aleatoric, epistemic)`` of the site, each ``(..., out_dim)``: the on branch's
-        (:meth:`models.ensemble.EnsembleMechanism.variance` for an ensemble) where the switch
-        is on, ``(f_0, sigma_0^2, 0)`` where it is off."""
+        """``(loc, aleatoric, epistemic)`` of the site, each ``(..., out_dim)``.
+
+        The on branch's (:meth:`models.ensemble.EnsembleMechanism.variance` for an ensemble)
+        where the switch is on, ``(f_0, sigma_0^2, 0)`` where it is off.
+        """
         parents = self.check_input(parents)
         c = self.switch_on(parents).unsqueeze(-1)
         if hasattr(self.on, "variance"):
@@ -209,7 +213,11 @@ class GatedMechanism(Mechanism):
             ale1, epi1 = scale1.pow(2), torch.zeros_like(scale1)
         loc0 = self.off(parents) if self.off is not None else torch.zeros_like(loc1)
         floor2 = self.floor.pow(2).expand_as(ale1)
-        return torch.where(c, loc1, loc0), torch.where(c, ale1, floor2), torch.where(c, epi1, torch.zeros_like(epi1))
+        return (
+            torch.where(c, loc1, loc0),
+            torch.where(c, ale1, floor2),
+            torch.where(c, epi1, torch.zeros_like(epi1)),
+        )
 
     def forward(self, parents: Tensor) -> Tensor:
         """The site's loc ``where(c, f_1(pa), f_0(pa))``: ``(..., in_dim) -> (..., out_dim)``."""
@@ -276,7 +284,11 @@ class GatedMechanism(Mechanism):
 
 
 def bind_gated(
-    site: str, mech: GatedMechanism, parents: Sequence[str], widths: Mapping[str, int], categories: Mapping[str, int]
+    site: str,
+    mech: GatedMechanism,
+    parents: Sequence[str],
+    widths: Mapping[str, int],
+    categories: Mapping[str, int],
 ) -> None:
     """Check a gated site's switch against the graph and bind its column.
 

@@ -413,7 +413,9 @@ def test_gated_counterfactual_with_the_switch_observed_is_exact_per_branch():
         x_c = loc_on + scale_on * u  # do(c = 1): the on branch replays the same u
         assert cf.noise["x"][:, i, 0].tolist() == pytest.approx([u] * 4, abs=1e-5)
         assert cf.samples["x"][:, 0, i, 0].tolist() == pytest.approx([x_b] * 4, abs=1e-5)
-        assert cf.samples["y"][:, 0, i, 0].tolist() == pytest.approx([-1.5 * x_b + 0.2 + 0.3 * u_y] * 4, abs=1e-5)
+        assert cf.samples["y"][:, 0, i, 0].tolist() == pytest.approx(
+            [-1.5 * x_b + 0.2 + 0.3 * u_y] * 4, abs=1e-5
+        )
         assert cf.samples["x"][:, 1, i, 0].tolist() == pytest.approx([x_c] * 4, abs=1e-5)
 
 
@@ -439,18 +441,20 @@ def test_gated_counterfactual_with_a_latent_switch_is_the_exact_posterior_mixtur
     for i in range(3):
         weights, values = _enumerated(i, G_B_NEW[i])
         assert mix.weights[:, i].tolist() == pytest.approx(weights, abs=1e-3)
-        expected = sum(w * v for w, v in zip(weights, values))
+        expected = sum(w * v for w, v in zip(weights, values, strict=True))
         assert float(mix.mean["x"][0, i, 0]) == pytest.approx(expected, abs=1e-3)
     # the sampled path (c drawn from its exact posterior, then abducted) agrees within its Monte Carlo error
     cf = counterfactual(model, factual, {"b": _col(G_B_NEW)}, num_samples=4000, seed=0)
     for i in range(3):
         weights, values = _enumerated(i, G_B_NEW[i])
-        expected = sum(w * v for w, v in zip(weights, values))
-        sd = math.sqrt(sum(w * (v - expected) ** 2 for w, v in zip(weights, values)))
+        expected = sum(w * v for w, v in zip(weights, values, strict=True))
+        sd = math.sqrt(sum(w * (v - expected) ** 2 for w, v in zip(weights, values, strict=True)))
         assert float(cf.mean["x"][0, i, 0]) == pytest.approx(expected, abs=5 * sd / math.sqrt(4000) + 1e-5)
 
 
 def test_the_mixture_refuses_continuous_latent_sites():
     model = _gated()
     with pytest.raises(ValueError, match=r"continuous: \['x'\]"):
-        counterfactual_mixture(model, {"a": _col(G_A), "b": _col(G_B), "c": _col(G_C), "y": _col(G_Y)}, {"b": 0.0})
+        counterfactual_mixture(
+            model, {"a": _col(G_A), "b": _col(G_B), "c": _col(G_C), "y": _col(G_Y)}, {"b": 0.0}
+        )

@@ -67,13 +67,20 @@ def test_the_gated_site_keeps_its_floor_off_and_covers_the_pushes():
     assert 0.85 <= coverage <= 0.95, coverage
     # the smooth heteroscedastic site on the same data, for comparison
     smooth = WorldModel(
-        contact_graph(), {"dpos": HeteroscedasticMechanism(2, 1, hidden=(16, 16), seed=1)}, discrete={"contact": 2}, seed=1
+        contact_graph(),
+        {"dpos": HeteroscedasticMechanism(2, 1, hidden=(16, 16), seed=1)},
+        discrete={"contact": 2},
+        seed=1,
     )
     fit(smooth, train, schedule=SCHEDULE, seed=1)
     smooth_off, smooth_coverage = _scores(smooth, test)
     log.info(
         "gated: off sd %.3g, on coverage %.3f; smooth: off sd %.3g-%.3g, on coverage %.3f",
-        FLOOR, coverage, float(smooth_off.min()), float(smooth_off.max()), smooth_coverage,
+        FLOOR,
+        coverage,
+        float(smooth_off.min()),
+        float(smooth_off.max()),
+        smooth_coverage,
     )
     assert abs(coverage - 0.9) < abs(smooth_coverage - 0.9)
 

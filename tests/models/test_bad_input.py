@@ -83,6 +83,8 @@ def gated_file_without(branch: str) -> None:
     arrays["__meta__"] = np.frombuffer(json.dumps(doc).encode(), dtype=np.uint8)
     np.savez(path, **arrays)
     load(path)
+
+
 MECH2 = LinearMechanism.from_coefficients([[1.0], [2.0]])  # 1 -> 2
 
 

@@ -33,15 +33,22 @@ FLOOR = 0.05
 
 def gated_graph():
     """a -> c (Bernoulli), b -> x, c -> x."""
-    return CausalGraph([Variable(n, "observed") for n in ("a", "b", "c", "x")], [("a", "c"), ("b", "x"), ("c", "x")])
+    return CausalGraph(
+        [Variable(n, "observed") for n in ("a", "b", "c", "x")], [("a", "c"), ("b", "x"), ("c", "x")]
+    )
 
 
 def gated_model(off=True):
-    on = HeteroscedasticMechanism.from_coefficients([[2.0, 0.0]], 0.5, log_scale_weight=[[0.3, 0.0]], log_scale_bias=-1.0)
+    on = HeteroscedasticMechanism.from_coefficients(
+        [[2.0, 0.0]], 0.5, log_scale_weight=[[0.3, 0.0]], log_scale_bias=-1.0
+    )
     off_mech = LinearMechanism.from_coefficients([[0.5, 0.0]], 0.0) if off else None
     return WorldModel(
         gated_graph(),
-        {"c": BernoulliMechanism.from_coefficients([1.0], -0.5), "x": GatedMechanism("c", on, FLOOR, off_mech)},
+        {
+            "c": BernoulliMechanism.from_coefficients([1.0], -0.5),
+            "x": GatedMechanism("c", on, FLOOR, off_mech),
+        },
     )
 
 
@@ -89,7 +96,9 @@ def test_rollout_and_sampling_respect_the_switch():
     "make",
     [
         lambda g: MLPMechanism(2, 1, hidden=(4,), seed=0),
-        lambda g: EnsembleMechanism.replicate(lambda s: HeteroscedasticMechanism(2, 1, hidden=(4,), seed=s), 3, 0),
+        lambda g: EnsembleMechanism.replicate(
+            lambda s: HeteroscedasticMechanism(2, 1, hidden=(4,), seed=s), 3, 0
+        ),
     ],
     ids=["mlp", "ensemble"],
 )
@@ -147,7 +156,8 @@ def test_a_gated_site_with_an_unserialisable_branch_cannot_be_saved(tmp_path):
 def test_with_graph_rewires_a_gated_site_and_keeps_its_switch():
     model = gated_model()
     graph = CausalGraph(
-        [Variable(n, "observed") for n in ("a", "b", "c", "x")], [("a", "c"), ("a", "x"), ("b", "x"), ("c", "x")]
+        [Variable(n, "observed") for n in ("a", "b", "c", "x")],
+        [("a", "c"), ("a", "x"), ("b", "x"), ("c", "x")],
     )
     new = model.with_graph(graph, seed=0)
     assert new.provenance["warm_start"]["x"] == "rewired"
