@@ -11,6 +11,7 @@ from inference.admissible import admissible_parents
 from inference.calibration import predictive_check
 from inference.context import active_subgraph, subgraph_model
 from inference.counterfactual import CounterfactualResult, abduct, counterfactual
+from inference.counterfactual_mixture import MixtureCounterfactual, counterfactual_mixture
 from inference.curiosity import CuriositySampler, normalized_entropy, occupancy
 from inference.diagnostics import Diagnostics, PoorPosteriorWarning
 from inference.discovery import DiscoveryOptions, DiscoveryResult, discover, shd
@@ -48,6 +49,7 @@ __all__ = [
     "ImportanceOptions",
     "Intervene",
     "MeasurementScale",
+    "MixtureCounterfactual",
     "PoorPosteriorWarning",
     "Program",
     "ReplayNoise",
@@ -62,6 +64,7 @@ __all__ = [
     "admissible_parents",
     "compare_edges",
     "counterfactual",
+    "counterfactual_mixture",
     "cpdag",
     "discover",
     "do",

@@ -45,6 +45,7 @@ import torch
 from torch import Tensor
 from tqdm import tqdm
 
+from inference.fit_rows import member_rows, site_rows
 from inference.fit_sigma import _RULE_TEXT, _members, _set_sigmas
 from inference.fit_types import FIT_KWARGS, LOSSES, FitResult, FitSchedule, _schedule
 from models.checks import check_bool, check_choice, check_names, check_seed
@@ -282,24 +283,18 @@ def _prepare(
         raise ValueError(
             f"patience={patience} needs validation rows; validation={validation:g} of {n} rows holds out none"
         )
-    n_train = len(train_idx)
     boot_gen = torch.Generator().manual_seed(_derived_seed(seed, "bootstrap"))
     rows: dict[str, list[Tensor | None]] = {}
-    for v in targets:
-        k = len(_members(model.mechanism(v)))
-        use = schedule.bootstrap and k > 1
-        rows[v] = [
-            train_idx[torch.randint(n_train, (n_train,), generator=boot_gen)] if use else None
-            for _ in range(k)
-        ]
     _set_root_priors(model, cols, train_idx)
     inputs, outputs = {}, {}
-    for v in targets:
-        inputs[v] = model._parents(v, cols)  # categorical parents one-hot
-        outputs[v] = cols[v]
-        in_loc, in_scale = _standardiser(inputs[v][train_idx])
-        out_loc, out_scale = _standardiser(outputs[v][train_idx])
-        model.mechanism(v).set_normalization(in_loc, in_scale, out_loc, out_scale)
+    for v in targets:  # a gated site trains its on branch on the rows where the switch is on
+        mech, inputs[v], outputs[v] = model.mechanism(v), model._parents(v, cols), cols[v]
+        k = len(_members(mech))
+        rows[v] = member_rows(v, mech, inputs[v], train_idx, k, schedule.bootstrap, boot_gen)
+        norm_idx = site_rows(v, mech, inputs[v], train_idx)
+        in_loc, in_scale = _standardiser(inputs[v][norm_idx])
+        out_loc, out_scale = _standardiser(outputs[v][norm_idx])
+        mech.set_normalization(in_loc, in_scale, out_loc, out_scale)
     discrete = {v for v in targets if losses[v] == "cross_entropy"}
     return _Run(targets, losses, discrete, inputs, outputs, train_idx, val_idx, rows, boot_gen)
 

@@ -17,6 +17,7 @@ from collections.abc import Mapping, Sequence
 import torch
 from torch import Tensor
 
+from inference.fit_rows import site_rows, trained
 from models.discrete import DiscreteMechanism
 from models.ensemble import EnsembleMechanism
 from models.mechanisms import Mechanism
@@ -35,6 +36,8 @@ _RULE_TEXT = {
 
 
 def _members(mech: Mechanism) -> list[Mechanism]:
+    """The members that fit trains: an ensemble's, or the mechanism (a gated site's on branch)."""
+    mech = trained(mech)
     return list(mech.members) if isinstance(mech, EnsembleMechanism) else [mech]
 
 
@@ -44,8 +47,8 @@ def _set_sigmas(
     losses: Mapping[str, str],
     inputs: Mapping[str, Tensor],
     outputs: Mapping[str, Tensor],
-    val_idx: Tensor,
-    train_idx: Tensor,
+    all_val: Tensor,
+    all_train: Tensor,
     rows: Mapping[str, Sequence[Tensor | None]],
 ) -> tuple[dict[str, tuple[float, ...]], dict[str, str]]:
     """Set each homoscedastic member's sigma from residuals and report every site's sd.
@@ -58,7 +61,10 @@ def _set_sigmas(
     rules: dict[str, str] = {}
     with torch.no_grad():
         for v in targets:
-            mech = model.mechanism(v)
+            site = model.mechanism(v)  # a gated site: its on branch on the rows where it is on
+            mech = trained(site)
+            val_idx = site_rows(v, site, inputs[v], all_val, "validation")
+            train_idx = site_rows(v, site, inputs[v], all_train)
             if isinstance(mech, DiscreteMechanism):
                 rules[v] = "none"
                 continue

@@ -5,6 +5,7 @@ Depends on torch, pyro and networkx only.
 
 from models.discrete import BernoulliMechanism, CategoricalMechanism, DiscreteMechanism
 from models.ensemble import EnsembleMechanism
+from models.gated import GatedMechanism
 from models.graph import CausalGraph
 from models.heteroscedastic import HeteroscedasticMechanism
 from models.io import ModelFileError, load, save
@@ -21,6 +22,7 @@ __all__ = [
     "DiscreteMechanism",
     "EnsembleMechanism",
     "FunctionMechanism",
+    "GatedMechanism",
     "HeteroscedasticMechanism",
     "LinearMechanism",
     "MLPMechanism",

@@ -32,7 +32,6 @@ from models.checks import (
     describe,
 )
 from models.discrete import gumbel, gumbel_max
-from models.ensemble import EnsembleMechanism
 from models.values import as_values, check_action_bounds
 from models.variables import Role
 
@@ -215,7 +214,7 @@ class ForwardQueries:
                 eps = self._noise(name, noise, logits.shape[1:], generator)
                 out[name] = mech(pa) if eps is None else gumbel_max(logits, eps)
                 continue
-            if isinstance(mech, EnsembleMechanism) and mech.size > 1:
+            if mech.size > 1:  # an ensemble, or a gated site whose on branch is one
                 loc, scale = mech.member_loc_scale(pa, paired=True)
             else:
                 loc, scale = mech.loc_scale(pa)
@@ -259,8 +258,8 @@ class ForwardQueries:
                     sd = mech.distribution(pa).variance.clamp_min(0).sqrt()
                     out[name] = torch.zeros_like(sd) if component == "epistemic" else sd
                     continue
-                if isinstance(mech, EnsembleMechanism) and mech.size > 1 and component != "total":
-                    _, aleatoric, epistemic = mech.variance(pa)
+                if mech.size > 1 and component != "total":  # an ensemble, or gated over one
+                    _, aleatoric, epistemic = mech.variance(pa)  # type: ignore[attr-defined]
                     out[name] = (aleatoric if component == "aleatoric" else epistemic).sqrt()
                 else:
                     loc, scale = mech.loc_scale(pa)

@@ -38,8 +38,9 @@ import torch
 
 from models.checks import check_int
 from models.ensemble import EnsembleMechanism
+from models.gated import GatedMechanism
 from models.graph import CausalGraph
-from models.mechanisms import make_mechanism, mechanism_classes
+from models.mechanisms import Mechanism, make_mechanism, mechanism_classes
 from models.world import WorldModel
 
 __all__ = [
@@ -306,6 +307,15 @@ def _read(path: str | os.PathLike[str], limits: ReadLimits) -> tuple[dict[str, A
     return {**meta, "format": fmt, "versions": doc["versions"]}, arrays
 
 
+def _parts(mech: Mechanism) -> list[Mechanism]:
+    """The mechanism and every mechanism it holds (an ensemble's members, a gated site's branches)."""
+    if isinstance(mech, EnsembleMechanism):
+        return [mech, *mech.members]
+    if isinstance(mech, GatedMechanism):
+        return [mech, *_parts(mech.on), *([] if mech.off is None else _parts(mech.off))]
+    return [mech]
+
+
 def save(
     model: WorldModel, path: str | os.PathLike[str], provenance: Mapping[str, Any] | None = None
 ) -> Path:
@@ -333,8 +343,7 @@ def save(
     for name in model.graph.non_roots:
         mech = model.mechanism(name)
         classes = mechanism_classes()
-        parts = list(mech.members) if isinstance(mech, EnsembleMechanism) else [mech]
-        for part in [mech, *parts]:
+        for part in _parts(mech):
             if classes.get(part.kind) is not type(part):
                 raise ValueError(
                     f"mechanism of {name!r} is (or holds) a {type(part).__name__}, which cannot be saved; "

@@ -12,6 +12,7 @@ from typing import Any
 
 import torch
 
+from models.gated import GatedMechanism
 from models.graph import CausalGraph
 from models.mechanisms import Mechanism, Seed, make_mechanism
 
@@ -30,6 +31,9 @@ def _with_in_dim(config: Mapping[str, Any], in_dim: int) -> dict[str, Any]:
     """``config`` of the same mechanism reading ``in_dim`` inputs (ensemble members too)."""
     if config.get("kind") == "ensemble":
         return {**config, "members": [_with_in_dim(c, in_dim) for c in config["members"]]}
+    if config.get("kind") == "gated":
+        off = config.get("off")
+        return {**config, "on": _with_in_dim(config["on"], in_dim), "off": off and _with_in_dim(off, in_dim)}
     return {**config, "in_dim": in_dim}
 
 
@@ -45,7 +49,8 @@ def rewire_mechanism(
 
     Kept parents keep their input columns (the weights of :meth:`Mechanism.input_weights`
     and the input normalisers), new ones start with zero weights; everything else (sigma,
-    scale heads, output normalisers) is copied. Function mechanisms cannot be rewired.
+    scale heads, output normalisers) is copied. Function mechanisms cannot be rewired, nor a
+    gated mechanism whose switch is not among the new parents.
 
     Args:
         mech: the mechanism.
@@ -57,7 +62,7 @@ def rewire_mechanism(
             only advance the generator, as building a fresh mechanism would).
     """
     keys = mech.input_weights()
-    if not keys:
+    if not keys or (isinstance(mech, GatedMechanism) and mech.switch not in new_parents):
         return None
     new_dim = sum(new_graph[p].dim for p in new_parents)
     out = make_mechanism(_with_in_dim(mech.config(), new_dim), seed=seed)

@@ -44,6 +44,7 @@ from models.checks import (
 )
 from models.discrete import CategoricalCode, DiscreteMechanism, check_codes
 from models.forward import ForwardQueries, NoiseSpec
+from models.gated import GatedMechanism, bind_gated
 from models.graph import CausalGraph
 from models.mechanisms import ACTIVATIONS, Mechanism, Seed, as_generator
 from models.root_priors import RootPriorSetters, _RootPriors
@@ -91,7 +92,8 @@ class WorldModel(PyroModule, ForwardQueries, RootPriorSetters):
     Args:
         graph: the validated causal graph.
         mechanisms: optional name -> :class:`Mechanism` for some non-roots; the others
-            get a default mechanism.
+            get a default mechanism. A :class:`models.gated.GatedMechanism` is bound to its
+            switch, which must be a Bernoulli parent of its site.
         seed: int or ``torch.Generator`` for the weights of the default mechanisms, drawn
             from a local generator in topological order; None draws them from the global
             torch RNG (``WorldModel(g, seed=s)`` equals ``torch.manual_seed(s); WorldModel(g)``
@@ -167,6 +169,9 @@ class WorldModel(PyroModule, ForwardQueries, RootPriorSetters):
                 mech = _default_mechanism(kind, in_dim, out_dim, hidden, activation, members, generator)
             if not isinstance(mech, Mechanism):
                 raise ValueError(f"mechanism for {name!r} must be a Mechanism, got {type(mech).__name__}")
+            if isinstance(mech, GatedMechanism):  # the switch must be a Bernoulli parent
+                widths = {p: _width(graph, categories, p) for p in graph.parents(name)}
+                bind_gated(name, mech, graph.parents(name), widths, categories)
             if (mech.in_dim, mech.out_dim) != (in_dim, out_dim):
                 raise ValueError(
                     f"mechanism for {name!r} maps {mech.in_dim} -> {mech.out_dim}, expected "

@@ -56,6 +56,7 @@ from models import (
     CausalGraph,
     EnsembleMechanism,
     FunctionMechanism,
+    GatedMechanism,
     HeteroscedasticMechanism,
     LinearMechanism,
     MLPMechanism,
@@ -123,6 +124,22 @@ def _ensemble() -> None:
     ens.predict({"act.finger": torch.zeros(2, 1), "q_prev.finger": torch.zeros(2, 1)})
     ens.information({"act.finger": torch.zeros(2, 1), "q_prev.finger": torch.zeros(2, 1)}, ["q.finger"])
     ens.choose(STATE, {"act.finger": torch.zeros(3, 2, 1)}, ["q.finger"], spread=0.5)
+
+
+def _gated_queries() -> None:
+    """A gated site: fit (on rows only), predict, and counterfactual_mixture over its latent switch."""
+    graph = CausalGraph(
+        [Variable(n, "observed") for n in ("b", "c", "x")], [("b", "c"), ("b", "x"), ("c", "x")]
+    )
+    on = HeteroscedasticMechanism(2, 1, hidden=(3,), seed=0)
+    model = WorldModel(graph, {"x": GatedMechanism("c", on, 1e-3)}, discrete={"c": 2}, seed=0)
+    g = torch.Generator().manual_seed(0)
+    b = torch.randn(40, 1, generator=g)
+    c = (b > 0).to(b.dtype)
+    data = {"b": b, "c": c, "x": c * (b + 0.1 * torch.randn(40, 1, generator=g))}
+    fit(model, data, schedule=FitSchedule(epochs=2, batch_size=8, validation=0.25))
+    model.predict({"b": b[:3]}, noise="sampled", generator=torch.Generator().manual_seed(1))
+    assert inference.counterfactual_mixture(model, {"b": b[:3], "x": data["x"][:3]}, {"b": 0.0}).mean
 
 
 def _calibrated_models(tmp: Path) -> None:
@@ -295,6 +312,7 @@ CASES: dict[str, Callable[[Path], object]] = {
         _finger(), _finger_data(), loss="mse", schedule=FitSchedule(epochs=2, batch_size=8, validation=0.0)
     ),
     "heteroscedastic and ensemble models": _calibrated_models,
+    "gated site: fit, predict, counterfactual_mixture (MixtureCounterfactual)": lambda tmp: _gated_queries(),
     "curiosity": lambda tmp: _curiosity(),
     "admissible_parents and shd": lambda tmp: (
         admissible_parents(finger_graph(), tiers=[["act.finger", "q_prev.finger"]]),

@@ -17,9 +17,11 @@ from models import (
     CausalGraph,
     EnsembleMechanism,
     FunctionMechanism,
+    GatedMechanism,
     HeteroscedasticMechanism,
     LinearMechanism,
     MLPMechanism,
+    ModelFileError,
     Variable,
     WorldModel,
     chain_graph,
@@ -50,6 +52,39 @@ from tests.bad_input import (
 )
 
 RANGES = {"j": (-1.0, 1.0)}
+
+
+def gated_graph(switch_parent: bool = True) -> CausalGraph:
+    """b -> x, and the switch c -> x (c is a root)."""
+    edges = [("b", "x"), ("c", "x")] if switch_parent else [("b", "x")]
+    return CausalGraph([Variable(n, "observed") for n in ("b", "c", "x")], edges)
+
+
+def gated(switch: str = "c", discrete: dict | None = None, parent: bool = True) -> WorldModel:
+    width = 2 if parent else 1
+    mech = GatedMechanism(switch, LinearMechanism.from_coefficients([[1.0] * width]), 0.01)
+    return WorldModel(gated_graph(parent), {"x": mech}, discrete={"c": 2} if discrete is None else discrete)
+
+
+def gated_file_without(branch: str) -> None:
+    """Save a gated model, drop one key of its site's config (checksum fixed), and load it."""
+    import json
+    import tempfile
+
+    from models import io as model_io
+    from models import load, save
+
+    path = save(gated(), tempfile.mkdtemp() + "/gated.npz")
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    doc = json.loads(arrays.pop("__meta__").tobytes())
+    del doc["meta"]["mechanisms"]["x"][branch]
+    doc["checksum"] = model_io._checksum(doc["format"], doc["versions"], doc["meta"], arrays)
+    arrays["__meta__"] = np.frombuffer(json.dumps(doc).encode(), dtype=np.uint8)
+    np.savez(path, **arrays)
+    load(path)
+
+
 MECH2 = LinearMechanism.from_coefficients([[1.0], [2.0]])  # 1 -> 2
 
 
@@ -1154,6 +1189,86 @@ CASES: list[BadInput] = [
             {k: torch.as_tensor(v, dtype=torch.float32) for k, v in bin_data().items()}
         ),
         "residuals are not determined for the discrete sites ['t', 'c']",
+    ),
+    bad(
+        "models.GatedMechanism",
+        "switch site continuous",
+        lambda: gated(discrete={}),
+        "gated site 'x' has switch 'c', which is continuous; the switch must be a Bernoulli site",
+    ),
+    bad(
+        "models.GatedMechanism",
+        "switch site categorical with 3 categories",
+        lambda: gated(discrete={"c": 3}),
+        "which is categorical with 3 categories",
+    ),
+    bad(
+        "models.GatedMechanism",
+        "switch not a parent of the site",
+        lambda: gated(parent=False),
+        "gated site 'x' has switch 'c', which is not among its parents ['b']",
+    ),
+    bad(
+        "models.GatedMechanism",
+        "switch unknown",
+        lambda: gated(switch="contact"),
+        "gated site 'x' has switch 'contact', which is not among its parents ['b', 'c']",
+    ),
+    bad(
+        "models.GatedMechanism",
+        "floor 0",
+        lambda: GatedMechanism("c", LinearMechanism.from_coefficients([[1.0, 1.0]]), 0.0),
+        "floor (the off-branch sd sigma_0) must be finite and > 0, got [0.0]",
+    ),
+    bad(
+        "models.GatedMechanism",
+        "floor negative",
+        lambda: GatedMechanism("c", LinearMechanism.from_coefficients([[1.0, 1.0]]), -1e-3),
+        "must be finite and > 0, got [-0.001",
+    ),
+    bad(
+        "models.GatedMechanism",
+        "floor NaN",
+        lambda: GatedMechanism("c", LinearMechanism.from_coefficients([[1.0, 1.0]]), NAN),
+        "floor",
+    ),
+    bad(
+        "models.GatedMechanism",
+        "on branch discrete",
+        lambda: GatedMechanism("c", BernoulliMechanism(2, seed=0), 0.01),
+        "the on branch of a gated site must be a continuous mechanism, got a BernoulliMechanism",
+    ),
+    bad(
+        "models.GatedMechanism",
+        "switch observed with 0.5 (program)",
+        lambda: gated()({"b": np.zeros((2, 1)), "c": np.array([[1.0], [0.5]]), "x": np.zeros((2, 1))}),
+        "data['c'] has 1 values that are not 0 or 1 (a Bernoulli site) (first: 0.5",
+    ),
+    bad(
+        "models.GatedMechanism",
+        "switch given as 2 to predict",
+        lambda: gated().predict({"b": np.zeros((2, 1)), "c": np.array([[2.0], [0.0]])}),
+        "values['c'] has 1 values that are not 0 or 1",
+    ),
+    bad(
+        "models.GatedMechanism",
+        "switch column 0.5 given to the mechanism",
+        lambda: gated().mechanism("x").loc_scale(torch.tensor([[0.0, 0.5]])),
+        "gated site 'x': switch 'c' has 1 values that are not 0 or 1 (first: 0.5)",
+    ),
+    bad(
+        "models.io",
+        "gated site file without its on branch",
+        lambda: gated_file_without("on"),
+        "lacks its on branch",
+        ModelFileError,
+    ),
+    bad(
+        "models.io",
+        "gated site file without its floor",
+        lambda: gated_file_without("floor"),
+        "lacks its floor",
+        ModelFileError,
     ),
 ]
 
