@@ -195,7 +195,7 @@ def test_pal_loop_writes_an_annotated_video(tmp_path, capsys):
 
 def test_configs_refuse_bad_values():
     for make, match in (
-        (lambda: closed_loop.Config(steps=0), "steps must be an int in [1, 100000]"),
+        (lambda: closed_loop.Config(steps=0), r"steps must be an int in \[1, 100000\], got 0"),
         (lambda: closed_loop.Config(steps=4, babble=5), "babble must be in"),
         (lambda: closed_loop.Config(goal=(0.0, float("nan"))), "goal must be finite"),
         (lambda: SetupConfig(babble_steps=0), "babble_steps must be a positive int"),
