@@ -18,6 +18,7 @@ from pal.checks import check_choice, check_float, check_int
 from pal.perception import PipelineConfig
 
 __all__ = [
+    "DISPLACEMENTS",
     "ESTIMATE_SVI",
     "MODEL_SCHEDULE",
     "PLAN_ACTION",
@@ -49,6 +50,10 @@ def _widths(name: str, value: tuple[int, ...]) -> tuple[int, ...]:
 MODEL_SCHEDULE = FitSchedule(epochs=150, batch_size=256, lr=0.005, validation=0.1, patience=25, beta=1.0)
 
 
+#: The forms of an object's displacement site (:attr:`ModelConfig.displacement`).
+DISPLACEMENTS = ("smooth", "gated")
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """The world model (:mod:`pal.agent.graph`) and its fit (Eq. 4.33).
@@ -65,6 +70,10 @@ class ModelConfig:
             beta-NLL's: 1 gives the location the MSE gradient, so rare large pushes are not given
             up to a wide scale).
         min_sigma: floor on fitted homoscedastic sigmas, m (keeps state inference well conditioned).
+        displacement: ``"smooth"`` (``dpos.o`` one smooth mechanism of its parents) or ``"gated"``
+            (``contact.o`` a Bernoulli switch of every object and ``dpos.o`` a
+            :class:`models.GatedMechanism`: exactly 0 with sd ``position_sigma`` without contact,
+            the smooth form's mechanism with contact; see :mod:`pal.agent.graph`).
     """
 
     kind: str = "hetero"
@@ -75,10 +84,12 @@ class ModelConfig:
     structure: str = "preset"
     schedule: FitSchedule = MODEL_SCHEDULE
     min_sigma: float = 0.003
+    displacement: str = "smooth"
 
     def __post_init__(self) -> None:
         check_choice("kind", self.kind, ("hetero", "mlp"))
         check_choice("structure", self.structure, ("preset", "discover"))
+        check_choice("displacement", self.displacement, DISPLACEMENTS)
         check_int("members", self.members)
         object.__setattr__(self, "hidden", _widths("hidden", self.hidden))
         if self.arm_hidden is not None:

@@ -25,9 +25,10 @@ import torch
 from inference import MeasurementScale, infer_state
 from inference.diagnostics import PoorPosteriorWarning
 from models import WorldModel
-from pal.agent.config import EstimateConfig
+from pal.agent.config import DISPLACEMENTS, EstimateConfig
 from pal.agent.graph import blanket
 from pal.agent.history import relative
+from pal.checks import check_choice
 from pal.agent.senses import Percept
 from pal.agent.spec import EnvSpec
 
@@ -71,6 +72,9 @@ class Estimator:
     Args:
         spec: the environment's spec.
         config: SVI settings.
+        displacement: the model's displacement form (:attr:`pal.agent.config.ModelConfig.displacement`):
+            with ``"gated"`` the touch is observed as the 0/1 switch ``touch > 0``, and without
+            touch sensing the switch stays latent and is enumerated.
 
     Attributes:
         poor_posteriors: steps whose posterior failed its diagnostics (Pareto-k, guide mass).
@@ -79,8 +83,9 @@ class Estimator:
         updates: steps filtered through the world model.
     """
 
-    def __init__(self, spec: EnvSpec, config: EstimateConfig) -> None:
+    def __init__(self, spec: EnvSpec, config: EstimateConfig, displacement: str = "smooth") -> None:
         self.spec, self.config = spec, config
+        self.gated = check_choice("displacement", displacement, DISPLACEMENTS) == "gated"
         self.poor_posteriors = 0
         self.updates = 0
         self._blankets: dict[tuple[int, tuple[str, ...]], WorldModel] = {}
@@ -93,7 +98,8 @@ class Estimator:
         """The cached :func:`pal.agent.graph.blanket` of ``model`` over ``objects``."""
         key = (id(model), objects)
         if key not in self._blankets:
-            self._blankets[key] = blanket(model, objects)
+            observed = self.spec.touch is not None or not self.gated
+            self._blankets[key] = blanket(model, objects, observed_contact=observed)
         return self._blankets[key]
 
     def initial(self, percept: Percept) -> Estimate:
@@ -137,7 +143,8 @@ class Estimator:
             obs[f"rel_prev.{o}"] = relative(prev.effector[None], p[None])
             obs[f"rel.{o}"] = relative(new.effector[None], p[None])
             if self.spec.touch is not None:
-                obs[f"contact.{o}"] = np.array([[new.touch[k]]])
+                touch = float(new.touch[k] > 0) if self.gated else new.touch[k]
+                obs[f"contact.{o}"] = np.array([[touch]])
             if self.spec.object_momentum:
                 v = vel_prev.get(o)
                 obs[f"vel_prev.{o}"] = (np.zeros_like(p) if v is None else np.asarray(v))[None]

@@ -12,10 +12,24 @@ Per object o (position d-D, m)::
 
     ee_prev, pos_prev.o -> rel_prev.o        rel = ee - [pos, 0]: the effector relative to the
     ee, pos_prev.o -> rel.o                  object (fixed), before and after the arm's move
-    rel_prev.o, rel.o -> contact.o           contact strength (learned; only with touch sensing)
+    rel_prev.o, rel.o -> contact.o           contact (learned; with touch sensing, or "gated")
     [contact.o,] rel_prev.o, rel.o [, vel_prev.o] -> dpos.o      displacement (learned)
     pos_prev.o, dpos.o -> pos.o              pos = pos_prev + dpos (fixed)
     pos.o -> meas.o                          perceived position (measurement site, perceived objects)
+
+The displacement has two forms (:attr:`pal.agent.config.ModelConfig.displacement`). ``"smooth"``
+(the default): ``dpos.o ~ Normal(f(pa), sigma(pa))``, one smooth mechanism, and ``contact.o``
+(only with touch sensing) a continuous contact strength, the sensed touch in [0, 1].
+``"gated"``: ``contact.o`` is a Bernoulli switch of every object, ``P(contact.o = 1) =
+sigmoid(g(rel_prev.o, rel.o))`` from the effector's proximity, and ``dpos.o`` a
+:class:`models.GatedMechanism`: ``Normal(0, position_sigma)`` without contact (the measurement
+floor: the object rests), the smooth form's mechanism with contact, trained on the contact rows
+only. The switch's label (:func:`contact_rule`): with touch sensing it is observed, 1 when any
+touch was sensed over the step; without (Gymnasium's Pusher-v5) it is derived from the data,
+1 when the object moved more than its noise floor over the step, ``||dpos.o|| >
+MOVED_SIGMAS * position_sigma`` (3 mm by default). It is a training label only: in state
+inference and planning the switch is latent there, enumerated (or taken at its mode by
+``predict(noise="expected")``).
 
 ``vel_prev.o`` (the previous displacement) enters with ``spec.object_momentum``. The fixed
 relations are linear mechanisms with known coefficients (:meth:`models.LinearMechanism.from_coefficients`),
@@ -35,8 +49,10 @@ import torch
 
 from inference import discover
 from models import (
+    BernoulliMechanism,
     CausalGraph,
     EnsembleMechanism,
+    GatedMechanism,
     HeteroscedasticMechanism,
     LinearMechanism,
     MLPMechanism,
@@ -49,9 +65,11 @@ from pal.agent.spec import EnvSpec
 
 __all__ = [
     "FIXED_SIGMA",
+    "MOVED_SIGMAS",
     "blanket",
     "build_graph",
     "build_model",
+    "contact_rule",
     "discover_parents",
     "learned_sites",
     "restrict",
@@ -59,9 +77,31 @@ __all__ = [
 
 #: Residual sd of the fixed relations (q, ee, rel): they are definitions, not predictions.
 FIXED_SIGMA = 1e-4
+#: The moved rule's noise floor in units of ``position_sigma``: without touch sensing an object is
+#: labelled in contact over a step when it moved more than ``MOVED_SIGMAS * position_sigma``.
+MOVED_SIGMAS = 3.0
 
 
-def _object_sites(spec: EnvSpec, o: str) -> list[Variable]:
+def contact_rule(spec: EnvSpec, config: ModelConfig) -> tuple[str, float]:
+    """``(rule, floor)`` of the ``contact.o`` column (:func:`pal.agent.history.contact_label`).
+
+    Smooth: the sensed touch strength. Gated: the touch as a 0/1 switch with touch sensing, else
+    the moved rule with floor ``MOVED_SIGMAS * position_sigma`` (module docstring).
+    """
+    if config.displacement == "smooth":
+        return "strength", 0.0
+    if spec.touch is not None:
+        return "touch", 0.0
+    return "moved", MOVED_SIGMAS * config.position_sigma
+
+
+def _has_contact(spec: EnvSpec, displacement: str) -> bool:
+    if displacement not in ("smooth", "gated"):
+        raise ValueError(f"displacement {displacement!r} unknown; expected one of ['smooth', 'gated']")
+    return spec.touch is not None or displacement == "gated"
+
+
+def _object_sites(spec: EnvSpec, o: str, displacement: str) -> list[Variable]:
     d, e = spec.object(o).dim, spec.effector.dim
     out = [
         Variable(
@@ -98,8 +138,9 @@ def _object_sites(spec: EnvSpec, o: str) -> list[Variable]:
             description="effector relative to the object, after the arm's move",
         ),
     ]
-    if spec.touch is not None:
-        out.append(Variable(f"contact.{o}", Role.LATENT, 1, unit="1", description="contact strength"))
+    if _has_contact(spec, displacement):
+        what = "contact (0/1 switch)" if displacement == "gated" else "contact strength"
+        out.append(Variable(f"contact.{o}", Role.LATENT, 1, unit="1", description=what))
     out += [
         Variable(f"dpos.{o}", Role.LATENT, d, unit="m", description="displacement over the step"),
         Variable(f"pos.{o}", Role.LATENT, d, unit="m", description="position after the step"),
@@ -113,7 +154,7 @@ def _object_sites(spec: EnvSpec, o: str) -> list[Variable]:
     return out
 
 
-def _default_parents(spec: EnvSpec) -> dict[str, tuple[str, ...]]:
+def _default_parents(spec: EnvSpec, displacement: str = "smooth") -> dict[str, tuple[str, ...]]:
     """The learned sites' parent sets of the module docstring."""
     vel = ("v_prev",) if spec.velocities is not None else ()
     out: dict[str, tuple[str, ...]] = {"dq": ("act", "q_prev", *vel)}
@@ -122,7 +163,7 @@ def _default_parents(spec: EnvSpec) -> dict[str, tuple[str, ...]]:
     if spec.effector is not None:
         out["dee"] = ("q_prev", "dq")
     for o in spec.object_names:
-        contact = (f"contact.{o}",) if spec.touch is not None else ()
+        contact = (f"contact.{o}",) if _has_contact(spec, displacement) else ()
         if contact:
             out[f"contact.{o}"] = (f"rel_prev.{o}", f"rel.{o}")
         momentum = (f"vel_prev.{o}",) if spec.object_momentum else ()
@@ -143,13 +184,17 @@ def _fixed_parents(spec: EnvSpec) -> dict[str, tuple[str, ...]]:
     return out
 
 
-def learned_sites(spec: EnvSpec) -> tuple[str, ...]:
+def learned_sites(spec: EnvSpec, displacement: str = "smooth") -> tuple[str, ...]:
     """The sites whose mechanisms are learned (Eq. 4.33), in topological order."""
-    return tuple(_default_parents(spec))
+    return tuple(_default_parents(spec, displacement))
 
 
 def build_graph(
-    spec: EnvSpec, bounds: tuple[np.ndarray, np.ndarray], parents: Mapping[str, Sequence[str]] | None = None
+    spec: EnvSpec,
+    bounds: tuple[np.ndarray, np.ndarray],
+    parents: Mapping[str, Sequence[str]] | None = None,
+    *,
+    displacement: str = "smooth",
 ) -> CausalGraph:
     """The graph of the module docstring.
 
@@ -157,6 +202,8 @@ def build_graph(
         spec: the environment's spec.
         bounds: ``(low (A,), high (A,))`` action bounds (:func:`pal.agent.spec.check_env`).
         parents: optional learned site -> parents, replacing the default parent sets.
+        displacement: ``"smooth"`` or ``"gated"`` (module docstring): ``"gated"`` gives every
+            object a ``contact.o`` switch.
 
     Raises:
         ValueError: ``parents`` names a site that is not learned, or the edited graph is not
@@ -218,8 +265,8 @@ def build_graph(
             Variable("ee", Role.LATENT, e, unit="m", description="effector after the step"),
         ]
     for o in spec.object_names:
-        variables += _object_sites(spec, o)
-    learned = _default_parents(spec)
+        variables += _object_sites(spec, o, displacement)
+    learned = _default_parents(spec, displacement)
     given = dict(parents or {})
     unknown = sorted(set(given) - set(learned))
     if unknown:
@@ -268,11 +315,13 @@ def build_model(
 
     Args:
         spec: the environment's spec.
-        graph: from :func:`build_graph`.
+        graph: from :func:`build_graph` (with the same ``displacement`` as ``config``).
         config: ``kind`` (``"mlp"``, or ``"hetero"``: ``X ~ Normal(f(pa), sigma(pa))``), ensemble
             size ``members`` per learned site, MLP widths ``hidden`` of the object sites and
-            ``arm_hidden`` of the arm sites (``dq``, ``v``, ``dee``), and ``position_sigma``, the
-            residual sd of ``pos = pos_prev + dpos`` (m).
+            ``arm_hidden`` of the arm sites (``dq``, ``v``, ``dee``), ``position_sigma``, the
+            residual sd of ``pos = pos_prev + dpos`` (m), and ``displacement``: with
+            ``"gated"`` ``contact.o`` is a :class:`models.BernoulliMechanism` and ``dpos.o`` a
+            :class:`models.GatedMechanism` with floor ``position_sigma`` (module docstring).
         mechanisms: optional learned site -> given :class:`models.Mechanism` (e.g. a known law).
         seed: seeds every learned mechanism's initial weights (one stream per site).
     """
@@ -281,7 +330,8 @@ def build_model(
     generator = torch.Generator().manual_seed(seed)
     mechs: dict[str, Any] = dict(_fixed_mechanisms(spec, graph, c.position_sigma))
     arm = {"dq", "v", "dee"}
-    for site in learned_sites(spec):
+    gated = c.displacement == "gated"
+    for site in learned_sites(spec, c.displacement):
         if site not in graph:
             continue
         in_dim = sum(graph[p].dim for p in graph.parents(site))
@@ -296,9 +346,14 @@ def build_model(
             return MLPMechanism(i, o, hidden=w, seed=g)
 
         site_seed = torch.Generator().manual_seed(int(torch.randint(0, 2**62, (1,), generator=generator)))
-        mechs[site] = (
-            make(site_seed) if members == 1 else EnsembleMechanism.replicate(make, members, site_seed)
-        )
+        if gated and site.startswith("contact."):
+            mechs[site] = BernoulliMechanism(in_dim, hidden=width, seed=site_seed)
+            continue
+        mech = make(site_seed) if members == 1 else EnsembleMechanism.replicate(make, members, site_seed)
+        switch = "contact." + site.removeprefix("dpos.")
+        if gated and site.startswith("dpos.") and switch in graph.parents(site):
+            mech = GatedMechanism(switch, mech, floor=c.position_sigma)
+        mechs[site] = mech
     mechs.update(mechanisms or {})
     return WorldModel(graph, mechs, seed=seed)
 
@@ -320,17 +375,20 @@ def restrict(model: WorldModel, objects: Sequence[str]) -> WorldModel:
     )
 
 
-def blanket(model: WorldModel, objects: Sequence[str]) -> WorldModel:
+def blanket(model: WorldModel, objects: Sequence[str], *, observed_contact: bool = True) -> WorldModel:
     """The object sites of ``objects`` given the effector relations: a warm-started copy for state inference.
 
     ``rel_prev.o``, ``rel.o`` (and ``contact.o``, ``vel_prev.o``) become observed roots: with the
     effector sensed they are known, and they d-separate the arm sites from the object sites, so
     the posterior over ``dpos.o`` and ``pos.o`` is that of the full program at a fraction of its sites.
+    With ``observed_contact=False`` (a gated switch without touch sensing) ``contact.o`` stays a
+    latent site of ``rel_prev.o``, ``rel.o``, enumerated by the inference.
     """
     g = model.graph
     keep_prefix = ("pos_prev.", "vel_prev.", "rel_prev.", "rel.", "contact.", "dpos.", "pos.", "meas.")
     names = [n for n in g.names if n.startswith(keep_prefix) and n.split(".", 1)[1] in set(objects)]
-    roots = {n for n in names if n.startswith(("rel_prev.", "rel.", "contact."))}
+    observed = ("rel_prev.", "rel.", "contact.") if observed_contact else ("rel_prev.", "rel.")
+    roots = {n for n in names if n.startswith(observed)}
     variables = [replace(g[n], role=Role.OBSERVED) if n in roots else g[n] for n in names]
     edges = [(p, c) for p, c in g.edges if p in names and c in names and c not in roots]
     return model.with_graph(CausalGraph(variables, edges))

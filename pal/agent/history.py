@@ -28,7 +28,17 @@ import numpy as np
 
 from pal.io.files import FileFormatError, check_json, read_npz, write_npz
 
-__all__ = ["FIELDS", "FORMAT", "MOMENTUM_FIELDS", "SOURCES", "VELOCITY_FIELDS", "History", "relative"]
+__all__ = [
+    "CONTACT_LABELS",
+    "FIELDS",
+    "FORMAT",
+    "MOMENTUM_FIELDS",
+    "SOURCES",
+    "VELOCITY_FIELDS",
+    "History",
+    "contact_label",
+    "relative",
+]
 
 #: Format tag of history files.
 FORMAT = "pal.history/1"
@@ -56,6 +66,10 @@ VELOCITY_FIELDS = ("v_prev", "v")
 MOMENTUM_FIELDS = ("vel_prev",)
 #: Position sources of :meth:`History.columns`.
 SOURCES = ("perceived", "truth")
+#: What :meth:`History.columns` puts in ``contact.o``: the sensed touch as it is (a strength in
+#: [0, 1]), the touch as a 0/1 switch (1 when any touch was sensed over the step), or the
+#: moved rule for worlds without touch sensing (:func:`contact_label`).
+CONTACT_LABELS = ("strength", "touch", "moved")
 
 
 _DEFAULT_OPTIONS: dict[str, Any] = {
@@ -75,6 +89,35 @@ def relative(effector: np.ndarray, position: np.ndarray) -> np.ndarray:
     k = min(p.shape[-1], ee.shape[-1])
     out[..., :k] -= p[..., :k]
     return out
+
+
+def contact_label(touch: np.ndarray, dpos: np.ndarray, rule: str, floor: float = 0.0) -> np.ndarray:
+    """The ``contact.o`` column ``(N, 1)`` of one object under a rule of :data:`CONTACT_LABELS`.
+
+    ``"strength"``: the touch as sensed. ``"touch"``: 1 where ``touch > 0`` (the arm touched the
+    object in some sub-step), else 0. ``"moved"`` (worlds without touch sensing): 1 where the
+    object moved more than its noise floor over the step, ``||dpos|| > floor``, else 0.
+
+    Args:
+        touch: ``(N,)`` sensed touch (zeros without touch sensing).
+        dpos: ``(N, d)`` the object's displacement over the step, m.
+        rule: one of :data:`CONTACT_LABELS`.
+        floor: the moved rule's noise floor, m (>= 0).
+
+    Raises:
+        ValueError: an unknown rule or a negative or non-finite floor, naming the value.
+    """
+    if rule not in CONTACT_LABELS:
+        raise ValueError(f"contact rule {rule!r} unknown; expected one of {list(CONTACT_LABELS)}")
+    if not np.isfinite(floor) or floor < 0:
+        raise ValueError(f"the moved rule's floor must be finite and >= 0, got {floor!r}")
+    t = np.asarray(touch, dtype=np.float64).reshape(-1, 1)
+    if rule == "strength":
+        return t
+    if rule == "touch":
+        return (t > 0).astype(np.float64)
+    moved = np.linalg.norm(np.asarray(dpos, dtype=np.float64), axis=-1) > floor
+    return moved.astype(np.float64).reshape(-1, 1)
 
 
 class History:
@@ -157,13 +200,20 @@ class History:
         return np.stack(rows)
 
     def columns(
-        self, source: str = "perceived", rows: np.ndarray | slice | None = None
+        self,
+        source: str = "perceived",
+        rows: np.ndarray | slice | None = None,
+        *,
+        contact: str = "strength",
+        floor: float = 0.0,
     ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, np.ndarray]]]:
         """World-model training columns (:mod:`pal.agent.graph`), float32 ``(n, dim)`` (Eq. 4.33).
 
         Args:
             source: ``"perceived"`` (object positions are the measurements) or ``"truth"``.
             rows: a subset of rows (indices, boolean mask or slice); default all.
+            contact: the rule of ``contact.o`` (:func:`contact_label`); ``floor`` is the moved
+                rule's noise floor, m.
 
         Returns:
             ``(arm, objects)``: ``arm`` has ``act``, ``q_prev``, ``dq``, ``q`` (and ``v_prev``,
@@ -174,6 +224,7 @@ class History:
         """
         if source not in SOURCES:
             raise ValueError(f"source {source!r} unknown; expected one of {SOURCES}")
+        contact_label(np.zeros(0), np.zeros((0, 1)), contact, floor)  # checks the rule and floor
         idx = np.arange(len(self))[rows if rows is not None else slice(None)]
         get = lambda f: self.array(f)[idx]  # noqa: E731
         q_prev, q, ee_prev, ee = get("q_prev"), get("q"), get("hand_prev"), get("hand")
@@ -194,7 +245,7 @@ class History:
                 f"pos_prev.{o}": p,
                 f"pos.{o}": now[ok, k],
                 f"dpos.{o}": now[ok, k] - p,
-                f"contact.{o}": touch[ok, k : k + 1],
+                f"contact.{o}": contact_label(touch[ok, k], now[ok, k] - p, contact, floor),
                 f"rel_prev.{o}": relative(ee_prev[ok], p),
                 f"rel.{o}": relative(ee[ok], p),
                 **{k: v[ok] for k, v in arm.items()},

@@ -9,6 +9,8 @@ a validation split and early stopping; homoscedastic sigmas are floored at ``min
 reference scale of a site is its mean predictive sd on the training rows), and when it flags a
 mechanism :func:`inference.revise` proposes and tests structural revisions on the recent rows
 (a new parent, a regime split ...), keeping one only when it wins on held-out likelihood.
+A gated displacement (``ModelConfig.displacement="gated"``) trains its on branch on the contact
+rows only (:func:`inference.fit`); before the first contact row it stays unfitted.
 :func:`inference.revise` scores homoscedastic single mechanisms; flagged heteroscedastic or
 ensemble sites are reported (``flagged``) but not revised.
 """
@@ -23,9 +25,9 @@ import numpy as np
 import torch
 
 from inference import ResidualMonitor, fit, revise
-from models import WorldModel
+from models import DiscreteMechanism, GatedMechanism, WorldModel
 from pal.agent.config import LearnConfig, ModelConfig
-from pal.agent.graph import learned_sites
+from pal.agent.graph import contact_rule, learned_sites
 from pal.agent.history import History
 from pal.agent.spec import EnvSpec
 
@@ -35,24 +37,41 @@ log = logging.getLogger(__name__)
 
 
 def site_data(
-    history: History, spec: EnvSpec, source: str = "perceived", rows: Any = None
+    history: History,
+    spec: EnvSpec,
+    source: str = "perceived",
+    rows: Any = None,
+    config: ModelConfig | None = None,
 ) -> dict[str, np.ndarray]:
-    """Every variable of the graph on the rows where every object is known (``meas.o = pos.o``)."""
+    """Every variable of the graph on the rows where every object is known (``meas.o = pos.o``).
+
+    ``contact.o`` follows :func:`pal.agent.graph.contact_rule` of ``config`` (default: smooth).
+    """
+    rule, floor = contact_rule(spec, config or ModelConfig())
     idx = np.arange(len(history))[rows if rows is not None else slice(None)]
     prev_key, key = ("meas_prev", "meas") if source == "perceived" else ("truth_prev", "truth")
     prev, now = history.array(prev_key)[idx], history.array(key)[idx]
     ok = np.isfinite(prev).all((1, 2)) & np.isfinite(now).all((1, 2))
     if history.momentum:
         ok &= np.isfinite(history.array("vel_prev")[idx]).all((1, 2))
-    arm, objects = history.columns(source, idx[ok])
+    arm, objects = history.columns(source, idx[ok], contact=rule, floor=floor)
     out = dict(arm)
     for o, cols in objects.items():
         out.update({k: v for k, v in cols.items() if k not in out})
         if o in spec.perceived:
             out[f"meas.{o}"] = cols[f"pos.{o}"]
-        if spec.touch is None:
+        if rule == "strength" and spec.touch is None:
             out.pop(f"contact.{o}", None)
     return out
+
+
+def _has_on_rows(model: WorldModel, site: str, cols: dict[str, np.ndarray]) -> bool:
+    """False for a gated site whose switch is on in none of the rows: its on branch stays as it is."""
+    mech = model.mechanism(site)
+    if not isinstance(mech, GatedMechanism) or bool((cols[mech.switch] == 1).any()):
+        return True
+    log.info("gated site %r: no row with %s = 1 yet; its on branch stays unfitted", site, mech.switch)
+    return False
 
 
 def fit_model(
@@ -70,10 +89,11 @@ def fit_model(
     Returns:
         ``{"rows": {"arm": n, <object>: n ...}, "sites": [...]}``.
     """
-    arm, objects = history.columns(source, rows)
+    rule, floor = contact_rule(spec, config)
+    arm, objects = history.columns(source, rows, contact=rule, floor=floor)
     known = lambda cols: {k: v for k, v in cols.items() if k in model.graph}  # noqa: E731
     arm, objects = known(arm), {o: known(c) for o, c in objects.items()}
-    learned = [s for s in learned_sites(spec) if s in model.graph]
+    learned = [s for s in learned_sites(spec, config.displacement) if s in model.graph]
     base = config.schedule
 
     def schedule(n: int) -> dict[str, Any]:
@@ -91,11 +111,12 @@ def fit_model(
                 "object %r has %d usable transitions; its mechanisms stay unfitted", o, len(cols[f"pos.{o}"])
             )
             continue
+        sites = [s for s in sites if _has_on_rows(model, s, cols)]
         fit(model, cols, variables=sites, **schedule(len(cols[f"pos.{o}"])))
         fitted += sites
     for name in fitted:
         mech = model.mechanism(name)
-        if not mech.heteroscedastic:
+        if not mech.heteroscedastic and not isinstance(mech, DiscreteMechanism):
             mech.set_sigma(mech.sigma.detach().clamp_min(config.min_sigma))
     return {
         "rows": {"arm": len(arm["act"]), **{o: len(c[f"pos.{o}"]) for o, c in objects.items()}},
@@ -131,7 +152,7 @@ class Learner:
         out = fit_model(model, history, self.spec, self.model_config, seed=seed)
         if not self.config.monitor or len(history) < 8:
             return model, out
-        data = site_data(history, self.spec)
+        data = site_data(history, self.spec, config=self.model_config)
         if not data or len(next(iter(data.values()))) < 8:
             return model, out
         fresh = {k: v[-min(len(v), self.config.window) :] for k, v in data.items()}
@@ -145,7 +166,9 @@ class Learner:
             )
         levels = self.monitor.update(model, fresh)
         out["residual_levels"] = levels
-        flagged = [v for v in self.monitor.flagged() if v in learned_sites(self.spec)]
+        flagged = [
+            v for v in self.monitor.flagged() if v in learned_sites(self.spec, self.model_config.displacement)
+        ]
         out["flagged"] = flagged
         # inference.revise scores candidates with one sigma per site: homoscedastic, single mechanisms only
         flagged = [

@@ -124,7 +124,9 @@ class Agent:
             raise ValueError(f"objects have different dims {sorted(dims)}; the history holds one dim for all")
         cfg = self.config
         self.rng = np.random.default_rng(np.random.SeedSequence([seed, 2]))
-        self.graph = build_graph(spec, (self.low, self.high)) if model is None else model.graph
+        displacement = cfg.model.displacement
+        bounds = (self.low, self.high)
+        self.graph = build_graph(spec, bounds, displacement=displacement) if model is None else model.graph
         self.model = model if model is not None else self._new_model(self.graph)
         self.fitted = model is not None
         self.history = History(
@@ -138,7 +140,7 @@ class Agent:
             momentum=spec.object_momentum,
         )
         self.senses = Senses(spec, cfg.perception, cfg.top_surface)
-        self.estimator = Estimator(spec, cfg.estimate)
+        self.estimator = Estimator(spec, cfg.estimate, cfg.model.displacement)
         self.learner = Learner(spec, cfg.model, cfg.learn)
         (x0, y0), (x1, y1) = cfg.curiosity.region
         c = cfg.curiosity
@@ -338,14 +340,16 @@ class Agent:
         first (:func:`pal.agent.graph.discover_parents`).
         """
         if not self.fitted and self.config.model.structure == "discover":
-            data = site_data(self.history, self.spec)
+            data = site_data(self.history, self.spec, config=self.config.model)
             parents = discover_parents(
                 self.spec,
                 self.graph,
                 {k: v for k, v in data.items() if not k.startswith("meas.")},
                 seed=self.seed,
             )
-            self.graph = build_graph(self.spec, (self.low, self.high), parents)
+            self.graph = build_graph(
+                self.spec, (self.low, self.high), parents, displacement=self.config.model.displacement
+            )
             self.model = self._new_model(self.graph)
         self.model, out = self.learner.refit(self.model, self.history, self.seed + len(self.history))
         self.graph = self.model.graph
