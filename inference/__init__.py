@@ -24,6 +24,7 @@ from inference.importance import ImportanceOptions
 from inference.interventions import do, simulate
 from inference.metalearn import ResidualMonitor, Revision, revise
 from inference.planning import SamplingConfig
+from inference.predictive import PredictiveInterval, coverage_by_regime, predictive_interval
 from inference.program import Program
 from inference.quadrature import GridOptions
 from inference.rewire import RewireResult, rewire
@@ -51,6 +52,7 @@ __all__ = [
     "MeasurementScale",
     "MixtureCounterfactual",
     "PoorPosteriorWarning",
+    "PredictiveInterval",
     "Program",
     "ReplayNoise",
     "ResidualMonitor",
@@ -65,6 +67,7 @@ __all__ = [
     "compare_edges",
     "counterfactual",
     "counterfactual_mixture",
+    "coverage_by_regime",
     "cpdag",
     "discover",
     "do",
@@ -75,6 +78,7 @@ __all__ = [
     "normalized_entropy",
     "occupancy",
     "predictive_check",
+    "predictive_interval",
     "revise",
     "rewire",
     "shd",
