@@ -49,7 +49,9 @@ def _check(level: Any, num_samples: Any, seed: Any) -> None:
         raise ValueError(f"seed must be a non-negative int, got {seed!r}")
 
 
-def _draws(model: Any, values: Mapping[str, Tensor], site: str, n: int, num_samples: int, seed: int) -> Tensor:
+def _draws(
+    model: Any, values: Mapping[str, Tensor], site: str, n: int, num_samples: int, seed: int
+) -> Tensor:
     """``(num_samples * K, N, dim)`` forward draws of ``site``."""
     generator = torch.Generator().manual_seed(seed)
     per = max(1, min(num_samples, CHUNK // max(n, 1)))
@@ -118,7 +120,9 @@ def coverage_by_regime(
     """The share of rows whose truth lies in ``[lower, upper]`` (all components), per regime.
 
     Args:
-        truth, lower, upper: ``(N, dim)`` (or ``(N,)``).
+        truth: ``(N, dim)`` (or ``(N,)``) the true values.
+        lower: ``(N, dim)`` the intervals' lower ends.
+        upper: ``(N, dim)`` their upper ends.
         regime: ``(N,)`` integer labels of the rows (e.g. 1 contact, 0 no contact).
         names: label -> name in the result (default ``{0: "off", 1: "on"}``, else the label).
 

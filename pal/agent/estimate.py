@@ -28,9 +28,9 @@ from models import WorldModel
 from pal.agent.config import DISPLACEMENTS, EstimateConfig
 from pal.agent.graph import blanket
 from pal.agent.history import relative
-from pal.checks import check_choice
 from pal.agent.senses import Percept
 from pal.agent.spec import EnvSpec
+from pal.checks import check_choice
 
 log = logging.getLogger(__name__)
 

@@ -189,26 +189,8 @@ def learned_sites(spec: EnvSpec, displacement: str = "smooth") -> tuple[str, ...
     return tuple(_default_parents(spec, displacement))
 
 
-def build_graph(
-    spec: EnvSpec,
-    bounds: tuple[np.ndarray, np.ndarray],
-    parents: Mapping[str, Sequence[str]] | None = None,
-    *,
-    displacement: str = "smooth",
-) -> CausalGraph:
-    """The graph of the module docstring.
-
-    Args:
-        spec: the environment's spec.
-        bounds: ``(low (A,), high (A,))`` action bounds (:func:`pal.agent.spec.check_env`).
-        parents: optional learned site -> parents, replacing the default parent sets.
-        displacement: ``"smooth"`` or ``"gated"`` (module docstring): ``"gated"`` gives every
-            object a ``contact.o`` switch.
-
-    Raises:
-        ValueError: ``parents`` names a site that is not learned, or the edited graph is not
-            admissible (a cycle, an edge into an action, see :class:`models.CausalGraph`).
-    """
+def _arm_variables(spec: EnvSpec, bounds: tuple[np.ndarray, np.ndarray]) -> list[Variable]:
+    """The action and the arm's variables of the module docstring."""
     j = len(spec.joints)
     low, high = (tuple(float(x) for x in b) for b in bounds)
     variables = [
@@ -264,6 +246,30 @@ def build_graph(
             Variable("dee", Role.LATENT, e, unit="m", description="effector motion over the step"),
             Variable("ee", Role.LATENT, e, unit="m", description="effector after the step"),
         ]
+    return variables
+
+
+def build_graph(
+    spec: EnvSpec,
+    bounds: tuple[np.ndarray, np.ndarray],
+    parents: Mapping[str, Sequence[str]] | None = None,
+    *,
+    displacement: str = "smooth",
+) -> CausalGraph:
+    """The graph of the module docstring.
+
+    Args:
+        spec: the environment's spec.
+        bounds: ``(low (A,), high (A,))`` action bounds (:func:`pal.agent.spec.check_env`).
+        parents: optional learned site -> parents, replacing the default parent sets.
+        displacement: ``"smooth"`` or ``"gated"`` (module docstring): ``"gated"`` gives every
+            object a ``contact.o`` switch.
+
+    Raises:
+        ValueError: ``parents`` names a site that is not learned, or the edited graph is not
+            admissible (a cycle, an edge into an action, see :class:`models.CausalGraph`).
+    """
+    variables = _arm_variables(spec, bounds)
     for o in spec.object_names:
         variables += _object_sites(spec, o, displacement)
     learned = _default_parents(spec, displacement)
@@ -303,6 +309,27 @@ def _fixed_mechanisms(spec: EnvSpec, graph: CausalGraph, position_sigma: float) 
     return out
 
 
+def _learned(graph: CausalGraph, site: str, c: ModelConfig, site_seed: torch.Generator) -> Any:
+    """The initial mechanism of one learned site (:func:`build_model`)."""
+    in_dim = sum(graph[p].dim for p in graph.parents(site))
+    width = (c.arm_hidden or c.hidden) if site in ("dq", "v", "dee") else c.hidden
+    out_dim = graph[site].dim
+    gated = c.displacement == "gated"
+    if gated and site.startswith("contact."):
+        return BernoulliMechanism(in_dim, hidden=width, seed=site_seed)
+
+    def make(g: torch.Generator | None) -> Any:
+        if c.kind == "hetero":
+            return HeteroscedasticMechanism(in_dim, out_dim, hidden=width, seed=g)
+        return MLPMechanism(in_dim, out_dim, hidden=width, seed=g)
+
+    mech = make(site_seed) if c.members == 1 else EnsembleMechanism.replicate(make, c.members, site_seed)
+    switch = "contact." + site.removeprefix("dpos.")
+    if gated and site.startswith("dpos.") and switch in graph.parents(site):
+        return GatedMechanism(switch, mech, floor=c.position_sigma)
+    return mech
+
+
 def build_model(
     spec: EnvSpec,
     graph: CausalGraph,
@@ -326,34 +353,13 @@ def build_model(
         seed: seeds every learned mechanism's initial weights (one stream per site).
     """
     c = config or ModelConfig()
-    kind, members, hidden, arm_hidden = c.kind, c.members, c.hidden, c.arm_hidden
     generator = torch.Generator().manual_seed(seed)
     mechs: dict[str, Any] = dict(_fixed_mechanisms(spec, graph, c.position_sigma))
-    arm = {"dq", "v", "dee"}
-    gated = c.displacement == "gated"
     for site in learned_sites(spec, c.displacement):
         if site not in graph:
             continue
-        in_dim = sum(graph[p].dim for p in graph.parents(site))
-        width = (arm_hidden or hidden) if site in arm else hidden
-        out_dim = graph[site].dim
-
-        def make(
-            g: torch.Generator | None, i: int = in_dim, o: int = out_dim, w: tuple[int, ...] = width
-        ) -> Any:
-            if kind == "hetero":
-                return HeteroscedasticMechanism(i, o, hidden=w, seed=g)
-            return MLPMechanism(i, o, hidden=w, seed=g)
-
         site_seed = torch.Generator().manual_seed(int(torch.randint(0, 2**62, (1,), generator=generator)))
-        if gated and site.startswith("contact."):
-            mechs[site] = BernoulliMechanism(in_dim, hidden=width, seed=site_seed)
-            continue
-        mech = make(site_seed) if members == 1 else EnsembleMechanism.replicate(make, members, site_seed)
-        switch = "contact." + site.removeprefix("dpos.")
-        if gated and site.startswith("dpos.") and switch in graph.parents(site):
-            mech = GatedMechanism(switch, mech, floor=c.position_sigma)
-        mechs[site] = mech
+        mechs[site] = _learned(graph, site, c, site_seed)
     mechs.update(mechanisms or {})
     return WorldModel(graph, mechs, seed=seed)
 

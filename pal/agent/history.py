@@ -212,8 +212,8 @@ class History:
         Args:
             source: ``"perceived"`` (object positions are the measurements) or ``"truth"``.
             rows: a subset of rows (indices, boolean mask or slice); default all.
-            contact: the rule of ``contact.o`` (:func:`contact_label`); ``floor`` is the moved
-                rule's noise floor, m.
+            contact: the rule of ``contact.o`` (:func:`contact_label`).
+            floor: the moved rule's noise floor, m.
 
         Returns:
             ``(arm, objects)``: ``arm`` has ``act``, ``q_prev``, ``dq``, ``q`` (and ``v_prev``,

@@ -22,7 +22,8 @@ Z90 = 1.6448536
 def chain():
     """X (root) -> Y = 2 X + 1 + 0.5 eps -> Z = -1.5 Y + 0.3 eps'."""
     graph = CausalGraph(
-        [Variable("X", "observed"), Variable("Y", "latent"), Variable("Z", "latent")], [("X", "Y"), ("Y", "Z")]
+        [Variable("X", "observed"), Variable("Y", "latent"), Variable("Z", "latent")],
+        [("X", "Y"), ("Y", "Z")],
     )
     mechs = {
         "Y": LinearMechanism.from_coefficients([[2.0]], 1.0, 0.5),
@@ -53,7 +54,9 @@ def gated():
         [Variable(n, "observed") for n in ("a", "b")] + [Variable("c", "latent"), Variable("x", "latent")],
         [("a", "c"), ("b", "x"), ("c", "x")],
     )
-    on = HeteroscedasticMechanism.from_coefficients([[2.0, 0.0]], 0.5, log_scale_weight=[[0.3, 0.0]], log_scale_bias=-1.0)
+    on = HeteroscedasticMechanism.from_coefficients(
+        [[2.0, 0.0]], 0.5, log_scale_weight=[[0.3, 0.0]], log_scale_bias=-1.0
+    )
     mechs = {"c": BernoulliMechanism.from_coefficients([1.0], -0.5), "x": GatedMechanism("c", on, 0.05)}
     return WorldModel(graph, mechs, seed=0)
 
@@ -81,7 +84,9 @@ def test_a_gated_site_with_a_latent_switch_gives_the_mixture_quantiles():
             assert float(got) == pytest.approx(mixture_quantile(p_on, on, off, q), abs=0.03), (i, q)
         assert float(out.mean[i, 0]) == pytest.approx(p_on * on[0], abs=0.02)
     # the switch observed: the on branch alone
-    on_only = predictive_interval(gated(), {"a": a, "b": b, "c": torch.ones(3, 1)}, "x", num_samples=40000, seed=2)
+    on_only = predictive_interval(
+        gated(), {"a": a, "b": b, "c": torch.ones(3, 1)}, "x", num_samples=40000, seed=2
+    )
     torch.testing.assert_close(on_only.sd, torch.exp(0.3 * b - 1.0), atol=0.01, rtol=0)
 
 

@@ -22,7 +22,9 @@ BOUNDS = (-np.ones(7), np.ones(7))
 
 def test_the_displacement_form_is_checked_and_smooth_by_default():
     assert ModelConfig().displacement == "smooth"
-    with pytest.raises(ValueError, match="displacement 'switched' unknown; expected one of \\['smooth', 'gated'\\]"):
+    with pytest.raises(
+        ValueError, match="displacement 'switched' unknown; expected one of \\['smooth', 'gated'\\]"
+    ):
         ModelConfig(displacement="switched")
     with pytest.raises(ValueError, match="displacement 'switched' unknown"):
         build_graph(pusher_spec(), BOUNDS, displacement="switched")
