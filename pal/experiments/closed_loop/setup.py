@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from inference import SamplingConfig
+from inference import SamplingConfig, coverage_by_regime, predictive_interval
 from models import WorldModel
 from pal.agent import (
     Agent,
@@ -32,7 +32,8 @@ from pal.agent import (
     pushing_spec,
 )
 from pal.agent.config import ESTIMATE_SVI, MODEL_SCHEDULE, PLAN_ACTION, PLAN_SAMPLING
-from pal.agent.history import History
+from pal.agent.graph import contact_rule
+from pal.agent.history import History, contact_label
 from pal.checks import check_float, check_int
 from pal.sim.pushing import PushingEnv
 
@@ -42,6 +43,7 @@ __all__ = [
     "TINY_SETUP",
     "SetupConfig",
     "babbled_agent",
+    "contact_coverage",
     "fitted_model",
     "predict_displacements",
     "split_rows",
@@ -192,4 +194,48 @@ def predict_displacements(
             "rows": np.asarray(rows)[ok],
             "touch": touch[ok, k],
         }
+    return out
+
+
+def contact_coverage(
+    model: WorldModel,
+    history: History,
+    config: ModelConfig,
+    rows: np.ndarray,
+    *,
+    level: float = 0.9,
+    num_samples: int = 200,
+    seed: int = 0,
+) -> dict[str, dict[str, Any]]:
+    """Coverage of the true displacements by the model's forward interval, on contact and no-contact rows.
+
+    The interval is :func:`inference.predictive_interval` of ``dpos.o`` from the actions, joint
+    angles, hand and true object positions before the step (the contact, hand and ensemble
+    members sampled). Rows are labelled by :func:`pal.agent.graph.contact_rule` of ``config``
+    with the gated form's rule (the touch sensor here), whatever the model's form.
+
+    Returns:
+        object -> ``{"contact": {"coverage", "rows"}, "no contact": {...}, "all": {...},
+        "sd_no_contact_median_mm": the median predictive sd (norm over components) on no-contact rows}``.
+    """
+    rule, floor = contact_rule(pushing_spec(), replace(config, displacement="gated"))
+    act, q_prev, hand_prev = (history.array(k)[rows] for k in ("act", "q_prev", "hand_prev"))
+    truth_prev, truth, touch = (history.array(k)[rows] for k in ("truth_prev", "truth", "touch"))
+    values = {"act": act, "q_prev": q_prev, "ee_prev": hand_prev}
+    values.update({f"pos_prev.{o}": truth_prev[:, k] for k, o in enumerate(history.objects)})
+    out = {}
+    for k, o in enumerate(history.objects):
+        interval = predictive_interval(
+            model, values, f"dpos.{o}", level=level, num_samples=num_samples, seed=seed
+        )
+        true = truth[:, k] - truth_prev[:, k]
+        regime = contact_label(touch[:, k], true, rule, floor)[:, 0].astype(np.int64)
+        res = coverage_by_regime(
+            true, interval.lower, interval.upper, regime, {0: "no contact", 1: "contact"}
+        )
+        sd = interval.sd.double().norm(dim=-1).numpy()
+        res["sd_no_contact_median_mm"] = (
+            float(np.median(sd[regime == 0]) * 1000) if (regime == 0).any() else None
+        )
+        out[o] = res
     return out
