@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 import torch
 
+from inference import SVIOptions, infer_state
 from models import BernoulliMechanism, GatedMechanism
-from pal.agent import Agent, ModelConfig, build_graph, build_model, pusher_spec, pushing_spec
+from pal.agent import Agent, ModelConfig, blanket, build_graph, build_model, pusher_spec, pushing_spec
 from pal.agent.graph import MOVED_SIGMAS, contact_rule
 from pal.agent.history import contact_label
 from pal.sim.pushing import PushingEnv
@@ -119,3 +120,23 @@ def test_the_gated_agent_runs_a_tiny_pusher_episode_deterministically():
     labels = objects["object"]["contact.object"]
     moved = np.linalg.norm(objects["object"]["dpos.object"], axis=1) > 0.003
     np.testing.assert_array_equal(labels[:, 0], moved.astype(np.float32))
+
+
+def test_state_inference_enumerates_a_latent_switch_without_touch_sensing():
+    spec = pusher_spec()
+    config = ModelConfig(hidden=(8,), members=2, displacement="gated")
+    model = build_model(spec, build_graph(spec, BOUNDS, displacement="gated"), config, seed=0)
+    program = blanket(model, ("object",), observed_contact=False)
+    assert "contact.object" not in program.graph.roots
+    p = np.array([[0.5, -0.2, -0.3]])
+    obs = {
+        "pos_prev.object": p,
+        "vel_prev.object": np.zeros((1, 3)),
+        "rel_prev.object": np.array([[0.05, 0.0, 0.0]]),
+        "rel.object": np.array([[0.02, 0.0, 0.0]]),
+    }
+    svi = {"num_steps": 100, "num_samples": 64, "options": SVIOptions(lr=0.01, init_scale=5e-4), "seed": 0}
+    moved = infer_state(program, {**obs, "pos.object": p + 0.01}, **svi)
+    rest = infer_state(program, {**obs, "pos.object": p}, **svi)
+    # 1 cm is 10 floors away from rest: on; no motion at all: off
+    assert float(moved.mean["contact.object"]) == 1.0 and float(rest.mean["contact.object"]) == 0.0
