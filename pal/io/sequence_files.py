@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from pal.frames import EmptyDepthError, RGBDFrame
+from pal.io.image_headers import MAX_IMAGE_PIXELS, ImageHeaderError, check_image_size
 from pal.io.files import (
     FileFormatError,
     atomic_write_bytes,
@@ -131,20 +132,29 @@ def check_timestamps(timestamps: np.ndarray, source: str) -> np.ndarray:
     return ts
 
 
-def read_image(path: Path, *, depth: bool = False) -> np.ndarray:
+def read_image(path: Path, *, depth: bool = False, max_pixels: int = MAX_IMAGE_PIXELS) -> np.ndarray:
     """Read an image file: (H, W, 3) uint8 RGB, or with ``depth=True`` (H, W) uint16.
 
-    Colour files (PNG, JPEG, ...) are converted from OpenCV's BGR to RGB; grey ones are
-    replicated to three channels. Depth files are 16-bit single-channel PNG or PGM.
+    Colour files (PNG, JPEG, BMP, PNM, TIFF) are converted from OpenCV's BGR to RGB; grey
+    ones are replicated to three channels. Depth files are 16-bit single-channel PNG or PGM.
+    The width and height are read from the file's header and checked against ``max_pixels``
+    (:data:`pal.io.image_headers.MAX_IMAGE_PIXELS`, 50 megapixels) before it is decoded.
 
     Raises:
-        SequenceError: the file is missing, unreadable or has the wrong type.
+        SequenceError: the file is missing, unreadable, over ``max_pixels``, of another
+            format, or has the wrong type; names the file.
     """
     if not path.is_file():
         raise SequenceError(f"{path} does not exist")
+    try:
+        width, height = check_image_size(path, max_pixels)
+    except ImageHeaderError as err:
+        raise SequenceError(str(err)) from err
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise SequenceError(f"{path} is not a readable image")
+    if image.shape[:2] != (height, width):
+        raise SequenceError(f"{path} decodes to {image.shape[:2]} but its header says {height}x{width}")
     if depth:
         if image.ndim != 2 or image.dtype != np.uint16:
             raise SequenceError(
