@@ -58,7 +58,9 @@ def _stored_npy(name: str, a: np.ndarray) -> tuple[str, bytes, int, int, int]:
     return name, raw, zlib.crc32(raw), len(raw), 0
 
 
-def npz_bomb(path: Path, name: str, n_bytes: int = 1900 * _SEGMENT, extra: dict[str, np.ndarray] | None = None) -> Path:
+def npz_bomb(
+    path: Path, name: str, n_bytes: int = 1900 * _SEGMENT, extra: dict[str, np.ndarray] | None = None
+) -> Path:
     """An ``.npz`` whose entry ``name`` is a deflated bool array of ``n_bytes`` zeros (about 2 MB on disk)."""
     header = _npy_header("|b1", (n_bytes,))
     segments = n_bytes // _SEGMENT
@@ -92,6 +94,11 @@ def png_bomb(path: Path, side: int = 16000, *, depth: bool = False) -> Path:
         adler = zlib.adler32(row * rows_per_segment, adler)
     idat = head + repeat * n + b"\x03\x00" + struct.pack(">I", adler)  # an empty final block, then Adler-32
     ihdr = struct.pack(">IIBBBBB", side, side, bit_depth, colour, 0, 0, 0)
-    png = b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", ihdr) + _png_chunk(b"IDAT", idat) + _png_chunk(b"IEND", b"")
+    png = (
+        b"\x89PNG\r\n\x1a\n"
+        + _png_chunk(b"IHDR", ihdr)
+        + _png_chunk(b"IDAT", idat)
+        + _png_chunk(b"IEND", b"")
+    )
     path.write_bytes(png)
     return path

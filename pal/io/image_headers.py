@@ -95,7 +95,9 @@ def _tiff(fh: BinaryIO, path: Path) -> tuple[int, int]:
     order = "<" if _read(fh, 2, path) == b"II" else ">"
     magic, offset = struct.unpack(order + "HI", _read(fh, 6, path))
     if magic != 42:
-        raise ImageHeaderError(f"{path}: a TIFF variant (magic {magic}) that pal does not read; convert it to PNG")
+        raise ImageHeaderError(
+            f"{path}: a TIFF variant (magic {magic}) that pal does not read; convert it to PNG"
+        )
     fh.seek(offset)
     (count,) = struct.unpack(order + "H", _read(fh, 2, path))
     found: dict[int, int] = {}

@@ -35,7 +35,6 @@ import cv2
 import numpy as np
 
 from pal.frames import EmptyDepthError, RGBDFrame
-from pal.io.image_headers import MAX_IMAGE_PIXELS, ImageHeaderError, check_image_size
 from pal.io.files import (
     FileFormatError,
     atomic_write_bytes,
@@ -44,6 +43,7 @@ from pal.io.files import (
     versions,
     write_npz,
 )
+from pal.io.image_headers import MAX_IMAGE_PIXELS, ImageHeaderError, check_image_size
 
 __all__ = [
     "FORMAT",
@@ -75,15 +75,15 @@ def read_text_rows(path: Path) -> list[list[str]]:
     """Whitespace-separated fields of every non-empty line of a text file, ``#`` comments skipped.
 
     Raises:
-        SequenceError: the file does not exist.
+        SequenceError: the file does not exist or is not UTF-8 text.
     """
     if not path.is_file():
         raise SequenceError(f"{path} does not exist")
-    return [
-        line.split()
-        for line in path.read_text(encoding="utf-8").splitlines()
-        if line.strip() and not line.startswith("#")
-    ]
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise SequenceError(f"{path} is not a readable text file ({type(err).__name__}: {err})") from None
+    return [line.split() for line in text.splitlines() if line.strip() and not line.startswith("#")]
 
 
 def encode_depth(depth: np.ndarray, scale: float) -> np.ndarray:
