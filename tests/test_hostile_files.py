@@ -1,7 +1,8 @@
 """Hostile files of at most 2 MB are refused in bounded memory: deflate bombs and huge images.
 
-Each read runs in a fresh interpreter that reports its own peak resident set size; the
-file must be refused with the documented error naming it, at a peak under 512 MB.
+Each read runs in a fresh interpreter that reports its own peak resident set size (``VmHWM``
+of ``/proc/self/status``, else ``ru_maxrss``); the file must be refused with the documented
+error naming it, at a peak under 512 MB.
 """
 
 from __future__ import annotations
@@ -35,7 +36,11 @@ try:
     error, message = None, ""
 except Exception as err:
     error, message = type(err).__name__, str(err)
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+try:  # this process's own high-water mark (ru_maxrss would carry the forking parent's over exec)
+    status = open("/proc/self/status").read()
+    peak = int(status.split("VmHWM:")[1].split()[0]) / 1024
+except (OSError, IndexError):
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 print(json.dumps({"error": error, "message": message, "peak_mb": peak}))
 """
 
