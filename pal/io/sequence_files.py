@@ -189,7 +189,13 @@ def read_depth(path: Path, scale: float) -> np.ndarray:
             f"{path} has no valid depth pixel (all {units.shape[0]}x{units.shape[1]} are 0); it is not a "
             "depth image of this recording, or the sensor failed on this frame"
         )
-    return decode_depth(units, scale)
+    with np.errstate(over="ignore"):  # an absurd scale overflows float32; refused below
+        depth = decode_depth(units, scale)
+    if not np.isfinite(depth).all():
+        raise SequenceError(
+            f"{path}: depth_scale {scale} turns its units into non-finite metres; expected metres per unit"
+        )
+    return depth
 
 
 class FrameSequence:

@@ -196,7 +196,12 @@ class TUMSequence(FrameSequence):
         rows = read_text_rows(path)
         if not rows or any(len(r) != 8 for r in rows):
             raise SequenceError(f"{path}: expected rows 't tx ty tz qx qy qz qw'")
-        data = np.array(rows, dtype=np.float64)
+        try:
+            data = np.array(rows, dtype=np.float64)
+        except ValueError as err:
+            raise SequenceError(
+                f"{path}: expected rows of 8 numbers 't tx ty tz qx qy qz qw' ({err})"
+            ) from None
         out, valid = np.zeros((len(self), 7)), np.zeros(len(self), dtype=bool)
         for i, j in associate(self.timestamps, data[:, 0], max_difference):
             out[i], valid[i] = data[j, 1:], True

@@ -260,3 +260,45 @@ def test_malformed_timestamps_and_ground_truth_are_refused_naming_the_file(tmp_p
     (s / "timestamps.txt").write_bytes(b"0 \xff\n")
     with pytest.raises(SequenceError, match=r"timestamps\.txt is not a readable text file"):
         open_sequence(s)
+
+
+def test_malformed_tum_ground_truth_is_refused_naming_the_file(tmp_path):
+    d = _tum(tmp_path, "1.0 a.png\n")
+    seq = open_sequence(d, K=np.array(DESK_K), depth_scale=0.001)
+    (d / "groundtruth.txt").write_text("1.0 1 2 3 0 0 0 one\n")
+    with pytest.raises(SequenceError, match=r"groundtruth\.txt: expected rows of 8 numbers"):
+        seq.groundtruth()
+    (d / "groundtruth.txt").write_text("1.0 1 2 3\n")
+    with pytest.raises(SequenceError, match=r"groundtruth\.txt: expected rows"):
+        seq.camera_poses()
+
+
+_JSON_VALUES = [None, True, 0, -1, 1.5, float("1e308"), "s", "", [], [1], [[1, 2]], {}, {"1": 2}]
+
+
+@pytest.mark.filterwarnings("ignore::pal.frames.DepthUnitsWarning", "ignore::RuntimeWarning")
+def test_every_json_type_in_every_key_gives_a_sequence_error_or_a_sequence(tmp_path):
+    s = _pal_sequence(tmp_path)
+    files = {
+        "sequence.json": json.loads((s / "sequence.json").read_text()),
+        "intrinsics.json": json.loads((s / "intrinsics.json").read_text()),
+    }
+    for name, original in files.items():
+        for key in original:
+            for value in _JSON_VALUES:
+                (s / name).write_text(json.dumps({**original, key: value}))
+                try:
+                    seq = open_sequence(s)
+                    seq[0]
+                except SequenceError as err:
+                    assert str(s / name) in str(err) or str(s) in str(err), (name, key, value, err)
+            (s / name).write_text(json.dumps(original))
+    tum = _tum(tmp_path, "1.0 a.png\n")
+    for key in ("fx", "fy", "cx", "cy", "depth_scale", "fps", "K"):
+        for value in _JSON_VALUES:
+            calib = {"fx": 500, "fy": 500, "cx": 4, "cy": 4, "depth_scale": 0.001, key: value}
+            (tum / "calibration.json").write_text(json.dumps(calib))
+            try:
+                open_sequence(tum)[0]
+            except SequenceError as err:
+                assert str(tum) in str(err), (key, value, err)
