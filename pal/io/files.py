@@ -13,9 +13,12 @@ may not import ``pal``; ``tests/test_persistence_guarantees.py`` holds both side
   versions, the caller's metadata and a SHA-256 checksum over the format, versions, metadata
   and every array's name, dtype, shape and bytes.
 - **Bounded reads.** :func:`read_npz` checks sizes before inflating anything: the entry
-  count and declared uncompressed sizes from the zip central directory, then each ``.npy``
+  count and declared uncompressed sizes from the zip central directory, the ratio of that
+  declared content to the file's size on disk (a deflate bomb of 2 MB declaring 2 GB is
+  refused: at most ``max_ratio`` = 64 times the file above 64 MiB), then each ``.npy``
   header's dtype and shape (element count x item size) against the declared size. Anything
-  above :class:`ReadLimits` (2 GiB in total by default) is refused.
+  above :class:`ReadLimits` (2 GiB in total by default) is refused. The inflated stream of an
+  entry is read into an array of the checked size and may not run past it.
 - **One error type.** Whatever is wrong with a file (missing, truncated, flipped bytes,
   another format, over the limits), reading raises :class:`FileFormatError` naming the file.
 """
