@@ -58,6 +58,7 @@ __all__ = [
     "read_depth",
     "read_image",
     "read_text_rows",
+    "resolve_inside",
 ]
 
 logger = logging.getLogger(__name__)
@@ -84,6 +85,21 @@ def read_text_rows(path: Path) -> list[list[str]]:
     except (OSError, UnicodeDecodeError) as err:
         raise SequenceError(f"{path} is not a readable text file ({type(err).__name__}: {err})") from None
     return [line.split() for line in text.splitlines() if line.strip() and not line.startswith("#")]
+
+
+def resolve_inside(root: Path, name: str | os.PathLike[str], where: str) -> Path:
+    """``root / name`` resolved; it must stay inside ``root`` (no ``..``, absolute path or symlink out).
+
+    Raises:
+        SequenceError: the file resolves outside ``root``; names ``where``, the name and its target.
+    """
+    target = (root / name).resolve()
+    if not target.is_relative_to(root.resolve()):
+        raise SequenceError(
+            f"{where}: the file {str(name)!r} resolves to {target}, outside the sequence folder {root}; "
+            "a sequence may only read files inside its folder"
+        )
+    return target
 
 
 def encode_depth(depth: np.ndarray, scale: float) -> np.ndarray:

@@ -35,6 +35,7 @@ from pal.io.sequence_files import (
     read_depth,
     read_image,
     read_text_rows,
+    resolve_inside,
 )
 from pal.perception.folders import FolderSequence, find_folder_layout
 from pal.perception.tum import TUMSequence
@@ -182,12 +183,13 @@ class RecordedSequence(FrameSequence):
 
     def frame(self, index: int) -> RGBDFrame:
         """Frame ``index`` read from disk (with ground-truth labels if recorded); SequenceError if bad."""
-        name = f"{index:06d}.png"
-        rgb = read_image(self.path / "rgb" / name)
-        depth = read_depth(self.path / "depth" / name, self.depth_scale)
+        name, where = f"{index:06d}.png", str(self.path)
+        rgb = read_image(resolve_inside(self.path, f"rgb/{name}", where))
+        depth = read_depth(resolve_inside(self.path, f"depth/{name}", where), self.depth_scale)
         labels = None
         if self.has_masks:
-            labels = read_image(self.path / "gt" / "masks" / name, depth=True).astype(np.int32)
+            mask = resolve_inside(self.path, f"gt/masks/{name}", where)
+            labels = read_image(mask, depth=True).astype(np.int32)
         if rgb.shape[:2] != (self.height, self.width) or depth.shape != (self.height, self.width):
             raise SequenceError(
                 f"frame {index} has rgb {rgb.shape} and depth {depth.shape}; sequence.json says {self.height}x{self.width}"

@@ -30,6 +30,7 @@ from pal.io.sequence_files import (
     read_depth,
     read_image,
     read_text_rows,
+    resolve_inside,
 )
 from pal.perception.calibration import intrinsics_matrix, resolve_calibration
 from pal.perception.folders import pose_matrices
@@ -52,17 +53,6 @@ FREIBURG2_K = intrinsics_matrix(520.9, 521.0, 325.1, 249.7)
 FREIBURG3_K = intrinsics_matrix(535.4, 539.2, 320.1, 247.6)
 #: TUM depth PNGs store 5000 units per metre.
 TUM_DEPTH_SCALE = 1.0 / 5000.0
-
-
-def _inside(root: Path, path: Path, name: str, where: str) -> Path:
-    """``root / name`` resolved; it must stay inside ``root`` (no ``..``, absolute path or symlink out)."""
-    target = (root / name).resolve()
-    if not target.is_relative_to(root.resolve()):
-        raise SequenceError(
-            f"{where}: the file {name!r} resolves to {target}, outside the sequence folder {root}; "
-            "a list may only name files inside its folder"
-        )
-    return target
 
 
 def _read_list(path: Path) -> tuple[np.ndarray, list[Path]]:
@@ -94,7 +84,7 @@ def _read_list(path: Path) -> tuple[np.ndarray, list[Path]]:
             )
         lines[t] = n
         stamps.append(t)
-        files.append(_inside(path.parent, path, parts[1], f"{path}:{n}"))
+        files.append(resolve_inside(path.parent, parts[1], f"{path}:{n}"))
     if not stamps:
         raise SequenceError(f"{path} lists no images")
     return np.asarray(stamps), files

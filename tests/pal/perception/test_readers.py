@@ -302,3 +302,23 @@ def test_every_json_type_in_every_key_gives_a_sequence_error_or_a_sequence(tmp_p
                 open_sequence(tum)[0]
             except SequenceError as err:
                 assert str(tum) in str(err), (key, value, err)
+
+
+def test_folder_and_pal_sequences_refuse_files_linked_from_outside(tmp_path):
+    outside = tmp_path / "outside.png"
+    cv2.imwrite(str(outside), np.zeros((8, 8, 3), np.uint8))
+    d = tmp_path / "folder"
+    d.mkdir()
+    cv2.imwrite(str(d / "1_depth.png"), np.full((8, 8), 1000, np.uint16))
+    (d / "1.png").symlink_to(outside)
+    with pytest.raises(
+        SequenceError, match=r"folder: the file '.*1\.png' resolves to .*outside\.png, outside"
+    ):
+        open_sequence(d, K=np.array(DESK_K), depth_scale=0.001, fps=1.0)
+    s = _pal_sequence(tmp_path)
+    (s / "rgb" / "000000.png").unlink()
+    (s / "rgb" / "000000.png").symlink_to(outside)
+    with pytest.raises(
+        SequenceError, match=r"the file 'rgb/000000\.png' resolves to .*outside the sequence folder"
+    ):
+        open_sequence(s)[0]
