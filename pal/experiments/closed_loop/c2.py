@@ -44,7 +44,7 @@ import numpy as np
 from pal.agent import Agent
 from pal.baselines.scripted_pusher import ScriptedPusher
 from pal.checks import check_int
-from pal.experiments.closed_loop.push_goals import check_geometry, push_goals
+from pal.experiments.closed_loop.push_goals import GoalGeometry, push_goals
 from pal.experiments.closed_loop.setup import QUICK_SETUP, TINY_SETUP, SetupConfig, babbled_agent, summary
 from pal.lab.registry import register
 from pal.lab.report import Precondition, Report, Table, Target
@@ -77,24 +77,19 @@ class Config:
         setup: babbling and fitting.
         targets: goal episodes.
         episode_steps: steps per episode and controller.
-        start_radius, bearing_deg: where the box starts about the shoulder (m, deg).
-        distance, cone_deg: how far the goal is (m) and its direction from the sweep direction (deg).
+        geometry: where the box starts and where its goal lies (m, deg).
     """
 
     seed: int = 0
     setup: SetupConfig = SetupConfig()
     targets: int = 20
     episode_steps: int = 15
-    start_radius: tuple[float, float] = (0.16, 0.20)
-    bearing_deg: float = 25.0
-    distance: tuple[float, float] = (0.04, 0.08)
-    cone_deg: tuple[float, float] = (-60.0, 15.0)
+    geometry: GoalGeometry = GoalGeometry()
 
     def __post_init__(self) -> None:
         check_int("seed", self.seed, minimum=0)
         check_int("targets", self.targets)
         check_int("episode_steps", self.episode_steps)
-        check_geometry(self)
 
 
 QUICK = Config(setup=QUICK_SETUP, targets=2, episode_steps=3)
@@ -103,7 +98,7 @@ TINY = Config(setup=TINY_SETUP, targets=1, episode_steps=2)
 
 def goals(config: Config, heading: float, shoulder: np.ndarray) -> list[dict[str, Any]]:
     """The seeded episodes (:func:`pal.experiments.closed_loop.push_goals.push_goals`, stream 62)."""
-    return push_goals(config, config.targets, heading, shoulder, stream=62)
+    return push_goals(config.geometry, config.seed, config.targets, heading, shoulder, stream=62)
 
 
 _Z90 = 1.6448536269514722

@@ -49,7 +49,7 @@ from pal.experiments.closed_loop.hierarchy_pushing import (
     push_phase,
     pushing_hierarchy,
 )
-from pal.experiments.closed_loop.push_goals import check_geometry, push_goals
+from pal.experiments.closed_loop.push_goals import GoalGeometry, push_goals
 from pal.experiments.closed_loop.setup import (
     QUICK_SETUP,
     TINY_SETUP,
@@ -80,7 +80,7 @@ class Config:
         goals: episodes (one goal each), the same for both planners.
         episode_steps: step budget per episode.
         tolerance: success radius about the goal, m.
-        start_radius, bearing_deg, distance, cone_deg: the box's start and the goal, as in C2.
+        geometry: the box's start and the goal, as in C2.
     """
 
     seed: int = 0
@@ -89,17 +89,13 @@ class Config:
     goals: int = 20
     episode_steps: int = 20
     tolerance: float = 0.02
-    start_radius: tuple[float, float] = (0.16, 0.20)
-    bearing_deg: float = 25.0
-    distance: tuple[float, float] = (0.04, 0.08)
-    cone_deg: tuple[float, float] = (-60.0, 15.0)
+    geometry: GoalGeometry = GoalGeometry()
 
     def __post_init__(self) -> None:
         check_int("seed", self.seed, minimum=0)
         check_int("goals", self.goals)
         check_int("episode_steps", self.episode_steps)
         check_float("tolerance", self.tolerance, 0.0, open_low=True)
-        check_geometry(self)
 
 
 QUICK = Config(setup=QUICK_SETUP, goals=10, episode_steps=12)
@@ -123,7 +119,7 @@ TINY = Config(
 
 def goals(config: Config, heading: float, shoulder: np.ndarray) -> list[dict[str, Any]]:
     """The seeded episodes (:func:`pal.experiments.closed_loop.push_goals.push_goals`, stream 64)."""
-    return push_goals(config, config.goals, heading, shoulder, stream=64)
+    return push_goals(config.geometry, config.seed, config.goals, heading, shoulder, stream=64)
 
 
 def _state(obs: np.ndarray, info: dict[str, Any], objects: tuple[str, ...]) -> dict[str, np.ndarray]:

@@ -24,8 +24,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from inference import ActionOptions, CuriositySampler, SamplingConfig, normalized_entropy, occupancy
-from pal.checks import check_float, check_int
+from inference import ActionOptions, SamplingConfig, normalized_entropy, occupancy
+from pal.checks import check_int
 from pal.experiments.world_model.b1 import QUICK_PROTOCOL, TINY_PROTOCOL
 from pal.experiments.world_model.b2 import SAMPLED
 from pal.experiments.world_model.calibration import (
@@ -37,6 +37,7 @@ from pal.experiments.world_model.calibration import (
 from pal.experiments.world_model.data import pick_rows
 from pal.experiments.world_model.setup import (
     ActionConfig,
+    CuriosityDensity,
     ProtocolConfig,
     abs_errors,
     infer_actions,
@@ -71,25 +72,18 @@ class Config:
         seed: seeds the protocol, the test rows, the targets and the random actions.
         protocol: data, graphs and fitting schedule (shared with B1 and B2).
         targets: number of test pre-action states (one curiosity target each).
-        bins: histogram bins over X_q.
-        alpha: locality amplification of Eq. 5.8.
-        sigma_fraction: locality width sigma as a fraction of |X_q|.
+        curiosity: the target density (Eq. 5.8-5.9) and its bins over X_q.
         action: Alg. 4.2 settings.
     """
 
     seed: int = 0
     protocol: ProtocolConfig = ProtocolConfig()
     targets: int = 128
-    bins: int = 20
-    alpha: float = 0.5
-    sigma_fraction: float = 0.1
+    curiosity: CuriosityDensity = CuriosityDensity()
     action: ActionConfig = SAMPLED
 
     def __post_init__(self) -> None:
         check_int("targets", self.targets)
-        check_int("bins", self.bins)
-        check_float("alpha", self.alpha, 0.0)
-        check_float("sigma_fraction", self.sigma_fraction, 0.0, open_low=True)
 
 
 def tables(metrics: dict[str, Any]) -> list[Table]:
@@ -151,7 +145,7 @@ def _coverage(
     tiny=Config(
         protocol=TINY_PROTOCOL,
         targets=6,
-        bins=5,
+        curiosity=CuriosityDensity(bins=5),
         action=ActionConfig(
             num_steps=20, options=ActionOptions(sampling=SamplingConfig(population=16, elites=4))
         ),
@@ -162,9 +156,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     prep = prepare(config.protocol, config.seed, progress_bar=progress_bar)
     act, qp, dq, q = prep.joint.names
     low_q, high_q = prep.q_range
-    sampler = CuriositySampler(
-        low_q, high_q, bins=config.bins, alpha=config.alpha, sigma=config.sigma_fraction * (high_q - low_q)
-    )
+    sampler = config.curiosity.sampler(low_q, high_q)
     sampler.fit(prep.joint.columns(prep.train)[q])
     rows = pick_rows(len(prep.test), config.targets, config.seed)
     q_prev = prep.test_columns[qp][rows, 0].astype(np.float64)
@@ -186,8 +178,8 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         }
         realized[graph], internal[graph] = {}, {}
         for cond, (pred, real) in outcomes.items():
-            internal[graph][cond] = _coverage(pred, goals, prep.q_range, config.bins)
-            realized[graph][cond] = _coverage(real, goals, prep.q_range, config.bins)
+            internal[graph][cond] = _coverage(pred, goals, prep.q_range, config.curiosity.bins)
+            realized[graph][cond] = _coverage(real, goals, prep.q_range, config.curiosity.bins)
             points[f"{graph}.{cond}.model"] = pred
         points[f"{graph}.inferred.real"] = real_inferred = outcomes["inferred"][1]
         transitions[graph] = {**state, act: actions, dq: real_inferred - q_prev, q: real_inferred}
@@ -197,7 +189,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     metrics = {
         "realized": realized,
         "model_internal": internal,
-        "target_entropy": normalized_entropy(goals, low_q, high_q, config.bins),
+        "target_entropy": normalized_entropy(goals, low_q, high_q, config.curiosity.bins),
         "training": {"occupancy": sampler.occupancy(), "entropy": sampler.normalized_entropy()},
         "calibration": cal,
         "info": info,
@@ -209,8 +201,8 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         targets=[*targets(realized), *coverage_targets(cal, what)],
         notes=[
             setup_note(info),
-            f"{len(rows)} test pre-action states, {config.bins} bins over X_q, alpha {config.alpha}, "
-            f"sigma {config.sigma_fraction} x |X_q| (Eq. 5.8-5.9).",
+            f"{len(rows)} test pre-action states, {config.curiosity.bins} bins over X_q, alpha {config.curiosity.alpha}, "
+            f"sigma {config.curiosity.sigma_fraction} x |X_q| (Eq. 5.8-5.9).",
         ],
         figures={"fig5_7": _figure(points, list(realized)), "reliability": reliability_figure(cal, what)},
     )

@@ -30,11 +30,18 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from tqdm import tqdm
 
-from inference import CuriositySampler, FitSchedule
+from inference import FitSchedule
 from models.presets import GRAPH_VARIANTS
 from pal.checks import check_choice, check_float, check_int
 from pal.experiments.world_model.data import BodyChoice, JointData
-from pal.experiments.world_model.setup import ActionConfig, FitConfig, build_model, fit_model, infer_actions
+from pal.experiments.world_model.setup import (
+    ActionConfig,
+    CuriosityDensity,
+    FitConfig,
+    build_model,
+    fit_model,
+    infer_actions,
+)
 from pal.lab.registry import register
 from pal.lab.report import Report, Table, Target
 from pal.sim.babbling import BabblingSource, make_source
@@ -64,7 +71,7 @@ class Config:
         refit_every: refit period of the world model, steps.
         fit: :func:`inference.fit` schedule of each refit (MSE).
         graph: graph variant of the world model.
-        bins, alpha, sigma_fraction: curiosity density (Eq. 5.8-5.9) and coverage bins.
+        curiosity: the target density (Eq. 5.8-5.9) and the coverage bins.
         action: Alg. 4.2 (projected Adam, clipped to X_a) from ``action.starts`` random points
             of X_a, keeping the best under the model. A fixed start would make an agent whose
             model sees no effect of the action (a flat prediction, e.g. after an initial set
@@ -81,9 +88,7 @@ class Config:
     refit_every: int = 25
     fit: FitConfig = FitConfig(schedule=FitSchedule(epochs=200, batch_size=256))
     graph: str = "state"
-    bins: int = 20
-    alpha: float = 0.5
-    sigma_fraction: float = 0.1
+    curiosity: CuriosityDensity = CuriosityDensity()
     action: ActionConfig = ActionConfig(num_steps=100, starts=3)
     q_range: tuple[float, float] | None = None
 
@@ -93,10 +98,7 @@ class Config:
         check_int("initial", self.initial, minimum=2)
         check_int("budget", self.budget)
         check_int("refit_every", self.refit_every)
-        check_int("bins", self.bins, minimum=2)
         check_choice("graph", self.graph, GRAPH_VARIANTS)
-        check_float("alpha", self.alpha, 0.0)
-        check_float("sigma_fraction", self.sigma_fraction, 0.0, open_low=True)
         if self.q_range is not None:
             lo, hi = (check_float("q_range", v) for v in self.q_range)
             if not lo < hi:
@@ -164,9 +166,7 @@ def _curiosity_run(
         q: list(block.q[:, j]),
     }
     lo, hi = q_range
-    sampler = CuriositySampler(
-        lo, hi, bins=config.bins, alpha=config.alpha, sigma=config.sigma_fraction * (hi - lo)
-    )
+    sampler = config.curiosity.sampler(lo, hi)
     sampler.fit(np.asarray(data[q]))
     rng, start_rng = np.random.default_rng([seed, 4]), np.random.default_rng([seed, 5])
     model = _refit(config, joint, data, q_range, seed)
@@ -229,7 +229,7 @@ def _explore(
             else:
                 values = _random_run(config, joint, seed)
             seconds[cond] += time.perf_counter() - start
-            occ, ent = coverage_curve(values, config.initial, q_range, config.bins)
+            occ, ent = coverage_curve(values, config.initial, q_range, config.curiosity.bins)
             full = np.flatnonzero(occ >= 1.0)
             steps[cond].append(int(full[0]) if full.size else None)
             ent_final[cond].append(float(ent[-1]))
@@ -256,7 +256,7 @@ def _explore(
         initial=5,
         budget=6,
         refit_every=3,
-        bins=5,
+        curiosity=CuriosityDensity(bins=5),
         fit=FitConfig(schedule=FitSchedule(epochs=5, batch_size=64)),
         action=ActionConfig(num_steps=5, starts=2),
     ),
@@ -299,7 +299,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     ]
     cur, rnd = (metrics["steps_to_full_occupancy"][c] for c in CONDITIONS)
     advantage = None if cur is None else (config.budget if rnd is None else rnd) - cur
-    b = config.bins
+    b = config.curiosity.bins
     stacked = {c: {k: np.stack(v) for k, v in curves[c].items()} for c in CONDITIONS}
     return Report(
         title="Online exploration: curiosity loop vs random babbling",
@@ -331,7 +331,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             f"Joint {joint.joint} (actuator {joint.actuator}, {len(probe.env.actuator_names)} actuator(s)), "
             f"{config.runs} seeds, {config.initial} initial random steps, budget {config.budget} steps, "
             f"{config.graph} graph refitted every {config.refit_every} steps, {b} bins over "
-            f"[{q_range[0]:.3f}, {q_range[1]:.3f}] rad, alpha {config.alpha}, Alg. 4.2 with "
+            f"[{q_range[0]:.3f}, {q_range[1]:.3f}] rad, alpha {config.curiosity.alpha}, Alg. 4.2 with "
             f"{config.action.num_steps} Adam steps."
         ],
         figures={

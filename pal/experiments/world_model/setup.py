@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from inference import ActionOptions, FitResult, FitSchedule, fit, infer_action
+from inference import ActionOptions, CuriositySampler, FitResult, FitSchedule, fit, infer_action
 from models import WorldModel
 from models.presets import GRAPH_VARIANTS, joint_chain_graph
 from models.variables import Role
@@ -124,6 +124,32 @@ class ActionConfig:
         s = self.options.sampling
         search = f"CEM ({s.population} x {s.iterations}, {s.elites} elites) then " if s is not None else ""
         return f"{search}Adam {self.num_steps} steps, lr {self.options.lr}, from {start}, clipped to X_a"
+
+
+@dataclass(frozen=True)
+class CuriosityDensity:
+    """The curiosity target density of B3 and online exploration (thesis Eq. 5.8-5.9).
+
+    Attributes:
+        bins: histogram bins over the joint's range X_q (also the coverage bins), >= 2.
+        alpha: locality amplification of Eq. 5.8, >= 0.
+        sigma_fraction: locality width sigma as a fraction of |X_q|, > 0.
+    """
+
+    bins: int = 20
+    alpha: float = 0.5
+    sigma_fraction: float = 0.1
+
+    def __post_init__(self) -> None:
+        check_int("bins", self.bins, minimum=2)
+        check_float("alpha", self.alpha, 0.0)
+        check_float("sigma_fraction", self.sigma_fraction, 0.0, open_low=True)
+
+    def sampler(self, low: float, high: float) -> CuriositySampler:
+        """An unfitted :class:`inference.CuriositySampler` over ``[low, high]`` (rad)."""
+        return CuriositySampler(
+            low, high, bins=self.bins, alpha=self.alpha, sigma=self.sigma_fraction * (high - low)
+        )
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ from pal.agent.video import VideoRecorder
 from pal.cli import main
 from pal.experiments.closed_loop import c1, c2, c3, c4
 from pal.experiments.closed_loop import loop as closed_loop
+from pal.experiments.closed_loop.push_goals import GoalGeometry
 from pal.experiments.closed_loop.setup import SetupConfig, summary
 
 
@@ -199,7 +200,7 @@ def test_configs_refuse_bad_values():
         (lambda: closed_loop.Config(goal=(0.0, float("nan"))), "goal must be finite"),
         (lambda: SetupConfig(babble_steps=0), "babble_steps must be a positive int"),
         (lambda: c1.Config(test_fraction=1.0), "test_fraction must be <"),
-        (lambda: c2.Config(distance=(0.08, 0.04)), "low <= high"),
+        (lambda: c2.Config(geometry=GoalGeometry(distance=(0.08, 0.04))), "low <= high"),
         (lambda: c3.QueryConfig(delta=0.0), "delta must be >"),
         (lambda: c4.Config(runs=0), "runs must be a positive int"),
     ):

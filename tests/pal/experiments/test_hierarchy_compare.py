@@ -18,6 +18,7 @@ from pal.experiments.closed_loop.hierarchy_pushing import (
     push_phase,
     pushing_hierarchy,
 )
+from pal.experiments.closed_loop.push_goals import GoalGeometry
 from pal.experiments.closed_loop.setup import babbled_agent, fitted_model
 from pal.sim.pushing import BOX_HALF, OBJECT_RADIUS
 
@@ -145,8 +146,8 @@ def test_section_reports_both_methods_on_the_same_goals(tiny_run) -> None:
     [
         (lambda: hc.Config(goals=0), "goals must be a positive int"),
         (lambda: hc.Config(tolerance=0.0), "tolerance"),
-        (lambda: hc.Config(distance=(0.08, 0.04)), r"distance must be \(low, high\) with low <= high"),
-        (lambda: hc.Config(start_radius=(0.1,)), r"start_radius must be \(low, high\)"),
+        (lambda: GoalGeometry(distance=(0.08, 0.04)), r"distance must be \(low, high\) with low <= high"),
+        (lambda: GoalGeometry(start_radius=(0.1,)), r"start_radius must be \(low, high\)"),
         (
             lambda: HierarchyConfig(body_query=LevelQuery(3, ActionOptions(scale=0.01))),
             "body_query.options.sampling must be a SamplingConfig",

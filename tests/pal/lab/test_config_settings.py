@@ -20,6 +20,11 @@ A pal config class fails when it
    or of an option object nested in it (``plan.lr`` beside ``plan.action.lr``, or
    ``plan.sampling`` beside ``plan.action.sampling``): two paths to one setting.
 
+3. **shares a group** with another pal config class: three or more value fields (``seed``
+   aside) with the same names and the same defaults in two classes, neither nested in the
+   other, are one group of settings declared twice; nest one class in both instead (the goal
+   geometry of C2 and the hierarchy comparison, the curiosity density of B3 and exploration).
+
 :data:`ALLOWED` lists the (config class, option class) pairs that share names without sharing a
 setting, each with its reason; an entry that no longer matches fails too, so the list stays short.
 """
@@ -46,6 +51,14 @@ ALLOWED = {
     ("pal.experiments.structure.synthetic.Config", "DiscoveryOptions"): (
         "repeats counts seeds and gated holds the pal_gated run (GatedConfig), whose num_steps fills "
         "DiscoveryOptions.gated; neither is a field of discover()'s options"
+    ),
+}
+
+#: Pairs of pal config classes -> why their shared names and defaults are not one setting.
+ALLOWED_SHARED = {
+    ("pal.experiments.bench.perception.Config", "pal.experiments.perception.runs.RunSet"): (
+        "the benchmark's frame size and camera backend and those of the A1-A3 recordings are "
+        "separate choices that start from the same sensor default (640x480, auto)"
     ),
 }
 
@@ -130,6 +143,65 @@ def duplicated_settings(instances: dict[type, list[Any]]) -> list[str]:
                     )
     problems += [f"ALLOWED entry {key} no longer matches; remove it" for key in sorted(set(ALLOWED) - used)]
     return sorted(set(problems))
+
+
+def _defaults(cls: type) -> dict[str, Any]:
+    """Field name -> default of ``cls`` (fields without a default left out)."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        if f.default is not dataclasses.MISSING:
+            out[f.name] = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            out[f.name] = f.default_factory()
+    return out
+
+
+def shared_groups(classes: list[type]) -> list[str]:
+    """The violations of rule 3 (module docstring), one line each."""
+    problems, used = [], set()
+    ordered = sorted(classes, key=_name)
+    for i, a in enumerate(ordered):
+        for b in ordered[i + 1 :]:
+            da, db = _defaults(a), _defaults(b)
+            shared = sorted(
+                n
+                for n in set(da) & set(db)
+                if n != "seed" and not dataclasses.is_dataclass(da[n]) and da[n] == db[n]
+            )
+            if len(shared) < 3:
+                continue
+            key = (_name(a), _name(b))
+            if key in ALLOWED_SHARED:
+                used.add(key)
+                continue
+            problems.append(f"{key[0]} and {key[1]} both declare {shared}: nest one config class in both")
+    problems += [f"ALLOWED_SHARED entry {k} no longer matches; remove it" for k in sorted(set(ALLOWED_SHARED) - used)]
+    return problems
+
+
+def test_no_group_of_settings_is_declared_in_two_config_classes():
+    problems = shared_groups(list(_instances()))
+    assert not problems, "\n".join(problems)
+
+
+def test_the_group_rule_catches_a_copied_group():
+    @dataclasses.dataclass(frozen=True)
+    class GoalsA:
+        seed: int = 0
+        radius: float = 0.2
+        bearing: float = 25.0
+        cone: tuple[float, float] = (-60.0, 15.0)
+
+    @dataclasses.dataclass(frozen=True)
+    class GoalsB:
+        seed: int = 1
+        radius: float = 0.2
+        bearing: float = 25.0
+        cone: tuple[float, float] = (-60.0, 15.0)
+        steps: int = 3
+
+    problems = [p for p in shared_groups([GoalsA, GoalsB]) if "GoalsA" in p]
+    assert len(problems) == 1 and "['bearing', 'cone', 'radius']" in problems[0]
 
 
 def test_option_classes_are_found_and_frozen():
