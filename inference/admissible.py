@@ -181,11 +181,7 @@ class StructureData:
                 )
         x = torch.from_numpy(np.concatenate(cols, 1))
         for name in names:
-            block = x[:, slices[name]]
-            free = block[rows[name]]
-            scale = free.std(0)
-            scale = torch.where(scale > 1e-12, scale, torch.ones_like(scale))
-            x[:, slices[name]] = (block - free.mean(0)) / scale
+            x[:, slices[name]] = _standardise(x[:, slices[name]], rows[name])
         return cls(names, x, slices, rows)
 
     @property
@@ -196,3 +192,26 @@ class StructureData:
     def columns(self, names: Sequence[str]) -> list[int]:
         """Column indices of ``names`` in ``x``, concatenated in the given order."""
         return [c for n in names for c in range(self.slices[n].start, self.slices[n].stop)]
+
+
+def _standardise(block: Tensor, free_rows: Tensor) -> Tensor:
+    """``block``'s columns centred and scaled by the mean and sd of their ``free_rows``, at any magnitude.
+
+    A column whose sd is at most 1e-12 is only centred (it is constant). A column whose sd or
+    mean is not finite (values near 1e200 square to inf) or whose sd falls below 1e-12 (values
+    near 1e-200) is first divided by the power of two at its largest magnitude, so its shape,
+    not its units, decides; the constant test is then relative to that size. Other columns
+    are left bit for bit as the plain formula gives them.
+    """
+    free = block[free_rows]
+    scale, centre = free.std(0), free.mean(0)
+    ok = torch.isfinite(scale) & torch.isfinite(centre) & (scale > 1e-12)
+    plain = (block - centre) / torch.where(ok, scale, torch.ones_like(scale))
+    if bool(ok.all()):
+        return plain
+    _, exponent = torch.frexp(block.abs().amax(0))
+    unit = torch.ldexp(torch.ones_like(scale), exponent)  # an exact division: a power of two
+    block, free = block / unit, free / unit
+    scale = free.std(0)
+    scale = torch.where(scale > 1e-12, scale, torch.ones_like(scale))
+    return torch.where(ok, plain, (block - free.mean(0)) / scale)

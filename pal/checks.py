@@ -10,7 +10,12 @@ import math
 import numbers
 from typing import Any
 
-__all__ = ["check_choice", "check_float", "check_int"]
+__all__ = ["MAX_SEED", "MAX_STEPS", "check_choice", "check_float", "check_int", "check_seed"]
+
+#: The largest seed pal accepts (seeds are 32-bit: numpy, torch and MuJoCo all take them).
+MAX_SEED = 2**32 - 1
+#: The most transitions one babbling run records: 10^8 rows, about a day of stepping and tens of GB.
+MAX_STEPS = 10**8
 
 
 def _expected_int(minimum: int | None, maximum: int | None) -> str:
@@ -33,6 +38,11 @@ def check_int(name: str, value: Any, minimum: int | None = 1, maximum: int | Non
     if (minimum is not None and value < minimum) or (maximum is not None and value > maximum):
         raise ValueError(f"{name} must be {expected}, got {value}")
     return value
+
+
+def check_seed(name: str, value: Any) -> int:
+    """A seed: an int in ``[0, MAX_SEED]``."""
+    return check_int(name, value, minimum=0, maximum=MAX_SEED)
 
 
 def check_float(

@@ -30,6 +30,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from pal.cli_args import babble_steps, check_dataset_dir, fps, out_dir, seed
 from pal.cli_body import UsageError, UsageParser, action_ranges, add_body_flags, body_fields, check_data
 from pal.cli_engine import add_engine_flags, connected, ray_engine
 
@@ -188,6 +189,7 @@ def _babble(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {args.out!r} is a file, expected a dataset directory")
+    check_dataset_dir(out)
     try:
         config = BabbleConfig(
             body=args.mjcf or args.body or "finger",
@@ -324,7 +326,7 @@ def _record(args: argparse.Namespace) -> int:
 
 def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
     p.add_argument("--json", action="store_true", help="print the report as JSON")
-    p.add_argument("--out", default=None, help="directory for JSON, markdown and PNG figures (checked first)")
+    p.add_argument("--out", type=out_dir, default=None, help="directory for JSON, markdown, PNG figures")
     if body:
         p.add_argument("--quick", action="store_true", help="small configuration")
         p.add_argument(
@@ -342,7 +344,7 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
 def _add_demo_parser(sub: Subparsers) -> None:
     """``pal demo``."""
     p = sub.add_parser("demo", help="short end-to-end run: prints reports (log lines with -v), saves figures")
-    p.add_argument("--out", default="pal-demo", help="directory for reports and figures (default: pal-demo)")
+    p.add_argument("--out", type=out_dir, default="pal-demo", help="reports and figures (default: pal-demo)")
     p.add_argument("--quick", action="store_true", help="smallest sizes")
     p.set_defaults(func=_demo, quiet=True)  # tables and progress only; log lines with -v
 
@@ -373,7 +375,7 @@ def _add_loop_parser(sub: Subparsers) -> None:
         "--video", default=None, metavar="PATH", help="write an mp4 with the detections and targets"
     )
     p.add_argument("--goal", default=None, metavar="X,Y", help="push the box to this table position, m")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed, default=0, help="run seed, 0 to 2**32 - 1 (default 0)")
     _add_run_flags(p, body=False)
     p.set_defaults(func=_loop)
 
@@ -382,17 +384,16 @@ def _add_babble_parser(sub: Subparsers) -> None:
     """``pal babble``."""
     p = sub.add_parser("babble", help="record motor-babbling transitions to a dataset directory")
     add_body_flags(p, babble=True)
-    p.add_argument("--steps", type=int, default=100_000, help="transitions (default 100000)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", required=True, help="dataset directory")
+    p.add_argument(
+        "--steps", type=babble_steps, default=100_000, help="transitions, <= 10**8 (default 100000)"
+    )
+    p.add_argument("--seed", type=seed, default=0, help="run seed, 0 to 2**32 - 1 (default 0)")
+    p.add_argument("--out", type=out_dir, required=True, help="dataset directory")
     p.add_argument(
         "--policy", choices=["uniform", "ou"], default="uniform", help="babbling policy (default uniform)"
     )
     p.add_argument(
-        "--probe-steps",
-        type=int,
-        default=2000,
-        help="transitions of the --effective-range probe (default 2000)",
+        "--probe-steps", type=int, default=2000, help="steps of the --effective-range probe (default 2000)"
     )
     p.add_argument("--reset-every", type=int, default=10_000, help="environment reset period (default 10000)")
     p.add_argument("--chunk-size", type=int, default=10_000, help="rows per chunk file (default 10000)")
@@ -423,8 +424,8 @@ def _add_sweep_parser(sub: Subparsers) -> None:
     p.add_argument(
         "--grid", action="append", metavar="KEY=V1,V2", help="swept setting and its values (repeatable)"
     )
-    p.add_argument("--seeds", default=None, help="seeds of every cell: 0-9, 0,3,7 (default 0)")
-    p.add_argument("--out", required=True, help="sweep directory: runs, summary.csv, summary.md, figures")
+    p.add_argument("--seeds", default=None, help="seeds of every cell: 0-9, 0,3,7; at most 10000 (default 0)")
+    p.add_argument("--out", type=out_dir, required=True, help="sweep directory: runs, summaries, figures")
     group = p.add_mutually_exclusive_group()
     group.add_argument("--quick", action="store_true", help="start from the quick config")
     group.add_argument("--tiny", action="store_true", help="start from the tiny (test) config")
@@ -444,9 +445,9 @@ def _add_record_parser(sub: Subparsers) -> None:
     """``pal record``."""
     p = sub.add_parser("record", help="record a scripted tabletop run as an RGB-D sequence with ground truth")
     p.add_argument("--motion", required=True, help="scripted motion of thesis Table 5.1, e.g. box-rotation")
-    p.add_argument("--seed", type=int, default=0, help="run seed: path, speed, sensor noise (default 0)")
-    p.add_argument("--out", required=True, help="sequence directory")
-    p.add_argument("--fps", type=float, default=15.0, help="frames per second (default 15)")
+    p.add_argument("--seed", type=seed, default=0, help="run seed: path, speed, sensor noise (default 0)")
+    p.add_argument("--out", type=out_dir, required=True, help="sequence directory")
+    p.add_argument("--fps", type=fps, default=15.0, help="frames per second, at most 1000 (default 15)")
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--height", type=int, default=480)
     p.add_argument(
@@ -480,8 +481,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
         verbose = args.verbose
-        if args.threads < 1:
-            raise UsageError(f"--threads must be >= 1, got {args.threads}")
+        if not 1 <= args.threads <= 1024:
+            raise UsageError(f"--threads must be >= 1 and <= 1024, got {args.threads}")
         _configure(args.verbose, args.threads, quiet=getattr(args, "quiet", False))
         return int(args.func(args))
     except UsageError as err:

@@ -12,7 +12,7 @@ world model is built from (:mod:`pal.agent.graph`):
 - the actions: their names and bounds, from the action space (or given here).
 
 Each quantity is read by a :class:`Sensor`: observation indices, or an ``info`` key. A spec is
-checked when it is made (overlapping or negative indices, dims that disagree, missing camera)
+checked when it is made (overlapping or negative indices, an ``info`` key read by two roles, dims that disagree, missing camera)
 and against an environment by :func:`check_env` (indices out of range, an observation space
 of another shape, actions without finite bounds). :func:`pushing_spec` and :func:`pusher_spec`
 describe :class:`pal.sim.pushing.PushingEnv` and Gymnasium's ``Pusher-v5``.
@@ -228,7 +228,11 @@ class EnvSpec:
         return out
 
     def _check_overlaps(self) -> None:
+        """Refuse an observation index or an ``info`` key read by two roles (the camera included)."""
         owner: dict[int, str] = {}
+        keys: dict[str, str] = {}
+        if self.camera is not None:  # the frame and the two entries that come with it
+            keys = dict.fromkeys((self.camera, "table_from_camera", "self_mask"), "camera")
         for role, sensor in self.sensors().items():
             for i in sensor.obs:
                 if i in owner:
@@ -236,6 +240,13 @@ class EnvSpec:
                         f"observation index {i} is given to both {owner[i]!r} and {role!r}; roles may not overlap"
                     )
                 owner[i] = role
+            if sensor.info is not None:
+                if sensor.info in keys:
+                    raise ValueError(
+                        f"info key {sensor.info!r} is read by both {keys[sensor.info]!r} and {role!r}; "
+                        "roles may not overlap"
+                    )
+                keys[sensor.info] = role
 
     @property
     def object_names(self) -> tuple[str, ...]:

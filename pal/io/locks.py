@@ -43,7 +43,7 @@ def pid_alive(pid: int) -> bool:
     """True if a process with this pid runs on this host (or exists under another user)."""
     try:
         os.kill(pid, 0)
-    except ProcessLookupError:
+    except (ProcessLookupError, OverflowError):  # OverflowError: past any pid the kernel gives
         return False
     except PermissionError:
         return True

@@ -33,7 +33,27 @@ import typing
 from collections.abc import Iterator
 from typing import Any
 
-__all__ = ["ConfigError", "find", "override", "parse_value", "to_dict", "walk"]
+from pal.checks import MAX_SEED
+
+__all__ = [
+    "MAX_INT",
+    "MAX_VALUE_CHARS",
+    "MAX_VALUE_DEPTH",
+    "ConfigError",
+    "apply_set",
+    "find",
+    "override",
+    "parse_value",
+    "to_dict",
+    "walk",
+]
+
+#: Longest ``--set`` value text, characters.
+MAX_VALUE_CHARS = 10_000
+#: Deepest nesting of lists and objects in a ``--set`` value.
+MAX_VALUE_DEPTH = 32
+#: Largest magnitude of an int setting (a 64-bit integer: what numpy, torch and MuJoCo take).
+MAX_INT = 2**63 - 1
 
 
 class ConfigError(ValueError):
@@ -78,11 +98,42 @@ def find(config: Any, cls: type) -> list[str]:
 
 
 def parse_value(raw: str) -> Any:
-    """``--set`` value text: JSON (``3``, ``0.5``, ``[1, 2]``, ``null``, ``true``) or else the bare string."""
+    """``--set`` value text: JSON (``3``, ``0.5``, ``[1, 2]``, ``null``, ``true``) or else the bare string.
+
+    The text may hold at most :data:`MAX_VALUE_CHARS` characters and nest lists and objects
+    at most :data:`MAX_VALUE_DEPTH` deep.
+
+    Raises:
+        ConfigError: a longer or deeper value, or a number of more than 4300 digits.
+    """
+    if len(raw) > MAX_VALUE_CHARS:
+        raise ConfigError(f"value {raw[:20]!r}... has {len(raw)} characters; the limit is {MAX_VALUE_CHARS}")
+    depth = _nesting(raw)
+    if depth > MAX_VALUE_DEPTH:
+        raise ConfigError(f"value {raw[:20]!r}... nests {depth} levels deep; the limit is {MAX_VALUE_DEPTH}")
     try:
         return json.loads(raw)
     except json.JSONDecodeError:
         return raw
+    except ValueError as err:  # an int past Python's digit limit
+        raise ConfigError(f"value {raw[:20]!r}...: {err}") from None
+
+
+def _nesting(raw: str) -> int:
+    """The deepest nesting of ``[`` and ``{`` in ``raw``, outside JSON strings."""
+    deepest = depth = 0
+    in_string = escaped = False
+    for ch in raw:
+        if in_string:
+            escaped, in_string = (False, True) if escaped else (ch == "\\", ch != '"')
+        elif ch == '"':
+            in_string = True
+        elif ch in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif ch in "]}":
+            depth -= 1
+    return deepest
 
 
 def _type_name(tp: Any) -> str:
@@ -126,6 +177,8 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:
         raise ConfigError(f"{where}: {value!r} is not true or false")
     if tp is int:
         if isinstance(value, int) and not isinstance(value, bool):
+            if not -MAX_INT <= value <= MAX_INT:
+                raise ConfigError(f"{where}: {value} is out of range; an int setting is within ±(2**63 - 1)")
             return value
         raise ConfigError(f"{where}: {value!r} is not an int")
     if tp is float:
@@ -163,8 +216,9 @@ def override(config: Any, path: str, value: Any) -> Any:
         value: the new value (already parsed, see :func:`parse_value`).
 
     Raises:
-        ConfigError: an unknown path, or a value that does not fit the field's type; the
-            message names the path, the value and the choices.
+        ConfigError: an unknown path, a value that does not fit the field's type, or a
+            ``seed`` outside ``[0, MAX_SEED]`` (``pal.checks.MAX_SEED``); the message names
+            the path, the value and the choices.
         ValueError: the config's own checks refuse the new value.
     """
     if not _is_config(config):
@@ -182,4 +236,28 @@ def override(config: Any, path: str, value: Any) -> Any:
         new = override(current, rest, value)
     else:
         new = _coerce(value, _hints(type(config))[head], head)
+        if head == "seed" and isinstance(new, int) and not 0 <= new <= MAX_SEED:
+            raise ConfigError(f"seed must be an int in [0, {MAX_SEED}], got {new}")
     return dataclasses.replace(config, **{head: new})
+
+
+def apply_set(config: Any, item: str) -> Any:
+    """``config`` with one ``--set KEY=VALUE`` item applied (:func:`parse_value`, :func:`override`).
+
+    Raises:
+        ConfigError: a malformed item, or a value refused by :func:`parse_value` or
+            :func:`override`; the message starts with the item.
+        ValueError: the config's own checks refuse the value; the message starts with the item.
+    """
+    key, sep, raw = item.partition("=")
+    if not sep or not key.strip():
+        raise ConfigError(f"--set {item!r}: expected KEY=VALUE, e.g. --set seed=1")
+    shown = item if len(item) <= 60 else f"{item[:60]}..."
+    try:
+        return override(config, key.strip(), parse_value(raw))
+    except ConfigError as err:
+        raise ConfigError(f"--set {shown!r}: {err}") from None
+    except ValueError as err:
+        if type(err) is not ValueError:
+            raise
+        raise ValueError(f"--set {shown!r}: {err}") from None

@@ -81,10 +81,7 @@ def configure(
     for path, value in (fields or {}).items():
         config = configs.override(config, path, value)
     for item in sets:
-        key, sep, raw = item.partition("=")
-        if not sep or not key:
-            raise configs.ConfigError(f"--set {item!r}: expected KEY=VALUE, e.g. --set seed=1")
-        config = configs.override(config, key.strip(), configs.parse_value(raw))
+        config = configs.apply_set(config, item)
     return config
 
 

@@ -18,20 +18,25 @@ over the cell's finished runs: the mean and the sample standard deviation (ddof 
 for one run; see :mod:`pal.lab.sweep_summary`). A run that raises is recorded with
 its error, counted as failed in its cell and listed, never dropped; :func:`run_sweep` with ``retry_failed=True`` runs only the runs without
 a report again. Runs go one after the other in this process, in ``workers`` local
-processes, or through an ``engine`` (Ray Tune: :mod:`pal.lab.ray_engine`).
+processes, or through an ``engine`` (Ray Tune: :mod:`pal.lab.ray_engine`). A sweep holds the
+single-writer lock of its directory (``out/writer.lock``, :mod:`pal.io.locks`) from its first
+check to its summary, so a second sweep on the same ``out`` is refused before it writes.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
 
+from pal.checks import MAX_SEED
 from pal.io.files import atomic_write_json, read_json
+from pal.io.locks import LOCK_NAME, DirectoryLock, DirectoryLockedError
 from pal.lab import configs, registry, render, runner
 from pal.lab.registry import Entry
 from pal.lab.sweep_plan import Base, Run, SweepPlan, configure_from, run_config
@@ -39,6 +44,7 @@ from pal.lab.sweep_summary import MANIFEST, RUNS, SweepResult, summarise
 
 __all__ = [
     "FORMAT",
+    "MAX_SEEDS",
     "Engine",
     "Run",
     "SweepError",
@@ -59,6 +65,10 @@ log = logging.getLogger(__name__)
 #: Format tag of ``sweep.json``.
 FORMAT = "pal.sweep/1"
 
+#: The most seeds one sweep runs (each seed is a run of every cell).
+MAX_SEEDS = 10_000
+_MAX_SEEDS_TEXT = 10_000  # characters of a --seeds text
+
 
 class SweepError(ValueError):
     """A sweep that cannot be run: bad seeds, grid, base or output directory."""
@@ -67,28 +77,43 @@ class SweepError(ValueError):
 def parse_seeds(text: str) -> tuple[int, ...]:
     """Seeds from ``"0-9"`` (inclusive range), ``"0,3,7"`` or ``"4"``; mixed ``"0-2,7"`` too.
 
+    At most :data:`MAX_SEEDS` seeds in all, each in ``[0, MAX_SEED]`` (``pal.checks.MAX_SEED``).
+
     Raises:
-        SweepError: an empty, descending or non-integer range, or a repeated seed.
+        SweepError: an empty, descending or non-integer range, a seed out of range, more than
+            :data:`MAX_SEEDS` seeds, or a repeated seed.
     """
+    text = str(text)
+    if len(text) > _MAX_SEEDS_TEXT:
+        raise SweepError(f"--seeds {text[:40]!r}...: {len(text)} characters, the limit is {_MAX_SEEDS_TEXT}")
     seeds: list[int] = []
-    for part in str(text).split(","):
-        part = part.strip()
-        lo, sep, hi = part.partition("-") if not part.startswith("-") else (part, "", "")
-        try:
-            first, last = (int(lo), int(hi)) if sep else (int(part), int(part))
-        except ValueError:
+    for part in text.split(","):
+        first, last = _seed_range(text, part.strip())
+        if len(seeds) + last - first + 1 > MAX_SEEDS:
             raise SweepError(
-                f"--seeds {text!r}: {part!r} is not N or FIRST-LAST, e.g. 0-9 or 0,3,7"
-            ) from None
-        if last < first:
-            raise SweepError(f"--seeds {text!r}: range {part!r} runs backwards; write {last}-{first}")
-        if first < 0:
-            raise SweepError(f"--seeds {text!r}: seeds must be >= 0, got {first}")
+                f"--seeds {text!r}: more than {MAX_SEEDS} seeds (the most one sweep runs); split the sweep"
+            )
         seeds.extend(range(first, last + 1))
-    dup = sorted({s for s in seeds if seeds.count(s) > 1})
+    counts = Counter(seeds)
+    dup = sorted(s for s, n in counts.items() if n > 1)
     if dup:
         raise SweepError(f"--seeds {text!r}: seeds {dup} given twice")
     return tuple(seeds)
+
+
+def _seed_range(text: str, part: str) -> tuple[int, int]:
+    """``part`` of ``--seeds text`` (``N`` or ``FIRST-LAST``) as its first and last seed, checked."""
+    lo, sep, hi = part.partition("-") if not part.startswith("-") else (part, "", "")
+    try:
+        first, last = (int(lo), int(hi)) if sep else (int(part), int(part))
+    except ValueError:
+        raise SweepError(f"--seeds {text!r}: {part!r} is not N or FIRST-LAST, e.g. 0-9 or 0,3,7") from None
+    if last < first:
+        raise SweepError(f"--seeds {text!r}: range {part!r} runs backwards; write {last}-{first}")
+    if first < 0 or last > MAX_SEED:
+        bad = first if first < 0 else last
+        raise SweepError(f"--seeds {text!r}: seeds must be in [0, {MAX_SEED}], got {bad}")
+    return first, last
 
 
 def _split_values(text: str) -> list[str]:
@@ -133,7 +158,10 @@ def parse_grid(items: Sequence[str], base: Any) -> tuple[tuple[str, tuple[Any, .
             )
         if key in dict(grid):
             raise SweepError(f"--grid {key!r} given twice; list all its values in one --grid")
-        values = tuple(configs.parse_value(v) for v in _split_values(raw))
+        try:
+            values = tuple(configs.parse_value(v) for v in _split_values(raw))
+        except configs.ConfigError as err:  # too long or too deep
+            raise SweepError(f"--grid {key}=...: {err}") from None
         if len({repr(v) for v in values}) != len(values):
             raise SweepError(f"--grid {item!r}: a value is given twice")
         for v in values:
@@ -259,11 +287,26 @@ def run_sweep(
 
     Raises:
         SweepError: ``out_dir`` already holds a sweep (without ``retry_failed``), holds none
-            or a different one (with it), or ``workers`` < 1.
+            or a different one (with it), another sweep runs in it (the message names the
+            directory and that process), or ``workers`` < 1.
     """
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise SweepError(f"--workers must be >= 1, got {workers}")
     out = Path(out_dir)
+    try:
+        lock = DirectoryLock(out, LOCK_NAME).acquire()
+    except DirectoryLockedError as err:
+        raise SweepError(f"--out {str(out)!r}: another sweep runs in it: {err}") from None
+    try:
+        return _run_locked(sweep, out, retry_failed, workers, engine)
+    finally:
+        lock.release()
+
+
+def _run_locked(
+    sweep: SweepPlan | None, out: Path, retry_failed: bool, workers: int, engine: Engine | None
+) -> SweepResult:
+    """:func:`run_sweep` while this process holds the lock of ``out``."""
     manifest = out / MANIFEST
     if retry_failed:
         if not manifest.is_file():

@@ -92,7 +92,4 @@ def run_config(entry: Entry, base: Base, sets: Sequence[str], settings: Mapping[
 
 def configure_from(config: Any, item: str) -> Any:
     """``config`` with one ``KEY=VALUE`` item (``--set``) applied."""
-    key, sep, raw = item.partition("=")
-    if not sep or not key:
-        raise configs.ConfigError(f"--set {item!r}: expected KEY=VALUE, e.g. --set schedule.epochs=3")
-    return configs.override(config, key.strip(), configs.parse_value(raw))
+    return configs.apply_set(config, item)

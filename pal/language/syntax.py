@@ -27,6 +27,9 @@ Every malformed text raises :class:`QuerySyntaxError`, whose message is one line
 
     query: expected ')' at position 18, found end of input
 
+A text longer than :data:`MAX_TEXT_CHARS` characters is refused with a
+:class:`QuerySyntaxError` naming its length and the limit, before it is read.
+
 With a signature the parsed value is checked too, and the signature's own errors
 (:mod:`pal.language.signature`) name the position of the offending atom.
 """
@@ -39,7 +42,10 @@ from typing import NamedTuple
 from pal.language.signature import LanguageError, Signature, UnknownConstantError, sort_error
 from pal.language.terms import TIMES, Atom, Literal, Query, Rule
 
-__all__ = ["QuerySyntaxError", "parse_query", "parse_rule"]
+__all__ = ["MAX_TEXT_CHARS", "QuerySyntaxError", "parse_query", "parse_rule"]
+
+#: The longest query or rule text parsed, characters (some 600 conjuncts); longer ones are refused.
+MAX_TEXT_CHARS = 10_000
 
 #: Keywords: the canonical token kind of each spelling.
 _KEYWORDS = {"P": "P", "Pr": "P", "do": "do", "and": "and", "not": "not"}
@@ -102,6 +108,13 @@ class _Parser:
         if not isinstance(text, str):
             raise TypeError(f"{what}: expected a str, got {type(text).__name__}")
         self.text, self.what = text, what
+        if len(text) > MAX_TEXT_CHARS:
+            raise QuerySyntaxError(
+                f"{what}: the text has {len(text)} characters, more than the limit of {MAX_TEXT_CHARS}; "
+                "split it into smaller queries",
+                MAX_TEXT_CHARS,
+                text,
+            )
         self.toks = _tokens(text)
         self.i = 0
         self.arg_positions: dict[int, tuple[int, ...]] = {}  # atom position -> argument positions

@@ -33,7 +33,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from pal.checks import check_int
+from pal.checks import MAX_STEPS, check_int, check_seed
 from pal.io.dataset import FORMAT, DatasetFileError, DatasetWriter, TransitionDataset, column_names
 from pal.sim.batched import rollout_steps
 from pal.sim.bodies import check_name, load_model
@@ -76,8 +76,8 @@ class BabbleConfig:
         body: shipped body name (``"finger"``, ``"arm"``) or a path to an MJCF file.
         joints: recorded joints (default all hinge/slide joints).
         actuators: babbling actuators (default all that drive a recorded joint).
-        steps: number of transitions.
-        seed: master seed.
+        steps: number of transitions, at most :data:`pal.checks.MAX_STEPS`.
+        seed: master seed, in ``[0, 2**32 - 1]``.
         policy: ``"uniform"`` or ``"ou"``.
         policy_params: extra policy parameters (``{"theta": 1.0, "sigma": 0.5}`` for ``"ou"``).
         frame_skip: MuJoCo steps per transition (50: 0.25 s).
@@ -108,7 +108,8 @@ class BabbleConfig:
     probe_steps: int = 2000
 
     def __post_init__(self) -> None:
-        check_int("steps", self.steps, minimum=0)
+        check_int("steps", self.steps, minimum=0, maximum=MAX_STEPS)
+        check_seed("seed", self.seed)
         for key in ("reset_every", "chunk_size", "frame_skip", "probe_steps"):
             check_int(key, getattr(self, key))
         if self.name is not None:

@@ -43,6 +43,7 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from pal.checks import check_float, check_seed
 from pal.frames import RGBDFrame
 from pal.io.sequence_files import SequenceWriter
 from pal.sim.motions import MOTIONS, Script, occluder_path, script
@@ -56,7 +57,7 @@ from pal.sim.tabletop import (
     scene_digest,
 )
 
-__all__ = ["Realism", "RecordConfig", "RecordedFrame", "record", "render_run"]
+__all__ = ["MAX_FPS", "Realism", "RecordConfig", "RecordedFrame", "record", "render_run"]
 
 logger = logging.getLogger(__name__)
 
@@ -103,6 +104,10 @@ class Realism:
             )
 
 
+#: The highest frame rate a recording may ask for, frames per second.
+MAX_FPS = 1000.0
+
+
 @dataclass(frozen=True)
 class RecordConfig:
     """One recorded run.
@@ -110,7 +115,7 @@ class RecordConfig:
     Attributes:
         motion: a key of :data:`pal.sim.motions.MOTIONS`.
         seed: run seed (path, speed, parked objects, sensor noise).
-        fps: frames per second.
+        fps: frames per second, in ``(0, MAX_FPS]``.
         width, height: image size, pixels.
         depth_noise: depth noise std at 1 m, metres (grows with z²); 0 for none.
         rgb_noise: colour noise std, grey levels; 0 for none.
@@ -134,15 +139,16 @@ class RecordConfig:
     def __post_init__(self) -> None:
         if self.motion not in MOTIONS:
             raise ValueError(f"unknown motion {self.motion!r}; expected one of {sorted(MOTIONS)}")
+        check_seed("seed", self.seed)
+        check_seed("texture_seed", self.texture_seed)
+        check_float("fps", self.fps, 0.0, MAX_FPS, open_low=True)
         if self.width < 16 or self.height < 16:
             raise ValueError(
                 f"image size width={self.width} x height={self.height} pixels is too small; "
                 "expected width and height >= 16"
             )
-        if not (self.depth_noise >= 0 and self.rgb_noise >= 0):
-            raise ValueError(
-                f"depth_noise ({self.depth_noise}) and rgb_noise ({self.rgb_noise}) must be >= 0"
-            )
+        check_float("depth_noise", self.depth_noise, 0.0)
+        check_float("rgb_noise", self.rgb_noise, 0.0)
 
 
 @dataclass(frozen=True, eq=False)

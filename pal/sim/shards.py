@@ -13,7 +13,7 @@ Layout of the output directory ``out``::
     out/metadata.json, out/chunk_*.npz   the merged dataset, rows of shard 0, then 1, ...
 
 The shards run in local processes (``concurrent.futures``, spawned interpreters), at most
-``workers`` at a time, or as Ray tasks (``map_shards``, :mod:`pal.lab.ray_engine`).
+``workers`` at a time, which exit when the process that started them dies, or as Ray tasks (``map_shards``, :mod:`pal.lab.ray_engine`).
 ``out`` is locked (:mod:`pal.io.locks`) for the whole run, each shard directory by its own
 writer. An interrupted run resumes per shard (``resume=True``): finished
 shards are kept, unfinished ones continue where their last chunk ended.
@@ -27,11 +27,16 @@ seed, first row and rows.
 
 from __future__ import annotations
 
+import ctypes
 import json
 import logging
 import multiprocessing
 import os
 import shutil
+import signal
+import sys
+import threading
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
@@ -85,6 +90,40 @@ ShardMap = Callable[[Callable[..., int], Sequence[tuple[Any, ...]]], list[int]]
 def run_shard(config: BabbleConfig, out_dir: str, resume: bool, backend: str) -> int:
     """Babble one shard into ``out_dir`` (in a worker process or a Ray task); returns its rows."""
     return len(babble(config, out_dir, resume=resume, backend=backend))
+
+
+#: ``prctl`` option: the signal the kernel sends this process when its parent dies (Linux).
+_PR_SET_PDEATHSIG = 1
+
+
+def _die_with_parent(parent: int, interval: float = 0.5) -> None:
+    """Worker initializer: end this worker when ``parent`` (the process that started it) dies.
+
+    On Linux the kernel sends SIGKILL on the parent's death (``prctl(PR_SET_PDEATHSIG)``);
+    elsewhere, or if that call fails, a daemon thread polls ``os.getppid()`` every ``interval``
+    seconds and exits when the worker has been re-parented. A worker killed half-way leaves its
+    shard resumable (``--resume``): its lock is stale and its chunks are checksummed.
+    """
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            armed = libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) == 0
+        except (OSError, AttributeError) as err:
+            logger.debug("prctl(PR_SET_PDEATHSIG) unavailable (%s); polling the parent instead", err)
+            armed = False
+        if armed:
+            if os.getppid() != parent:  # the parent died before the signal was armed
+                os._exit(1)
+            return
+    threading.Thread(target=_watch_parent, args=(parent, interval), daemon=True).start()
+
+
+def _watch_parent(parent: int, interval: float) -> None:
+    """Exit the process as soon as its parent is no longer ``parent``."""
+    while os.getppid() == parent:
+        time.sleep(interval)
+    logger.warning("the process that started this babbling worker (pid %d) died; exiting", parent)
+    os._exit(1)
 
 
 def _shard_dir(out: Path, k: int) -> Path:
@@ -143,7 +182,9 @@ def babble_sharded(
             rows = map_shards(run_shard, [(c, str(Path(d).resolve()), *rest) for c, d, *rest in args])
         elif processes and len(shards) > 1:
             ctx = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(max_workers=len(shards), mp_context=ctx) as pool:
+            with ProcessPoolExecutor(
+                max_workers=len(shards), mp_context=ctx, initializer=_die_with_parent, initargs=(os.getpid(),)
+            ) as pool:
                 rows = list(pool.map(run_shard, *zip(*args, strict=True)))
         else:
             rows = [run_shard(*a) for a in args]

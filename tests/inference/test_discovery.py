@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+import torch
 
 from inference import DiscoveryOptions, admissible_parents, discover, shd
 from inference.admissible import StructureData
@@ -60,6 +61,30 @@ def test_recovers_small_nonlinear_graphs(make, edges, rng):
     for e in edges:
         assert 0.5 < result.graph.edge_confidence(*e) <= 1.0
         assert result.log_ratio[e] >= 3.0
+
+
+@pytest.mark.parametrize("scale", [1e200, 1e-200, 1e300, 2.0**-1000])
+def test_the_units_of_the_data_do_not_change_the_graph_or_its_scores(scale):
+    data = chain_data(np.random.default_rng(3))
+    plain = discover(scalars("x", "y", "z"), data, seed=0)
+    scaled = discover(scalars("x", "y", "z"), {k: v * scale for k, v in data.items()}, seed=0)
+    assert set(scaled.graph.edges) == set(plain.graph.edges) == {("x", "y"), ("y", "z")}
+    for e, ratio in plain.log_ratio.items():
+        assert scaled.log_ratio[e] == pytest.approx(ratio, rel=1e-6)
+
+
+def test_standardising_leaves_ordinary_columns_bit_for_bit_and_scales_extreme_ones():
+    rng = np.random.default_rng(4)
+    x = rng.normal(3.0, 2.0, size=(50, 1))
+    data = {"a": x, "b": x * 1e200, "c": x * 1e-200, "d": np.full((50, 1), 7.0)}
+    sdata = StructureData.build(scalars("a", "b", "c", "d"), data)
+    a = sdata.x[:, 0].numpy()
+    t = torch.from_numpy(x[:, 0])
+    assert np.array_equal(a, ((t - t.mean()) / t.std()).numpy())  # the plain formula, unchanged
+    assert np.allclose(sdata.x[:, 1].numpy(), a, atol=1e-12) and np.allclose(
+        sdata.x[:, 2].numpy(), a, atol=1e-12
+    )
+    assert np.all(sdata.x[:, 3].numpy() == 0.0)  # a constant column is only centred
 
 
 def linear_pair(rng: np.random.Generator, n: int, do_x: np.ndarray | None = None) -> dict[str, np.ndarray]:

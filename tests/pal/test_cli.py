@@ -63,7 +63,8 @@ BAD_INVOCATIONS = [
     (["experiment"], "required: name"),
     (["experiment", "nope"], "unknown experiment 'nope'"),
     (["bench", "nope"], "unknown bench 'nope'"),
-    (["--threads", "0", "list"], "--threads must be >= 1, got 0"),
+    (["--threads", "0", "list"], "--threads must be >= 1 and <= 1024, got 0"),
+    (["--threads", str(10**20), "list"], f"--threads must be >= 1 and <= 1024, got {10**20}"),
     (["--threads", "x", "list"], "invalid int value: 'x'"),
     (["experiment", "b1", "--set"], "expected one argument"),
     (["experiment", "b1", "--set", "seed"], "--set 'seed': expected KEY=VALUE"),
@@ -87,7 +88,7 @@ BAD_INVOCATIONS = [
     (["babble", "--out", "{file}"], "is a file, expected a dataset directory"),
     (["babble", "--body", "finger", "--mjcf", "x.xml", "--out", "d"], "either --body or --mjcf"),
     (["babble", "--policy", "wild", "--out", "d"], "invalid choice: 'wild'"),
-    (["babble", "--steps", "x", "--out", "d"], "invalid int value: 'x'"),
+    (["babble", "--steps", "x", "--out", "d"], "argument --steps: 'x' is not an int"),
     (["babble", "--action-range", "finger", "--out", "d"], "is not NAME=LOW,HIGH"),
     (["experiment", "b1", "--frame-skip", "0"], "frame_skip must be a positive int, got 0"),
     (["experiment", "b1", "--action-range", "finger=-2,0"], "outside the ctrlrange [-1.0, 0.33]"),
@@ -120,27 +121,92 @@ BAD_INVOCATIONS = [
     (["sweep", "queries", "--retry-failed", "--out", "d"], "holds no sweep"),
     (["sweep", "queries", "--out", "{file}"], "is a file, expected a directory"),
     (["sweep", "queries", "--quick", "--tiny", "--out", "d"], "not allowed with argument"),
+    # values past the documented limits: refused naming the flag and the value
+    (
+        ["experiment", "b1", "--set", f"protocol.fit.schedule.epochs={'[' * 5000}{']' * 5000}"],
+        "nests 5000 levels",
+    ),
+    (["experiment", "b1", "--set", f"protocol.graphs={'x' * 20_000}"], "has 20000 characters; the limit is"),
+    (["experiment", "b1", "--set", f"seed={2**70}"], f"--set 'seed={2**70}': seed: {2**70} is out of range"),
+    (
+        ["experiment", "b1", "--set", "seed=-1"],
+        "--set 'seed=-1': seed must be an int in [0, 4294967295], got -1",
+    ),
+    (["experiment", "b1", "--set", f"protocol.data.steps={10**39}"], f"steps: {10**39} is out of range"),
+    (
+        ["experiment", "b1", "--set", f"protocol.data.steps={10**15}"],
+        "steps must be an int in [10, 100000000]",
+    ),
+    (["experiment", "b1", "--set", f"protocol.data.steps={'9' * 5000}"], "protocol.data.steps=99999"),
+    (["record", "--motion", "box-rotation", "--fps", "inf", "--out", "d"], "--fps: 'inf' is not a finite"),
+    (["record", "--motion", "box-rotation", "--fps", "nan", "--out", "d"], "--fps: 'nan' is not a finite"),
+    (["record", "--motion", "box-rotation", "--fps", "0", "--out", "d"], "--fps: '0' is not a finite number"),
+    (["record", "--motion", "box-rotation", "--seed", "-1", "--out", "d"], "--seed: -1 is not an int in"),
+    (
+        ["record", "--motion", "box-rotation", "--depth-noise", "inf", "--out", "d"],
+        "depth_noise must be finite",
+    ),
+    (
+        ["record", "--motion", "box-rotation", "--rgb-noise", "-1", "--out", "d"],
+        "rgb_noise must be >= 0.0, got -1",
+    ),
+    (["record", "--motion", "box-rotation", "--out", ""], "argument --out: '' is empty"),
+    (["sweep", "queries", "--seeds", "0-1000000000000", "--out", "d"], "got 1000000000000"),
+    (["sweep", "queries", "--seeds", "0-99999", "--out", "d"], "--seeds '0-99999': more than 10000 seeds"),
+    (["sweep", "queries", "--seeds", "0-9998,5", "--out", "d"], "--seeds '0-9998,5': seeds [5] given twice"),
+    (["sweep", "queries", "--seeds", "9" * 5000, "--out", "d"], "is not N or FIRST-LAST"),
+    (
+        ["sweep", "queries", "--grid", f"num_samples={'[' * 100}", "--out", "d"],
+        "--grid num_samples=...: value",
+    ),
+    (["sweep", "queries", "--out", ""], "argument --out: '' is empty"),
+    (["babble", "--seed", "-1", "--out", "d"], "argument --seed: -1 is not an int in [0, 4294967295]"),
+    (["babble", "--seed", str(2**70), "--out", "d"], f"argument --seed: {2**70} is not an int"),
+    (
+        ["babble", "--steps", str(10**15), "--out", "d"],
+        f"argument --steps: {10**15} is not an int in [1, 100000000]",
+    ),
+    (["babble", "--steps", "10**15", "--out", "d"], "argument --steps: '10**15' is not an int"),
+    (["babble", "--steps", "9" * 5000, "--out", "d"], "argument --steps: '9999"),
+    (["babble", "--out", ""], "argument --out: '' is empty"),
+    (
+        ["babble", "--out", "{junk}"],
+        "is a non-empty directory that is not a pal dataset (1 entry no dataset holds",
+    ),
+    (["loop", "--seed", "-1"], "argument --seed: -1 is not an int"),
+    (["experiment", "b1", "--out", ""], "argument --out: '' is empty"),
+    (["demo", "--out", " "], "argument --out: ' ' is empty"),
 ]
 
 
+@pytest.fixture
+def a_junk_dir(tmp_path) -> Path:
+    path = tmp_path / "junk"
+    path.mkdir()
+    (path / "notes.txt").write_text("not a dataset")
+    return path
+
+
 @pytest.mark.parametrize(
-    ("argv", "message"), BAD_INVOCATIONS, ids=[" ".join(a) or "<none>" for a, _ in BAD_INVOCATIONS]
+    ("argv", "message"), BAD_INVOCATIONS, ids=[" ".join(a)[:80] or "<none>" for a, _ in BAD_INVOCATIONS]
 )
 def test_usage_errors_are_one_line_exit_2_before_any_work(
-    argv, message, a_file, tmp_path, capsys, monkeypatch
+    argv, message, a_file, a_junk_dir, tmp_path, capsys, monkeypatch
 ):
     def no_run(*args, **kwargs):
         raise AssertionError("the run started although the command line is unusable")
 
     monkeypatch.setattr(runner, "execute", no_run)
     monkeypatch.chdir(tmp_path)
-    argv = [a.replace("{file}", str(a_file)) for a in argv]
+    argv = [a.replace("{file}", str(a_file)).replace("{junk}", str(a_junk_dir)) for a in argv]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err, err
     assert err.startswith("pal"), err
     assert any(m in err for m in message.split("|")), (message, err)
     assert "Traceback" not in err
+    if str(a_junk_dir) in argv:  # nothing written into the unrelated directory
+        assert sorted(p.name for p in a_junk_dir.iterdir()) == ["notes.txt"]
 
 
 @pytest.mark.parametrize(

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from pal.checks import check_int
+from pal.checks import MAX_STEPS, check_int
 from pal.experiments.world_model.body import DEFAULT_JOINT as DEFAULT_JOINT
 from pal.experiments.world_model.body import BodyChoice, _resolve_joint
 from pal.experiments.world_model.body import _action_range as _action_range
@@ -58,7 +58,8 @@ class DataConfig:
 
     Attributes:
         body: the body, analysed joint and babbling actuators.
-        steps: transitions (thesis: 100 000); ignored with ``dataset``.
+        steps: transitions (thesis: 100 000), at most ``pal.checks.MAX_STEPS``; ignored
+            with ``dataset``.
         cache: keep the dataset on disk and reuse it.
         cache_dir: cache root; default ``$PAL_CACHE_DIR`` or ``~/.cache/pal``.
         dataset: an existing dataset directory (``pal babble --out DIR``) used instead of
@@ -66,8 +67,9 @@ class DataConfig:
             actuators, frame skip and command ranges.
 
     Raises:
-        ValueError: ``steps < 10``, or a ``dataset`` that is missing, unreadable, incomplete
-            or recorded for another body, actuator set, frame skip or command range.
+        ValueError: ``steps`` < 10 or > ``MAX_STEPS``, or a ``dataset`` that is missing,
+            unreadable, incomplete or recorded for another body, actuator set, frame skip or
+            command range.
     """
 
     body: BodyChoice = BodyChoice()
@@ -77,7 +79,7 @@ class DataConfig:
     dataset: str | None = None
 
     def __post_init__(self) -> None:
-        check_int("steps", self.steps, minimum=10)
+        check_int("steps", self.steps, minimum=10, maximum=MAX_STEPS)
         if self.dataset is not None:
             self._check_dataset()
 

@@ -88,6 +88,51 @@ def test_specs_refuse_overlaps_bad_dims_and_missing_sensors():
             make()
 
 
+def _info(key: str, dim: int = 2) -> Sensor:
+    return Sensor(info=key, dim=dim)
+
+
+#: (EnvSpec keyword arguments over joints ("a",) and angles obs (0,), the two roles of the key).
+INFO_OVERLAPS = [
+    ({"effector": _info("pos"), "objects": (ObjectSpec("o", _info("pos")),)}, "'effector' and 'pos.o'"),
+    (
+        {"effector": _info("hand"), "objects": (ObjectSpec("o", _info("box"), goal=_info("hand")),)},
+        "'effector' and 'goal.o'",
+    ),
+    (
+        {"effector": _info("hand"), "objects": (ObjectSpec("o", _info("box"), goal=_info("box")),)},
+        "'pos.o' and 'goal.o'",
+    ),
+    (
+        {
+            "effector": _info("hand", 1),
+            "objects": (ObjectSpec("o", _info("x", 1)),),
+            "touch": _info("hand", 1),
+        },
+        "'effector' and 'touch'",
+    ),
+    (
+        {"effector": _info("rgbd"), "objects": (ObjectSpec("o"),), "camera": "rgbd"},
+        "'camera' and 'effector'",
+    ),
+    (
+        {"effector": _info("self_mask"), "objects": (ObjectSpec("o"),), "camera": "rgbd"},
+        "'camera' and 'effector'",
+    ),
+    ({"velocities": _info("q", 1), "effector": _info("q", 1)}, "'velocities' and 'effector'"),
+    (
+        {"effector": _info("hand"), "objects": (ObjectSpec("o", _info("b")), ObjectSpec("p", _info("b")))},
+        "'pos.o' and 'pos.p'",
+    ),
+]
+
+
+@pytest.mark.parametrize(("kwargs", "roles"), INFO_OVERLAPS, ids=[r for _, r in INFO_OVERLAPS])
+def test_an_info_key_read_by_two_roles_is_refused_naming_the_key_and_both(kwargs, roles):
+    with pytest.raises(ValueError, match=rf"info key '\w+' is read by both {roles}; roles may not overlap"):
+        EnvSpec(("a",), Sensor(obs=(0,)), **kwargs)
+
+
 def test_the_env_must_match_the_spec_at_construction(pusher):
     good = pusher_spec()
     low, high = check_env(good, pusher)

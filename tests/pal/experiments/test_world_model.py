@@ -215,8 +215,10 @@ def test_bad_input_names_the_value():
         ProtocolConfig(graphs=("thesis", "fancy"))
     with pytest.raises(ValueError, match="joint must be one name"):
         BodyChoice(joint=("finger", "elbow"))
-    with pytest.raises(ValueError, match="steps must be an int >= 10"):
+    with pytest.raises(ValueError, match=r"steps must be an int in \[10, 100000000\], got 5"):
         DataConfig(steps=5)
+    with pytest.raises(ValueError, match=rf"steps must be an int in \[10, 100000000\], got {10**15}"):
+        DataConfig(steps=10**15)
     with pytest.raises(ValueError, match="targets must be a positive int, got 0"):
         b2.Config(targets=0)
     with pytest.raises(ValueError, match="graph 'fancy' unknown"):

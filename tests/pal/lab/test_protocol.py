@@ -63,6 +63,10 @@ def test_override_reaches_nested_fields_and_coerces():
         ("inner.hidden", [4, "x"], r"hidden\[1\]: 'x' is not an int"),
         ("goal", [1.0], "goal"),
         ("inner.mode", 3, "mode: 3 is not a string"),
+        ("seed", 2**70, rf"seed: {2**70} is out of range; an int setting is within"),
+        ("seed", -1, r"seed must be an int in \[0, 4294967295\], got -1"),
+        ("seed", 2**32, r"seed must be an int in \[0, 4294967295\], got 4294967296"),
+        ("inner.hidden", [2**63], rf"hidden\[0\]: {2**63} is out of range"),
     ],
 )
 def test_override_errors_name_the_path_and_value(path, value, message):
@@ -78,6 +82,32 @@ def test_override_runs_the_configs_own_checks():
 def test_parse_value():
     assert configs.parse_value("3") == 3 and configs.parse_value("[1, 2]") == [1, 2]
     assert configs.parse_value("null") is None and configs.parse_value("state") == "state"
+    deep = "[" * configs.MAX_VALUE_DEPTH + "]" * configs.MAX_VALUE_DEPTH
+    assert configs.parse_value(deep) == eval(deep)  # at the limit: parsed
+    assert configs.parse_value('["[[[[", {"a": "]]"}]') == ["[[[[", {"a": "]]"}]  # brackets in strings
+
+
+@pytest.mark.parametrize(
+    ("raw", "message"),
+    [
+        ("[" * 5000 + "]" * 5000, "nests 5000 levels deep; the limit is 32"),
+        ('{"a":' * 33 + "1" + "}" * 33, "nests 33 levels deep; the limit is 32"),
+        ("x" * 10_001, "has 10001 characters; the limit is 10000"),
+        ("9" * 5000, "Exceeds the limit"),
+    ],
+)
+def test_parse_value_refuses_values_too_long_or_too_deep(raw, message):
+    with pytest.raises(configs.ConfigError, match=message):
+        configs.parse_value(raw)
+
+
+def test_apply_set_names_the_item_in_every_refusal():
+    with pytest.raises(configs.ConfigError, match=r"^--set 'seed=-1': seed must be an int in"):
+        configs.apply_set(Outer(), "seed=-1")
+    with pytest.raises(configs.ConfigError, match=r"^--set 'seed': expected KEY=VALUE"):
+        configs.apply_set(Outer(), "seed")
+    with pytest.raises(ValueError, match=r"^--set 'inner.epochs=0': epochs must be >= 1, got 0"):
+        configs.apply_set(Outer(), "inner.epochs=0")
 
 
 def test_target_verdicts():

@@ -5,7 +5,12 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
+import subprocess
+import sys
+import threading
 from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
 
@@ -119,7 +124,17 @@ def test_seeds_parse(text, seeds):
 
 
 @pytest.mark.parametrize(
-    ("text", "message"), [("5-2", "runs backwards"), ("a", "is not N or FIRST-LAST"), ("1,1", "given twice")]
+    ("text", "message"),
+    [
+        ("5-2", "runs backwards"),
+        ("a", "is not N or FIRST-LAST"),
+        ("1,1", "given twice"),
+        ("0-1000000000000", r"seeds must be in \[0, 4294967295\], got 1000000000000"),
+        ("-3", "is not N or FIRST-LAST|seeds must be in"),
+        ("0-10000", "more than 10000 seeds"),
+        ("0-9998,0", r"seeds \[0\] given twice"),
+        ("1" * 20_000, "20000 characters, the limit is 10000"),
+    ],
 )
 def test_bad_seeds_are_refused(text, message):
     with pytest.raises(sweep.SweepError, match=message):
@@ -194,3 +209,84 @@ def test_a_not_evaluated_target_counts_as_not_met_and_its_value_is_left_out():
     values = _values({"metrics": {}, "targets": targets, "seconds": 1.0})
     assert "target.ratio" not in values and values["met.ratio"] == 0.0
     assert values["target.mse"] == 0.1 and values["met.mse"] == 1.0 and values["met.gap"] == 0.0
+
+
+def _blocking_entry(monkeypatch, release: threading.Event) -> None:
+    def run(config: FakeConfig, progress_bar: bool = False) -> Report:
+        release.wait(10.0)  # holds the sweep (and its lock) until the other start has been answered
+        return _fake_run(config)
+
+    registry.entries()
+    entry = Entry("sweep_block", "experiment", FakeConfig, FakeConfig(), FakeConfig(), run, "blocks")
+    monkeypatch.setitem(registry._REGISTRY, ("experiment", "sweep_block"), entry)
+
+
+def test_two_sweeps_started_at_once_on_one_directory_run_one_and_refuse_the_other(monkeypatch, tmp_path):
+    release = threading.Event()
+    _blocking_entry(monkeypatch, release)
+    plan = sweep.plan("sweep_block", [], "0")
+    for attempt in range(20):
+        out = tmp_path / f"s{attempt}"
+        release.clear()
+        barrier = threading.Barrier(2)
+        results: list[object] = []
+
+        def start(out=out, barrier=barrier, results=results) -> None:
+            barrier.wait()
+            try:
+                results.append(sweep.run_sweep(plan, out))
+            except sweep.SweepError as err:
+                results.append(err)
+                release.set()
+
+        threads = [threading.Thread(target=start) for _ in range(2)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(30.0)
+        errors = [r for r in results if isinstance(r, sweep.SweepError)]
+        assert len(results) == 2 and len(errors) == 1, results
+        message = str(errors[0])
+        assert f"--out {str(out)!r}: another sweep runs in it" in message
+        assert f"is being written by pid {os.getpid()}" in message
+        assert not (out / "writer.lock").exists()  # released by the sweep that ran
+        assert len(json.loads((out / "sweep.json").read_text())["runs"]) == 1
+
+
+_SWEEP_PROCESS = """
+import sys, time
+from pal.lab import registry, sweep
+from pal.lab.registry import Entry
+from pal.lab.report import Report
+from tests.pal.lab.test_sweep import FakeConfig, _fake_run
+
+def run(config, progress_bar=False):
+    time.sleep(3.0)
+    return _fake_run(config)
+
+registry._LOADED = True  # this entry alone: no scan of the experiments
+registry._REGISTRY[("experiment", "sweep_slow")] = Entry(
+    "sweep_slow", "experiment", FakeConfig, FakeConfig(), FakeConfig(), run, "slow")
+try:
+    sweep.run_sweep(sweep.plan("sweep_slow", [], "0"), sys.argv[1])
+except sweep.SweepError as err:
+    print(err, file=sys.stderr)
+    sys.exit(2)
+"""
+
+
+def test_a_second_sweep_process_on_the_same_directory_is_refused_naming_the_holder(tmp_path):
+    out = tmp_path / "sweep"
+    root = Path(__file__).resolve().parents[3]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", _SWEEP_PROCESS, str(out)], env=env, stderr=subprocess.PIPE, text=True
+        )
+        for _ in range(2)
+    ]
+    answers = sorted((p.wait(120), p.stderr.read()) for p in procs)
+    assert [code for code, _ in answers] == [0, 2], answers
+    holder = next(p.pid for p in procs if p.returncode == 0)
+    assert f"--out {str(out)!r}: another sweep runs in it" in answers[1][1]
+    assert f"pid {holder}" in answers[1][1]

@@ -14,7 +14,7 @@ from pal.language.signature import (
     UnknownConstantError,
     UnknownPredicateError,
 )
-from pal.language.syntax import QuerySyntaxError, parse_query, parse_rule
+from pal.language.syntax import MAX_TEXT_CHARS, QuerySyntaxError, parse_query, parse_rule
 from pal.language.terms import Literal, Query, Rule, atom
 from pal.language.vocabularies import pushing_signature
 
@@ -141,6 +141,23 @@ def test_the_table_covers_every_error_class_and_at_least_twenty_queries():
         SortError,
         NotAnActionError,
     }
+
+
+@pytest.mark.parametrize("conjuncts", [600, 16_000])
+@pytest.mark.parametrize("kind", ["query", "rule"])
+def test_a_text_past_the_length_limit_is_refused_naming_its_length_and_the_limit(kind, conjuncts):
+    body = " and ".join("touch(hand, box)" for _ in range(conjuncts))
+    text = f"P({body})" if kind == "query" else f"{body} and do(reach(h, o)) => P(touch(h, o)) > 0.5"
+    parse = parse_query if kind == "query" else parse_rule
+    assert len(text) > MAX_TEXT_CHARS == 10_000
+    with pytest.raises(QuerySyntaxError) as info:
+        parse(text, SIG)
+    assert str(info.value) == (
+        f"{kind}: the text has {len(text)} characters, more than the limit of 10000; split it into smaller queries"
+    )
+    assert info.value.position == MAX_TEXT_CHARS and info.value.text == text
+    at_limit = " and ".join("touch(hand, box)" for _ in range(400))
+    assert len(parse_query(f"P({at_limit})").outcome) == 400  # below the limit: parsed as before
 
 
 def test_messages_name_what_was_expected_and_found():

@@ -177,3 +177,17 @@ def test_bench_babble_contract(capsys):
     assert data["transitions_per_s"] > 0 and data["ratio"] == pytest.approx(
         data["transitions_per_s"] / data["raw_steps_per_s"]
     )
+
+
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"seed": -1}, r"seed must be an int in \[0, 4294967295\], got -1"),
+        ({"seed": 2**70}, rf"seed must be an int in \[0, 4294967295\], got {2**70}"),
+        ({"steps": 10**15}, rf"steps must be an int in \[0, 100000000\], got {10**15}"),
+        ({"steps": 10**40}, rf"steps must be an int in \[0, 100000000\], got {10**40}"),
+    ],
+)
+def test_babble_config_refuses_seeds_and_steps_past_the_limits(fields, message):
+    with pytest.raises(ValueError, match=message):
+        BabbleConfig(**fields)

@@ -106,3 +106,19 @@ def test_the_harder_tabletop_has_holes_blur_lighting_and_a_hand():
     assert not np.array_equal(c.rgb, h.rgb)  # the hand, the blur and the lighting change the colour
     with pytest.raises(ValueError, match="dropout"):
         Realism(dropout=2.0)
+
+
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"fps": float("inf")}, "fps must be finite, got inf"),
+        ({"fps": float("nan")}, "fps must be finite, got nan"),
+        ({"fps": 0.0}, "fps must be > 0.0, got 0.0"),
+        ({"fps": 1e6}, "fps must be <= 1000.0, got 1000000.0"),
+        ({"seed": -1}, r"seed must be an int in \[0, 4294967295\], got -1"),
+        ({"depth_noise": float("inf")}, "depth_noise must be finite, got inf"),
+    ],
+)
+def test_record_config_refuses_rates_seeds_and_noise_past_the_limits(fields, message):
+    with pytest.raises(ValueError, match=message):
+        RecordConfig("box-rotation", **fields)

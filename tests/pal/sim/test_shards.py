@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -79,3 +85,99 @@ def test_bad_worker_counts_get_one_line_errors(tmp_path, capsys):
     assert main(["babble", "--workers", "0", "--steps", "10", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip()
     assert err == "pal babble: --workers must be >= 1, got 0" and not out.exists()
+
+
+def _children(pid: int) -> dict[int, str]:
+    """pid -> command line of the live (not zombie) processes whose parent is ``pid``, from /proc."""
+    found = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:  # ended while listed
+            continue
+        state, ppid = stat.rsplit(")", 1)[1].split()[:2]
+        if int(ppid) == pid and state != "Z":
+            found[int(entry.name)] = cmdline
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_workers_exit_when_the_babbling_process_is_killed(tmp_path):
+    root = Path(__file__).resolve().parents[3]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    argv = [
+        "babble",
+        "--workers",
+        "2",
+        "--steps",
+        "2000000",
+        "--frame-skip",
+        "1",
+        "--out",
+        str(tmp_path / "d"),
+    ]
+    parent = subprocess.Popen([sys.executable, "-m", "pal.cli", *argv], env=env, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        workers: dict[int, str] = {}
+        while len(workers) < 2 and time.monotonic() < deadline and parent.poll() is None:
+            time.sleep(0.2)
+            workers = {p: c for p, c in _children(parent.pid).items() if "resource_tracker" not in c}
+        assert len(workers) == 2, workers
+        time.sleep(1.0)  # the workers are babbling
+        parent.kill()
+        parent.wait()
+        deadline = time.monotonic() + 5
+        while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not [p for p in workers if _alive(p)], workers
+    finally:
+        parent.kill()
+        for p in workers if "workers" in locals() else ():
+            if _alive(p):
+                os.kill(p, signal.SIGKILL)
+
+
+_WATCHED = """
+import os, subprocess, sys
+child = subprocess.Popen([sys.executable, "-c", '''
+import os, threading, time
+from pal.sim.shards import _watch_parent
+threading.Thread(target=_watch_parent, args=(os.getppid(), 0.05), daemon=True).start()
+print("watching", flush=True)
+time.sleep(60)
+'''], stdout=subprocess.PIPE, text=True)
+assert child.stdout.readline() == "watching\\n"
+print(child.pid, flush=True)
+child.wait()
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_without_prctl_the_watcher_thread_ends_the_worker_when_its_parent_dies():
+    root = Path(__file__).resolve().parents[3]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")])}
+    parent = subprocess.Popen([sys.executable, "-c", _WATCHED], env=env, stdout=subprocess.PIPE, text=True)
+    child = int(parent.stdout.readline())
+    try:
+        assert _alive(child)
+        parent.kill()
+        parent.wait()
+        deadline = time.monotonic() + 5
+        while _alive(child) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _alive(child)
+    finally:
+        if _alive(child):
+            os.kill(child, signal.SIGKILL)
