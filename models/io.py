@@ -9,9 +9,11 @@ name, dtype, shape and bytes.
 This module follows the rules of ``pal.io.files`` with its own copy of them (``models`` may not
 import ``pal``): atomic writes (temp file, fsync, rename) with mode :data:`FILE_MODE`; strict
 JSON (NaN/inf refused naming the key); sizes checked from the zip directory and the ``.npy``
-headers before anything is inflated (:class:`ReadLimits`); and every defect of a file raises
-:class:`ModelFileError`. On load the stored graph must match its stored fingerprint (and
-``graph=`` when given), so edited metadata is refused.
+headers before anything is inflated, and the content bounded relative to the file's size
+(:class:`ReadLimits`); and every defect of a file raises :class:`ModelFileError`. The checksum
+catches accidents, not forgery: a key given to :func:`save` and :func:`load` (or
+``$PAL_MODEL_KEY``) signs and verifies the file with HMAC-SHA256 (:mod:`models.signing`).
+On load the stored graph must match its stored fingerprint (and ``graph=`` when given).
 """
 
 from __future__ import annotations
@@ -41,13 +43,16 @@ from models.ensemble import EnsembleMechanism
 from models.gated import GatedMechanism
 from models.graph import CausalGraph
 from models.mechanisms import Mechanism, make_mechanism, mechanism_classes
+from models.signing import KEY_ENV, problem, resolve_key, sign
 from models.world import WorldModel
 
 __all__ = [
     "FILE_MODE",
     "FORMAT",
+    "KEY_ENV",
     "ModelFileError",
     "ModelFileTooLargeError",
+    "ModelSignatureError",
     "ReadLimits",
     "atomic_write",
     "check_json",
@@ -99,6 +104,10 @@ class ModelFileTooLargeError(ModelFileError):
     """A world-model file declares more data than the :class:`ReadLimits` allow."""
 
 
+class ModelSignatureError(ModelFileError):
+    """A key was given but the file is unsigned, or signed with another key or for other content."""
+
+
 @dataclass(frozen=True)
 class ReadLimits:
     """Upper bounds checked before a file's content is read.
@@ -107,14 +116,18 @@ class ReadLimits:
         max_bytes: total declared uncompressed size of all arrays (and the file size), bytes.
         max_entries: number of arrays in one file.
         max_meta_bytes: size of the JSON metadata, bytes.
+        max_ratio: largest ratio of declared content to file size on disk (a deflate bomb
+            inflates about 1000-fold), for content over ``ratio_floor_bytes`` bytes.
     """
 
     max_bytes: int = 2 * _GIB
     max_entries: int = 4096
     max_meta_bytes: int = 64 * 1024**2
+    max_ratio: int = 64
+    ratio_floor_bytes: int = 64 * 1024**2
 
     def __post_init__(self) -> None:
-        for key in ("max_bytes", "max_entries", "max_meta_bytes"):
+        for key in ("max_bytes", "max_entries", "max_meta_bytes", "max_ratio", "ratio_floor_bytes"):
             check_int(f"ReadLimits.{key}", getattr(self, key))
 
 
@@ -195,10 +208,12 @@ def _checksum(fmt: str, file_versions: Mapping[str, str], meta: Any, arrays: Map
     return h.hexdigest()
 
 
-def _write_npz(path: Path, arrays: Mapping[str, np.ndarray], meta: dict[str, Any]) -> Path:
+def _write_npz(path: Path, arrays: Mapping[str, np.ndarray], meta: dict[str, Any], key: bytes | None) -> Path:
     file_versions = versions()
     doc = {"format": FORMAT, "versions": file_versions, "meta": meta}
     doc["checksum"] = _checksum(FORMAT, file_versions, meta, arrays)
+    if key is not None:
+        doc["signature"] = sign(key, doc["checksum"])
     entries = {**arrays, _META: np.frombuffer(_canonical(doc).encode("utf-8"), dtype=np.uint8)}
 
     def write(fh: BinaryIO) -> None:
@@ -229,6 +244,14 @@ def _entries(path: Path, zf: zipfile.ZipFile, limits: ReadLimits) -> list[zipfil
                 f"{path}: metadata declares {info.file_size} bytes, more than the {limits.max_meta_bytes} allowed"
             )
     total = sum(i.file_size for i in infos)
+    size = path.stat().st_size
+    if total > max(limits.ratio_floor_bytes, limits.max_ratio * size):
+        raise ModelFileTooLargeError(
+            f"{path} declares {total} bytes of content in a file of {size} bytes, a compression "
+            f"ratio of {total / max(size, 1):.0f} above the max_ratio {limits.max_ratio} allowed for "
+            f"content over {limits.ratio_floor_bytes} bytes; refused before inflating (pass "
+            "limits=ReadLimits(max_ratio=...) to read a file you trust)"
+        )
     if total > limits.max_bytes:
         raise ModelFileTooLargeError(
             f"{path} declares {total} bytes of arrays, more than the {limits.max_bytes} allowed "
@@ -263,7 +286,9 @@ def _read_entry(path: Path, zf: zipfile.ZipFile, info: zipfile.ZipInfo) -> np.nd
     return out.reshape(shape, order="F" if fortran else "C")
 
 
-def _read(path: str | os.PathLike[str], limits: ReadLimits) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+def _read(
+    path: str | os.PathLike[str], limits: ReadLimits, key: bytes | None = None
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     path = Path(path)
     if not path.is_file():
         raise ModelFileError(f"no world-model file at {path}")
@@ -294,10 +319,14 @@ def _read(path: str | os.PathLike[str], limits: ReadLimits) -> tuple[dict[str, A
         )
     if fmt not in _READABLE_FORMATS:
         raise ModelFileError(f"{path}: format {fmt!r}, expected one of {list(_READABLE_FORMATS)}")
+    signature = doc.pop("signature", None)
     if set(doc) != _DOC_KEYS or not isinstance(doc["meta"], dict) or not isinstance(doc["versions"], dict):
         raise ModelFileError(f"{path}: metadata is not a {{format, versions, meta, checksum}} object")
     if _checksum(fmt, doc["versions"], doc["meta"], arrays) != doc["checksum"]:
         raise ModelFileError(f"{path}: checksum mismatch; its tensors or metadata were changed after saving")
+    wrong = None if key is None else problem(key, doc["checksum"], signature)
+    if wrong:
+        raise ModelSignatureError(f"{path} {wrong}")
     meta = doc["meta"]
     if not _MODEL_KEYS <= set(meta) <= _MODEL_KEYS | _OPTIONAL_KEYS:
         raise ModelFileError(
@@ -317,7 +346,11 @@ def _parts(mech: Mechanism) -> list[Mechanism]:
 
 
 def save(
-    model: WorldModel, path: str | os.PathLike[str], provenance: Mapping[str, Any] | None = None
+    model: WorldModel,
+    path: str | os.PathLike[str],
+    provenance: Mapping[str, Any] | None = None,
+    *,
+    key: bytes | str | None = None,
 ) -> Path:
     """Write ``model`` to one ``.npz`` file atomically.
 
@@ -329,6 +362,8 @@ def save(
         path: destination file (conventionally ``*.npz``).
         provenance: JSON-compatible extras, e.g. ``{"seed": 0, "config": {...}}`` (NaN/inf
             refused); library versions are added.
+        key: sign the file with HMAC-SHA256 under this key (bytes or str); None: the
+            environment variable ``PAL_MODEL_KEY`` if set, else unsigned (:mod:`models.signing`).
 
     Returns:
         The path written.
@@ -339,6 +374,7 @@ def save(
     """
     if not isinstance(model, WorldModel):
         raise ValueError(f"save expects a WorldModel, got {type(model).__name__}")
+    signing_key = resolve_key(key)
     mechs = {}
     for name in model.graph.non_roots:
         mech = model.mechanism(name)
@@ -373,20 +409,26 @@ def save(
         meta = json.loads(_canonical(meta))  # exactly what load will parse
     except (TypeError, ValueError) as err:
         raise ValueError(f"model metadata is not JSON-serialisable: {err}") from None
-    return _write_npz(Path(path), arrays, meta)
+    return _write_npz(Path(path), arrays, meta, signing_key)
 
 
-def read_metadata(path: str | os.PathLike[str], *, limits: ReadLimits = ReadLimits()) -> dict[str, Any]:
+def read_metadata(
+    path: str | os.PathLike[str], *, limits: ReadLimits = ReadLimits(), key: bytes | str | None = None
+) -> dict[str, Any]:
     """The verified JSON metadata of a saved model (format, versions, graph, mechanisms, provenance).
 
     Raises:
         ModelFileError: as :func:`load`.
     """
-    return _read(path, limits)[0]
+    return _read(path, limits, resolve_key(key))[0]
 
 
 def load(
-    path: str | os.PathLike[str], graph: CausalGraph | None = None, *, limits: ReadLimits = ReadLimits()
+    path: str | os.PathLike[str],
+    graph: CausalGraph | None = None,
+    *,
+    limits: ReadLimits = ReadLimits(),
+    key: bytes | str | None = None,
 ) -> WorldModel:
     """Rebuild a :class:`WorldModel` saved by :func:`save`.
 
@@ -394,6 +436,8 @@ def load(
         path: the file.
         graph: if given, the file must have been made for this graph.
         limits: size limits, checked before anything is inflated (default 2 GiB of arrays).
+        key: require a valid HMAC-SHA256 signature under this key (bytes or str); None: the
+            environment variable ``PAL_MODEL_KEY`` if set, else no signature is checked.
 
     Returns:
         The model, with the stored tensors (same dtype) and ``provenance`` (including
@@ -402,9 +446,11 @@ def load(
     Raises:
         ModelFileError: missing, truncated or corrupted file, an older or other format, a
             checksum mismatch, a stored graph that does not match its fingerprint (edited
-            metadata), a graph mismatch, or sizes over ``limits``.
+            metadata), a graph mismatch, or sizes over ``limits``;
+            :class:`ModelSignatureError` when a key is given and the file is unsigned or its
+            signature does not match.
     """
-    meta, arrays = _read(path, limits)
+    meta, arrays = _read(path, limits, resolve_key(key))
     try:
         file_graph = CausalGraph.from_dict(meta["graph"])
     except (KeyError, TypeError, ValueError) as err:

@@ -152,6 +152,21 @@ def test_size_limits_are_checked_before_reading(side, tmp_path):
 
 
 @sides
+def test_content_beyond_the_compression_ratio_is_refused_before_inflating(side, tmp_path):
+    from tests.hostile import npz_bomb
+
+    assert side.limits() == side.limits(max_ratio=64, ratio_floor_bytes=64 * 1024**2)
+    path = npz_bomb(tmp_path / "bomb.npz", "w", n_bytes=1900 << 20)  # 2 MB declaring 1.99 GB
+    assert path.stat().st_size < 2 * 10**6
+    with pytest.raises(side.too_large, match=r"bomb\.npz declares 1992294528 bytes .* compression ratio"):
+        side.read(path)
+    with pytest.raises(side.too_large, match=r"more than the 1000000 allowed"):  # the next check
+        side.read(path, side.limits(max_ratio=10**4, max_bytes=10**6))
+    small = side.write(tmp_path / "x.npz")  # stored uncompressed: a ratio below 1
+    side.read(small, side.limits(max_ratio=1, ratio_floor_bytes=1))
+
+
+@sides
 @pytest.mark.parametrize("bad", [float("nan"), float("inf"), [0.0, float("-inf")]])
 def test_json_refuses_nan_and_inf_naming_the_key(side, tmp_path, bad):
     with pytest.raises(ValueError, match=side.nan_key + r".* is (nan|inf|-inf); JSON has no NaN"):

@@ -20,14 +20,17 @@ from typing import Any
 import numpy as np
 
 from pal.io.dataset_files import (
+    CHECKSUM_KEY,
     CHUNK_FORMAT,
     FORMAT,
     METADATA,
     ROW_ARRAYS,
     DatasetFileError,
+    check_chunk_arrays,
     chunk_files,
     chunk_name,
     column_names,
+    metadata_checksum,
     read_chunk,
     read_metadata,
     verify_chunks,
@@ -84,9 +87,19 @@ class TransitionDataset:
         return len(self.step)
 
     def __repr__(self) -> str:
-        return (
-            f"TransitionDataset(body={self.metadata.get('body')!r}, rows={len(self)}, joints={self.joints})"
-        )
+        rows = f"{len(self)} of {self.planned_rows} planned" if not self.complete else str(len(self))
+        return f"TransitionDataset(body={self.metadata.get('body')!r}, rows={rows}, joints={self.joints})"
+
+    @property
+    def complete(self) -> bool:
+        """True when the writer finished the run (``metadata.json`` says ``complete``)."""
+        return self.metadata.get("complete") is True
+
+    @property
+    def planned_rows(self) -> int | None:
+        """The rows the run aimed at (``steps`` of the metadata), None when it does not say."""
+        steps = self.metadata.get("steps")
+        return steps if isinstance(steps, int) else None
 
     @property
     def joints(self) -> list[str]:
@@ -154,27 +167,43 @@ class TransitionDataset:
 
     # ------------------------------------------------------------------ loading
     @classmethod
-    def load(cls, root: str | os.PathLike[str], *, limits: ReadLimits = DEFAULT_LIMITS) -> TransitionDataset:
+    def load(
+        cls,
+        root: str | os.PathLike[str],
+        *,
+        limits: ReadLimits = DEFAULT_LIMITS,
+        allow_incomplete: bool = False,
+    ) -> TransitionDataset:
         """Read a dataset directory written by :class:`DatasetWriter`, verifying the manifest.
 
         Args:
             root: the dataset directory.
             limits: size limits per chunk file, checked before anything is inflated.
+            allow_incomplete: read a dataset whose writer did not finish (killed or still
+                running); :attr:`complete` is then False and ``len`` and
+                :attr:`planned_rows` say how many rows it holds of how many planned.
 
         Raises:
-            DatasetFileError: missing or corrupted metadata or chunk, a chunk missing from
-                the manifest's row ranges, a chunk of another run, or a replaced chunk; the
-                message names the file.
+            DatasetFileError: missing, edited or corrupted metadata or chunk, a chunk missing
+                from the manifest's row ranges, a chunk of another run, a replaced chunk, an
+                array of the wrong shape or dtype, or an incomplete dataset without
+                ``allow_incomplete``; the message names the file.
         """
         root = Path(root)
         meta = read_metadata(root)
         _, chunks = verify_chunks(root, meta, limits)
+        rows = sum(c["rows"] for c, _ in chunks)
+        if meta.get("complete") is not True and not allow_incomplete:
+            raise DatasetFileError(
+                f"{root} is incomplete: its chunks hold {rows} of the {meta.get('steps', 'unknown')} planned "
+                "rows (its writer did not finish); finish it with pal babble --resume, or pass "
+                "allow_incomplete=True to read the rows it holds"
+            )
         if not chunks:
             raise DatasetFileError(f"{root} holds no complete chunk file (chunk_*.npz)")
+        widths: dict[str, int] = {}
         for (_, arrays), path in zip(chunks, chunk_files(root), strict=True):
-            missing = [k for k in meta["columns"] if k not in arrays]
-            if missing:
-                raise DatasetFileError(f"{path}: missing arrays {missing}")
+            check_chunk_arrays(path, arrays, meta["columns"], widths)
 
         def cat(key: str) -> np.ndarray:
             return np.concatenate([arrays[key] for _, arrays in chunks])
@@ -224,7 +253,7 @@ class DatasetWriter:
                 f"dataset metadata needs 'columns', the list of column names (see column_names), got {columns!r}"
             )
         self.metadata: dict[str, Any] = json.loads(json.dumps(meta))  # compares equal to the stored one
-        for key in ("n_rows", "complete", "chunks", "run_id"):
+        for key in ("n_rows", "complete", "chunks", "run_id", CHECKSUM_KEY):
             self.metadata.pop(key, None)
         self.resume_info: dict[str, Any] | None = None
         self.rows = 0
@@ -248,6 +277,7 @@ class DatasetWriter:
 
     def _write_metadata(self) -> None:
         meta = {**self.metadata, "run_id": self.run_id, "chunks": self._chunks}
+        meta[CHECKSUM_KEY] = metadata_checksum(meta)
         atomic_write_json(self.root / METADATA, meta, name="dataset metadata")
 
     def _resume(self) -> str:
@@ -261,6 +291,7 @@ class DatasetWriter:
             "chunks",
             "run_id",
             "effective_ranges",
+            CHECKSUM_KEY,
         }
         keys = (set(stored) | set(self.metadata)) - ignore
         diff = sorted(k for k in keys if stored.get(k) != self.metadata.get(k))

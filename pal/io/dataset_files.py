@@ -4,7 +4,7 @@ A dataset is a directory::
 
     metadata.json         body, MJCF hash, timestep, frame skip, joints, actuators, policy,
                           seed, chunk size, library versions, the run id, the chunk
-                          manifest, and (when done) n_rows
+                          manifest, (when done) n_rows and complete, and metadata_checksum
     chunk_000000.npz      rows [0, n0)
     chunk_000001.npz      rows [n0, n0 + n1) ...
     writer.lock           only while a writer runs (:mod:`pal.io.locks`)
@@ -24,7 +24,11 @@ objects, a SHA-256 over arrays and metadata) holding, for its rows:
 and as metadata the run id, chunk index, first row, row count and what a resumed run needs
 (RNG and simulator state).
 
-Integrity: a fresh run draws a random run id (kept on resume); the manifest in
+Integrity: ``metadata.json`` carries ``metadata_checksum``, a SHA-256 over the canonical JSON
+of every other key (:func:`metadata_checksum`); :func:`read_metadata` recomputes it, so an
+edited key (``frame_skip`` 50 -> 5) is refused, and checks the types of the keys it knows.
+Like every checksum of pal it catches accidents and careless edits, not a forger, who can
+recompute it. A fresh run draws a random run id (kept on resume); the manifest in
 ``metadata.json`` lists every chunk's file, row range and checksum. :func:`verify_chunks`
 checks each chunk against it and refuses, naming the chunk, a missing chunk, a chunk of
 another run and a replaced chunk. A chunk written after the last manifest update (an
@@ -33,6 +37,8 @@ interruption in between) is accepted if it belongs to the run and follows on.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -43,30 +49,46 @@ import numpy as np
 from pal.io.files import DEFAULT_LIMITS, FileFormatError, ReadLimits, read_json, read_npz
 
 __all__ = [
+    "CHECKSUM_KEY",
     "CHUNK_FORMAT",
     "FORMAT",
     "METADATA",
     "ROW_ARRAYS",
     "DatasetFileError",
+    "check_chunk_arrays",
     "chunk_files",
     "chunk_name",
     "column_names",
+    "metadata_checksum",
     "read_chunk",
     "read_metadata",
     "verify_chunks",
 ]
 
-FORMAT = "pal.transitions/3"
+FORMAT = "pal.transitions/4"
 CHUNK_FORMAT = "pal.transitions-chunk/3"
 METADATA = "metadata.json"
 #: Older dataset formats, and what they lack.
 _OLD_FORMATS = {
     "pal.transitions/1": "an older layout without a chunk manifest",
     "pal.transitions/2": "an older layout without the dq_prev columns",
+    "pal.transitions/3": "an older layout without a metadata checksum",
 }
 _KINDS = ("act", "q_prev", "dq_prev", "dq", "q")
 ROW_ARRAYS = ("ctrl", "state", "step", "episode")
 _CHUNK_KEYS = ("file", "index", "start", "rows", "checksum")
+CHECKSUM_KEY = "metadata_checksum"
+#: Keys of metadata.json checked when present: key -> (types, minimum or None, description).
+_OPTIONAL_TYPES: dict[str, tuple[tuple[type, ...], int | None, str]] = {
+    "n_rows": ((int,), 0, "an int >= 0"),
+    "steps": ((int,), 0, "an int >= 0"),
+    "frame_skip": ((int,), 1, "an int >= 1"),
+    "chunk_size": ((int,), 1, "an int >= 1"),
+    "seed": ((int,), None, "an int"),
+    "complete": ((bool,), None, "true or false"),
+    "joints": ((list,), None, "a list of names"),
+    "actuators": ((list,), None, "a list of names"),
+}
 
 
 class DatasetFileError(FileFormatError):
@@ -89,12 +111,51 @@ def chunk_files(root: Path) -> list[Path]:
     return sorted(root.glob("chunk_*.npz"))
 
 
+def metadata_checksum(meta: Mapping[str, Any]) -> str:
+    """Hex SHA-256 of the canonical JSON of ``meta`` without its ``metadata_checksum`` key."""
+    body = {k: v for k, v in meta.items() if k != CHECKSUM_KEY}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _bad(path: Path, key: str, value: Any, expected: str) -> DatasetFileError:
+    return DatasetFileError(f"{path}: {key!r} is {value!r}, expected {expected}")
+
+
+def _is(value: Any, kinds: tuple[type, ...]) -> bool:
+    return isinstance(value, kinds) and (bool in kinds or not isinstance(value, bool))
+
+
+def _check_schema(path: Path, data: dict[str, Any]) -> None:
+    """Types of the keys of ``metadata.json``; DatasetFileError naming the file, key and value."""
+    if not isinstance(data.get("run_id"), str):
+        raise _bad(path, "run_id", data.get("run_id"), "the run id, a str")
+    columns = data.get("columns")
+    if not isinstance(columns, list) or not all(isinstance(c, str) for c in columns):
+        raise _bad(path, "columns", columns, "a list of column names")
+    chunks = data.get("chunks")
+    if not isinstance(chunks, list):
+        raise _bad(path, "chunks", chunks, "the chunk manifest, a list")
+    for i, c in enumerate(chunks):
+        ok = isinstance(c, dict) and set(c) == set(_CHUNK_KEYS)
+        ok = ok and isinstance(c["file"], str) and isinstance(c["checksum"], str)
+        if not ok or not all(_is(c[k], (int,)) and c[k] >= 0 for k in ("index", "start", "rows")):
+            raise _bad(path, f"chunks[{i}]", c, f"an object of {list(_CHUNK_KEYS)} (str file and checksum)")
+    for key, (kinds, minimum, expected) in _OPTIONAL_TYPES.items():
+        if key not in data:
+            continue
+        value = data[key]
+        ok = _is(value, kinds) and (minimum is None or value >= minimum)
+        if not ok or (isinstance(value, list) and not all(isinstance(v, str) for v in value)):
+            raise _bad(path, key, value, expected)
+
+
 def read_metadata(root: Path) -> dict[str, Any]:
     """Read and check ``metadata.json`` of the dataset ``root``.
 
     Raises:
-        DatasetFileError: missing or unreadable, another or an older format, or no valid
-            run id, columns or manifest.
+        DatasetFileError: missing or unreadable, another or an older format, a checksum
+            mismatch (the file was edited), or a key of the wrong type (named with its value).
     """
     path = root / METADATA
     if not path.is_file():
@@ -111,16 +172,44 @@ def read_metadata(root: Path) -> dict[str, Any]:
         )
     if fmt != FORMAT:
         raise DatasetFileError(f"{path}: format {fmt!r}, expected {FORMAT!r}")
-    chunks = data.get("chunks")
-    ok = (
-        isinstance(data.get("run_id"), str)
-        and isinstance(data.get("columns"), list)
-        and isinstance(chunks, list)
-        and all(isinstance(c, dict) and set(c) == set(_CHUNK_KEYS) for c in chunks)
-    )
-    if not ok:
-        raise DatasetFileError(f"{path} lacks a valid run_id, columns or chunk manifest")
+    stored = data.get(CHECKSUM_KEY)
+    if stored != metadata_checksum(data):
+        raise DatasetFileError(
+            f"{path}: {CHECKSUM_KEY} {stored!r} does not match its content; the metadata was edited "
+            "or damaged after writing (babble the dataset again)"
+        )
+    _check_schema(path, data)
     return data
+
+
+def check_chunk_arrays(
+    path: Path, arrays: Mapping[str, np.ndarray], columns: Sequence[str], widths: dict[str, int]
+) -> None:
+    """Shapes and dtypes of one chunk's arrays (module docstring).
+
+    ``widths`` holds the widths of ``ctrl`` and ``state`` seen so far (filled from the first
+    chunk); later chunks must agree.
+
+    Raises:
+        DatasetFileError: a missing array, or one of another shape or dtype; names the file,
+            the array and its shape.
+    """
+    missing = [k for k in [*columns, *ROW_ARRAYS] if k not in arrays]
+    if missing:
+        raise DatasetFileError(f"{path}: missing arrays {missing}")
+    n = len(arrays["step"])
+    expected: dict[str, tuple[tuple[int, ...], str]] = {k: ((n, 1), "float32") for k in columns}
+    expected.update(step=((n,), "int64"), episode=((n,), "int64"))
+    for key, dtype in (("ctrl", "float32"), ("state", "float64")):
+        a = arrays[key]
+        width = widths.setdefault(key, a.shape[1] if a.ndim == 2 else -1)
+        expected[key] = ((n, width), dtype)
+    for key, (shape, dtype) in expected.items():
+        a = arrays[key]
+        if a.shape != shape or a.dtype != np.dtype(dtype):
+            raise DatasetFileError(
+                f"{path}: array {key!r} has shape {a.shape} and dtype {a.dtype}, expected {shape} {dtype}"
+            )
 
 
 def read_chunk(

@@ -13,9 +13,12 @@ may not import ``pal``; ``tests/test_persistence_guarantees.py`` holds both side
   versions, the caller's metadata and a SHA-256 checksum over the format, versions, metadata
   and every array's name, dtype, shape and bytes.
 - **Bounded reads.** :func:`read_npz` checks sizes before inflating anything: the entry
-  count and declared uncompressed sizes from the zip central directory, then each ``.npy``
+  count and declared uncompressed sizes from the zip central directory, the ratio of that
+  declared content to the file's size on disk (a deflate bomb of 2 MB declaring 2 GB is
+  refused: at most ``max_ratio`` = 64 times the file above 64 MiB), then each ``.npy``
   header's dtype and shape (element count x item size) against the declared size. Anything
-  above :class:`ReadLimits` (2 GiB in total by default) is refused.
+  above :class:`ReadLimits` (2 GiB in total by default) is refused. The inflated stream of an
+  entry is read into an array of the checked size and may not run past it.
 - **One error type.** Whatever is wrong with a file (missing, truncated, flipped bytes,
   another format, over the limits), reading raises :class:`FileFormatError` naming the file.
 """
@@ -108,14 +111,23 @@ class ReadLimits:
             size), bytes.
         max_entries: number of arrays in one file.
         max_meta_bytes: size of the JSON metadata, bytes.
+        max_ratio: largest compression ratio, declared content bytes per byte of the file
+            on disk, of a file whose content exceeds ``ratio_floor_bytes``. A deflate
+            stream can inflate about 1000-fold, so without it a 2 MB file could make a
+            reader fill 2 GB; with it a file's content costs at most ``max_ratio`` times
+            its size (or ``ratio_floor_bytes``). Files written uncompressed have a ratio of 1.
+        ratio_floor_bytes: content up to this many bytes is read whatever its compression
+            ratio.
     """
 
     max_bytes: int = 2 * GIB
     max_entries: int = 4096
     max_meta_bytes: int = 64 * 1024**2
+    max_ratio: int = 64
+    ratio_floor_bytes: int = 64 * 1024**2
 
     def __post_init__(self) -> None:
-        for key in ("max_bytes", "max_entries", "max_meta_bytes"):
+        for key in ("max_bytes", "max_entries", "max_meta_bytes", "max_ratio", "ratio_floor_bytes"):
             check_int(f"ReadLimits.{key}", getattr(self, key))
 
 
@@ -335,6 +347,14 @@ def _entries(path: Path, zf: zipfile.ZipFile, limits: ReadLimits) -> list[zipfil
                 f"{path}: metadata declares {info.file_size} bytes, more than the {limits.max_meta_bytes} allowed"
             )
     total = sum(i.file_size for i in infos)
+    size = path.stat().st_size
+    if total > max(limits.ratio_floor_bytes, limits.max_ratio * size):
+        raise FileTooLargeError(
+            f"{path} declares {total} bytes of content in a file of {size} bytes, a compression "
+            f"ratio of {total / max(size, 1):.0f} above the max_ratio {limits.max_ratio} allowed for "
+            f"content over {limits.ratio_floor_bytes} bytes; refused before inflating (pass "
+            "limits=ReadLimits(max_ratio=...) to read a file you trust)"
+        )
     if total > limits.max_bytes:
         raise FileTooLargeError(
             f"{path} declares {total} bytes of arrays, more than the {limits.max_bytes} allowed "

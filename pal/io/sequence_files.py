@@ -43,6 +43,7 @@ from pal.io.files import (
     versions,
     write_npz,
 )
+from pal.io.image_headers import MAX_IMAGE_PIXELS, ImageHeaderError, check_image_size
 
 __all__ = [
     "FORMAT",
@@ -57,6 +58,7 @@ __all__ = [
     "read_depth",
     "read_image",
     "read_text_rows",
+    "resolve_inside",
 ]
 
 logger = logging.getLogger(__name__)
@@ -74,15 +76,30 @@ def read_text_rows(path: Path) -> list[list[str]]:
     """Whitespace-separated fields of every non-empty line of a text file, ``#`` comments skipped.
 
     Raises:
-        SequenceError: the file does not exist.
+        SequenceError: the file does not exist or is not UTF-8 text.
     """
     if not path.is_file():
         raise SequenceError(f"{path} does not exist")
-    return [
-        line.split()
-        for line in path.read_text(encoding="utf-8").splitlines()
-        if line.strip() and not line.startswith("#")
-    ]
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise SequenceError(f"{path} is not a readable text file ({type(err).__name__}: {err})") from None
+    return [line.split() for line in text.splitlines() if line.strip() and not line.startswith("#")]
+
+
+def resolve_inside(root: Path, name: str | os.PathLike[str], where: str) -> Path:
+    """``root / name`` resolved; it must stay inside ``root`` (no ``..``, absolute path or symlink out).
+
+    Raises:
+        SequenceError: the file resolves outside ``root``; names ``where``, the name and its target.
+    """
+    target = (root / name).resolve()
+    if not target.is_relative_to(root.resolve()):
+        raise SequenceError(
+            f"{where}: the file {str(name)!r} resolves to {target}, outside the sequence folder {root}; "
+            "a sequence may only read files inside its folder"
+        )
+    return target
 
 
 def encode_depth(depth: np.ndarray, scale: float) -> np.ndarray:
@@ -131,20 +148,29 @@ def check_timestamps(timestamps: np.ndarray, source: str) -> np.ndarray:
     return ts
 
 
-def read_image(path: Path, *, depth: bool = False) -> np.ndarray:
+def read_image(path: Path, *, depth: bool = False, max_pixels: int = MAX_IMAGE_PIXELS) -> np.ndarray:
     """Read an image file: (H, W, 3) uint8 RGB, or with ``depth=True`` (H, W) uint16.
 
-    Colour files (PNG, JPEG, ...) are converted from OpenCV's BGR to RGB; grey ones are
-    replicated to three channels. Depth files are 16-bit single-channel PNG or PGM.
+    Colour files (PNG, JPEG, BMP, PNM, TIFF) are converted from OpenCV's BGR to RGB; grey
+    ones are replicated to three channels. Depth files are 16-bit single-channel PNG or PGM.
+    The width and height are read from the file's header and checked against ``max_pixels``
+    (:data:`pal.io.image_headers.MAX_IMAGE_PIXELS`, 50 megapixels) before it is decoded.
 
     Raises:
-        SequenceError: the file is missing, unreadable or has the wrong type.
+        SequenceError: the file is missing, unreadable, over ``max_pixels``, of another
+            format, or has the wrong type; names the file.
     """
     if not path.is_file():
         raise SequenceError(f"{path} does not exist")
+    try:
+        width, height = check_image_size(path, max_pixels)
+    except ImageHeaderError as err:
+        raise SequenceError(str(err)) from err
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise SequenceError(f"{path} is not a readable image")
+    if image.shape[:2] != (height, width):
+        raise SequenceError(f"{path} decodes to {image.shape[:2]} but its header says {height}x{width}")
     if depth:
         if image.ndim != 2 or image.dtype != np.uint16:
             raise SequenceError(
@@ -179,7 +205,13 @@ def read_depth(path: Path, scale: float) -> np.ndarray:
             f"{path} has no valid depth pixel (all {units.shape[0]}x{units.shape[1]} are 0); it is not a "
             "depth image of this recording, or the sensor failed on this frame"
         )
-    return decode_depth(units, scale)
+    with np.errstate(over="ignore"):  # an absurd scale overflows float32; refused below
+        depth = decode_depth(units, scale)
+    if not np.isfinite(depth).all():
+        raise SequenceError(
+            f"{path}: depth_scale {scale} turns its units into non-finite metres; expected metres per unit"
+        )
+    return depth
 
 
 class FrameSequence:

@@ -38,6 +38,7 @@ from pal.io.sequence_files import (
     read_depth,
     read_image,
     read_text_rows,
+    resolve_inside,
 )
 from pal.perception.calibration import resolve_calibration
 
@@ -143,7 +144,10 @@ class FolderSequence(FrameSequence):
         calib = resolve_calibration(self.path, K, depth_scale, fps)
         self.K, self.depth_scale, self.calibration_source = calib.K, calib.depth_scale, calib.source
         self.stems = [s for s, _, _ in frames]
-        self._files = [(c, d) for _, c, d in frames]
+        where = str(self.path)
+        self._files = [
+            (resolve_inside(self.path, c, where), resolve_inside(self.path, d, where)) for _, c, d in frames
+        ]
         self.timestamps = self._timestamps(calib.fps)
         check_depth_range(
             read_image(self._files[0][1], depth=True),

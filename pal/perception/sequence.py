@@ -14,6 +14,7 @@ take them as arguments or from ``calibration.json`` (:mod:`pal.perception.calibr
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -34,6 +35,7 @@ from pal.io.sequence_files import (
     read_depth,
     read_image,
     read_text_rows,
+    resolve_inside,
 )
 from pal.perception.folders import FolderSequence, find_folder_layout
 from pal.perception.tum import TUMSequence
@@ -66,6 +68,53 @@ def _read_json(path: Path) -> dict[str, Any]:
     return data
 
 
+def _read_intrinsics(path: Path) -> np.ndarray:
+    K = _read_json(path).get("K")
+    try:
+        if K is not None and not isinstance(K, list):
+            raise ValueError(f"K is {K!r}, expected a (3, 3) list of numbers")
+        return check_intrinsics(None if K is None else np.asarray(K, dtype=np.float64))
+    except (TypeError, ValueError) as err:
+        raise SequenceError(f"{path}: {err}") from None
+
+
+#: Optional keys of sequence.json and their defaults.
+_DEFAULTS: dict[str, Any] = {"metadata": {}, "label_names": {}, "has_masks": False, "gt_objects": []}
+
+
+def _field(path: Path, info: dict[str, Any], key: str, kinds: tuple[type, ...], expected: str) -> Any:
+    value = info.get(key, _DEFAULTS.get(key))
+    if not isinstance(value, kinds) or (isinstance(value, bool) and bool not in kinds):
+        raise SequenceError(f"{path}: {key!r} is {value!r}, expected {expected}")
+    return value
+
+
+def _check_info(path: Path, info: dict[str, Any]) -> dict[str, Any]:
+    """The checked fields of ``sequence.json``; SequenceError naming the file, key and value."""
+    out: dict[str, Any] = {}
+    for key in ("width", "height", "num_frames"):
+        out[key] = _field(path, info, key, (int,), "an int >= 1")
+        if out[key] < 1:
+            raise SequenceError(f"{path}: {key!r} is {out[key]!r}, expected an int >= 1")
+    scale = _field(path, info, "depth_scale", (int, float), "a number > 0 (metres per depth unit)")
+    if not (math.isfinite(scale) and scale > 0):
+        raise SequenceError(
+            f"{path}: 'depth_scale' is {scale!r}, expected a number > 0 (metres per depth unit)"
+        )
+    out["depth_scale"] = float(scale)
+    out["has_masks"] = _field(path, info, "has_masks", (bool,), "true or false")
+    out["metadata"] = dict(_field(path, info, "metadata", (dict,), "a JSON object"))
+    names = _field(path, info, "gt_objects", (list,), "a list of object names")
+    if not all(isinstance(n, str) for n in names):
+        raise SequenceError(f"{path}: 'gt_objects' is {names!r}, expected a list of object names")
+    out["gt_objects"] = names
+    labels = _field(path, info, "label_names", (dict,), "an object of id -> name")
+    if not all(k.lstrip("-").isdigit() and isinstance(v, str) for k, v in labels.items()):
+        raise SequenceError(f"{path}: 'label_names' is {labels!r}, expected an object of integer id -> name")
+    out["label_names"] = {int(k): v for k, v in labels.items()}
+    return out
+
+
 class RecordedSequence(FrameSequence):
     """Reader of the ``pal`` layout (module docstring).
 
@@ -91,44 +140,35 @@ class RecordedSequence(FrameSequence):
             raise SequenceError(
                 f"{self.path / 'sequence.json'}: format {info.get('format')!r}, expected {FORMAT!r}"
             )
-        intr = _read_json(self.path / "intrinsics.json")
-        try:
-            self.K = check_intrinsics(
-                np.asarray(intr.get("K"), dtype=np.float64) if intr.get("K") is not None else None
-            )
-        except ValueError as err:
-            raise SequenceError(f"{self.path / 'intrinsics.json'}: {err}") from None
-        self.depth_scale = float(info.get("depth_scale", 0))
-        if not self.depth_scale > 0:
-            raise SequenceError(
-                f"{self.path / 'sequence.json'}: depth_scale {info.get('depth_scale')!r}, expected > 0"
-            )
-        try:
-            self.width, self.height, n = int(info["width"]), int(info["height"]), int(info["num_frames"])
-        except (KeyError, TypeError, ValueError) as err:
-            raise SequenceError(
-                f"{self.path / 'sequence.json'} lacks a valid width/height/num_frames ({err!r})"
-            ) from None
-        self.timestamps = self._read_timestamps(n)
-        self.metadata: dict[str, Any] = dict(info.get("metadata", {}))
-        self.label_names: dict[int, str] = {int(k): str(v) for k, v in info.get("label_names", {}).items()}
-        self.has_masks = bool(info.get("has_masks", False))
-        self._gt: dict[str, np.ndarray] = {}
-        names = list(info.get("gt_objects", []))
-        if names:
-            gt_path = self.path / "gt" / "poses.npz"
-            if not gt_path.is_file():
-                raise SequenceError(
-                    f"{gt_path} is missing but sequence.json lists ground-truth objects {names}"
-                )
-            try:
-                self._gt = read_npz(gt_path, format=POSES_FORMAT).arrays
-            except FileFormatError as err:
-                raise SequenceError(str(err)) from err
-            for name in names:
-                if name not in self._gt or f"{name}.valid" not in self._gt:
-                    raise SequenceError(f"{gt_path} has no poses for object {name!r}")
+        self.K = _read_intrinsics(self.path / "intrinsics.json")
+        fields = _check_info(self.path / "sequence.json", info)
+        self.depth_scale, self.width, self.height = fields["depth_scale"], fields["width"], fields["height"]
+        self.timestamps = self._read_timestamps(fields["num_frames"])
+        self.metadata: dict[str, Any] = fields["metadata"]
+        self.label_names: dict[int, str] = fields["label_names"]
+        self.has_masks: bool = fields["has_masks"]
+        names = fields["gt_objects"]
+        self._gt: dict[str, np.ndarray] = self._read_gt(names) if names else {}
         self.gt_objects: tuple[str, ...] = tuple(names)
+
+    def _read_gt(self, names: list[str]) -> dict[str, np.ndarray]:
+        gt_path = self.path / "gt" / "poses.npz"
+        if not gt_path.is_file():
+            raise SequenceError(f"{gt_path} is missing but sequence.json lists ground-truth objects {names}")
+        try:
+            gt = read_npz(gt_path, format=POSES_FORMAT).arrays
+        except FileFormatError as err:
+            raise SequenceError(str(err)) from err
+        n = len(self.timestamps)
+        for name in names:
+            if name not in gt or f"{name}.valid" not in gt:
+                raise SequenceError(f"{gt_path} has no poses for object {name!r}")
+            shapes = (gt[name].shape, gt[f"{name}.valid"].shape)
+            if shapes != ((n, 4, 4), (n,)):
+                raise SequenceError(
+                    f"{gt_path}: the poses of {name!r} have shapes {shapes}, expected (({n}, 4, 4), ({n},))"
+                )
+        return gt
 
     def _read_timestamps(self, n: int) -> np.ndarray:
         path = self.path / "timestamps.txt"
@@ -143,12 +183,13 @@ class RecordedSequence(FrameSequence):
 
     def frame(self, index: int) -> RGBDFrame:
         """Frame ``index`` read from disk (with ground-truth labels if recorded); SequenceError if bad."""
-        name = f"{index:06d}.png"
-        rgb = read_image(self.path / "rgb" / name)
-        depth = read_depth(self.path / "depth" / name, self.depth_scale)
+        name, where = f"{index:06d}.png", str(self.path)
+        rgb = read_image(resolve_inside(self.path, f"rgb/{name}", where))
+        depth = read_depth(resolve_inside(self.path, f"depth/{name}", where), self.depth_scale)
         labels = None
         if self.has_masks:
-            labels = read_image(self.path / "gt" / "masks" / name, depth=True).astype(np.int32)
+            mask = resolve_inside(self.path, f"gt/masks/{name}", where)
+            labels = read_image(mask, depth=True).astype(np.int32)
         if rgb.shape[:2] != (self.height, self.width) or depth.shape != (self.height, self.width):
             raise SequenceError(
                 f"frame {index} has rgb {rgb.shape} and depth {depth.shape}; sequence.json says {self.height}x{self.width}"

@@ -30,6 +30,7 @@ from pal.io.sequence_files import (
     read_depth,
     read_image,
     read_text_rows,
+    resolve_inside,
 )
 from pal.perception.calibration import intrinsics_matrix, resolve_calibration
 from pal.perception.folders import pose_matrices
@@ -54,11 +55,18 @@ FREIBURG3_K = intrinsics_matrix(535.4, 539.2, 320.1, 247.6)
 TUM_DEPTH_SCALE = 1.0 / 5000.0
 
 
-def _read_list(path: Path) -> tuple[np.ndarray, list[str]]:
+def _read_list(path: Path) -> tuple[np.ndarray, list[Path]]:
+    """Timestamps and files of a TUM list; files resolved inside the list's folder, times unique."""
     if not path.is_file():
         raise SequenceError(f"{path} does not exist; a TUM sequence needs rgb.txt and depth.txt")
-    stamps, files = [], []
-    for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+    stamps: list[float] = []
+    files: list[Path] = []
+    lines: dict[float, int] = {}
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise SequenceError(f"{path} is not a readable text file ({type(err).__name__}: {err})") from None
+    for n, line in enumerate(text.splitlines(), start=1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
@@ -66,10 +74,17 @@ def _read_list(path: Path) -> tuple[np.ndarray, list[str]]:
         if len(parts) < 2:
             raise SequenceError(f"{path}:{n}: expected '<timestamp> <file>', got {line!r}")
         try:
-            stamps.append(float(parts[0]))
+            t = float(parts[0])
         except ValueError:
             raise SequenceError(f"{path}:{n}: timestamp {parts[0]!r} is not a number") from None
-        files.append(parts[1])
+        if t in lines:
+            raise SequenceError(
+                f"{path}:{n}: timestamp {parts[0]} is listed twice (lines {lines[t]} and {n}); "
+                "every image needs its own time"
+            )
+        lines[t] = n
+        stamps.append(t)
+        files.append(resolve_inside(path.parent, parts[1], f"{path}:{n}"))
     if not stamps:
         raise SequenceError(f"{path} lists no images")
     return np.asarray(stamps), files
@@ -144,14 +159,14 @@ class TUMSequence(FrameSequence):
         self.timestamps = np.array([rgb_t[i] for i, _ in pairs])
         self._files = [(rgb_f[i], depth_f[j]) for i, j in pairs]
         self.depth_timestamps = np.array([depth_t[j] for _, j in pairs])
-        first = self.path / self._files[0][1]
+        first = self._files[0][1]
         check_depth_range(read_image(first, depth=True), self.depth_scale, source=str(first), stacklevel=3)
 
     def frame(self, index: int) -> RGBDFrame:
         """RGB image ``index`` with its associated depth image; SequenceError if they differ in size."""
         rgb_file, depth_file = self._files[index]
-        rgb = read_image(self.path / rgb_file)
-        depth = read_depth(self.path / depth_file, self.depth_scale)
+        rgb = read_image(rgb_file)
+        depth = read_depth(depth_file, self.depth_scale)
         if rgb.shape[:2] != depth.shape:
             raise SequenceError(
                 f"{rgb_file} is {rgb.shape[:2]} but {depth_file} is {depth.shape}; TUM images must be aligned"
@@ -171,7 +186,12 @@ class TUMSequence(FrameSequence):
         rows = read_text_rows(path)
         if not rows or any(len(r) != 8 for r in rows):
             raise SequenceError(f"{path}: expected rows 't tx ty tz qx qy qz qw'")
-        data = np.array(rows, dtype=np.float64)
+        try:
+            data = np.array(rows, dtype=np.float64)
+        except ValueError as err:
+            raise SequenceError(
+                f"{path}: expected rows of 8 numbers 't tx ty tz qx qy qz qw' ({err})"
+            ) from None
         out, valid = np.zeros((len(self), 7)), np.zeros(len(self), dtype=bool)
         for i, j in associate(self.timestamps, data[:, 0], max_difference):
             out[i], valid[i] = data[j, 1:], True

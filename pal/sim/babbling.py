@@ -479,7 +479,7 @@ def babble(
                 )
                 logger.debug("wrote %s (%d rows)", path, len(block.step))
                 bar.update(len(block.step))
-        found = effective_ranges(TransitionDataset.load(Path(out_dir)))
+        found = effective_ranges(TransitionDataset.load(Path(out_dir), allow_incomplete=True))
         writer.finish(config.steps, extra={"effective_ranges": found})
     return TransitionDataset.load(Path(out_dir))
 

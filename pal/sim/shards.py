@@ -237,7 +237,7 @@ def _merge(config: BabbleConfig, shards: list[BabbleConfig], dirs: list[Path], o
                 )
             row += len(ds)
             episode += int(ds.episode.max()) + 1
-        merged = TransitionDataset.load(staging)
+        merged = TransitionDataset.load(staging, allow_incomplete=True)
         writer.finish(config.steps, extra={"effective_ranges": effective_ranges(merged)})
     if (out / METADATA).exists():
         (out / METADATA).unlink()  # from here until the manifest moves in, out is no dataset

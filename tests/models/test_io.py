@@ -10,7 +10,7 @@ import torch
 
 from models import ModelFileError, WorldModel, finger_graph, load, save
 from models import io as model_io
-from models.io import FORMAT, ReadLimits, read_metadata
+from models.io import FORMAT, KEY_ENV, ModelFileTooLargeError, ModelSignatureError, ReadLimits, read_metadata
 
 
 @pytest.fixture
@@ -283,3 +283,67 @@ def test_a_model_with_discrete_sites_round_trips(tmp_path):
     again = back.sample(50, torch.Generator().manual_seed(0))
     for k in values:
         torch.testing.assert_close(values[k], again[k])
+
+
+# ---------------------------------------------------------------------------- signatures and bombs
+def _scale_weights(path, factor):
+    """Multiply every float tensor by ``factor`` and recompute the checksum: a deliberate forgery."""
+    with np.load(path, allow_pickle=False) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    doc = json.loads(arrays.pop("__meta__").tobytes())
+    arrays = {k: v * factor if v.dtype.kind == "f" else v for k, v in arrays.items()}
+    doc["checksum"] = model_io._checksum(doc["format"], doc["versions"], doc["meta"], arrays)
+    arrays["__meta__"] = np.frombuffer(json.dumps(doc).encode(), dtype=np.uint8)
+    np.savez(path, **arrays)
+
+
+def test_a_forged_file_with_a_recomputed_checksum_loads_unless_a_key_is_required(model, tmp_path):
+    path = save(model, tmp_path / "wm.npz", key=b"secret")
+    assert load(path, key="secret") is not None and load(path) is not None  # str and bytes keys
+    _scale_weights(path, 10.0)
+    forged = load(path)  # without a key the checksum alone cannot tell
+    assert forged is not None
+    with pytest.raises(ModelSignatureError, match=r"wm\.npz has a signature that does not match the key"):
+        load(path, key=b"secret")
+    other = save(model, tmp_path / "other.npz", key=b"another key")
+    with pytest.raises(ModelSignatureError, match=r"other\.npz has a signature that does not match"):
+        load(other, key=b"secret")
+    unsigned = save(model, tmp_path / "plain.npz")
+    with pytest.raises(ModelSignatureError, match=r"plain\.npz is not signed, but a key was given"):
+        load(unsigned, key=b"secret")
+    with pytest.raises(ModelSignatureError, match="is not signed"):
+        read_metadata(unsigned, key=b"secret")
+    for bad in (b"", "", 3):
+        with pytest.raises(ValueError, match="key must be non-empty bytes or str"):
+            save(model, tmp_path / "x.npz", key=bad)
+
+
+def test_the_key_comes_from_the_environment_when_not_given(model, tmp_path, monkeypatch):
+    monkeypatch.setenv(KEY_ENV, "from-env")
+    assert KEY_ENV == "PAL_MODEL_KEY"
+    path = save(model, tmp_path / "wm.npz")  # signed with the environment's key
+    assert load(path) is not None and load(path, key="from-env") is not None
+    with pytest.raises(ModelSignatureError, match="does not match the key"):
+        load(path, key="another")
+    monkeypatch.delenv(KEY_ENV)
+    unsigned = save(model, tmp_path / "plain.npz")
+    monkeypatch.setenv(KEY_ENV, "from-env")
+    with pytest.raises(ModelSignatureError, match="is not signed"):
+        load(unsigned)
+
+
+def test_content_far_beyond_the_file_size_is_refused_before_inflating(model, tmp_path):
+    from tests.hostile import npz_bomb
+
+    path = npz_bomb(tmp_path / "bomb.npz", "state/w", n_bytes=128 << 20)  # 128 MiB of zeros in ~130 kB
+    with pytest.raises(
+        ModelFileTooLargeError,
+        match=r"bomb\.npz declares 134217856 bytes of content in a file of \d+ bytes, a compression ratio of \d+",
+    ):
+        load(path)
+    with pytest.raises(
+        ModelFileError, match=r"bomb\.npz has no __meta__"
+    ):  # a larger ratio allowed: read, then refused
+        load(path, limits=ReadLimits(max_ratio=10_000))
+    with pytest.raises(ValueError, match="ReadLimits.max_ratio"):
+        ReadLimits(max_ratio=0)

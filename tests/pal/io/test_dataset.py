@@ -21,6 +21,7 @@ from pal.io.dataset import (
     column_names,
     read_chunk,
 )
+from pal.io.dataset_files import metadata_checksum
 from pal.io.files import atomic_write, read_npz, write_npz
 from pal.sim import BabblingEnv
 from pal.sim import babbling as babbling_module
@@ -73,7 +74,7 @@ def test_metadata_records_provenance(written):
     assert meta["policy"]["name"] == "uniform" and meta["reset_every"] == 100
     assert {"python", "numpy", "mujoco", "gymnasium", "pal"} <= set(meta["versions"])
     assert meta["n_rows"] == 250 and meta["complete"] is True
-    assert meta["format"] == "pal.transitions/3" and meta["action_ranges"] == {"finger": [-1.0, 0.33]}
+    assert meta["format"] == "pal.transitions/4" and meta["action_ranges"] == {"finger": [-1.0, 0.33]}
     assert meta["actuator_force_limits"] == {"finger": None} and meta["effective_range_probe"] is None
     found = meta["effective_ranges"]["finger"]
     assert found["joint"] == "finger" and found["babbled"] == [-1.0, 0.33]
@@ -223,8 +224,8 @@ def test_missing_chunk_and_bad_metadata_raise(written, tmp_path):
         TransitionDataset.load(tmp_path / "nothing")
     empty = tmp_path / "empty"
     empty.mkdir()
-    meta = {"format": data_module.FORMAT, "columns": [], "run_id": "r", "chunks": []}
-    (empty / "metadata.json").write_text(json.dumps(meta))
+    meta = {"format": data_module.FORMAT, "columns": [], "run_id": "r", "chunks": [], "complete": True}
+    (empty / "metadata.json").write_text(json.dumps({**meta, "metadata_checksum": metadata_checksum(meta)}))
     with pytest.raises(DatasetFileError, match="holds no complete chunk"):
         TransitionDataset.load(empty)
     (empty / "metadata.json").write_text(json.dumps({**meta, "format": "pal.transitions/1"}))
@@ -414,5 +415,101 @@ def test_a_chunk_written_just_before_an_interruption_is_adopted(written, tmp_pat
         babble(SMALL, root)
     monkeypatch.undo()
     assert len(json.loads((root / "metadata.json").read_text())["chunks"]) == 2
-    assert len(TransitionDataset.load(root)) == 180  # chunk 2 belongs to the run and follows on
+    with pytest.raises(
+        DatasetFileError, match=r"run is incomplete: its chunks hold 180 of the 250 planned rows"
+    ):
+        TransitionDataset.load(root)
+    partial = TransitionDataset.load(root, allow_incomplete=True)
+    assert len(partial) == 180  # chunk 2 belongs to the run and follows on
+    assert (partial.complete, partial.planned_rows) == (False, 250) and "rows=180 of 250 planned" in repr(
+        partial
+    )
     assert_same_rows(babble(SMALL, root, resume=True), full)
+
+
+# ---------------------------------------------------------------------------- metadata integrity
+def _edit_metadata(root, checksum: bool = True, **changes):
+    meta = {**json.loads((root / "metadata.json").read_text()), **changes}
+    if checksum:
+        meta["metadata_checksum"] = metadata_checksum(meta)
+    (root / "metadata.json").write_text(json.dumps(meta))
+
+
+def test_an_edited_metadata_file_is_refused_on_load_and_by_the_dataset_check(written, tmp_path):
+    from pal.experiments.world_model.data import DataConfig
+
+    root = _copy(written[0], tmp_path)
+    _edit_metadata(root, checksum=False, frame_skip=5)
+    with pytest.raises(
+        DatasetFileError, match=r"metadata\.json: metadata_checksum '[0-9a-f]{64}' does not match"
+    ):
+        TransitionDataset.load(root)
+    with pytest.raises(DatasetFileError, match=r"metadata\.json: metadata_checksum"):
+        DataConfig(dataset=str(root))
+    _edit_metadata(root, frame_skip=50)  # the original value, checksum rewritten
+    assert len(TransitionDataset.load(root)) == 250
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "match"),
+    [
+        ("columns", [{}], r"'columns' is \[\{\}\], expected a list of column names"),
+        ("columns", "q.finger", r"'columns' is 'q.finger', expected a list"),
+        ("run_id", 3, r"'run_id' is 3, expected the run id"),
+        ("chunks", {"a": 1}, r"'chunks' is \{'a': 1\}, expected the chunk manifest"),
+        ("frame_skip", "50", r"'frame_skip' is '50', expected an int >= 1"),
+        ("frame_skip", 0, r"'frame_skip' is 0, expected an int >= 1"),
+        ("n_rows", 2.5, r"'n_rows' is 2\.5, expected an int >= 0"),
+        ("complete", 1, r"'complete' is 1, expected true or false"),
+        ("joints", ["finger", 3], r"'joints' is \['finger', 3\], expected a list of names"),
+    ],
+)
+def test_metadata_of_the_wrong_schema_is_refused_naming_file_key_and_value(
+    written, tmp_path, key, value, match
+):
+    root = _copy(written[0], tmp_path)
+    _edit_metadata(root, **{key: value})
+    with pytest.raises(DatasetFileError, match=r"metadata\.json: " + match):
+        TransitionDataset.load(root)
+
+
+def test_a_manifest_entry_of_the_wrong_types_is_refused(written, tmp_path):
+    root = _copy(written[0], tmp_path)
+    chunks = json.loads((root / "metadata.json").read_text())["chunks"]
+    _edit_metadata(root, chunks=[{**chunks[0], "rows": "60"}, *chunks[1:]])
+    with pytest.raises(DatasetFileError, match=r"metadata\.json: 'chunks\[0\]' is .*'rows': '60'"):
+        TransitionDataset.load(root)
+
+
+@pytest.mark.parametrize(
+    ("key", "change", "match"),
+    [
+        (
+            "q.finger",
+            lambda a: np.repeat(a, 3, axis=1),
+            r"array 'q.finger' has shape \(60, 3\) and dtype float32, expected \(60, 1\) float32",
+        ),
+        (
+            "q.finger",
+            lambda a: a.astype(np.float64),
+            r"array 'q.finger' has shape \(60, 1\) and dtype float64",
+        ),
+        (
+            "state",
+            lambda a: a[:, :2],
+            r"array 'state' has shape \(60, 2\) and dtype float64, expected \(60, 4\)",
+        ),
+        ("step", lambda a: a[:, None], r"array 'step' has shape \(60, 1\)"),
+    ],
+)
+def test_a_chunk_array_of_the_wrong_shape_is_refused_naming_the_chunk(written, tmp_path, key, change, match):
+    root = _copy(written[0], tmp_path)
+    path = root / "chunk_000001.npz"
+    f = read_npz(path, format=data_module.CHUNK_FORMAT)
+    write_npz(path, {**f.arrays, key: change(f.arrays[key])}, f.meta, format=data_module.CHUNK_FORMAT)
+    checksum = read_chunk(path)[0]["checksum"]
+    chunks = json.loads((root / "metadata.json").read_text())["chunks"]
+    chunks[1]["checksum"] = checksum  # a consistent file and manifest, of the wrong shape
+    _edit_metadata(root, chunks=chunks)
+    with pytest.raises(DatasetFileError, match=r"chunk_000001\.npz: " + match):
+        TransitionDataset.load(root)

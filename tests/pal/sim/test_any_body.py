@@ -28,6 +28,7 @@ from pal.experiments.world_model.data import (
     cache_path,
 )
 from pal.io.dataset import TransitionDataset
+from pal.io.dataset_files import metadata_checksum
 from pal.sim import BabblingEnv, load_model
 from pal.sim.babbling import BabbleConfig, babble, collect
 from pal.sim.body_info import body_info
@@ -308,8 +309,11 @@ def test_an_existing_dataset_is_used_and_a_foreign_one_refused(tmp_path):
             DataConfig(choice, dataset=str(root))
     with pytest.raises(ValueError, match="is not a directory"):
         DataConfig(body, dataset=str(tmp_path / "none"))
-    meta = json.loads((root / "metadata.json").read_text())
-    (root / "metadata.json").write_text(json.dumps({**meta, "complete": False}))
+    meta = {**json.loads((root / "metadata.json").read_text()), "complete": False}
+    (root / "metadata.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="metadata_checksum .* does not match its content"):
+        DataConfig(body, dataset=str(root))  # an edit without the checksum
+    (root / "metadata.json").write_text(json.dumps({**meta, "metadata_checksum": metadata_checksum(meta)}))
     with pytest.raises(ValueError, match="is incomplete"):
         DataConfig(body, dataset=str(root))
 
