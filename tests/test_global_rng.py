@@ -140,6 +140,9 @@ def _gated_queries() -> None:
     fit(model, data, schedule=FitSchedule(epochs=2, batch_size=8, validation=0.25))
     model.predict({"b": b[:3]}, noise="sampled", generator=torch.Generator().manual_seed(1))
     assert inference.counterfactual_mixture(model, {"b": b[:3], "x": data["x"][:3]}, {"b": 0.0}).mean
+    interval = inference.predictive_interval(model, {"b": b[:3]}, "x", num_samples=8, seed=1)
+    assert isinstance(interval, inference.PredictiveInterval)
+    inference.coverage_by_regime(data["x"][:3], interval.lower, interval.upper, c[:3, 0])
 
 
 def _calibrated_models(tmp: Path) -> None:
@@ -312,7 +315,9 @@ CASES: dict[str, Callable[[Path], object]] = {
         _finger(), _finger_data(), loss="mse", schedule=FitSchedule(epochs=2, batch_size=8, validation=0.0)
     ),
     "heteroscedastic and ensemble models": _calibrated_models,
-    "gated site: fit, predict, counterfactual_mixture (MixtureCounterfactual)": lambda tmp: _gated_queries(),
+    "gated site: fit, predict, counterfactual_mixture (MixtureCounterfactual), predictive_interval": (
+        lambda tmp: _gated_queries()
+    ),
     "curiosity": lambda tmp: _curiosity(),
     "admissible_parents and shd": lambda tmp: (
         admissible_parents(finger_graph(), tiers=[["act.finger", "q_prev.finger"]]),
