@@ -206,13 +206,16 @@ def contact_coverage(
     level: float = 0.9,
     num_samples: int = 200,
     seed: int = 0,
+    contact_given: bool = False,
 ) -> dict[str, dict[str, Any]]:
     """Coverage of the true displacements by the model's forward interval, on contact and no-contact rows.
 
     The interval is :func:`inference.predictive_interval` of ``dpos.o`` from the actions, joint
     angles, hand and true object positions before the step (the contact, hand and ensemble
     members sampled). Rows are labelled by :func:`pal.agent.graph.contact_rule` of ``config``
-    with the gated form's rule (the touch sensor here), whatever the model's form.
+    with the gated form's rule (the touch sensor here), whatever the model's form. With
+    ``contact_given`` the sensed contact is given to the model as well (the touch strength to a
+    smooth model, the 0/1 switch to a gated one), so only the hand and the members are sampled.
 
     Returns:
         object -> ``{"contact": {"coverage", "rows"}, "no contact": {...}, "all": {...},
@@ -223,6 +226,14 @@ def contact_coverage(
     truth_prev, truth, touch = (history.array(k)[rows] for k in ("truth_prev", "truth", "touch"))
     values = {"act": act, "q_prev": q_prev, "ee_prev": hand_prev}
     values.update({f"pos_prev.{o}": truth_prev[:, k] for k, o in enumerate(history.objects)})
+    given = contact_rule(pushing_spec(), config)[0]
+    if contact_given:
+        values.update(
+            {
+                f"contact.{o}": contact_label(touch[:, k], truth[:, k] - truth_prev[:, k], given)
+                for k, o in enumerate(history.objects)
+            }
+        )
     out = {}
     for k, o in enumerate(history.objects):
         interval = predictive_interval(

@@ -24,6 +24,8 @@ def test_contact_coverage_splits_the_rows_by_the_touch_sensor_for_both_forms():
         results[form] = contact_coverage(model, agent.history, m, test, num_samples=50, seed=0)
         again = contact_coverage(model, agent.history, m, test, num_samples=50, seed=0)
         assert again == results[form]
+        given = contact_coverage(model, agent.history, m, test, num_samples=50, seed=0, contact_given=True)
+        assert given["box"]["all"]["rows"] == len(test)
         for k, o in enumerate(agent.history.objects):
             res = results[form][o]
             assert res["all"]["rows"] == len(test)
