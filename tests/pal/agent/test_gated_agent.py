@@ -79,6 +79,7 @@ def test_the_gated_agent_runs_the_pushing_world_deterministically():
     finally:
         env.close()
     assert isinstance(a.model.mechanism("dpos.box"), GatedMechanism)
+    assert (a.history.array("touch")[:6] > 0).any()  # the on branches were fitted on touched rows
     for x, y in zip(da, db, strict=True):
         np.testing.assert_array_equal(x.action, y.action)
     est = a.history.array("est")
