@@ -69,9 +69,10 @@ def fitted(env):
     return agent
 
 
-def short_run(env, seed):
-    agent = Agent(Sealed(env), pushing_spec(), TINY, seed=seed)
-    decisions = agent.run(4, "babble")
+def short_run(env, seed, config=TINY, babble=4):
+    """Babble, refit, two curious steps and one goal step, through the Gymnasium interface only."""
+    agent = Agent(Sealed(env), pushing_spec(), config, seed=seed)
+    decisions = agent.run(babble, "babble")
     agent.refit()
     decisions += agent.run(2, "curious")
     agent.goal = {"box": agent.estimate["box"] + np.array([0.03, 0.0])}

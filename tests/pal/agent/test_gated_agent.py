@@ -15,7 +15,7 @@ from pal.agent.graph import MOVED_SIGMAS, contact_rule
 from pal.agent.history import contact_label
 from pal.sim.pushing import PushingEnv
 
-from .test_agent import TINY, Sealed
+from .test_agent import TINY, short_run
 
 GATED = replace(TINY, model=replace(TINY.model, displacement="gated"))
 BOUNDS = (-np.ones(7), np.ones(7))
@@ -59,23 +59,13 @@ def test_contact_labels_follow_the_touch_or_the_moved_rule():
         contact_label(touch, dpos, "moved", -1)
 
 
-def _pushing_run(env, seed):
-    agent = Agent(Sealed(env), pushing_spec(), GATED, seed=seed)
-    decisions = agent.run(6, "babble")
-    agent.refit()
-    decisions += agent.run(2, "curious")
-    agent.goal = {"box": agent.estimate["box"] + np.array([0.03, 0.0])}
-    decisions += agent.run(1, "goal")
-    return agent, decisions
-
-
 @pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
 @pytest.mark.slow
 def test_the_gated_agent_runs_the_pushing_world_deterministically():
     env = PushingEnv(camera=True)
     try:
-        a, da = _pushing_run(env, 0)
-        b, db = _pushing_run(env, 0)
+        a, da = short_run(env, 0, GATED, babble=6)
+        b, db = short_run(env, 0, GATED, babble=6)
     finally:
         env.close()
     assert isinstance(a.model.mechanism("dpos.box"), GatedMechanism)
