@@ -18,7 +18,7 @@ from inference.discovery import DiscoveryOptions, DiscoveryResult, discover, shd
 from inference.effects import EffectResult, treatment_effect
 from inference.ensemble import Ensemble
 from inference.equivalence import CPDAG, EdgeComparison, compare_edges, cpdag
-from inference.fit import FitResult, FitSchedule, fit
+from inference.fit import CalibrationOptions, FitResult, FitSchedule, fit
 from inference.handlers import AbductNoise, Intervene, MeasurementScale, ReplayNoise
 from inference.importance import ImportanceOptions
 from inference.interventions import do, simulate
@@ -36,6 +36,7 @@ __all__ = [
     "AbductNoise",
     "ActionOptions",
     "ActionResult",
+    "CalibrationOptions",
     "CounterfactualResult",
     "CuriositySampler",
     "Diagnostics",

@@ -15,8 +15,9 @@ computed in those standardised units, ``z = (x - loc) / out_scale`` and ``s = sc
   ``"beta_nll"`` with ``beta = 0.5`` for heteroscedastic ones. Heteroscedastic mechanisms
   add their bound penalty (:meth:`models.mechanisms.Mechanism.penalty`).
 
-A seeded random share ``validation`` of the rows is held out. On it the homoscedastic
-sigma_i is estimated (the RMS validation residual, whatever the loss), and with
+A seeded random share ``validation`` of the rows is held out. On it the scales are set
+(the homoscedastic sigma_i from the validation residuals, whatever the loss; predicted scales
+rescaled; ``schedule.calibration`` chooses the rule, and cross-fitted rows for gated sites), and with
 ``patience`` each mechanism stops when its validation criterion (MSE for ``"mse"``, the
 site's NLL otherwise) has not improved for ``patience`` epochs and its best epoch is
 restored. The members of an ensemble (:class:`models.EnsembleMechanism`) are trained on their
@@ -26,35 +27,38 @@ A discrete site (:mod:`models.discrete`) is trained by its cross-entropy ``-mean
 (``"cross_entropy"``, reported in nats), with the same split and early stopping; a discrete
 root gets the training frequencies (plus 1/2 per category) as its prior.
 
-The sigma rules are in :mod:`inference.fit_sigma`; the schedule and result types
+The training loop is :mod:`inference.fit_loop`, the rows of each site :mod:`inference.fit_rows`,
+the sigma rules :mod:`inference.fit_sigma` (how held-out residuals set a scale:
+:class:`CalibrationOptions`, nested in the schedule, with the cross-fitted calibration rows of
+gated sites of :mod:`inference.fit_crossfit`); the schedule and result types
 (:class:`FitSchedule`, its default :meth:`FitSchedule.auto`, the thesis protocol, :class:`FitResult`)
-in :mod:`inference.fit_types`.
+are in :mod:`inference.fit_types`.
 """
 
 from __future__ import annotations
 
-import hashlib
+import dataclasses
 import logging
-import math
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import torch
 from torch import Tensor
-from tqdm import tqdm
 
-from inference.fit_rows import member_rows, site_rows
-from inference.fit_sigma import _RULE_TEXT, _members, _set_sigmas
-from inference.fit_types import FIT_KWARGS, LOSSES, FitResult, FitSchedule, _schedule
+from inference.fit_crossfit import cross_fit
+from inference.fit_loop import Run, restore_best, train
+from inference.fit_rows import derived_seed, member_rows, site_rows
+from inference.fit_rows import members as _members
+from inference.fit_sigma import _RULE_TEXT, _set_sigmas
+from inference.fit_types import FIT_KWARGS, LOSSES, CalibrationOptions, FitResult, FitSchedule, _schedule
 from models.checks import check_bool, check_choice, check_names, check_seed
 from models.discrete import DiscreteMechanism
 from models.mechanisms import Mechanism
 from models.variables import Role
 from models.world import WorldModel, as_values, require_world_model
 
-__all__ = ["FIT_KWARGS", "LOSSES", "FitResult", "FitSchedule", "fit"]
+__all__ = ["FIT_KWARGS", "LOSSES", "CalibrationOptions", "FitResult", "FitSchedule", "fit"]
 
 log = logging.getLogger(__name__)
 
@@ -65,45 +69,8 @@ def _standardiser(x: Tensor) -> tuple[Tensor, Tensor]:
     return loc, torch.where(scale > 1e-8, scale, torch.ones_like(scale))
 
 
-def _derived_seed(seed: int, stream: str) -> int:
-    """A seed for a named random stream, independent of the main one (no global RNG)."""
-    digest = hashlib.sha256(f"pal.fit:{seed}:{stream}".encode()).digest()
-    return int.from_bytes(digest[:8], "little") >> 1
-
-
 def _predicts_scale(mech: Mechanism) -> bool:
     return any(m.log_sigma is None for m in _members(mech))
-
-
-def _member_loss(member: Mechanism, x: Tensor, y: Tensor, loss: str, beta: float) -> tuple[Tensor, Tensor]:
-    """``(training loss, residual)`` of one member on a batch, in standardised units.
-
-    For a discrete member the "residual" is the per-row cross-entropy ``(B, 1)`` (nats).
-    """
-    if isinstance(member, DiscreteMechanism):
-        nll = -member.distribution(x).log_prob(y)
-        return nll.mean(), nll.detach()[:, None].sqrt()
-    if member.log_sigma is None:
-        loc, scale = member.loc_scale(x)
-    else:
-        loc, scale = member(x), None
-    resid = y - loc
-    z = resid / member.out_scale
-    if loss == "mse":
-        return (z**2).mean(), resid
-    s = member.sigma / member.out_scale if scale is None else scale / member.out_scale
-    nll = 0.5 * (z / s) ** 2 + torch.log(s)
-    if loss == "beta_nll" and beta > 0:
-        nll = s.detach() ** (2 * beta) * nll
-    return nll.mean() + member.penalty(), resid
-
-
-def _site_nll(mech: Mechanism, x: Tensor, y: Tensor) -> float:
-    """Mean NLL of the site at ``y``, nats per unit and dim (Normal, or the categorical of a discrete site)."""
-    if isinstance(mech, DiscreteMechanism):
-        return float(-mech.distribution(x).log_prob(y).mean())
-    loc, scale = mech.loc_scale(x)
-    return float(-torch.distributions.Normal(loc, scale).log_prob(y).mean())
 
 
 def _select(model: WorldModel, cols: Mapping[str, Tensor], variables: Sequence[str] | None) -> list[str]:
@@ -180,7 +147,8 @@ def fit(
             unknown, root, fixed or repeated ``variables``, no trainable mechanism,
             ``loss="mse"`` for a mechanism that predicts its scale, a schedule that is not a
             FitSchedule, or a bad schedule argument (type or range: ``beta`` outside [0, 1],
-            ``validation`` outside [0, 1), ``patience`` < 1 or without validation rows).
+            ``validation`` outside [0, 1), ``patience`` < 1 or without validation rows, a
+            calibration that is not a :class:`CalibrationOptions`: rule, level in (0, 1), folds >= 2).
         FloatingPointError: the training loss became NaN or inf.
     """
     model = require_world_model(model)
@@ -198,40 +166,23 @@ def fit(
         log.info("fit: %r not trained: %s", v, why)
     gen = torch.Generator().manual_seed(seed)
     run = _prepare(model, cols, n, targets, _losses(model, targets, loss), schedule, gen, seed)
+    folds, calibration_seconds = cross_fit(run, schedule, seed, progress_bar)
     start = time.perf_counter()
-    epochs_run = _train(model, run, schedule, gen, progress_bar)
-    best_epoch = _restore_best(model, run)
+    model.train()
+    epochs_run = train(run, schedule, gen, progress_bar)
+    model.eval()
+    best_epoch = restore_best(run)
     seconds = time.perf_counter() - start
-    sigma, sigma_rule = _set_sigmas(
-        model, run.targets, run.losses, run.inputs, run.outputs, run.val_idx, run.train_idx, run.rows
-    )
+    sigma, sigma_rule = _set_sigmas(model, run, schedule.calibration, folds)
     for v, rule in sigma_rule.items():
-        log.info("fit: sigma of %r from %s", v, _RULE_TEXT[rule])
+        text = _RULE_TEXT[rule].format(level=schedule.calibration.level, folds=schedule.calibration.folds)
+        log.info("fit: sigma of %r from %s", v, text)
     model.provenance = {
         **model.provenance,
         "fit": _provenance(run, schedule, loss, seed, n, best_epoch, sigma_rule),
     }
-    return _result(run, schedule, loss, epochs_run, seconds, sigma, sigma_rule, skipped, best_epoch)
-
-
-@dataclass
-class _Run:
-    """The data and the state of one training run: standardised columns, rows, curves, best epochs."""
-
-    targets: list[str]
-    losses: dict[str, str]
-    discrete: set[str]
-    inputs: dict[str, Tensor]
-    outputs: dict[str, Tensor]
-    train_idx: Tensor
-    val_idx: Tensor
-    rows: dict[str, list[Tensor | None]]
-    boot_gen: torch.Generator
-    train_curves: dict[str, list[float]] = field(default_factory=dict)
-    val_curves: dict[str, list[float]] = field(default_factory=dict)
-    nll_curves: dict[str, list[float]] = field(default_factory=dict)
-    best: dict[str, tuple[float, int, dict[str, Tensor]]] = field(default_factory=dict)
-    active: list[str] = field(default_factory=list)
+    result = _result(run, schedule, loss, epochs_run, seconds, sigma, sigma_rule, skipped, best_epoch)
+    return dataclasses.replace(result, calibration_seconds=calibration_seconds)
 
 
 def _columns(model: WorldModel, data: Any) -> tuple[dict[str, Tensor], int]:
@@ -271,7 +222,7 @@ def _prepare(
     schedule: FitSchedule,
     gen: torch.Generator,
     seed: int,
-) -> _Run:
+) -> Run:
     """Split the rows, draw the bootstraps, set the root priors and the normalisers."""
     validation, patience = schedule.validation, schedule.patience
     perm = torch.randperm(n, generator=gen)
@@ -283,7 +234,7 @@ def _prepare(
         raise ValueError(
             f"patience={patience} needs validation rows; validation={validation:g} of {n} rows holds out none"
         )
-    boot_gen = torch.Generator().manual_seed(_derived_seed(seed, "bootstrap"))
+    boot_gen = torch.Generator().manual_seed(derived_seed(seed, "bootstrap"))
     rows: dict[str, list[Tensor | None]] = {}
     _set_root_priors(model, cols, train_idx)
     inputs, outputs = {}, {}
@@ -296,7 +247,8 @@ def _prepare(
         out_loc, out_scale = _standardiser(outputs[v][norm_idx])
         mech.set_normalization(in_loc, in_scale, out_loc, out_scale)
     discrete = {v for v in targets if losses[v] == "cross_entropy"}
-    return _Run(targets, losses, discrete, inputs, outputs, train_idx, val_idx, rows, boot_gen)
+    mechs = {v: model.mechanism(v) for v in targets}
+    return Run(targets, mechs, losses, discrete, inputs, outputs, train_idx, val_idx, rows, boot_gen)
 
 
 def _set_root_priors(model: WorldModel, cols: Mapping[str, Tensor], train_idx: Tensor) -> None:
@@ -312,111 +264,8 @@ def _set_root_priors(model: WorldModel, cols: Mapping[str, Tensor], train_idx: T
             model.set_root_prior(r, loc, scale)
 
 
-def _train(
-    model: WorldModel, run: _Run, schedule: FitSchedule, gen: torch.Generator, progress_bar: bool
-) -> int:
-    """The Adam epochs with validation and early stopping; returns the epochs run."""
-    params = []
-    for v in run.targets:
-        for member in _members(model.mechanism(v)):
-            params += [
-                p for name, p in member.named_parameters() if run.losses[v] != "mse" or name != "log_sigma"
-            ]
-    optim = torch.optim.Adam(params, lr=schedule.lr)
-    for curves in (run.train_curves, run.val_curves, run.nll_curves):
-        curves.update({v: [] for v in run.targets})
-    run.active = list(run.targets)
-    model.train()
-    bar = tqdm(range(schedule.epochs), desc="fit", disable=not progress_bar, leave=False)
-    epochs_run = 0
-    for epoch in bar:
-        epochs_run = epoch + 1
-        worst = _epoch(model, run, optim, schedule, gen)
-        if len(run.val_idx):
-            _validate(model, run)
-        if schedule.patience is not None:
-            _early_stop(model, run, epoch, schedule.patience)
-            if not run.active:
-                break
-        bar.set_postfix(mse=f"{worst:.4g}")
-    model.eval()
-    return epochs_run
-
-
-def _epoch(
-    model: WorldModel, run: _Run, optim: torch.optim.Optimizer, schedule: FitSchedule, gen: torch.Generator
-) -> float:
-    """One pass over the training rows in minibatches; returns the worst mean training loss."""
-    train_idx, batch_size, active = run.train_idx, schedule.batch_size, run.active
-    n_train = len(train_idx)
-    order = train_idx[torch.randperm(n_train, generator=gen)]
-    member_order = {
-        v: [b if b is None else b[torch.randperm(n_train, generator=run.boot_gen)] for b in run.rows[v]]
-        for v in active
-    }
-    sums = dict.fromkeys(active, 0.0)
-    for b in range(0, n_train, batch_size):
-        idx = order[b : b + batch_size]
-        optim.zero_grad()
-        total = 0.0
-        for v in active:
-            members = _members(model.mechanism(v))
-            for member, m_order in zip(members, member_order[v], strict=True):
-                m_idx = idx if m_order is None else m_order[b : b + batch_size]
-                term, resid = _member_loss(
-                    member, run.inputs[v][m_idx], run.outputs[v][m_idx], run.losses[v], schedule.beta
-                )
-                total = total + term
-                sums[v] += float((resid.detach() ** 2).mean(-1).sum()) / len(members)
-        total.backward()
-        optim.step()
-    for v in active:
-        run.train_curves[v].append(sums[v] / n_train)
-    worst = max(run.train_curves[v][-1] for v in active)
-    if not math.isfinite(worst):
-        raise FloatingPointError(f"training diverged (loss {worst}); lower lr")
-    return worst
-
-
-def _validate(model: WorldModel, run: _Run) -> None:
-    """Append the validation MSE (and NLL, or the cross-entropy of a discrete site) of every active site."""
-    with torch.no_grad():
-        for v in run.active:
-            mech = model.mechanism(v)
-            x, y = run.inputs[v][run.val_idx], run.outputs[v][run.val_idx]
-            if v in run.discrete:  # the validation criterion is the cross-entropy
-                run.val_curves[v].append(_site_nll(mech, x, y))
-                run.nll_curves[v].append(run.val_curves[v][-1])
-                continue
-            run.val_curves[v].append(float(((y - mech(x)) ** 2).mean()))
-            if run.losses[v] != "mse":
-                run.nll_curves[v].append(_site_nll(mech, x, y))
-
-
-def _early_stop(model: WorldModel, run: _Run, epoch: int, patience: int) -> None:
-    """Keep each site's best epoch; stop the sites without a better one for ``patience`` epochs."""
-    for v in list(run.active):
-        score = run.val_curves[v][-1] if run.losses[v] == "mse" else run.nll_curves[v][-1]
-        if not math.isfinite(score):
-            raise FloatingPointError(f"validation loss of {v!r} is {score}; lower lr")
-        if v not in run.best or score < run.best[v][0]:
-            state = {key: t.detach().clone() for key, t in model.mechanism(v).state_dict().items()}
-            run.best[v] = (score, epoch + 1, state)
-        elif epoch + 1 - run.best[v][1] >= patience:
-            run.active.remove(v)
-
-
-def _restore_best(model: WorldModel, run: _Run) -> dict[str, int]:
-    """Load each early-stopped site's best parameters; returns name -> the 1-based epoch kept."""
-    best_epoch = {v: len(run.train_curves[v]) for v in run.targets}
-    for v, (_, epoch_kept, state) in run.best.items():
-        model.mechanism(v).load_state_dict(state)
-        best_epoch[v] = epoch_kept
-    return best_epoch
-
-
 def _provenance(
-    run: _Run,
+    run: Run,
     schedule: FitSchedule,
     loss: str | None,
     seed: int,
@@ -436,6 +285,7 @@ def _provenance(
         "validation": schedule.validation,
         "patience": schedule.patience,
         "bootstrap": schedule.bootstrap,
+        "calibration": schedule.calibration.to_dict(),
         "n": n,
         "trained": list(run.targets),
         "best_epoch": dict(best_epoch),
@@ -444,7 +294,7 @@ def _provenance(
 
 
 def _result(
-    run: _Run,
+    run: Run,
     schedule: FitSchedule,
     loss: str | None,
     epochs_run: int,

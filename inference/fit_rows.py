@@ -15,20 +15,34 @@ many Adam steps as any other site.
 
 from __future__ import annotations
 
+import hashlib
 import math
 
 import torch
 from torch import Tensor
 
+from models.ensemble import EnsembleMechanism
 from models.gated import GatedMechanism
 from models.mechanisms import Mechanism
 
 __all__: list[str] = []
 
 
+def derived_seed(seed: int, stream: str) -> int:
+    """A seed for a named random stream, independent of the main one (no global RNG)."""
+    digest = hashlib.sha256(f"pal.fit:{seed}:{stream}".encode()).digest()
+    return int.from_bytes(digest[:8], "little") >> 1
+
+
 def trained(mech: Mechanism) -> Mechanism:
     """The mechanism that fit trains at a site: a gated site's on branch, else the site's own."""
     return mech.on if isinstance(mech, GatedMechanism) else mech
+
+
+def members(mech: Mechanism) -> list[Mechanism]:
+    """The members that fit trains: an ensemble's, or the mechanism (a gated site's on branch)."""
+    mech = trained(mech)
+    return list(mech.members) if isinstance(mech, EnsembleMechanism) else [mech]
 
 
 def site_rows(site: str, mech: Mechanism, parents: Tensor, idx: Tensor, what: str = "training") -> Tensor:
@@ -62,12 +76,17 @@ def member_rows(
     A bootstrap member of an ensemble draws ``n_train`` rows with replacement from its site's
     rows; a gated site's rows are its on rows (tiled, or drawn from when bootstrapping).
     """
-    n_train = len(train_idx)
     rows = site_rows(site, mech, parents, train_idx)
-    use = bootstrap and members > 1
-    if use:
-        return [rows[torch.randint(len(rows), (n_train,), generator=gen)] for _ in range(members)]
-    if rows is train_idx:
+    if rows is train_idx and not (bootstrap and members > 1):
         return [None] * members
+    return epoch_rows(rows, len(train_idx), members, bootstrap, gen)
+
+
+def epoch_rows(
+    rows: Tensor, n_train: int, members: int, bootstrap: bool, gen: torch.Generator
+) -> list[Tensor | None]:
+    """Per member, ``n_train`` rows drawn from ``rows``: a bootstrap per member of an ensemble, else ``rows`` tiled."""
+    if bootstrap and members > 1:
+        return [rows[torch.randint(len(rows), (n_train,), generator=gen)] for _ in range(members)]
     tiled = rows.repeat(math.ceil(n_train / len(rows)))[:n_train]
     return [tiled] * members

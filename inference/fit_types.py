@@ -1,7 +1,8 @@
-"""The arguments and the outcome of :func:`inference.fit`: losses, schedule and result.
+"""The arguments and the outcome of :func:`inference.fit`: losses, schedule, calibration and result.
 
-:data:`LOSSES`, :data:`FIT_KWARGS`, :class:`FitSchedule` (with its default :meth:`FitSchedule.auto`)
-and :class:`FitResult`.
+:data:`LOSSES`, :data:`FIT_KWARGS`, :class:`FitSchedule` (with its default :meth:`FitSchedule.auto`),
+:class:`CalibrationOptions` (how held-out residuals set the scales, nested in the schedule) and
+:class:`FitResult`.
 
 The default schedule (``schedule=None``, :meth:`FitSchedule.auto`) scales with the number of
 rows N so that it behaves from N = 200 to N = 10^6:
@@ -28,17 +29,70 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
-from models.checks import check_bool, check_float, check_int, describe
+from models.checks import check_bool, check_choice, check_float, check_int, describe
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["FIT_KWARGS", "LOSSES", "FitResult", "FitSchedule"]
+__all__ = ["CALIBRATION_RULES", "FIT_KWARGS", "LOSSES", "CalibrationOptions", "FitResult", "FitSchedule"]
 
 LOSSES = ("mse", "nll", "beta_nll")
 
+#: The rules of :class:`CalibrationOptions`: unit z-variance, or the conformal quantile at a level.
+CALIBRATION_RULES = ("variance", "conformal")
+
 #: The keyword arguments of :func:`fit`; wrappers that forward ``**fit_kwargs`` check against it.
 FIT_KWARGS = ("variables", "loss", "schedule", "seed", "progress_bar")
+
+
+@dataclass(frozen=True)
+class CalibrationOptions:
+    """How :func:`fit` sets the scales it takes from held-out residuals (:mod:`inference.fit_sigma`).
+
+    With held-out standardised residuals ``z = (x - loc(pa)) / scale(pa)`` (n rows, per
+    component; ``scale = 1`` for a homoscedastic sigma, which is then the factor itself), each
+    component's scale is multiplied by
+
+        "variance":  c = sqrt(mean z^2)                             (unit held-out z-variance)
+        "conformal": c = |z|_(k) / Phi^-1((1 + level) / 2),  k = ceil((n + 1) level)
+
+    ``|z|_(k)`` the k-th smallest ``|z|`` (split-conformal: the Normal interval at ``level``
+    then covers at least ``level`` of exchangeable new rows; k is cut to n below
+    ``n = level / (1 - level)`` rows, 9 at 0.9, where that guarantee is lost). The site stays a
+    Normal; only its scale changes. The held-out rows are the validation rows, or for a gated
+    site's on branch with ``folds``, out-of-fold rows:
+
+        folds = K:   the on rows (training and validation) fall into K seeded folds; refit k is a
+                     fresh initialisation of the on branch (from its config, so it has seen none
+                     of fold k, also when ``fit`` refits a trained model), trained with the same
+                     schedule on the training on rows outside fold k, early-stopped on the
+                     validation on rows outside fold k; its z on fold k are the held-out ones.
+                     The on branch that ``fit`` returns is trained as without ``folds``; it gets
+                     the factors of the pooled out-of-fold z. Fewer than 2 K on rows: the
+                     validation rows are used.
+
+    An ensemble is calibrated member by member, then its moment-matched site scale (the members'
+    factors applied to the refits too).
+
+    Attributes:
+        rule: ``"variance"`` or ``"conformal"`` (:data:`CALIBRATION_RULES`).
+        level: the conformal rule's probability, in (0, 1).
+        folds: K >= 2 cross-fitting folds for gated sites' on branches; None: their validation on rows.
+    """
+
+    rule: str = "variance"
+    level: float = 0.9
+    folds: int | None = None
+
+    def __post_init__(self) -> None:
+        check_choice("calibration rule", self.rule, CALIBRATION_RULES)
+        check_float("calibration level", self.level, minimum=0.0, maximum=1.0, min_open=True, max_open=True)
+        if self.folds is not None:
+            check_int("calibration folds", self.folds, minimum=2)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-compatible fields."""
+        return dataclasses.asdict(self)
 
 
 @dataclass(frozen=True)
@@ -54,6 +108,7 @@ class FitSchedule:
             validation criterion and restore its best epoch; None keeps the last epoch.
         bootstrap: train each member of an ensemble on its own bootstrap resample.
         beta: the beta of ``"beta_nll"``, in [0, 1].
+        calibration: how held-out residuals set the scales (:class:`CalibrationOptions`).
     """
 
     epochs: int = 120
@@ -63,6 +118,7 @@ class FitSchedule:
     patience: int | None = None
     bootstrap: bool = True
     beta: float = 0.5
+    calibration: CalibrationOptions = CalibrationOptions()
 
     def __post_init__(self) -> None:
         check_int("epochs", self.epochs, minimum=1)
@@ -73,6 +129,8 @@ class FitSchedule:
             check_int("patience", self.patience, minimum=1)
         check_bool("bootstrap", self.bootstrap)
         check_float("beta", self.beta, minimum=0.0, maximum=1.0)
+        if not isinstance(self.calibration, CalibrationOptions):
+            raise ValueError(f"calibration must be a CalibrationOptions, got {describe(self.calibration)}")
 
     @classmethod
     def auto(cls, n: int) -> FitSchedule:
@@ -114,10 +172,13 @@ class FitResult:
         losses: name -> the loss each mechanism was trained with.
         beta: the beta of ``"beta_nll"``.
         patience: the early-stopping patience (None: every epoch kept).
-        sigma_rule: name -> how the site's scale was set: ``"validation"``,
-            ``"training"``, ``"nll"``, ``"predicted"``, ``"recalibrated"`` or ``"none"`` (:mod:`inference.fit_sigma`).
+        sigma_rule: name -> how the site's scale was set, a key of :data:`inference.fit_sigma.RULES`:
+            ``"validation"``, ``"training"``, ``"nll"``, ``"predicted"``, ``"recalibrated"``,
+            ``"none"``, and with :class:`CalibrationOptions` the conformal and out-of-fold forms
+            (``"recalibrated conformal out-of-fold"`` ...).
         skipped: name -> why a non-root was not trained (fixed function, columns missing).
         schedule: the schedule used.
+        calibration_seconds: wall time of the cross-fitting refits (0 without them).
     """
 
     train_loss: dict[str, tuple[float, ...]]
@@ -137,6 +198,7 @@ class FitResult:
     sigma_rule: dict[str, str] = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
     schedule: FitSchedule | None = None
+    calibration_seconds: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-compatible summary: per-site losses, sigmas, rules and the schedule."""
@@ -153,6 +215,7 @@ class FitResult:
             "n_train": self.n_train,
             "n_val": self.n_val,
             "seconds": self.seconds,
+            "calibration_seconds": self.calibration_seconds,
             "schedule": None if self.schedule is None else self.schedule.to_dict(),
         }
 

@@ -15,6 +15,7 @@ import torch
 
 from inference import (
     ActionOptions,
+    CalibrationOptions,
     CuriositySampler,
     DiscoveryOptions,
     DiscoveryResult,
@@ -440,6 +441,48 @@ CASES: list[BadInput] = [
         "bootstrap str",
         lambda: fit(xy_model(), xy(), schedule=FitSchedule(bootstrap="yes")),
         "bootstrap must be True or False",
+    ),
+    bad(
+        "inference.fit",
+        "calibration not options",
+        lambda: fit(xy_model(), xy(), schedule=FitSchedule(calibration="conformal")),
+        "calibration must be a CalibrationOptions, got 'conformal' (str)",
+    ),
+    bad(
+        "inference.fit",
+        "calibration rule",
+        lambda: fit(xy_model(), xy(), schedule=FitSchedule(calibration=CalibrationOptions(rule="quantile"))),
+        "calibration rule 'quantile' unknown; expected one of ['variance', 'conformal']",
+    ),
+    bad(
+        "inference.fit",
+        "calibration level 1",
+        lambda: fit(xy_model(), xy(), schedule=FitSchedule(calibration=CalibrationOptions(level=1.0))),
+        "calibration level must be > 0 and < 1 (a finite number), got 1",
+    ),
+    bad(
+        "inference.fit",
+        "calibration level 0",
+        lambda: fit(xy_model(), xy(), schedule=FitSchedule(calibration=CalibrationOptions(level=0))),
+        "calibration level must be > 0 and < 1 (a finite number), got 0",
+    ),
+    bad(
+        "inference.fit",
+        "calibration level nan",
+        lambda: fit(xy_model(), xy(), schedule=FitSchedule(calibration=CalibrationOptions(level=NAN))),
+        "calibration level must be > 0 and < 1 (a finite number), got nan",
+    ),
+    bad(
+        "inference.fit",
+        "calibration folds 1",
+        lambda: fit(xy_model(), xy(), schedule=FitSchedule(calibration=CalibrationOptions(folds=1))),
+        "calibration folds must be an int >= 2, got 1",
+    ),
+    bad(
+        "inference.fit",
+        "calibration folds float",
+        lambda: fit(xy_model(), xy(), schedule=FitSchedule(calibration=CalibrationOptions(folds=5.0))),
+        "calibration folds must be an int >= 2, got 5.0 (float)",
     ),
     bad(
         "inference.fit",
