@@ -47,9 +47,10 @@ Folds = list[tuple[Mechanism, Tensor]]
 
 
 def _fresh(on: Mechanism, seed: int) -> Mechanism:
-    """A new, untrained copy of the on branch with its normalisers, in its dtype."""
+    """A new copy of the on branch from its config (a deep copy when it has none), its normalisers, its dtype."""
     ref = _members(on)[0]
-    new = make_mechanism(on.config(), seed=seed) if on.serialisable else copy.deepcopy(on)
+    buildable = on.serialisable and all(m.serialisable for m in _members(on))
+    new = make_mechanism(on.config(), seed=seed) if buildable else copy.deepcopy(on)
     new = new.to(ref.out_loc.dtype)
     new.set_normalization(ref.in_loc, ref.in_scale, ref.out_loc, ref.out_scale)
     return new

@@ -15,7 +15,15 @@ import torch
 
 from inference import CalibrationOptions, FitSchedule, fit
 from inference.fit_sigma import scale_factor
-from models import GatedMechanism, HeteroscedasticMechanism, MLPMechanism, WorldModel, load, save
+from models import (
+    EnsembleMechanism,
+    GatedMechanism,
+    HeteroscedasticMechanism,
+    MLPMechanism,
+    WorldModel,
+    load,
+    save,
+)
 from tests.inference.test_gated_fit import FLOOR, Z90, contact_data, contact_graph
 
 CONFORMAL = CalibrationOptions(rule="conformal", level=0.9, folds=5)
@@ -102,6 +110,21 @@ def test_a_homoscedastic_on_branch_takes_its_sigma_from_the_out_of_fold_residual
     rms = float(resid.pow(2).mean().sqrt())  # the sigma that held-out on rows ask for
     assert 0.7 * rms < sigmas[4] < 1.4 * rms, (sigmas, rms)
     assert abs(math.log(sigmas[4] / rms)) < abs(math.log(sigmas[None] / rms))  # ~15 validation on rows
+
+
+def test_an_ensemble_on_branch_gets_its_members_and_its_site_scale_from_the_refits():
+    data, offsets = contact_data(600, 7), {}
+    for folds in (None, 3):
+        on = EnsembleMechanism.replicate(lambda g: HeteroscedasticMechanism(2, 1, hidden=(4,), seed=g), 2, 7)
+        model = gated_model(7, on)
+        schedule = replace(SCHEDULE, epochs=10, calibration=CalibrationOptions("conformal", 0.9, folds))
+        result = fit(model, data, schedule=schedule, seed=7)
+        offsets[folds] = [float(m.log_scale_offset) for m in (*on.members, on)]
+        with torch.no_grad():
+            offsets[folds].append(model.predict({"rel": TEST["rel"], "contact": TEST["contact"]})["dpos"])
+    assert result.sigma_rule["dpos"] == "recalibrated conformal out-of-fold"
+    assert torch.equal(offsets[None][-1], offsets[3][-1])  # the same members
+    assert all(a != b for a, b in zip(offsets[None][:3], offsets[3][:3], strict=True))  # members and site
 
 
 def test_too_few_on_rows_for_the_folds_fall_back_to_the_validation_rows(caplog):
