@@ -28,8 +28,10 @@ only. The switch's label (:func:`contact_rule`): with touch sensing it is observ
 touch was sensed over the step; without (Gymnasium's Pusher-v5) it is derived from the data,
 1 when the object moved more than its noise floor over the step, ``||dpos.o|| >
 MOVED_SIGMAS * position_sigma`` (3 mm by default). It is a training label only: in state
-inference and planning the switch is latent there, enumerated (or taken at its mode by
-``predict(noise="expected")``).
+inference and planning the switch is latent there, enumerated in state inference, and
+marginalised in the planner's expected prediction: ``predict(noise="expected")`` gives
+``dpos.o`` the mixture mean ``P(contact) f_on + (1 - P(contact)) * 0``, smooth in the actions
+(:mod:`models.gated`), while ``contact.o`` itself takes its mode.
 
 ``vel_prev.o`` (the previous displacement) enters with ``spec.object_momentum``. The fixed
 relations are linear mechanisms with known coefficients (:meth:`models.LinearMechanism.from_coefficients`),
