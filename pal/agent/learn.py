@@ -13,8 +13,8 @@ A gated displacement (``ModelConfig.displacement="gated"``) trains its on branch
 rows only (:func:`inference.fit`); before the first contact row it stays unfitted, and while an
 object has fewer than :data:`MIN_HELD_OUT_CONTACTS` contact rows its sites train on all of its
 rows (no held-out share, no early stopping): a random hold-out could take every contact row.
-:func:`inference.revise` scores homoscedastic single mechanisms; flagged heteroscedastic or
-ensemble sites are reported (``flagged``) but not revised.
+:func:`inference.revise` scores homoscedastic single mechanisms; flagged heteroscedastic,
+ensemble or discrete sites (a gated form's contact switch) are reported (``flagged``) but not revised.
 """
 
 from __future__ import annotations
@@ -133,6 +133,11 @@ def fit_model(
     }
 
 
+def _revisable(mech: Any) -> bool:
+    """True for the mechanisms :func:`inference.revise` scores: homoscedastic, single and continuous."""
+    return not (mech.heteroscedastic or mech.size > 1 or isinstance(mech, DiscreteMechanism))
+
+
 def _tolerance(model: WorldModel, data: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
     """Mean predictive sd of every non-root on ``data``: the monitor's reference scales."""
     values = {k: torch.as_tensor(v, dtype=model.dtype) for k, v in data.items()}
@@ -179,10 +184,8 @@ class Learner:
             v for v in self.monitor.flagged() if v in learned_sites(self.spec, self.model_config.displacement)
         ]
         out["flagged"] = flagged
-        # inference.revise scores candidates with one sigma per site: homoscedastic, single mechanisms only
-        flagged = [
-            v for v in flagged if not model.mechanism(v).heteroscedastic and model.mechanism(v).size == 1
-        ]
+        # inference.revise scores candidates with one sigma per site: homoscedastic, single, continuous ones
+        flagged = [v for v in flagged if _revisable(model.mechanism(v))]
         if flagged and self.config.revisions:
             revised, log_ = revise(model, fresh, flagged, kinds=self.config.revisions, seed=seed)
             accepted = [r.to_dict() for r in log_ if r.accepted]
