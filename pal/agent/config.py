@@ -77,7 +77,7 @@ class ModelConfig:
             sets sigma and early stopping; ``patience`` needs ``validation > 0``; ``beta`` is the
             beta-NLL's, 0.5 as in :func:`inference.fit`'s default: the gated form trains its on
             branch on the contact rows only, so rare pushes are not outweighed by resting rows and
-            need no MSE gradient, beta 1).
+            need no MSE gradient, beta 1; the smooth form was used with beta 1).
         min_sigma: floor on fitted homoscedastic sigmas, m (keeps state inference well conditioned).
         displacement: ``"gated"`` (the default: ``contact.o`` a Bernoulli switch of every object
             and ``dpos.o`` a :class:`models.GatedMechanism`: exactly 0 with sd ``position_sigma``
