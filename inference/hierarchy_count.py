@@ -2,10 +2,11 @@
 
 One *mechanism evaluation* is one local mechanism f_i (one ensemble member f_i^(k)) evaluated at
 one parent assignment. :func:`count_evaluations` wraps the site mechanisms of the given models
-for the duration of a ``with`` block and adds, at each outermost call of ``forward``,
-``loc_scale`` or ``member_loc_scale``, the number of parent rows (the product of the input's
-leading dims) times the members evaluated (K for an ensemble evaluated on shared parents, 1 for
-one evaluated on member-paired parents, whose leading K dim is already counted). Calls made inside
+for the duration of a ``with`` block and adds, at each outermost call of one of :data:`COUNTED`
+(``forward``, ``loc_scale``, ``member_loc_scale``, a discrete site's ``logits``, a gated site's
+mixture over its switch), the number of parent rows (the product of the input's leading dims)
+times the members evaluated (K for an ensemble evaluated on shared parents, 1 for one evaluated
+on member-paired parents, whose leading K dim is already counted). Calls made inside
 a counted call (a member inside its ensemble, a clamped mechanism's wrapped one) are not counted
 again. Fixed relations (e.g. ``q = q_prev + dq``) count like learned ones: they are sites of the
 program. Gradients are not counted; a backward pass costs about as much as its forward pass.
@@ -23,7 +24,20 @@ from typing import Any
 from models.checks import describe
 from models.world import WorldModel
 
-__all__ = ["EvaluationCount", "count_evaluations"]
+__all__ = ["COUNTED", "EvaluationCount", "count_evaluations"]
+
+#: The mechanism methods that count as evaluations, those a mechanism has.
+COUNTED = (
+    "forward",
+    "loc_scale",
+    "member_loc_scale",
+    "logits",
+    "mixture_loc",
+    "member_mixture_loc",
+    "mixture_variance",
+)
+#: Where a member method takes ``paired`` when it is given by position.
+_PAIRED_AT = {"member_loc_scale": 1, "member_mixture_loc": 2}
 
 
 @dataclass
@@ -62,9 +76,8 @@ def _wrap(
     @wraps(method)
     def counted(*args: Any, **kwargs: Any) -> Any:
         if count._depth == 0:
-            paired = attr == "member_loc_scale" and bool(
-                kwargs.get("paired", args[1] if len(args) > 1 else False)
-            )
+            at = _PAIRED_AT.get(attr)
+            paired = at is not None and bool(kwargs.get("paired", args[at] if len(args) > at else False))
             count.add(site, _rows(args, 1 if paired else size))
         count._depth += 1
         try:
@@ -97,8 +110,10 @@ def count_evaluations(*models: WorldModel) -> Iterator[EvaluationCount]:
                 if id(mech) in seen:
                     continue
                 seen.add(id(mech))
-                for attr in ("forward", "loc_scale", "member_loc_scale"):
-                    method = getattr(mech, attr)
+                for attr in COUNTED:
+                    method = getattr(mech, attr, None)
+                    if method is None:
+                        continue
                     object.__setattr__(mech, attr, _wrap(count, site, method, attr, int(mech.size)))
                     patched.append((mech, attr))
         yield count

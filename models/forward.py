@@ -11,7 +11,17 @@ without an ensemble apply their one mechanism to each member's parents. The resi
 ``eps_i`` are shared by the members, so members differ only by their mechanisms.
 A discrete site is ``x_i = argmax_k (l_ik(pa_i) + g_ik)`` (Gumbel-max, :mod:`models.discrete`):
 its residual is ``(N, K)`` standard Gumbel noise, expected residuals (g = 0) give the mode,
-and ``"sampled"`` draws the Gumbels. :class:`ForwardQueries` is a mixin of :class:`models.WorldModel`.
+and ``"sampled"`` draws the Gumbels.
+
+A gated site (:mod:`models.gated`) whose switch is predicted in the same call with expected
+residuals (the switch not given, no Gumbel residual for it) has as its expected value the
+mixture mean over the switch, ``pi f_1(pa | c = 1) + (1 - pi) f_0(pa | c = 0)`` with
+``pi = P(c = 1 | pa_c)`` from the switch's mechanism, and ``predict_scale`` gives that
+mixture's sd (law of total variance); the switch's own value stays its mode, so its other
+children are unchanged. This keeps the expected prediction smooth in the actions through pi.
+With the switch given or its residual given, the site is the branch the switch's value picks.
+With ``members=True``, member k mixes with member k's pi. :class:`ForwardQueries` is a mixin
+of :class:`models.WorldModel`.
 """
 
 from __future__ import annotations
@@ -32,6 +42,7 @@ from models.checks import (
     describe,
 )
 from models.discrete import gumbel, gumbel_max
+from models.gated import switch_p_on
 from models.values import as_values, check_action_bounds
 from models.variables import Role
 
@@ -145,9 +156,10 @@ class ForwardQueries:
         Args:
             values: name -> ``(N, dim)``; must assign every root (actions and observed
                 roots). Actions must lie within their bounds.
-            noise: ``"expected"`` (eps = 0), ``"sampled"`` (eps ~ N(0, I) from
-                ``generator``), or name -> ``(N, dim)`` standardised residuals, e.g.
-                abducted ones (Eq. 4.43), for every predicted variable.
+            noise: ``"expected"`` (eps = 0: a discrete site's mode, and a gated site over a
+                predicted switch its mixture mean, see the module docstring), ``"sampled"``
+                (eps ~ N(0, I) from ``generator``), or name -> ``(N, dim)`` standardised
+                residuals, e.g. abducted ones (Eq. 4.43), for every predicted variable.
             generator: torch generator for ``"sampled"`` (None: the global torch RNG).
             grad: keep the autograd graph (for planning through the model); by default
                 the outputs are plain tensors.
@@ -179,20 +191,27 @@ class ForwardQueries:
             )
 
     def _predict(
-        self, values: Mapping[str, Tensor], noise: NoiseSpec, generator: torch.Generator | None
+        self,
+        values: Mapping[str, Tensor],
+        noise: NoiseSpec,
+        generator: torch.Generator | None,
+        at_mode: dict[str, Tensor] | None = None,
     ) -> dict[str, Tensor]:
+        """One step without a member axis; ``at_mode`` collects the logits of the discrete sites taken at their mode."""
         out = dict(values)
+        at_mode = {} if at_mode is None else at_mode
         for name in self.graph.non_roots:
             if name in out:
                 continue
             pa = self._parents(name, out)
             mech = self._mech_by_name[name]
-            if isinstance(noise, str) and noise == "expected":
-                out[name] = mech(pa)
-                continue
             if name in self._categories:
                 logits = mech.logits(pa)
-                out[name] = gumbel_max(logits, self._noise(name, noise, logits.shape, generator))
+                out[name] = _code(name, logits, self._noise(name, noise, logits.shape, generator), at_mode)
+                continue
+            if isinstance(noise, str) and noise == "expected":
+                p_on = switch_p_on(mech, at_mode)
+                out[name] = mech(pa) if p_on is None else mech.mixture_loc(pa, p_on)  # type: ignore[attr-defined]
                 continue
             loc, scale = mech.loc_scale(pa)
             eps = self._noise(name, noise, loc.shape, generator)
@@ -204,6 +223,7 @@ class ForwardQueries:
     ) -> dict[str, Tensor]:
         """One step with a member axis: values ``(N, dim)`` or ``(K, N, dim)``; returns ``(K, N, dim)``."""
         out = {name: (v if v.ndim == 3 else v.expand(k, *v.shape)) for name, v in values.items()}
+        at_mode: dict[str, Tensor] = {}
         for name in self.graph.non_roots:
             if name in out:
                 continue
@@ -212,7 +232,11 @@ class ForwardQueries:
             if name in self._categories:
                 logits = mech.logits(pa)
                 eps = self._noise(name, noise, logits.shape[1:], generator)
-                out[name] = mech(pa) if eps is None else gumbel_max(logits, eps)
+                out[name] = _code(name, logits, eps, at_mode)
+                continue
+            p_on = switch_p_on(mech, at_mode) if isinstance(noise, str) and noise == "expected" else None
+            if p_on is not None:  # (K, N, 1): member k's pi
+                out[name] = mech.member_mixture_loc(pa, p_on, paired=True)  # type: ignore[attr-defined]
                 continue
             if mech.size > 1:  # an ensemble, or a gated site whose on branch is one
                 loc, scale = mech.member_loc_scale(pa, paired=True)
@@ -231,7 +255,10 @@ class ForwardQueries:
         sigma_i for homoscedastic mechanisms, sigma_i(pa_i) for heteroscedastic ones, and
         for an ensemble the sd of the moment-matched member mixture (aleatoric and
         epistemic, :mod:`models.ensemble`). It is the one-step sd at the given parents,
-        not propagated through unobserved ancestors.
+        not propagated through unobserved ancestors, except for a gated site whose switch is
+        not given: its sd is that of the mixture over the switch (law of total variance,
+        :meth:`models.gated.GatedMechanism.mixture_scale`; the switch's uncertainty is
+        aleatoric, the on branch's ensemble spread weighted by pi epistemic).
 
         Args:
             values: name -> ``(N, dim)``; every root must be given (actions within their
@@ -249,7 +276,8 @@ class ForwardQueries:
         grad = check_bool("grad", grad)
         given, _ = self._check_roots(values, "predict_scale")
         with torch.set_grad_enabled(grad):
-            full = self._predict(given, "expected", None)
+            at_mode: dict[str, Tensor] = {}
+            full = self._predict(given, "expected", None, at_mode)
             out: dict[str, Tensor] = {}
             for name in self.graph.non_roots:
                 pa = self._parents(name, full)
@@ -257,6 +285,10 @@ class ForwardQueries:
                 if name in self._categories:  # the sd of the code under the site's categorical
                     sd = mech.distribution(pa).variance.clamp_min(0).sqrt()
                     out[name] = torch.zeros_like(sd) if component == "epistemic" else sd
+                    continue
+                p_on = switch_p_on(mech, at_mode)
+                if p_on is not None:  # a gated site over its predicted switch: the mixture's sd
+                    out[name] = mech.mixture_scale(pa, p_on, component)  # type: ignore[attr-defined]
                     continue
                 if mech.size > 1 and component != "total":  # an ensemble, or gated over one
                     _, aleatoric, epistemic = mech.variance(pa)  # type: ignore[attr-defined]
@@ -410,3 +442,11 @@ class ForwardQueries:
         check_action_bounds(self.graph, seq, "inputs")
         self.check_codes({**seq, **init}, "inputs")
         return seq, init, n, horizon
+
+
+def _code(name: str, logits: Tensor, eps: Tensor | None, at_mode: dict[str, Tensor]) -> Tensor:
+    """A discrete site's code ``(..., 1)``: Gumbel-max with ``eps``, or (eps None) the mode, whose logits go to ``at_mode``."""
+    if eps is not None:
+        return gumbel_max(logits, eps)
+    at_mode[name] = logits
+    return logits.argmax(-1, keepdim=True).to(logits.dtype)

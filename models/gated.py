@@ -26,6 +26,27 @@ Both branches read the whole encoded parent vector ``(..., in_dim)`` (the switch
 included, constant within a branch). The switch's column is bound by
 :class:`models.WorldModel` from the graph (:func:`bind_gated`), which also checks that the
 switch is a parent of the site and a Bernoulli site.
+
+**Expected value with the switch marginalised.** When ``predict`` / ``rollout`` run with
+expected residuals and the switch is predicted in the same call (not given, no Gumbel
+residual), the switch's own value is its mode, but the gated site's expected value is the
+mixture mean over the switch (:meth:`GatedMechanism.mixture_loc`),
+
+    E[X | pa_c, pa] = pi f_1(pa | c = 1) + (1 - pi) f_0(pa | c = 0),   pi = P(c = 1 | pa_c),
+
+with ``pi`` from the switch's mechanism at its parents ``pa_c``: it is smooth in everything
+upstream of the switch (e.g. the actions), so a planner gets a gradient through the
+probability of contact instead of a step at pi = 1/2. Its predictive sd is that of the
+two-component mixture (law of total variance, :meth:`GatedMechanism.mixture_scale`):
+
+    Var = pi (sigma_1^2 + f_1^2) + (1 - pi) (sigma_0^2 + f_0^2) - E[X]^2
+        = pi sigma_1^2 + (1 - pi) sigma_0^2 + pi (1 - pi) (f_1 - f_0)^2,
+
+where ``sigma_1^2`` of an ensemble on branch is its aleatoric plus epistemic variance. Of the
+components, the switch's uncertainty counts as aleatoric (``pi sigma_1,ale^2 + (1 - pi)
+sigma_0^2 + pi (1 - pi) (f_1 - f_0)^2``) and the on branch's ensemble spread, weighted by pi,
+as epistemic (``pi sigma_1,epi^2``). With the switch given, or its residual given, the site is
+the exact branch of the previous paragraphs.
 """
 
 from __future__ import annotations
@@ -39,7 +60,7 @@ from torch import Tensor
 from models.checks import as_float_tensor, check_int, describe
 from models.mechanisms import Mechanism, Seed, make_mechanism
 
-__all__ = ["DEFAULT_FLOOR", "GatedMechanism", "bind_gated"]
+__all__ = ["DEFAULT_FLOOR", "GatedMechanism", "bind_gated", "switch_p_on"]
 
 #: A default off-branch floor sigma_0, in the child's units (1e-4: a tenth of a millimetre).
 DEFAULT_FLOOR = 1e-4
@@ -206,11 +227,7 @@ class GatedMechanism(Mechanism):
         """
         parents = self.check_input(parents)
         c = self.switch_on(parents).unsqueeze(-1)
-        if hasattr(self.on, "variance"):
-            loc1, ale1, epi1 = self.on.variance(parents)
-        else:
-            loc1, scale1 = self.on.loc_scale(parents)
-            ale1, epi1 = scale1.pow(2), torch.zeros_like(scale1)
+        loc1, ale1, epi1 = self._on_moments(parents)
         loc0 = self.off(parents) if self.off is not None else torch.zeros_like(loc1)
         floor2 = self.floor.pow(2).expand_as(ale1)
         return (
@@ -218,6 +235,112 @@ class GatedMechanism(Mechanism):
             torch.where(c, ale1, floor2),
             torch.where(c, epi1, torch.zeros_like(epi1)),
         )
+
+    # ------------------------------------------------------------------ the switch marginalised
+    def at_switch(self, parents: Tensor, value: float) -> Tensor:
+        """``parents`` with the switch's column set to ``value`` (0 or 1): ``(..., in_dim)``.
+
+        Raises:
+            ValueError: the mechanism is not bound to its switch's column.
+        """
+        if self.switch_index < 0:
+            raise ValueError(
+                f"the gated mechanism's switch {self.switch!r} is not bound to a parent column; "
+                "use it in a WorldModel or give switch_index"
+            )
+        out = parents.clone()
+        out[..., self.switch_index] = value
+        return out
+
+    def _check_p_on(self, p_on: Any, parents: Tensor) -> Tensor:
+        """``p_on`` as a ``(..., 1)`` tensor in [0, 1] broadcastable against ``parents[..., :1]``."""
+        p = as_float_tensor(p_on, "p_on", parents.dtype)
+        if p.ndim == 0 or p.shape[-1] != 1:
+            raise ValueError(f"{self.site}: p_on has shape {tuple(p.shape)}, expected (..., 1)")
+        try:
+            torch.broadcast_shapes(p.shape, (*parents.shape[:-1], 1))
+        except RuntimeError as err:
+            raise ValueError(
+                f"{self.site}: p_on has shape {tuple(p.shape)}, which does not broadcast against the "
+                f"parents' rows {tuple(parents.shape[:-1])}"
+            ) from err
+        ok = (p >= 0) & (p <= 1)
+        if not bool(ok.all()):
+            raise ValueError(
+                f"{self.site}: p_on = P({self.switch} = 1) must lie in [0, 1], got {float(p[~ok][0]):g}"
+            )
+        return p
+
+    def _branch_locs(self, parents: Tensor, members: bool, paired: bool) -> tuple[Tensor, Tensor]:
+        """``(f_1(pa | c = 1), f_0(pa | c = 0))``; ``f_1`` per member ``(K, ..., out_dim)`` with ``members``."""
+        on_pa = self.at_switch(parents, 1.0)
+        loc1 = self.on.member_loc_scale(on_pa, paired)[0] if members else self.on(on_pa)
+        if self.off is None:
+            return loc1, torch.zeros_like(loc1)
+        return loc1, self.off(self.at_switch(parents, 0.0))
+
+    def mixture_loc(self, parents: Tensor, p_on: Any) -> Tensor:
+        """``E[X] = pi f_1(pa | c = 1) + (1 - pi) f_0(pa | c = 0)`` (module docstring), ``(..., out_dim)``.
+
+        Args:
+            parents: ``(..., in_dim)`` encoded parents; the switch's column is ignored.
+            p_on: ``(..., 1)`` pi = P(c = 1) in [0, 1], broadcast against the parents' rows.
+
+        Raises:
+            ValueError: bad parents, or ``p_on`` of a bad shape or outside [0, 1].
+        """
+        parents = self.check_input(parents)
+        p = self._check_p_on(p_on, parents)
+        loc1, loc0 = self._branch_locs(parents, members=False, paired=False)
+        return loc0 + p * (loc1 - loc0)
+
+    def member_mixture_loc(self, parents: Tensor, p_on: Any, paired: bool = False) -> Tensor:
+        """Per member of the on branch ``pi_k m_k(pa | c = 1) + (1 - pi_k) f_0(pa | c = 0)``, ``(K, ..., out_dim)``.
+
+        Args:
+            parents: ``(..., in_dim)`` shared by the members, or with ``paired``
+                ``(K, ..., in_dim)`` where member k reads ``parents[k]``.
+            p_on: ``(..., 1)`` shared, or with ``paired`` ``(K, ..., 1)`` per member.
+            paired: see ``parents``.
+        """
+        parents = self.check_input(parents)
+        p = self._check_p_on(p_on, parents)
+        locs, loc0 = self._branch_locs(parents, members=True, paired=paired)
+        return loc0 + p * (locs - loc0)
+
+    def mixture_variance(self, parents: Tensor, p_on: Any) -> tuple[Tensor, Tensor, Tensor]:
+        """``(E[X], aleatoric, epistemic)`` variances of the switch mixture (module docstring), each ``(..., out_dim)``.
+
+        ``aleatoric = pi s_ale^2 + (1 - pi) sigma_0^2 + pi (1 - pi) (f_1 - f_0)^2`` and
+        ``epistemic = pi s_epi^2`` with ``(f_1, s_ale^2, s_epi^2)`` the on branch's at
+        ``c = 1`` (``s_epi = 0`` unless it is an ensemble); their sum is the law of total variance.
+        """
+        parents = self.check_input(parents)
+        p = self._check_p_on(p_on, parents)
+        loc1, ale1, epi1 = self._on_moments(self.at_switch(parents, 1.0))
+        loc0 = self.off(self.at_switch(parents, 0.0)) if self.off is not None else torch.zeros_like(loc1)
+        gap = loc1 - loc0
+        aleatoric = p * ale1 + (1 - p) * self.floor.pow(2) + p * (1 - p) * gap.pow(2)
+        return loc0 + p * gap, aleatoric, p * epi1
+
+    def mixture_scale(self, parents: Tensor, p_on: Any, component: str = "total") -> Tensor:
+        """The mixture's sd, ``(..., out_dim)``: ``"total"``, ``"aleatoric"`` or ``"epistemic"`` (:meth:`mixture_variance`).
+
+        A component that is 0 gives 0 with a zero gradient (no NaN from the square root).
+        """
+        _, aleatoric, epistemic = self.mixture_variance(parents, p_on)
+        var = {"total": aleatoric + epistemic, "aleatoric": aleatoric, "epistemic": epistemic}.get(component)
+        if var is None:
+            raise ValueError(f"component must be 'total', 'aleatoric' or 'epistemic', got {component!r}")
+        pos = var > 0
+        return torch.where(pos, var.clamp_min(torch.finfo(var.dtype).tiny).sqrt(), torch.zeros_like(var))
+
+    def _on_moments(self, parents: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """The on branch's ``(loc, aleatoric, epistemic)`` at ``parents`` (epistemic 0 unless an ensemble)."""
+        if hasattr(self.on, "variance"):
+            return self.on.variance(parents)  # type: ignore[no-any-return]
+        loc1, scale1 = self.on.loc_scale(parents)
+        return loc1, scale1.pow(2), torch.zeros_like(scale1)
 
     def forward(self, parents: Tensor) -> Tensor:
         """The site's loc ``where(c, f_1(pa), f_0(pa))``: ``(..., in_dim) -> (..., out_dim)``."""
@@ -323,3 +446,18 @@ def bind_gated(
             break
         index += widths[p]
     mech.bind(site, index)
+
+
+def switch_p_on(mech: Mechanism, at_mode: Mapping[str, Tensor]) -> Tensor | None:
+    """The switch probability pi = P(c = 1 | pa_c), ``(..., 1)``, of a gated site, or None.
+
+    None unless ``mech`` is gated and its switch is in ``at_mode``.
+
+    Args:
+        mech: a site's mechanism.
+        at_mode: the logits ``(..., 2)`` of the discrete sites that a forward query predicted
+            at their mode in the same call (expected residuals, not given).
+    """
+    if isinstance(mech, GatedMechanism) and mech.switch in at_mode:
+        return at_mode[mech.switch].softmax(-1)[..., 1:]
+    return None

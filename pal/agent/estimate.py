@@ -83,7 +83,7 @@ class Estimator:
         updates: steps filtered through the world model.
     """
 
-    def __init__(self, spec: EnvSpec, config: EstimateConfig, displacement: str = "smooth") -> None:
+    def __init__(self, spec: EnvSpec, config: EstimateConfig, displacement: str = "gated") -> None:
         self.spec, self.config = spec, config
         self.gated = check_choice("displacement", displacement, DISPLACEMENTS) == "gated"
         self.poor_posteriors = 0

@@ -17,19 +17,21 @@ Per object o (position d-D, m)::
     pos_prev.o, dpos.o -> pos.o              pos = pos_prev + dpos (fixed)
     pos.o -> meas.o                          perceived position (measurement site, perceived objects)
 
-The displacement has two forms (:attr:`pal.agent.config.ModelConfig.displacement`). ``"smooth"``
-(the default): ``dpos.o ~ Normal(f(pa), sigma(pa))``, one smooth mechanism, and ``contact.o``
-(only with touch sensing) a continuous contact strength, the sensed touch in [0, 1].
-``"gated"``: ``contact.o`` is a Bernoulli switch of every object, ``P(contact.o = 1) =
+The displacement has two forms (:attr:`pal.agent.config.ModelConfig.displacement`). ``"gated"``
+(the default): ``contact.o`` is a Bernoulli switch of every object, ``P(contact.o = 1) =
 sigmoid(g(rel_prev.o, rel.o))`` from the effector's proximity, and ``dpos.o`` a
 :class:`models.GatedMechanism`: ``Normal(0, position_sigma)`` without contact (the measurement
 floor: the object rests), the smooth form's mechanism with contact, trained on the contact rows
-only. The switch's label (:func:`contact_rule`): with touch sensing it is observed, 1 when any
+only. ``"smooth"``: ``dpos.o ~ Normal(f(pa), sigma(pa))``, one smooth mechanism, and
+``contact.o`` (only with touch sensing) a continuous contact strength, the sensed touch in
+[0, 1]. The switch's label (:func:`contact_rule`): with touch sensing it is observed, 1 when any
 touch was sensed over the step; without (Gymnasium's Pusher-v5) it is derived from the data,
 1 when the object moved more than its noise floor over the step, ``||dpos.o|| >
 MOVED_SIGMAS * position_sigma`` (3 mm by default). It is a training label only: in state
-inference and planning the switch is latent there, enumerated (or taken at its mode by
-``predict(noise="expected")``).
+inference and planning the switch is latent there, enumerated in state inference, and
+marginalised in the planner's expected prediction: ``predict(noise="expected")`` gives
+``dpos.o`` the mixture mean ``P(contact) f_on + (1 - P(contact)) * 0``, smooth in the actions
+(:mod:`models.gated`), while ``contact.o`` itself takes its mode.
 
 ``vel_prev.o`` (the previous displacement) enters with ``spec.object_momentum``. The fixed
 relations are linear mechanisms with known coefficients (:meth:`models.LinearMechanism.from_coefficients`),
@@ -154,7 +156,7 @@ def _object_sites(spec: EnvSpec, o: str, displacement: str) -> list[Variable]:
     return out
 
 
-def _default_parents(spec: EnvSpec, displacement: str = "smooth") -> dict[str, tuple[str, ...]]:
+def _default_parents(spec: EnvSpec, displacement: str = "gated") -> dict[str, tuple[str, ...]]:
     """The learned sites' parent sets of the module docstring."""
     vel = ("v_prev",) if spec.velocities is not None else ()
     out: dict[str, tuple[str, ...]] = {"dq": ("act", "q_prev", *vel)}
@@ -184,7 +186,7 @@ def _fixed_parents(spec: EnvSpec) -> dict[str, tuple[str, ...]]:
     return out
 
 
-def learned_sites(spec: EnvSpec, displacement: str = "smooth") -> tuple[str, ...]:
+def learned_sites(spec: EnvSpec, displacement: str = "gated") -> tuple[str, ...]:
     """The sites whose mechanisms are learned (Eq. 4.33), in topological order."""
     return tuple(_default_parents(spec, displacement))
 
@@ -254,7 +256,7 @@ def build_graph(
     bounds: tuple[np.ndarray, np.ndarray],
     parents: Mapping[str, Sequence[str]] | None = None,
     *,
-    displacement: str = "smooth",
+    displacement: str = "gated",
 ) -> CausalGraph:
     """The graph of the module docstring.
 
@@ -262,8 +264,8 @@ def build_graph(
         spec: the environment's spec.
         bounds: ``(low (A,), high (A,))`` action bounds (:func:`pal.agent.spec.check_env`).
         parents: optional learned site -> parents, replacing the default parent sets.
-        displacement: ``"smooth"`` or ``"gated"`` (module docstring): ``"gated"`` gives every
-            object a ``contact.o`` switch.
+        displacement: ``"gated"`` (the default) or ``"smooth"`` (module docstring): ``"gated"``
+            gives every object a ``contact.o`` switch.
 
     Raises:
         ValueError: ``parents`` names a site that is not learned, or the edited graph is not
@@ -318,9 +320,13 @@ def _learned(graph: CausalGraph, site: str, c: ModelConfig, site_seed: torch.Gen
     if gated and site.startswith("contact."):
         return BernoulliMechanism(in_dim, hidden=width, seed=site_seed)
 
+    bounds = c.arm_log_scale_bounds if site in ("dq", "v", "dee") else c.log_scale_bounds
+
     def make(g: torch.Generator | None) -> Any:
         if c.kind == "hetero":
-            return HeteroscedasticMechanism(in_dim, out_dim, hidden=width, seed=g)
+            return HeteroscedasticMechanism(
+                in_dim, out_dim, hidden=width, log_scale_bounds=bounds, learn_bounds=False, seed=g
+            )
         return MLPMechanism(in_dim, out_dim, hidden=width, seed=g)
 
     mech = make(site_seed) if c.members == 1 else EnsembleMechanism.replicate(make, c.members, site_seed)
@@ -345,7 +351,9 @@ def build_model(
         graph: from :func:`build_graph` (with the same ``displacement`` as ``config``).
         config: ``kind`` (``"mlp"``, or ``"hetero"``: ``X ~ Normal(f(pa), sigma(pa))``), ensemble
             size ``members`` per learned site, MLP widths ``hidden`` of the object sites and
-            ``arm_hidden`` of the arm sites (``dq``, ``v``, ``dee``), ``position_sigma``, the
+            ``arm_hidden`` of the arm sites (``dq``, ``v``, ``dee``), the fixed log-scale bounds
+            of heteroscedastic sites ``log_scale_bounds`` and ``arm_log_scale_bounds`` (not
+            learned), ``position_sigma``, the
             residual sd of ``pos = pos_prev + dpos`` (m), and ``displacement``: with
             ``"gated"`` ``contact.o`` is a :class:`models.BernoulliMechanism` and ``dpos.o`` a
             :class:`models.GatedMechanism` with floor ``position_sigma`` (module docstring).

@@ -10,9 +10,11 @@ reference scale of a site is its mean predictive sd on the training rows), and w
 mechanism :func:`inference.revise` proposes and tests structural revisions on the recent rows
 (a new parent, a regime split ...), keeping one only when it wins on held-out likelihood.
 A gated displacement (``ModelConfig.displacement="gated"``) trains its on branch on the contact
-rows only (:func:`inference.fit`); before the first contact row it stays unfitted.
-:func:`inference.revise` scores homoscedastic single mechanisms; flagged heteroscedastic or
-ensemble sites are reported (``flagged``) but not revised.
+rows only (:func:`inference.fit`); before the first contact row it stays unfitted, and while an
+object has fewer than :data:`MIN_HELD_OUT_CONTACTS` contact rows its sites train on all of its
+rows (no held-out share, no early stopping): a random hold-out could take every contact row.
+:func:`inference.revise` scores homoscedastic single mechanisms; flagged heteroscedastic,
+ensemble or discrete sites (a gated form's contact switch) are reported (``flagged``) but not revised.
 """
 
 from __future__ import annotations
@@ -31,9 +33,12 @@ from pal.agent.graph import contact_rule, learned_sites
 from pal.agent.history import History
 from pal.agent.spec import EnvSpec
 
-__all__ = ["Learner", "fit_model", "site_data"]
+__all__ = ["MIN_HELD_OUT_CONTACTS", "Learner", "fit_model", "site_data"]
 
 log = logging.getLogger(__name__)
+
+#: Contact rows an object needs before its gated sites hold out validation rows (module docstring).
+MIN_HELD_OUT_CONTACTS = 10
 
 
 def site_data(
@@ -65,13 +70,15 @@ def site_data(
     return out
 
 
-def _has_on_rows(model: WorldModel, site: str, cols: dict[str, np.ndarray]) -> bool:
-    """False for a gated site whose switch is on in none of the rows: its on branch stays as it is."""
+def _on_rows(model: WorldModel, site: str, cols: dict[str, np.ndarray]) -> int | None:
+    """The rows where a gated site's switch is on (None for other sites); 0 leaves its on branch as it is."""
     mech = model.mechanism(site)
-    if not isinstance(mech, GatedMechanism) or bool((cols[mech.switch] == 1).any()):
-        return True
-    log.info("gated site %r: no row with %s = 1 yet; its on branch stays unfitted", site, mech.switch)
-    return False
+    if not isinstance(mech, GatedMechanism):
+        return None
+    n = int((cols[mech.switch] == 1).sum())
+    if n == 0:
+        log.info("gated site %r: no row with %s = 1 yet; its on branch stays unfitted", site, mech.switch)
+    return n
 
 
 def fit_model(
@@ -96,9 +103,9 @@ def fit_model(
     learned = [s for s in learned_sites(spec, config.displacement) if s in model.graph]
     base = config.schedule
 
-    def schedule(n: int) -> dict[str, Any]:
-        # too few rows to hold any out: train on all of them, every epoch
-        held_out = round(base.validation * n) >= 1
+    def schedule(n: int, contacts: int | None = None) -> dict[str, Any]:
+        # too few rows (or contact rows) to hold any out: train on all of them, every epoch
+        held_out = round(base.validation * n) >= 1 and (contacts is None or contacts >= MIN_HELD_OUT_CONTACTS)
         return {"schedule": base if held_out else replace(base, validation=0.0, patience=None), "seed": seed}
 
     arm_sites = [s for s in learned if s in ("dq", "v", "dee")]
@@ -111,8 +118,10 @@ def fit_model(
                 "object %r has %d usable transitions; its mechanisms stay unfitted", o, len(cols[f"pos.{o}"])
             )
             continue
-        sites = [s for s in sites if _has_on_rows(model, s, cols)]
-        fit(model, cols, variables=sites, **schedule(len(cols[f"pos.{o}"])))
+        on_rows = {s: _on_rows(model, s, cols) for s in sites}
+        sites = [s for s in sites if on_rows[s] != 0]
+        contacts = min((n for n in on_rows.values() if n is not None), default=None)
+        fit(model, cols, variables=sites, **schedule(len(cols[f"pos.{o}"]), contacts))
         fitted += sites
     for name in fitted:
         mech = model.mechanism(name)
@@ -122,6 +131,11 @@ def fit_model(
         "rows": {"arm": len(arm["act"]), **{o: len(c[f"pos.{o}"]) for o, c in objects.items()}},
         "sites": fitted,
     }
+
+
+def _revisable(mech: Any) -> bool:
+    """True for the mechanisms :func:`inference.revise` scores: homoscedastic, single and continuous."""
+    return not (mech.heteroscedastic or mech.size > 1 or isinstance(mech, DiscreteMechanism))
 
 
 def _tolerance(model: WorldModel, data: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
@@ -170,10 +184,8 @@ class Learner:
             v for v in self.monitor.flagged() if v in learned_sites(self.spec, self.model_config.displacement)
         ]
         out["flagged"] = flagged
-        # inference.revise scores candidates with one sigma per site: homoscedastic, single mechanisms only
-        flagged = [
-            v for v in flagged if not model.mechanism(v).heteroscedastic and model.mechanism(v).size == 1
-        ]
+        # inference.revise scores candidates with one sigma per site: homoscedastic, single, continuous ones
+        flagged = [v for v in flagged if _revisable(model.mechanism(v))]
         if flagged and self.config.revisions:
             revised, log_ = revise(model, fresh, flagged, kinds=self.config.revisions, seed=seed)
             accepted = [r.to_dict() for r in log_ if r.accepted]

@@ -322,8 +322,8 @@ def pushing_spec(objects: tuple[str, ...] = ("box", "ball")) -> EnvSpec:
     """:class:`pal.sim.pushing.PushingEnv` (with ``camera=True``): servo targets, sensed hand and touch, perceived objects.
 
     Observation ``[q_shoulder, q_elbow, dq/dt ...]``; ``info`` has ``hand`` (3,) m, ``touch``
-    (n_objects,) and the camera frame (``rgbd``). With ``ModelConfig(displacement="gated")`` each
-    object's contact switch is observed from the touch: 1 when any touch was sensed over the step.
+    (n_objects,) and the camera frame (``rgbd``). With the gated displacement (the default
+    ``ModelConfig.displacement``) each object's contact switch is observed from the touch: 1 when any touch was sensed over the step.
     """
     from pal.sim.pushing import JOINTS
 
@@ -346,7 +346,7 @@ def pusher_spec() -> EnvSpec:
     lies 4.8 cm lower (the goal marker's centre), so the object-goal distance never falls below
     that. Actions: seven torques in [-2, 2].
 
-    There is no touch sensor: with ``ModelConfig(displacement="gated")`` the object's contact
+    There is no touch sensor: with the gated displacement (the default) the object's contact
     switch ``contact.object`` is labelled from the data for training, 1 when the object moved
     more than its noise floor over the step (``||dpos|| > MOVED_SIGMAS * position_sigma``, 3 mm by
     default; :func:`pal.agent.graph.contact_rule`), and is latent (enumerated) elsewhere.

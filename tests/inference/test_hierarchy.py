@@ -6,7 +6,15 @@ import torch
 from inference import ActionOptions
 from inference.hierarchy import Hierarchy, Layer, LevelQuery
 from inference.hierarchy_count import count_evaluations
-from models import CausalGraph, LinearMechanism, Variable, WorldModel
+from models import (
+    BernoulliMechanism,
+    CausalGraph,
+    EnsembleMechanism,
+    GatedMechanism,
+    LinearMechanism,
+    Variable,
+    WorldModel,
+)
 from models.abstraction import Abstraction, ContactOnset, Displacement, WindowError
 
 GAIN = 2.0  # body: q = q_prev + GAIN * act
@@ -126,6 +134,24 @@ def test_counting_is_per_row_and_outermost() -> None:
         {"act": torch.zeros(5, 1), "q_prev": torch.zeros(5, 1), "touch": torch.zeros(5, 1)}
     )  # unwrapped again
     assert count.total == 5
+
+
+def test_a_switch_and_its_gated_mixture_are_counted_once_per_row_and_member() -> None:
+    graph = CausalGraph(
+        [Variable("a", "action", 1, bounds=(-2, 2)), Variable("c", "latent"), Variable("x", "latent")],
+        [("a", "c"), ("a", "x"), ("c", "x")],
+    )
+    on = EnsembleMechanism([_lin(1.0, 0.0), _lin(2.0, 0.0), _lin(3.0, 0.0)])
+    model = WorldModel(
+        graph, {"c": BernoulliMechanism.from_coefficients([1.0]), "x": GatedMechanism("c", on)}
+    )
+    a = {"a": torch.zeros(4, 1)}
+    with count_evaluations(model) as count:
+        model.predict(a)  # the mode's logits on 4 rows; the mixture evaluates the 3 members on 4 rows
+    assert count.by_site == {"c": 4, "x": 12}
+    with count_evaluations(model) as count:
+        model.predict(a, members=True)  # paired: the 3 x 4 member rows once each
+    assert count.by_site == {"c": 12, "x": 12}
 
 
 def test_bad_layers() -> None:

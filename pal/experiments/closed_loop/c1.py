@@ -42,6 +42,7 @@ import numpy as np
 from inference.calibration import predictive_check
 from models import WorldModel
 from pal.agent import Agent, build_graph, discover_parents, pushing_spec
+from pal.agent.graph import contact_rule
 from pal.agent.learn import site_data
 from pal.checks import check_float, check_int
 from pal.experiments.closed_loop.setup import (
@@ -129,10 +130,11 @@ def learn_structure(agent: Agent, rows: np.ndarray, seed: int) -> dict[str, Any]
 def _coverage(model: WorldModel, agent: Agent, rows: np.ndarray) -> dict[str, dict[str, Any]]:
     """Coverage of the true push displacements by the model's 90 % interval, per object (module docstring)."""
     h = agent.history
+    rule, floor = contact_rule(agent.spec, agent.config.model)  # the model's contact column
     out = {}
     for k, o in enumerate(h.objects):
         touched = rows[h.array("touch")[rows, k] > 0]
-        _, objects = h.columns("perceived", touched)
+        _, objects = h.columns("perceived", touched, contact=rule, floor=floor)
         cols = dict(objects[o])
         keep = np.isfinite(h.array("meas_prev")[touched, k, 0]) & np.isfinite(h.array("meas")[touched, k, 0])
         true = (h.array("truth")[touched, k] - h.array("truth_prev")[touched, k])[keep]

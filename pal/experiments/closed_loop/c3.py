@@ -37,6 +37,7 @@ import torch
 from inference import counterfactual
 from models import WorldModel
 from pal.agent import Agent, restrict
+from pal.agent.graph import contact_rule
 from pal.agent.history import History
 from pal.checks import check_float, check_int
 from pal.experiments.closed_loop.setup import (
@@ -149,13 +150,15 @@ def _queries(
     return out[: config.count]
 
 
-def _answers(model: WorldModel, history: History, queries: list, source: str) -> dict[str, np.ndarray]:
-    """Displacement errors (cm) of the three answers for every query."""
+def _answers(
+    model: WorldModel, history: History, queries: list, source: str, contact: tuple[str, float]
+) -> dict[str, np.ndarray]:
+    """Displacement errors (cm) of the three answers for every query; ``contact``: the ``(rule, floor)`` of contact.o."""
     rows = np.array([r for r, _, _ in queries])
     alt = np.stack([a for _, a, _ in queries])
     true_cf = np.stack([t for _, _, t in queries])
     box = restrict(model, ("box",))
-    arm, objects = history.columns(source, rows)
+    arm, objects = history.columns(source, rows, contact=contact[0], floor=contact[1])
     cols = {**arm, **objects["box"]}
     cols["meas.box"] = cols["pos.box"]
     dtype = box.dtype
@@ -194,7 +197,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     errors: dict[str, dict[str, np.ndarray]] = {}
     for key, source, _ in _MODELS:
         model, _ = fitted_model(agent, config.setup, config.seed, source, train)
-        errors[key] = _answers(model, history, queries, source)
+        errors[key] = _answers(model, history, queries, source, contact_rule(agent.spec, agent.config.model))
         block: dict[str, Any] = {}
         for a in ANSWERS:
             s = summary(errors[key][a])

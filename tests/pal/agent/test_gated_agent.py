@@ -21,8 +21,9 @@ GATED = replace(TINY, model=replace(TINY.model, displacement="gated"))
 BOUNDS = (-np.ones(7), np.ones(7))
 
 
-def test_the_displacement_form_is_checked_and_smooth_by_default():
-    assert ModelConfig().displacement == "smooth"
+def test_the_displacement_form_is_checked_and_gated_by_default():
+    assert ModelConfig().displacement == "gated"
+    assert "contact.object" in build_graph(pusher_spec(), BOUNDS).names
     with pytest.raises(
         ValueError, match="displacement 'switched' unknown; expected one of \\['smooth', 'gated'\\]"
     ):
@@ -33,7 +34,7 @@ def test_the_displacement_form_is_checked_and_smooth_by_default():
 
 def test_the_gated_graph_gives_every_object_a_bernoulli_switch_and_a_floor():
     spec = pusher_spec()  # no touch sensing: the smooth form has no contact site
-    assert "contact.object" not in build_graph(spec, BOUNDS).names
+    assert "contact.object" not in build_graph(spec, BOUNDS, displacement="smooth").names
     config = ModelConfig(hidden=(8,), members=2, displacement="gated")
     graph = build_graph(spec, BOUNDS, displacement="gated")
     assert graph.parents("contact.object") == ("rel_prev.object", "rel.object")
@@ -44,7 +45,7 @@ def test_the_gated_graph_gives_every_object_a_bernoulli_switch_and_a_floor():
     assert dpos.size == 2 and torch.allclose(dpos.floor, torch.full((3,), config.position_sigma))
     assert contact_rule(spec, config) == ("moved", MOVED_SIGMAS * config.position_sigma)
     assert contact_rule(pushing_spec(), config) == ("touch", 0.0)
-    assert contact_rule(spec, ModelConfig()) == ("strength", 0.0)
+    assert contact_rule(spec, ModelConfig(displacement="smooth")) == ("strength", 0.0)
 
 
 def test_contact_labels_follow_the_touch_or_the_moved_rule():

@@ -178,11 +178,11 @@ def test_perceived_objects_that_perception_never_sees_fail_at_construction():
 
 def test_the_graph_from_the_pusher_spec_and_its_fixed_relations():
     spec = pusher_spec()
-    graph = build_graph(spec, (-2 * np.ones(7), 2 * np.ones(7)))
+    graph = build_graph(spec, (-2 * np.ones(7), 2 * np.ones(7)), displacement="smooth")
     assert graph.parents("dq") == ("act", "q_prev", "v_prev") and graph.parents("dee") == ("q_prev", "dq")
     assert graph.parents("dpos.object") == ("vel_prev.object", "rel_prev.object", "rel.object")
     assert "contact.object" not in graph and "meas.object" not in graph  # no touch sensor, nothing perceived
-    model = build_model(spec, graph, ModelConfig(members=3, hidden=(8,)), seed=0)
+    model = build_model(spec, graph, ModelConfig(members=3, hidden=(8,), displacement="smooth"), seed=0)
     g = torch.Generator().manual_seed(0)
     roots = {r: torch.randn(4, graph[r].dim, generator=g) for r in graph.roots}
     roots["act"] = roots["act"].clamp(-2, 2)
@@ -215,7 +215,7 @@ def test_the_agent_learns_and_plans_on_pusher_from_observations_alone(pusher):
 
 def test_the_influence_gate_sees_only_what_the_action_moves():
     spec = pusher_spec()
-    graph = build_graph(spec, (-2 * np.ones(7), 2 * np.ones(7)))
+    graph = build_graph(spec, (-2 * np.ones(7), 2 * np.ones(7)), displacement="smooth")
     known = {
         "dq": LinearMechanism.from_coefficients(
             torch.cat([torch.eye(7), torch.zeros(7, 14)], 1), sigma=0.001
@@ -230,13 +230,13 @@ def test_the_influence_gate_sees_only_what_the_action_moves():
     model = build_model(
         spec,
         graph,
-        ModelConfig(kind="mlp", members=1, hidden=(4,)),
+        ModelConfig(kind="mlp", members=1, hidden=(4,), displacement="smooth"),
         mechanisms={**known, "dpos.object": LinearMechanism.from_coefficients(w, sigma=0.001)},
     )
     free = build_model(
         spec,
         graph,
-        ModelConfig(kind="mlp", members=1, hidden=(4,)),
+        ModelConfig(kind="mlp", members=1, hidden=(4,), displacement="smooth"),
         mechanisms={
             **known,
             "dpos.object": LinearMechanism.from_coefficients(torch.zeros(3, 9), sigma=0.001),
