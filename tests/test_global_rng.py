@@ -23,6 +23,7 @@ import models
 from inference import (
     AbductNoise,
     ActionOptions,
+    CalibrationOptions,
     CuriositySampler,
     DiscoveryOptions,
     Ensemble,
@@ -138,6 +139,8 @@ def _gated_queries() -> None:
     c = (b > 0).to(b.dtype)
     data = {"b": b, "c": c, "x": c * (b + 0.1 * torch.randn(40, 1, generator=g))}
     fit(model, data, schedule=FitSchedule(epochs=2, batch_size=8, validation=0.25))
+    calibration = CalibrationOptions(rule="conformal", level=0.9, folds=2)  # fresh refits of the on branch
+    fit(model, data, schedule=FitSchedule(epochs=2, batch_size=8, validation=0.25, calibration=calibration))
     model.predict({"b": b[:3]}, noise="sampled", generator=torch.Generator().manual_seed(1))
     assert inference.counterfactual_mixture(model, {"b": b[:3], "x": data["x"][:3]}, {"b": 0.0}).mean
     interval = inference.predictive_interval(model, {"b": b[:3]}, "x", num_samples=8, seed=1)
