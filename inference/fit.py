@@ -173,7 +173,7 @@ def fit(
     model.eval()
     best_epoch = restore_best(run)
     seconds = time.perf_counter() - start
-    sigma, sigma_rule = _set_sigmas(model, run, schedule.calibration, folds)
+    sigma, sigma_rule = _set_sigmas(run, schedule.calibration, folds)
     for v, rule in sigma_rule.items():
         text = _RULE_TEXT[rule].format(level=schedule.calibration.level, folds=schedule.calibration.folds)
         log.info("fit: sigma of %r from %s", v, text)

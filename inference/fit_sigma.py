@@ -35,7 +35,6 @@ from inference.fit_types import CalibrationOptions
 from models.discrete import DiscreteMechanism
 from models.ensemble import EnsembleMechanism
 from models.mechanisms import Mechanism
-from models.world import WorldModel
 
 __all__: list[str] = []
 
@@ -71,7 +70,7 @@ def scale_factor(z: Tensor, options: CalibrationOptions) -> Tensor:
     if options.rule == "variance":
         return z.pow(2).mean(0).sqrt().clamp_min(1e-6)
     n, level = z.shape[0], options.level
-    k = math.ceil((n + 1) * level - 1e-9)
+    k = math.ceil((n + 1) * level - 1e-9)  # (n + 1) level may land a rounding error above an integer
     if k > n:
         log.info(
             "fit: %d held-out rows are too few for a conformal %g quantile (it needs %d); using the largest |z|",
@@ -137,7 +136,6 @@ def _rule(mech: Mechanism, options: CalibrationOptions, out_of_fold: bool) -> st
 
 
 def _set_sigmas(
-    model: WorldModel,
     run: Run,
     options: CalibrationOptions,
     folds: Mapping[str, Sequence[tuple[Mechanism, Tensor]]],
