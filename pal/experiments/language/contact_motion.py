@@ -90,7 +90,9 @@ def contact_situations(env: Any, check: MotionCheck, seeds: list[int], floor: fl
 
     Args:
         env: ``gymnasium.make("Pusher-v5")`` (its state is changed).
-        check: the settings. seeds: one reset seed per episode. floor: the moved rule's floor, m.
+        check: the settings.
+        seeds: one reset seed per episode.
+        floor: the moved rule's floor, m.
 
     Returns:
         ``{"on": values, "far": values, "sim_on": (n,), "sim_far": (n,)}``: values name ->
@@ -129,7 +131,9 @@ def contact_situations(env: Any, check: MotionCheck, seeds: list[int], floor: fl
     }
 
 
-def _replay_far(env: Any, states: np.ndarray, on: dict[str, np.ndarray], far: dict[str, np.ndarray]) -> np.ndarray:
+def _replay_far(
+    env: Any, states: np.ndarray, on: dict[str, np.ndarray], far: dict[str, np.ndarray]
+) -> np.ndarray:
     """The simulator's |dpos| of the far twins: the recorded state with the object moved there and at rest."""
     world = PusherWorld(env)
     m = env.unwrapped.model

@@ -34,11 +34,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from pal.checks import check_float, check_int
-from pal.experiments.closed_loop import hierarchy_compare
 from pal.agent import AgentConfig, ModelConfig
 from pal.agent.config import DISPLACEMENTS
 from pal.agent.graph import contact_rule
+from pal.checks import check_float, check_int
+from pal.experiments.closed_loop import hierarchy_compare
 from pal.experiments.closed_loop.setup import TINY_SETUP, SetupConfig, babbled_agent
 from pal.experiments.language.lot_play import (
     QueryResult,
@@ -119,7 +119,9 @@ class Config:
             raise ValueError("queries must hold at least one query text")
         if self.comparison is not None:
             if self.comparison not in DISPLACEMENTS:
-                raise ValueError(f"comparison {self.comparison!r} unknown; expected one of {list(DISPLACEMENTS)} or None")
+                raise ValueError(
+                    f"comparison {self.comparison!r} unknown; expected one of {list(DISPLACEMENTS)} or None"
+                )
             forms = {self.setup.agent.model.displacement}
             if self.pusher is not None:
                 forms.add(self.pusher.model.displacement)

@@ -256,7 +256,10 @@ def _verdict(t: Target) -> str:
 
 
 def _table(
-    title: str, results: Mapping[str, Sequence[QueryResult]], targets: Mapping[str, list[Target]], caption: str
+    title: str,
+    results: Mapping[str, Sequence[QueryResult]],
+    targets: Mapping[str, list[Target]],
+    caption: str,
 ) -> Table:
     names = list(results)
     columns = ["query"]
@@ -285,7 +288,14 @@ def query_section(
     """The table, metrics and targets of one world's query results, per model.
 
     Args:
+        name: the part's key (metrics, target names).
+        title: the part's title.
         results: model name -> its query results, the primary model first (all the same queries).
+        tolerance: the agreement rule's tolerance.
+        caption: the table's caption.
+        metrics: the part's own metrics, put first.
+        notes: the part's notes.
+        min_situations: the per-query targets' precondition (module docstring).
 
     Targets: ``queries_met.<name>`` (the share of the primary model's queries whose own target
     is met; "not evaluated" counts as not met) and ``queries_met.<name>.<model>`` for every other
@@ -300,8 +310,14 @@ def query_section(
         if [r.text for r in results[v]] != texts:
             raise ValueError(f"the {v!r} model answered other queries than the {variants[0]!r} model")
     per_query = {v: query_targets(name, v, results[v], tolerance, min_situations) for v in variants}
-    table = _table(f"{title}: world models against the simulator (same situations)", results, per_query, caption)
-    block: dict[str, Any] = {**dict(metrics or {}), **_block(results[variants[0]], tolerance), "model": variants[0]}
+    table = _table(
+        f"{title}: world models against the simulator (same situations)", results, per_query, caption
+    )
+    block: dict[str, Any] = {
+        **dict(metrics or {}),
+        **_block(results[variants[0]], tolerance),
+        "model": variants[0],
+    }
     block["comparisons"] = {v: _block(results[v], tolerance) for v in variants[1:]}
     targets = []
     for v in variants:
@@ -320,4 +336,6 @@ def query_section(
     for v in variants:
         targets += per_query[v]
     others = {v: tuple(results[v]) for v in variants[1:]}
-    return Section(name, title, block, (table,), tuple(targets), tuple(notes), tuple(results[variants[0]]), others)
+    return Section(
+        name, title, block, (table,), tuple(targets), tuple(notes), tuple(results[variants[0]]), others
+    )

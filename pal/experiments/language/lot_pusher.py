@@ -186,7 +186,9 @@ def _queries(
     return out, np.linalg.norm(values["ee"][:, :2] - values["pos.object"][:, :2], axis=1)
 
 
-def _motion(part: PusherPart, models: dict[str, Any], seed: int, moved: int) -> tuple[dict[str, Any], Any, list]:
+def _motion(
+    part: PusherPart, models: dict[str, Any], seed: int, moved: int
+) -> tuple[dict[str, Any], Any, list]:
     assert part.motion is not None
     floor = MOVED_SIGMAS * part.model.position_sigma
     env = gymnasium.make(ENV_ID)
@@ -195,13 +197,12 @@ def _motion(part: PusherPart, models: dict[str, Any], seed: int, moved: int) -> 
         situations = contact_situations(env, part.motion, seeds, floor)
     finally:
         env.close()
-    predicted = {}
-    if situations["sim_on"].size:
-        predicted = {n: predicted_motion(m, situations, part.motion, seed) for n, (m, _) in models.items()}
-    else:
-        predicted = {n: {f"{k}_{w}": np.zeros(0) for k in ("expected", "predictive") for w in ("on", "far")} for n in models}
-    metrics, table, targets = motion_targets(predicted, situations, part.motion, moved)
-    return metrics, table, targets
+    empty = {f"{k}_{w}": np.zeros(0) for k in ("expected", "predictive") for w in ("on", "far")}
+    predicted = {
+        n: predicted_motion(m, situations, part.motion, seed) if situations["sim_on"].size else empty
+        for n, (m, _) in models.items()
+    }
+    return motion_targets(predicted, situations, part.motion, moved)
 
 
 def pusher_section(

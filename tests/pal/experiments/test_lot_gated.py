@@ -68,7 +68,9 @@ def test_gated_model_plays_touch_moving_and_counterfactual_queries(pushing):
     env, values, states = pushing
     model = _gated_pushing_model(env)
     sit = Situations(values, states)
-    out = ModelWorld(model).play(sit, [torch.as_tensor(values["q"])[:, None]], 16, torch.Generator().manual_seed(0))
+    out = ModelWorld(model).play(
+        sit, [torch.as_tensor(values["q"])[:, None]], 16, torch.Generator().manual_seed(0)
+    )
     contact = out[0].paths["contact.box"][:, :, 1:]
     assert set(contact.unique().tolist()) == {0.0, 1.0}  # the switch, sampled both ways
     sig = pushing_signature(grounding=GroundingConfig(position_floor=0.001))
