@@ -9,7 +9,8 @@ world model has (:mod:`pal.agent.graph`):
 - ``ee`` (E,) the effector (hand, fingertip), m;
 - per object o: ``pos.o`` (d,) position, m; ``dpos.o`` its displacement over the last step
   (zero at the start); ``rel.o = ee - [pos.o, 0]`` (E,); ``contact.o`` (1,) the share of the
-  step's physics sub-steps in which the arm touched it (pushing world; zero at the start);
+  step's physics sub-steps in which the arm touched it, or with ``contact="touch"`` 1 when it
+  touched it in any of them, else 0 (pushing world; zero at the start);
 - ``goal.o`` (d,) the goal of an object, where the simulator has one (Pusher-v5).
 
 MuJoCo is deterministic, so every plan is played once per situation (``S = 1``) whatever the
@@ -35,6 +36,7 @@ from pal.checks import check_int
 from pal.language.world import Outcome, Situations
 
 __all__ = [
+    "CONTACTS",
     "PusherWorld",
     "PushingWorld",
     "SimWorld",
@@ -153,17 +155,32 @@ class SimWorld:
         return out
 
 
+#: What :class:`PushingWorld` reports as ``contact.o``: the touched share of the step's physics
+#: sub-steps, or the touch as a 0/1 switch (the two contact labels of the agent's world model).
+CONTACTS = ("strength", "touch")
+
+
 class PushingWorld(SimWorld):
     """:class:`pal.sim.pushing.PushingEnv` as a world (module docstring).
 
     Args:
         env: the pushing world (``camera=False`` is enough and faster); its state is changed.
+        contact: ``"strength"`` (``contact.o`` the touched share of the step's sub-steps, in
+            [0, 1]) or ``"touch"`` (1 when the arm touched o in any sub-step, else 0): the
+            meaning the compared world model gives ``contact.o``, so that ``touch`` grades the
+            same quantity in both worlds.
+
+    Raises:
+        ValueError: an unknown ``contact``.
     """
 
     touch = True
 
-    def __init__(self, env: Any) -> None:
+    def __init__(self, env: Any, contact: str = "strength") -> None:
+        if contact not in CONTACTS:
+            raise ValueError(f"contact {contact!r} unknown; expected one of {list(CONTACTS)}")
         self.env = env
+        self.contact = contact
         super().__init__(env.objects, 2, env.state_size, 2)
 
     def _raw(self, obs: np.ndarray, info: dict[str, Any]) -> dict[str, np.ndarray]:
@@ -171,7 +188,8 @@ class PushingWorld(SimWorld):
         for k, o in enumerate(self.objects):
             out[f"pos.{o}"] = np.asarray(info["truth"][o][:2], dtype=np.float64)
             if "touch" in info:
-                out[f"contact.{o}"] = np.asarray(info["touch"][k : k + 1], dtype=np.float64)
+                c = np.asarray(info["touch"][k : k + 1], dtype=np.float64)
+                out[f"contact.{o}"] = (c > 0).astype(np.float64) if self.contact == "touch" else c
         return out
 
     def restore(self, state: np.ndarray) -> dict[str, np.ndarray]:
