@@ -29,7 +29,7 @@ import logging
 import os
 from collections.abc import Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -47,8 +47,11 @@ from pal.io.image_headers import MAX_IMAGE_PIXELS, ImageHeaderError, check_image
 
 __all__ = [
     "FORMAT",
+    "MAX_TEXT_BYTES",
     "POSES_FORMAT",
+    "CameraPoses",
     "FrameSequence",
+    "MissingFramesWarning",
     "SequenceError",
     "SequenceWriter",
     "atomic_write_png",
@@ -57,6 +60,7 @@ __all__ = [
     "encode_depth",
     "read_depth",
     "read_image",
+    "read_text",
     "read_text_rows",
     "resolve_inside",
 ]
@@ -66,24 +70,60 @@ logger = logging.getLogger(__name__)
 FORMAT = "pal.rgbd-sequence/2"
 POSES_FORMAT = "pal.rgbd-sequence-poses/2"
 _MAX_U16 = 65535
+#: Largest list or table file read (``rgb.txt``, ``groundtruth.txt``, ``timestamps.txt``), bytes:
+#: TUM's longest lists are a few MB.
+MAX_TEXT_BYTES = 64 * 2**20
 
 
 class SequenceError(FileFormatError):
     """A sequence directory is missing, incomplete, unreadable or inconsistent."""
 
 
+class CameraPoses(NamedTuple):
+    """Camera-to-world poses of a sequence's frames.
+
+    Attributes:
+        poses: (N, 4, 4) float64 transforms, metres; rows without a pose are the identity.
+        valid: (N,) bool, True where the recording has a pose for the frame.
+    """
+
+    poses: np.ndarray
+    valid: np.ndarray
+
+
+class MissingFramesWarning(UserWarning):
+    """Frames a sequence's lists name are not on disk and were skipped (``missing="skip"``)."""
+
+
+def read_text(path: Path, max_bytes: int | None = None) -> str:
+    """The UTF-8 text of a list or table file, refused before reading when over ``max_bytes``.
+
+    ``max_bytes`` None: :data:`MAX_TEXT_BYTES`.
+
+    Raises:
+        SequenceError: the file does not exist, is larger than ``max_bytes`` or is not UTF-8 text.
+    """
+    if not path.is_file():
+        raise SequenceError(f"{path} does not exist")
+    size = path.stat().st_size
+    max_bytes = MAX_TEXT_BYTES if max_bytes is None else max_bytes
+    if size > max_bytes:
+        raise SequenceError(
+            f"{path} is {size} bytes, more than the {max_bytes} a frame list or table may hold"
+        )
+    try:
+        return path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise SequenceError(f"{path} is not a readable text file ({type(err).__name__}: {err})") from None
+
+
 def read_text_rows(path: Path) -> list[list[str]]:
     """Whitespace-separated fields of every non-empty line of a text file, ``#`` comments skipped.
 
     Raises:
-        SequenceError: the file does not exist or is not UTF-8 text.
+        SequenceError: the file does not exist, is too large (:func:`read_text`) or is not UTF-8 text.
     """
-    if not path.is_file():
-        raise SequenceError(f"{path} does not exist")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise SequenceError(f"{path} is not a readable text file ({type(err).__name__}: {err})") from None
+    text = read_text(path)
     return [line.split() for line in text.splitlines() if line.strip() and not line.startswith("#")]
 
 
@@ -244,8 +284,8 @@ class FrameSequence:
         for i in range(len(self)):
             yield self.frame(i)
 
-    def camera_poses(self) -> np.ndarray:
-        """(N, 4, 4) camera-to-world poses of the frames, when the recording has them.
+    def camera_poses(self) -> CameraPoses:
+        """Camera-to-world poses of the frames with their validity mask, when the recording has them.
 
         Raises:
             SequenceError: this recording has no camera poses.

@@ -1,11 +1,8 @@
-"""Folders of RGB-D image files: paired files (``1.png`` + ``1_depth.png``) or ``color/`` + ``depth/``.
+"""Folders of RGB-D image files: ``1.png`` + ``1_depth.png``, ``1-color.png`` + ``1-depth.png``, ``color/`` + ``depth/``.
 
-Two layouts are read as one :class:`FolderSequence`:
-
-- **paired**: ``<stem>.<ext>`` colour images next to ``<stem>_depth.png`` (or ``.pgm``) depth
-  images in one directory, e.g. ``1.png`` and ``1_depth.png``;
-- **subfolders**: ``color/<stem>.<ext>`` (or ``rgb/``) and ``depth/<stem>.png|.pgm`` with the
-  same stems, e.g. ``color/1.png`` and ``depth/1.pgm``.
+The naming patterns are :class:`pal.perception.folder_layouts.FolderLayout` s; the built-in
+ones (``paired``, ``dashed``, ``subfolders``, ``rgb-subfolders``) are tried when none is given,
+and a user's own is passed as ``layout=``. Colour and depth stems must pair one to one.
 
 Frames are ordered by stem (numerically when every stem is an integer). Colour files are
 8-bit (PNG, JPEG, ...), read as RGB; depth files are 16-bit PNG or binary PGM (0 = invalid),
@@ -14,9 +11,10 @@ scaled by ``depth_scale`` metres per unit.
 The camera is never assumed: intrinsics and depth scale come from the arguments or from
 ``calibration.json`` next to the frames (:mod:`pal.perception.calibration`). Timestamps come
 from ``timestamps.txt`` (``<stem> <seconds>`` rows) when present, else from ``fps``
-(``index / fps``); without either the reader raises. Camera poses, when the folder has them,
-are read from ``pose.txt`` (one ``tx ty tz qx qy qz qw`` row per frame, camera-to-world, the
-convention of the TUM ground truth) by :meth:`FolderSequence.camera_poses`.
+(``index / fps``); stills with neither are numbered 0, 1, 2, ... s and marked ``timed=False``.
+Camera poses, when the folder has them, are read from ``pose.txt`` (one ``tx ty tz qx qy qz
+qw`` row per frame, camera-to-world, the convention of the TUM ground truth) by
+:meth:`FolderSequence.camera_poses`.
 
 On opening, the first depth image is checked against the stated scale
 (:func:`pal.frames.check_depth_range` warns when the range is implausible and names the fix).
@@ -32,6 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from pal.frames import RGBDFrame, check_depth_range
 from pal.io.sequence_files import (
+    CameraPoses,
     FrameSequence,
     SequenceError,
     check_timestamps,
@@ -41,49 +40,36 @@ from pal.io.sequence_files import (
     resolve_inside,
 )
 from pal.perception.calibration import resolve_calibration
+from pal.perception.folder_layouts import (
+    COLOR_EXTENSIONS,
+    DEPTH_EXTENSIONS,
+    FolderLayout,
+    find_layout,
+    layout_named,
+    paired_frames,
+)
 
-__all__ = ["COLOR_EXTENSIONS", "DEPTH_EXTENSIONS", "FolderSequence", "find_folder_layout", "pose_matrices"]
-
-#: Colour image file extensions, lower case.
-COLOR_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".ppm", ".tif", ".tiff")
-#: Depth image file extensions (16-bit), lower case.
-DEPTH_EXTENSIONS = (".png", ".pgm")
-_DEPTH_SUFFIX = "_depth"
-
-
-def _files(directory: Path, extensions: tuple[str, ...]) -> dict[str, Path]:
-    return {p.stem: p for p in sorted(directory.iterdir()) if p.is_file() and p.suffix.lower() in extensions}
-
-
-def _order(stems: list[str]) -> list[str]:
-    if all(s.lstrip("-").isdigit() for s in stems):
-        return sorted(stems, key=int)
-    return sorted(stems)
-
+__all__ = [
+    "COLOR_EXTENSIONS",
+    "DEPTH_EXTENSIONS",
+    "FolderLayout",
+    "FolderSequence",
+    "find_folder_layout",
+    "pose_matrices",
+]
 
 def find_folder_layout(path: Path) -> tuple[str, list[tuple[str, Path, Path]]] | None:
-    """The folder layout of ``path`` and its ``(stem, colour file, depth file)`` frames, or None.
+    """The built-in layout of ``path`` and its ``(stem, colour file, depth file)`` frames, or None.
 
     Returns:
-        ``("subfolders" | "paired", frames)`` in frame order, or None when ``path`` holds
-        neither layout.
+        ``(layout name, frames)`` in frame order (:mod:`pal.perception.folder_layouts`), or None
+        when no built-in layout pairs any file.
+
+    Raises:
+        SequenceError: the best layout leaves colour or depth files unpaired.
     """
-    for color_dir in ("color", "rgb"):
-        if (path / color_dir).is_dir() and (path / "depth").is_dir():
-            color = _files(path / color_dir, COLOR_EXTENSIONS)
-            depth = _files(path / "depth", DEPTH_EXTENSIONS)
-            common = _order(sorted(set(color) & set(depth)))
-            if common:
-                return "subfolders", [(s, color[s], depth[s]) for s in common]
-    files = _files(path, COLOR_EXTENSIONS)
-    depth = {s[: -len(_DEPTH_SUFFIX)]: p for s, p in files.items() if s.endswith(_DEPTH_SUFFIX)}
-    depth.update(
-        {s[: -len(_DEPTH_SUFFIX)]: p for s, p in _files(path, (".pgm",)).items() if s.endswith(_DEPTH_SUFFIX)}
-    )
-    color = {s: p for s, p in files.items() if not s.endswith(_DEPTH_SUFFIX) and s in depth}
-    if color:
-        return "paired", [(s, color[s], depth[s]) for s in _order(list(color))]
-    return None
+    layout = find_layout(path)
+    return None if layout is None else (layout.name, paired_frames(path, layout))
 
 
 def pose_matrices(values: np.ndarray, source: str) -> np.ndarray:
@@ -111,16 +97,21 @@ class FolderSequence(FrameSequence):
         path: the directory.
         K: (3, 3) intrinsics, pixels; None: read from ``calibration.json``.
         depth_scale: metres per depth unit; None: read from ``calibration.json``.
-        fps: frame rate for timestamps ``index / fps`` when there is no ``timestamps.txt``.
+        fps: frame rate for timestamps ``index / fps`` when there is no ``timestamps.txt``;
+            None: stills, numbered 0, 1, 2, ... s (``timed`` is False).
+        layout: a :class:`FolderLayout` or a built-in layout's name; None: the built-in layout
+            that pairs the most files.
 
     Attributes:
-        layout: ``"paired"`` or ``"subfolders"``.
+        layout: the layout's name, e.g. ``"paired"``, ``"dashed"`` or ``"subfolders"``.
         stems: the frames' file stems, in frame order.
         depth_scale: metres per depth unit.
+        timed: False when the timestamps are frame numbers (no ``timestamps.txt``, no fps).
 
     Raises:
-        SequenceError: not a folder of frames, no intrinsics or depth scale, no timestamps,
-            malformed ``timestamps.txt`` or non-monotonic timestamps.
+        SequenceError: not a folder of frames, a layout that matches nothing, colour and depth
+            counts that differ, no intrinsics or depth scale, malformed ``timestamps.txt`` or
+            non-monotonic timestamps.
     """
 
     def __init__(
@@ -130,17 +121,20 @@ class FolderSequence(FrameSequence):
         K: np.ndarray | None = None,
         depth_scale: float | None = None,
         fps: float | None = None,
+        layout: str | FolderLayout | None = None,
     ) -> None:
         self.path = Path(path)
         if not self.path.is_dir():
             raise SequenceError(f"sequence directory {self.path} does not exist or is not a directory")
-        found = find_folder_layout(self.path)
-        if found is None:
+        chosen = find_layout(self.path) if layout is None else layout_named(layout)
+        if chosen is None:
             raise SequenceError(
                 f"{self.path} holds no colour/depth image pairs: expected <stem>.png with <stem>_depth.png, "
-                "or color/<stem>.png with depth/<stem>.png|.pgm"
+                "<stem>-color.png with <stem>-depth.png, or color/<stem>.png with depth/<stem>.png|.pgm "
+                "(or pass layout=FolderLayout(...))"
             )
-        self.layout, frames = found
+        frames = paired_frames(self.path, chosen)
+        self.layout = chosen.name
         calib = resolve_calibration(self.path, K, depth_scale, fps)
         self.K, self.depth_scale, self.calibration_source = calib.K, calib.depth_scale, calib.source
         self.stems = [s for s, _, _ in frames]
@@ -148,6 +142,7 @@ class FolderSequence(FrameSequence):
         self._files = [
             (resolve_inside(self.path, c, where), resolve_inside(self.path, d, where)) for _, c, d in frames
         ]
+        self.timed = True
         self.timestamps = self._timestamps(calib.fps)
         check_depth_range(
             read_image(self._files[0][1], depth=True),
@@ -172,10 +167,8 @@ class FolderSequence(FrameSequence):
                 raise SequenceError(f"{path}: a timestamp is not a number ({err})") from None
             return check_timestamps(ts, str(path))
         if fps is None:
-            raise SequenceError(
-                f'{self.path} has no timestamps.txt; pass fps= (frames/s) or add "fps" to calibration.json, '
-                "or write timestamps.txt with one '<stem> <seconds>' row per frame"
-            )
+            self.timed = False
+            return np.arange(len(self.stems), dtype=np.float64)
         return np.arange(len(self.stems), dtype=np.float64) / fps
 
     def frame(self, index: int) -> RGBDFrame:
@@ -195,8 +188,8 @@ class FolderSequence(FrameSequence):
             )
         return RGBDFrame(rgb=rgb, depth=depth, K=self.K, timestamp=float(self.timestamps[index]))
 
-    def camera_poses(self) -> np.ndarray:
-        """(N, 4, 4) camera-to-world poses from ``pose.txt``, one row per frame.
+    def camera_poses(self) -> CameraPoses:
+        """Camera-to-world poses from ``pose.txt``, one row per frame, all valid.
 
         Raises:
             SequenceError: the folder has no ``pose.txt``, or it has another number of rows.
@@ -211,4 +204,4 @@ class FolderSequence(FrameSequence):
             values = np.array(rows, dtype=np.float64)
         except ValueError:
             raise SequenceError(f"{path}: expected rows of 7 numbers 'tx ty tz qx qy qz qw'") from None
-        return pose_matrices(values, str(path))
+        return CameraPoses(pose_matrices(values, str(path)), np.ones(len(self), dtype=bool))

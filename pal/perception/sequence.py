@@ -37,6 +37,7 @@ from pal.io.sequence_files import (
     read_text_rows,
     resolve_inside,
 )
+from pal.perception.folder_layouts import FolderLayout
 from pal.perception.folders import FolderSequence, find_folder_layout
 from pal.perception.tum import TUMSequence
 
@@ -211,6 +212,7 @@ def open_sequence(
     K: np.ndarray | None = None,
     depth_scale: float | None = None,
     fps: float | None = None,
+    layout: str | FolderLayout | None = None,
     **tum_options: Any,
 ) -> FrameSequence:
     """Open a recorded sequence: ``pal`` layout, TUM RGB-D lists, or a folder of image files.
@@ -221,8 +223,11 @@ def open_sequence(
             the ``pal`` layout stores its own and refuses another.
         depth_scale: metres per depth unit for TUM and folder layouts (None: read
             ``calibration.json``).
-        fps: frame rate of a folder without ``timestamps.txt``, frames/s.
-        **tum_options: passed to :class:`pal.perception.tum.TUMSequence` (``max_difference``).
+        fps: frame rate of a folder without ``timestamps.txt``, frames/s (None: stills).
+        layout: a folder's naming pattern (:class:`pal.perception.folder_layouts.FolderLayout`
+            or a built-in name); None: found from the files.
+        **tum_options: passed to :class:`pal.perception.tum.TUMSequence` (``max_difference``,
+            ``missing``).
 
     Raises:
         SequenceError: the directory does not exist, matches no layout, or lacks its camera.
@@ -238,11 +243,12 @@ def open_sequence(
         return RecordedSequence(p)
     if (p / "rgb.txt").is_file() and (p / "depth.txt").is_file():
         return TUMSequence(p, K=K, depth_scale=depth_scale, **tum_options)
-    if find_folder_layout(p) is not None:
-        return FolderSequence(p, K=K, depth_scale=depth_scale, fps=fps)
+    if layout is not None or find_folder_layout(p) is not None:
+        return FolderSequence(p, K=K, depth_scale=depth_scale, fps=fps, layout=layout)
     if (p / "rgb").is_dir():
         return RecordedSequence(p)  # an incomplete pal sequence: its reader names what is missing
     raise SequenceError(
         f"{p} is neither a pal sequence (sequence.json), a TUM RGB-D sequence (rgb.txt + depth.txt), "
-        "nor a folder of frames (<stem>.png + <stem>_depth.png, or color/ + depth/)"
+        "nor a folder of frames (<stem>.png + <stem>_depth.png, <stem>-color.png + <stem>-depth.png, "
+        "or color/ + depth/)"
     )

@@ -18,17 +18,22 @@ difference, each image used at most once. Frame timestamps are the RGB timestamp
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 from pal.frames import RGBDFrame, check_depth_range
 from pal.io.sequence_files import (
+    CameraPoses,
     FrameSequence,
+    MissingFramesWarning,
     SequenceError,
     check_timestamps,
     read_depth,
     read_image,
+    read_text,
     read_text_rows,
     resolve_inside,
 )
@@ -62,10 +67,7 @@ def _read_list(path: Path) -> tuple[np.ndarray, list[Path]]:
     stamps: list[float] = []
     files: list[Path] = []
     lines: dict[float, int] = {}
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as err:
-        raise SequenceError(f"{path} is not a readable text file ({type(err).__name__}: {err})") from None
+    text = read_text(path)
     for n, line in enumerate(text.splitlines(), start=1):
         line = line.strip()
         if not line or line.startswith("#"):
@@ -125,10 +127,17 @@ class TUMSequence(FrameSequence):
         depth_scale: metres per depth unit (:data:`TUM_DEPTH_SCALE` for TUM's files); None:
             read from ``calibration.json``.
         max_difference: RGB-depth association tolerance, s.
+        missing: ``"raise"``: a listed image not on disk is an error when the sequence is
+            opened; ``"skip"``: frames with a missing image are left out with a
+            :class:`MissingFramesWarning` naming their count (a partial download).
+
+    Attributes:
+        num_listed: frames the lists pair, present or not; ``len`` counts those present.
 
     Raises:
         SequenceError: missing or malformed lists, timestamps out of order, intrinsics or depth
-            scale neither given nor in ``calibration.json``, or no RGB image has a depth partner.
+            scale neither given nor in ``calibration.json``, no RGB image has a depth partner,
+            a listed image is missing (``missing="raise"``) or none is present (``"skip"``).
     """
 
     def __init__(
@@ -138,7 +147,10 @@ class TUMSequence(FrameSequence):
         K: np.ndarray | None = None,
         depth_scale: float | None = None,
         max_difference: float = 0.02,
+        missing: str = "raise",
     ) -> None:
+        if missing not in ("raise", "skip"):
+            raise ValueError(f'missing is {missing!r}; expected "raise" or "skip"')
         self.path = Path(path)
         if not self.path.is_dir():
             raise SequenceError(f"sequence directory {self.path} does not exist or is not a directory")
@@ -156,11 +168,31 @@ class TUMSequence(FrameSequence):
         pairs = associate(rgb_t, depth_t, max_difference)
         if not pairs:
             raise SequenceError(f"{self.path}: no RGB image has a depth image within {max_difference} s")
+        self.num_listed = len(pairs)
+        pairs = self._present(pairs, rgb_f, depth_f, missing)
         self.timestamps = np.array([rgb_t[i] for i, _ in pairs])
         self._files = [(rgb_f[i], depth_f[j]) for i, j in pairs]
         self.depth_timestamps = np.array([depth_t[j] for _, j in pairs])
         first = self._files[0][1]
         check_depth_range(read_image(first, depth=True), self.depth_scale, source=str(first), stacklevel=3)
+
+    def _present(
+        self, pairs: list[tuple[int, int]], rgb_f: list[Path], depth_f: list[Path], missing: str
+    ) -> list[tuple[int, int]]:
+        """The pairs whose two images exist; raises or warns about the others (``missing``)."""
+        present = [(i, j) for i, j in pairs if rgb_f[i].is_file() and depth_f[j].is_file()]
+        if len(present) == len(pairs):
+            return pairs
+        gone = [(i, j) for i, j in pairs if not (rgb_f[i].is_file() and depth_f[j].is_file())]
+        i, j = gone[0]
+        first = rgb_f[i] if not rgb_f[i].is_file() else depth_f[j]
+        what = f"{len(gone)} of {len(pairs)} listed frames have an image missing (first: {first.name})"
+        if missing == "raise":
+            raise SequenceError(f"{self.path}: {what}; open a partial download with missing='skip'")
+        if not present:
+            raise SequenceError(f"{self.path}: {what}; missing='skip' leaves no frames")
+        warnings.warn(f"{self.path}: {what}; they are skipped", MissingFramesWarning, stacklevel=3)
+        return present
 
     def frame(self, index: int) -> RGBDFrame:
         """RGB image ``index`` with its associated depth image; SequenceError if they differ in size."""
@@ -173,40 +205,73 @@ class TUMSequence(FrameSequence):
             )
         return RGBDFrame(rgb=rgb, depth=depth, K=self.K, timestamp=float(self.timestamps[index]))
 
-    def groundtruth(self, max_difference: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
-        """Camera poses from ``groundtruth.txt`` at the frame timestamps (nearest within tolerance).
+    def groundtruth(self, max_difference: float = 0.02, max_gap: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+        """Camera poses from ``groundtruth.txt`` at the frame timestamps, interpolated.
+
+        A frame has a pose when a ground-truth sample lies within ``max_difference`` s of it.
+        Between two samples at most ``max_gap`` s apart the pose is their linear (translation)
+        and spherical linear (rotation) interpolation; otherwise it is the nearer sample.
 
         Returns:
             ((N, 7) float64 ``tx ty tz qx qy qz qw`` rows, (N,) bool valid); invalid rows are 0.
 
         Raises:
-            SequenceError: the file is missing or malformed.
+            SequenceError: the file is missing or malformed, its times are not increasing, or it
+                covers no frame.
         """
         path = self.path / "groundtruth.txt"
-        rows = read_text_rows(path)
-        if not rows or any(len(r) != 8 for r in rows):
-            raise SequenceError(f"{path}: expected rows 't tx ty tz qx qy qz qw'")
-        try:
-            data = np.array(rows, dtype=np.float64)
-        except ValueError as err:
+        data = _groundtruth_rows(path)
+        out, valid = _interpolate_poses(data, self.timestamps, max_difference, max_gap)
+        if not valid.any():
             raise SequenceError(
-                f"{path}: expected rows of 8 numbers 't tx ty tz qx qy qz qw' ({err})"
-            ) from None
-        out, valid = np.zeros((len(self), 7)), np.zeros(len(self), dtype=bool)
-        for i, j in associate(self.timestamps, data[:, 0], max_difference):
-            out[i], valid[i] = data[j, 1:], True
+                f"{path}: its {len(data)} poses ({data[0, 0]:.3f}-{data[-1, 0]:.3f} s) cover none of the "
+                f"{len(self)} frames ({self.timestamps[0]:.3f}-{self.timestamps[-1]:.3f} s) within {max_difference} s"
+            )
         return out, valid
 
-    def camera_poses(self, max_difference: float = 0.02) -> np.ndarray:
-        """(N, 4, 4) camera-to-world poses from ``groundtruth.txt`` at the frame timestamps.
+    def camera_poses(self, max_difference: float = 0.02, max_gap: float = 0.1) -> CameraPoses:
+        """Camera-to-world poses at the frame timestamps (:meth:`groundtruth`) and their validity.
+
+        Frames without ground truth are marked invalid and get the identity.
 
         Raises:
-            SequenceError: no ground truth, or a frame without a ground-truth pose within
-                ``max_difference`` seconds.
+            SequenceError: no ground truth, malformed, or covering no frame.
         """
-        rows, valid = self.groundtruth(max_difference)
-        if not valid.all():
-            raise SequenceError(
-                f"{self.path / 'groundtruth.txt'}: frame {int(np.argmin(valid))} has no pose within {max_difference} s"
-            )
-        return pose_matrices(rows, str(self.path / "groundtruth.txt"))
+        rows, valid = self.groundtruth(max_difference, max_gap)
+        rows[~valid] = [0, 0, 0, 0, 0, 0, 1]
+        return CameraPoses(pose_matrices(rows, str(self.path / "groundtruth.txt")), valid)
+
+
+def _groundtruth_rows(path: Path) -> np.ndarray:
+    """(M, 8) ``t tx ty tz qx qy qz qw`` rows with strictly increasing t; SequenceError otherwise."""
+    rows = read_text_rows(path)
+    if not rows or any(len(r) != 8 for r in rows):
+        raise SequenceError(f"{path}: expected rows 't tx ty tz qx qy qz qw'")
+    try:
+        data = np.array(rows, dtype=np.float64)
+    except ValueError as err:
+        raise SequenceError(f"{path}: expected rows of 8 numbers 't tx ty tz qx qy qz qw' ({err})") from None
+    pose_matrices(data[:, 1:], str(path))  # finite, non-zero quaternions
+    check_timestamps(data[:, 0], str(path))
+    if np.any(np.diff(data[:, 0]) == 0):
+        k = int(np.flatnonzero(np.diff(data[:, 0]) == 0)[0]) + 1
+        raise SequenceError(f"{path}: rows {k} and {k + 1} have the same time {data[k, 0]}")
+    return data
+
+
+def _interpolate_poses(
+    data: np.ndarray, times: np.ndarray, max_difference: float, max_gap: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses of (M, 8) rows at ``times`` (N,): valid near a sample; lerp + slerp across short gaps."""
+    t = data[:, 0]
+    after = np.searchsorted(t, times, side="left").clip(0, len(t) - 1)
+    before = (after - 1).clip(0, len(t) - 1)
+    nearest = np.where(np.abs(t[before] - times) < np.abs(t[after] - times), before, after)
+    valid = np.abs(t[nearest] - times) <= max_difference
+    out = np.where(valid[:, None], data[nearest, 1:], 0.0)
+    span = (t[before] < times) & (times < t[after]) & (t[after] - t[before] <= max_gap) & valid
+    if span.any():
+        out[span, 3:] = Slerp(t, Rotation.from_quat(data[:, 4:]))(times[span]).as_quat()
+        for k in range(3):
+            out[span, k] = np.interp(times[span], t, data[:, 1 + k])
+    return out, valid

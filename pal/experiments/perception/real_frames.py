@@ -226,9 +226,10 @@ def evaluate_sample(
     pipe = Pipeline(PipelineConfig(**{**pipeline.__dict__, "seed": seed}))
     states = [pipe(f) for f in frames]
     try:
-        world = seq.camera_poses()[:n]
+        poses = seq.camera_poses()
     except SequenceError:
-        world = None
+        poses = None
+    world = None if poses is None or not poses.valid[:n].all() else poses.poses[:n]
     pairs, rows = [], []
     for k in range(n - 1):
         cam = states[k + 1].camera

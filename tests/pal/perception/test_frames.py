@@ -198,15 +198,17 @@ def test_tum_layout_with_association_scale_and_intrinsics(tmp_path):
     assert f.depth[0, 0] == pytest.approx(3.0) and f.rgb[0, 0, 0] == 20
     assert f.timestamp == pytest.approx(1.066)
     gt, valid = seq.groundtruth()
-    assert valid.tolist() == [True, True, False] and gt[1, :3].tolist() == [4, 5, 6]
+    assert valid.tolist() == [True, True, False] and gt[0, :3].tolist() == [1, 2, 3]  # nearest, before the first
+    w = (1.033 - 1.001) / (1.034 - 1.001)  # interpolated between the two samples
+    assert np.allclose(gt[1, :3], [1 + 3 * w, 2 + 3 * w, 3 + 3 * w], atol=1e-9) and gt[2].tolist() == [0] * 7
     (d / "calibration.json").write_text(
         json.dumps({"fx": 100, "fy": 100, "cx": 31.5, "cy": 23.5, "depth_scale": 2e-4})
     )
     custom = TUMSequence(d)  # the calibration file next to the lists
     assert np.allclose(custom.K, K) and custom.depth_scale == pytest.approx(2e-4)
     assert np.allclose(TUMSequence(d, K=FREIBURG_DEFAULT_K).K, FREIBURG_DEFAULT_K)  # arguments win
-    with pytest.raises(SequenceError, match="not found|has no pose within"):
-        custom.camera_poses()
+    poses = custom.camera_poses()  # frames without ground truth are marked, not refused
+    assert poses.valid.tolist() == [True, True, False] and np.allclose(poses.poses[2], np.eye(4))
     (d / "rgb.txt").write_text("1.066000 rgb/1.066000.png\n1.000000 rgb/1.000000.png\n")
     with pytest.raises(SequenceError, match="not monotonic: frame 1 at 1.000000 s comes after frame 0"):
         TUMSequence(d)

@@ -33,8 +33,8 @@ def test_the_samples_read_as_rgb_metres_with_their_calibration():
     assert np.array_equal(RGBDFrame.from_bgr(bgr, f.depth, f.K, 0.0).rgb, f.rgb)
     d = desk[1]  # a 16-bit PNG, 1/5000 m
     assert 1.0 < float(np.median(d.depth[d.depth > 0])) < 2.0 and d.timestamp == pytest.approx(1 / 30)
-    poses = room.camera_poses()
-    assert poses.shape == (3, 4, 4) and np.allclose(poses[:, 3], [0, 0, 0, 1])
+    poses, valid = room.camera_poses()
+    assert valid.tolist() == [True] * 3 and poses.shape == (3, 4, 4) and np.allclose(poses[:, 3], [0, 0, 0, 1])
     assert np.allclose(poses[0, :3, :3] @ poses[0, :3, :3].T, np.eye(3))
     with pytest.raises(SequenceError, match="no camera poses"):
         desk.camera_poses()
@@ -58,10 +58,10 @@ def test_paired_and_subfolder_layouts_need_a_camera_but_no_list(tmp_path):
         open_sequence(desk)
     with pytest.raises(SequenceError, match=r"depth scale is unknown.*0\.0002 for TUM"):
         open_sequence(desk, K=np.array(DESK_K))
-    with pytest.raises(SequenceError, match="no timestamps.txt; pass fps="):
-        open_sequence(desk, K=np.array(DESK_K), depth_scale=1 / 5000)
+    stills = open_sequence(desk, K=np.array(DESK_K), depth_scale=1 / 5000)  # no fps needed
+    assert not stills.timed and stills.timestamps.tolist() == [0.0, 1.0]
     seq = open_sequence(desk, K=np.array(DESK_K), depth_scale=1 / 5000, fps=10.0)
-    assert isinstance(seq, FolderSequence) and seq.timestamps.tolist() == [0.0, 0.1]
+    assert isinstance(seq, FolderSequence) and seq.timed and seq.timestamps.tolist() == [0.0, 0.1]
     (desk / "timestamps.txt").write_text("# stem seconds\n1 5.0\n2 4.0\n")
     with pytest.raises(SequenceError, match="not monotonic: frame 1 at 4.000000 s comes after frame 0"):
         open_sequence(desk, K=np.array(DESK_K), depth_scale=1 / 5000)

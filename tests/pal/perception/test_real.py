@@ -48,7 +48,8 @@ def test_the_camera_motion_matches_the_published_one_and_the_room_poses(desk):
     assert angle_deg(T[:3, :3]) == pytest.approx(PUBLISHED_DESK_MOTION[0], abs=0.3)
     assert np.linalg.norm(T[:3, 3] - PUBLISHED_DESK_MOTION[1]) < 0.01
     room = open_sample("kinect_room")
-    W = room.camera_poses()
+    W, valid = room.camera_poses()
+    assert valid.all()
     pipe = Pipeline(PipelineConfig(estimate_pose=False, relations=None))
     pipe(room[1])
     est = pipe(room[2]).camera
