@@ -12,8 +12,9 @@ ones are the torch twins of :func:`pal.perception.grounding.grade`, on a constan
 With Phi the standard normal CDF and ``s_ab = sqrt(sigma_a² + sigma_b²)``:
 
 - ``left_of(a, b) = Phi((x_b - x_a) / sqrt(s_ab² + ((r_a + r_b) / 2)²))``;
-- ``near(a, b) = Phi((r - gap) / (0.25 r + s_ab))``, gap the distance between the footprints,
-  ``r = max(near_distance, extent_a, extent_b)``;
+- ``near(a, b) = Phi((d - gap) / (0.25 d + s_ab))``, gap the distance between the footprints,
+  and between the 3-D boxes when both positions are 3-D and both constants have a ``height``;
+  ``d = near_distance``;
 - ``on(a, b) = Phi((tol - |bottom_a - top_b|) / (tol / 2 + s_ab)) * overlap(a, b)`` when
   z_a > z_b, else 0 (3-D positions);
 - ``touch(a, b)``: with a ``contact`` variable c bound by b (else by a): ``clamp(c, 0, 1)`` (a
@@ -94,11 +95,15 @@ def _placement(config: GroundingConfig) -> tuple[Ground, Ground, Ground]:
 
     def near(values: Mapping[str, Tensor], constants: tuple[Constant, ...]) -> Tensor:
         a, b = constants
+        pa, pb = _pos(values, a), _pos(values, b)
         ra, rb = _attr(a, "radius", 0.0), _attr(b, "radius", 0.0)
-        ext = [max(2 * _attr(c, "radius", 0.0), _attr(c, "height", 0.0)) for c in (a, b)]
-        r = max(config.near_distance, *ext)
-        gap = _footprint_gap(_pos(values, a), _pos(values, b), ra, rb)
-        return ndtr((r - gap) / (0.25 * r + _sab(a, b, floor)))
+        gap = _footprint_gap(pa, pb, ra, rb)
+        if pa.shape[-1] >= 3 and pb.shape[-1] >= 3 and "height" in a.attributes and "height" in b.attributes:
+            half = (_attr(a, "height", 0.0) + _attr(b, "height", 0.0)) / 2.0
+            vertical = ((pa[..., 2] - pb[..., 2]).abs() - half).clamp_min(0.0)
+            gap = torch.sqrt(gap**2 + vertical**2)
+        d = config.near_distance
+        return ndtr((d - gap) / (0.25 * d + _sab(a, b, floor)))
 
     def on(values: Mapping[str, Tensor], constants: tuple[Constant, ...]) -> Tensor:
         a, b = constants

@@ -20,12 +20,15 @@ position uncertainty ``sqrt(sigma_z(z)² + floor²)`` (depth noise and segmentat
   with ``w`` the footprint widths: two side-by-side objects grade about 0.98, two objects one
   behind the other 0.5;
 - ``in_front_of(a, b) = Phi((y_b - y_a) / s)`` on the depths ``d`` of the footprints alike;
-- ``near(a, b) = Phi((r - gap) / (0.25 r + sqrt(sigma_a² + sigma_b²)))``, ``gap`` the distance
-  between the footprint boxes and ``r = max(near_distance, extent_a, extent_b)``: within about
-  an object's size;
+- ``near(a, b) = Phi((d - gap) / (0.25 d + sqrt(sigma_a² + sigma_b²)))``, ``gap`` the metric
+  distance between the objects' 3-D boxes (footprint and height span) and ``d = near_distance``
+  (0.1 m by default): 0.5 at a 10 cm gap, 0.98 at 4 cm, under 0.01 at 20 cm, whatever the
+  objects' sizes (a wall is not near everything);
 - ``on(a, b)``: a's bottom at b's top, ``Phi((tolerance - |bottom_a - top_b|) / s)`` times the
   fraction of a's footprint over b's, zero when a is not above b; ``on_support(a)`` is the
-  same against the plane (height 0);
+  same against the plane (height 0), times the share of the object's lowest image edge that is
+  visible, not hidden behind a nearer surface (``bottom_visible``): an occluded bottom is not
+  evidence of contact;
 - ``touching(a, b) = Phi((touch_gap - gap3d) / s)``, ``gap3d`` the smallest distance between
   their rim points (a k-d tree), ``s`` their depth noise plus 5 mm. Depth holes at a
   boundary do not matter: the gap is measured between the points both objects do have.
@@ -54,6 +57,7 @@ __all__ = [
     "PREDICATES",
     "GroundingConfig",
     "ObjectGeometry",
+    "bottom_visibility",
     "grade",
     "object_geometry",
     "on_support",
@@ -62,6 +66,8 @@ __all__ = [
 
 #: The graded predicates, in the order of :func:`grade`'s vector.
 PREDICATES: tuple[str, ...] = ("near", "on", "left_of", "in_front_of", "touching")
+#: The least depth step, m, by which a surface under an object's lowest edge hides that edge.
+OCCLUDER_MARGIN = 0.03
 
 
 @dataclass(frozen=True)
@@ -71,7 +77,7 @@ class GroundingConfig:
     Attributes:
         noise: the depth sensor's noise model.
         position_floor: position uncertainty floor (segmentation), metres.
-        near_distance: objects within this gap (or their own size) are near.
+        near_distance: objects whose 3-D boxes are within this gap are near, m.
         on_tolerance: height mismatch of a resting contact, metres.
         touch_gap: surfaces closer than this touch.
         surface_points: rim points kept per object for gaps.
@@ -120,6 +126,8 @@ class ObjectGeometry:
         top: height of its highest points.
         sigma: position uncertainty.
         surface: (M, 3) points of its rim (the mask's boundary band), for gaps.
+        bottom_visible: share in [0, 1] of the mask's lowest image edge that is seen, not
+            hidden behind a nearer surface or cut by the image border (:func:`bottom_visibility`).
     """
 
     position: np.ndarray
@@ -129,6 +137,7 @@ class ObjectGeometry:
     top: float
     sigma: float
     surface: np.ndarray
+    bottom_visible: float = 1.0
 
     @property
     def extent(self) -> float:
@@ -143,6 +152,7 @@ class ObjectGeometry:
             "bottom": self.bottom,
             "top": self.top,
             "sigma": self.sigma,
+            "bottom_visible": self.bottom_visible,
         }
 
 
@@ -164,7 +174,48 @@ def object_geometry(
     sigma = math.hypot(float(config.noise.sigma(z_med)), config.position_floor)
     rim = _rim_points(frame, mask, max_depth, config.surface_points)
     surface = q if rim.shape[0] < 3 else rim @ R.T + t
-    return ObjectGeometry(mid, lo[:2], hi[:2], float(lo[2]), float(hi[2]), sigma, surface)
+    visible = bottom_visibility(frame.depth, mask, max(3.0 * sigma, OCCLUDER_MARGIN))
+    return ObjectGeometry(mid, lo[:2], hi[:2], float(lo[2]), float(hi[2]), sigma, surface, visible)
+
+
+def bottom_visibility(depth: np.ndarray, mask: Mask, margin: float, below: int = 4) -> float:
+    """Share of a mask's columns whose lowest pixel is seen with nothing nearer just below it.
+
+    For each column of the mask with depth at its lowest pixel (z), the ``below`` pixels under
+    it are read: the column is hidden when their median valid depth is nearer than
+    ``z - margin`` (an occluder in front, e.g. a table edge before a chair's legs) or when the
+    mask reaches the image's lower border. A support seen beside the object's foot is at about
+    z, so a resting object's edge counts as seen.
+
+    Args:
+        depth: (H, W) metres, 0 = invalid.
+        mask: the object's mask.
+        margin: how much nearer a surface must be to hide the edge, m.
+        below: rows read under the edge, pixels.
+
+    Returns:
+        the share in [0, 1]; 1.0 when no column has depth at its lowest pixel (nothing to judge).
+    """
+    x0, y0 = mask.bbox[0], mask.bbox[1]
+    h = mask.crop.shape[0]
+    cols = np.flatnonzero(mask.crop.any(axis=0))
+    last = h - 1 - np.argmax(mask.crop[::-1, cols], axis=0)
+    ys, xs = y0 + last, x0 + cols
+    z = depth[ys, xs]
+    has = z > 0
+    if not has.any():
+        return 1.0
+    ys, xs, z = ys[has], xs[has], z[has]
+    height = depth.shape[0]
+    rows = ys[:, None] + np.arange(1, below + 1)[None, :]
+    inside = rows < height
+    under = np.where(inside, depth[np.minimum(rows, height - 1), xs[:, None]], 0.0)
+    under = np.where(under > 0, under, np.nan)
+    seen = np.isfinite(under).any(axis=1)
+    near = np.full(z.shape, np.inf)
+    near[seen] = np.nanmedian(under[seen], axis=1)
+    hidden = (ys + 1 >= height) | (near < z - margin)
+    return float(1.0 - hidden.mean())
 
 
 def _rim_points(frame: RGBDFrame, mask: Mask, max_depth: float, limit: int) -> np.ndarray:
@@ -196,9 +247,9 @@ def _overlap(a: ObjectGeometry, b: ObjectGeometry) -> float:
 
 
 def on_support(a: ObjectGeometry, config: GroundingConfig) -> float:
-    """Grade of ``a`` resting on the support plane (its bottom at height 0)."""
+    """Grade of ``a`` resting on the support plane: its bottom at height 0, times ``bottom_visible``."""
     s = config.on_tolerance / 2.0 + a.sigma
-    return float(ndtr((config.on_tolerance - abs(a.bottom)) / s))
+    return float(ndtr((config.on_tolerance - abs(a.bottom)) / s)) * a.bottom_visible
 
 
 def surface_gap(a: ObjectGeometry, b: ObjectGeometry) -> float:
@@ -230,9 +281,10 @@ def grade(
     s_y = math.sqrt(sab**2 + ((ay1 - ay0 + by1 - by0) / 4.0) ** 2)
     left = _phi((pb[0] - pa[0]) / s_x)
     front = _phi((pb[1] - pa[1]) / s_y)
-    r = max(config.near_distance, a.extent, b.extent)
-    box = math.hypot(max(0.0, ax0 - bx1, bx0 - ax1), max(0.0, ay0 - by1, by0 - ay1))
-    near = _phi((r - box) / (0.25 * r + sab))
+    d = config.near_distance
+    vertical = max(0.0, a.bottom - b.top, b.bottom - a.top)
+    box = math.sqrt(max(0.0, ax0 - bx1, bx0 - ax1) ** 2 + max(0.0, ay0 - by1, by0 - ay1) ** 2 + vertical**2)
+    near = _phi((d - box) / (0.25 * d + sab))
     s_on = config.on_tolerance / 2.0 + sab
     above = pa[2] > pb[2]
     on = _phi((config.on_tolerance - abs(a.bottom - b.top)) / s_on) * _overlap(a, b) if above else 0.0

@@ -1,0 +1,65 @@
+"""Grounded predicates in metres: near by the 3-D gap whatever the sizes, on_support needs a visible foot."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from pal.perception.grounding import GroundingConfig, ObjectGeometry, bottom_visibility, grade, on_support
+from pal.perception.masks import Mask
+
+CONFIG = GroundingConfig()
+
+
+def _box(lo, hi, bottom: float, top: float, sigma: float = 0.005, visible: float = 1.0) -> ObjectGeometry:
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    centre = np.array([*(lo + hi) / 2, (bottom + top) / 2])
+    return ObjectGeometry(centre, lo, hi, bottom, top, sigma, centre[None, :], visible)
+
+
+def test_near_is_the_metric_gap_so_a_wall_is_not_near_everything():
+    cup = _box([0.0, 0.0], [0.08, 0.08], 0.0, 0.1)
+    wall = _box([-2.0, 1.17], [2.0, 1.3], 0.0, 2.5)  # 1.09 m behind the cup
+    assert grade(cup, wall, CONFIG)["near"] < 1e-6 and grade(wall, cup, CONFIG)["near"] < 1e-6
+    s = 0.25 * CONFIG.near_distance + np.hypot(0.005, 0.005)
+    for gap, expected in ((0.0, 0.99), (0.1, 0.5), (0.2, 0.0)):
+        other = _box([0.08 + gap, 0.0], [0.16 + gap, 0.08], 0.0, 0.1)
+        z = (CONFIG.near_distance - gap) / s
+        assert grade(cup, other, CONFIG)["near"] == pytest.approx(0.5 * math.erfc(-z / math.sqrt(2)), abs=1e-12)
+        assert grade(cup, other, CONFIG)["near"] == pytest.approx(expected, abs=0.011)
+    shelf = _box([0.0, 0.0], [0.08, 0.08], 0.5, 0.52)  # straight above the cup, 40 cm up
+    assert grade(cup, shelf, CONFIG)["near"] < 1e-6
+
+
+def _scene(occluder_depth: float | None, reach_border: bool = False) -> tuple[np.ndarray, Mask]:
+    """A 40x40 depth image: floor at 2.00 m, an object at 2.0 m in rows 10-25 (or to the border)."""
+    depth = np.full((40, 40), 1.995, np.float32)  # the floor just before the object's foot
+    last = 39 if reach_border else 25
+    depth[10 : last + 1, 12:28] = 2.0
+    if occluder_depth is not None:
+        depth[26:, 5:35] = occluder_depth
+    full = np.zeros((40, 40), bool)
+    full[10 : last + 1, 12:28] = True
+    return depth, Mask.from_full(full)
+
+
+def test_bottom_visibility_tells_a_foot_on_the_floor_from_one_behind_a_table_edge():
+    assert bottom_visibility(*_scene(None), margin=0.03) == 1.0
+    assert bottom_visibility(*_scene(1.2), margin=0.03) == 0.0  # a table edge 0.8 m nearer
+    assert bottom_visibility(*_scene(None, reach_border=True), margin=0.03) == 0.0  # cut by the image
+    depth, mask = _scene(None)
+    depth[26:, 12:20] = 1.2  # half the foot hidden
+    assert bottom_visibility(depth, mask, margin=0.03) == pytest.approx(0.5)
+    depth[26:, 12:28] = 0.0  # no depth under the edge: nothing hides it
+    assert bottom_visibility(depth, mask, margin=0.03) == 1.0
+
+
+def test_on_support_needs_the_foot_to_be_seen():
+    seen = _box([0, 0], [0.1, 0.1], 0.0, 0.5, visible=1.0)
+    hidden = _box([0, 0], [0.1, 0.1], 0.0, 0.5, visible=0.0)
+    assert on_support(seen, CONFIG) > 0.9 and on_support(hidden, CONFIG) == 0.0
+    assert on_support(_box([0, 0], [0.1, 0.1], 0.0, 0.5, visible=0.5), CONFIG) == pytest.approx(
+        0.5 * on_support(seen, CONFIG)
+    )
