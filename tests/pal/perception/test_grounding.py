@@ -7,8 +7,18 @@ import math
 import numpy as np
 import pytest
 
-from pal.perception.grounding import GroundingConfig, ObjectGeometry, bottom_visibility, grade, on_support
+from pal.perception.grounding import (
+    GroundingConfig,
+    ObjectGeometry,
+    bottom_visibility,
+    grade,
+    object_geometry,
+    on_support,
+    support_frame,
+)
 from pal.perception.masks import Mask
+from pal.perception.plane import Plane
+from pal.perception.synthetic import Box, SyntheticCamera
 
 CONFIG = GroundingConfig()
 
@@ -63,3 +73,27 @@ def test_on_support_needs_the_foot_to_be_seen():
     assert on_support(_box([0, 0], [0.1, 0.1], 0.0, 0.5, visible=0.5), CONFIG) == pytest.approx(
         0.5 * on_support(seen, CONFIG)
     )
+
+
+def test_on_grades_a_rendered_stack_and_not_its_neighbour():
+    cam = SyntheticCamera(320, 240)
+
+    def at(x: float, z: float) -> np.ndarray:
+        t = np.eye(4)
+        t[:3, 3] = [x, 0.0, z]
+        return cam.table @ t
+
+    frame = cam.render(
+        [
+            Box((0.14, 0.12, 0.08), at(-0.05, 0.04), label=1, seed=1),
+            Box((0.08, 0.08, 0.06), at(-0.05, 0.11), label=2, seed=2),  # on box 1
+            Box((0.06, 0.06, 0.06), at(0.15, 0.03), label=3, seed=3),  # beside it, 10.6 cm away
+        ]
+    )
+    n = cam.table[:3, 2]
+    S = support_frame(Plane(n, -float(n @ cam.table[:3, 3])))
+    g = {k: object_geometry(frame, Mask.from_full(frame.labels == k), S, CONFIG) for k in (1, 2, 3)}
+    assert grade(g[2], g[1], CONFIG)["on"] > 0.7 and grade(g[1], g[2], CONFIG)["on"] == 0.0
+    assert grade(g[3], g[1], CONFIG)["on"] == 0.0 and grade(g[2], g[3], CONFIG)["on"] == 0.0
+    assert on_support(g[1], CONFIG) > 0.7 and on_support(g[3], CONFIG) > 0.7 and on_support(g[2], CONFIG) < 0.05
+    assert 0.3 < grade(g[1], g[3], CONFIG)["near"] < 0.6  # a 10.6 cm gap: about half near
