@@ -21,7 +21,9 @@ A discrete site (:mod:`models.discrete`) is the Gumbel-max SCM ``x = argmax_k (l
 (Oberst and Sontag 2019): abduction draws its ``(N, K)`` Gumbel noise from the exact posterior
 given the observed category (the top-down construction), and prediction takes the argmax
 under the counterfactual parents. Then S draws are made even when every variable is observed,
-and ``exact`` is False.
+and ``exact`` is False, unless no scenario recomputes a discrete site it does not set (each
+discrete site is intervened on, or descends from no intervention): then its Gumbel draws do not
+matter, one pass answers the query and ``exact`` is True (a binary treatment that is set).
 
 The model may be a program: ``counterfactual(do(m, {...}), ...)`` or under handlers entered
 with ``with`` (an ``Intervene`` there holds in the factual and the counterfactual world; a
@@ -72,11 +74,11 @@ class CounterfactualResult:
 
     Attributes:
         samples: name -> ``(S, K, N, dim)``; S = 1 when the evidence was complete and no
-            site is discrete.
+            scenario recomputes a discrete site it does not set.
         noise: name -> ``(S, N, dim)`` abducted standardised residuals (``(S, N, K)``
             Gumbel noise for a discrete site).
-        exact: True when every variable was observed and none is discrete (one draw
-            answers the query).
+        exact: True when every variable was observed and no scenario recomputes a discrete
+            site it does not set (one draw answers the query).
         posterior: the state posterior used for latent variables, else None.
     """
 
@@ -282,7 +284,7 @@ def counterfactual(
     state = None
     if latent or posterior is not None:
         state = _posterior(program, obs, evidence, n, latent, posterior, guide, num_samples, options, seed)
-    discrete = bool(world.discrete)
+    discrete = _gumbel_matters(graph, world.discrete, scenarios) if plain else bool(world.discrete)
     s = state.num_samples if state is not None else (num_samples if discrete else 1)
     generator = torch.Generator().manual_seed(seed)
     if plain:  # draws only from the local generator
@@ -292,6 +294,20 @@ def counterfactual(
             torch.manual_seed(seed)
             samples, noise = _general(program, evidence, acts, state, latent, scenarios, s, n, generator)
     return CounterfactualResult(samples, noise, exact=not latent and not discrete, posterior=state)
+
+
+def _gumbel_matters(graph: Any, discrete: Any, scenarios: list[dict[str, Any]]) -> bool:
+    """Whether some scenario recomputes a discrete site it does not set (so its Gumbel draws count).
+
+    A discrete site that a scenario sets, or that descends from none of its interventions,
+    takes the same value in every draw: with every site observed, the counterfactual is then
+    one deterministic pass.
+    """
+    for sc in scenarios:
+        below = set().union(*(graph.descendants(k) for k in sc)) if sc else set()
+        if any(d in below and d not in sc for d in discrete):
+            return True
+    return False
 
 
 def _fast(

@@ -403,6 +403,9 @@ def test_gated_counterfactual_with_the_switch_observed_is_exact_per_branch():
     model = _gated()
     factual = {"a": _col(G_A), "b": _col(G_B), "c": _col(G_C), "x": _col(G_X), "y": _col(G_Y)}
     cf = counterfactual(model, factual, [{"b": _col(G_B_NEW)}, {"c": 1.0}], num_samples=4)
+    # the switch is set in one scenario and not below b in the other: its Gumbel draws do not
+    # matter, so one exact pass answers
+    assert cf.exact and cf.samples["x"].shape[0] == 1
     for i in range(3):
         loc, scale = _branch(G_C[i], G_B[i])
         u = (G_X[i] - loc) / scale
@@ -411,12 +414,12 @@ def test_gated_counterfactual_with_the_switch_observed_is_exact_per_branch():
         x_b = loc2 + scale2 * u
         loc_on, scale_on = _branch(1, G_B[i])
         x_c = loc_on + scale_on * u  # do(c = 1): the on branch replays the same u
-        assert cf.noise["x"][:, i, 0].tolist() == pytest.approx([u] * 4, abs=1e-5)
-        assert cf.samples["x"][:, 0, i, 0].tolist() == pytest.approx([x_b] * 4, abs=1e-5)
+        assert cf.noise["x"][:, i, 0].tolist() == pytest.approx([u], abs=1e-5)
+        assert cf.samples["x"][:, 0, i, 0].tolist() == pytest.approx([x_b], abs=1e-5)
         assert cf.samples["y"][:, 0, i, 0].tolist() == pytest.approx(
-            [-1.5 * x_b + 0.2 + 0.3 * u_y] * 4, abs=1e-5
+            [-1.5 * x_b + 0.2 + 0.3 * u_y], abs=1e-5
         )
-        assert cf.samples["x"][:, 1, i, 0].tolist() == pytest.approx([x_c] * 4, abs=1e-5)
+        assert cf.samples["x"][:, 1, i, 0].tolist() == pytest.approx([x_c], abs=1e-5)
 
 
 def _enumerated(i, b_new):
@@ -458,3 +461,23 @@ def test_the_mixture_refuses_continuous_latent_sites():
         counterfactual_mixture(
             model, {"a": _col(G_A), "b": _col(G_B), "c": _col(G_C), "y": _col(G_Y)}, {"b": 0.0}
         )
+
+
+def test_a_set_discrete_site_needs_no_gumbel_draws_and_one_below_an_intervention_does():
+    """do(c): c is set, so the answer is one exact pass, identical to many draws; do(a): c is recomputed."""
+    model = _gated()
+    factual = {"a": _col(G_A), "b": _col(G_B), "c": _col(G_C), "x": _col(G_X), "y": _col(G_Y)}
+    scenarios = [{"c": 0.0}, {"c": 1.0}]
+    one = counterfactual(model, factual, scenarios, num_samples=200, seed=1)
+    assert one.exact and one.samples["x"].shape == (1, 2, 3, 1)
+    for i in range(3):  # the closed form per unit: u from the factual branch, replayed in each branch
+        loc, scale = _branch(G_C[i], G_B[i])
+        u = (G_X[i] - loc) / scale
+        for k, c in enumerate((0, 1)):
+            loc_k, scale_k = _branch(c, G_B[i])
+            assert float(one.samples["x"][0, k, i, 0]) == pytest.approx(loc_k + scale_k * u, abs=1e-5)
+    below = counterfactual(model, factual, {"a": _col([3.0, 3.0, -3.0])}, num_samples=50, seed=1)
+    assert not below.exact and below.samples["c"].shape[0] == 50
+    p_on = below.samples["c"][:, 0, :, 0].mean(0)
+    assert float(p_on[0]) == 1.0  # observed on and pushed further on: stays on in every draw
+    assert 0.0 < float(p_on[1]) < 1.0  # observed off, pushed on: the Gumbel posterior decides
