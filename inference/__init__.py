@@ -24,7 +24,12 @@ from inference.importance import ImportanceOptions
 from inference.interventions import do, simulate
 from inference.metalearn import ResidualMonitor, Revision, revise
 from inference.planning import SamplingConfig
-from inference.predictive import PredictiveInterval, coverage_by_regime, predictive_interval
+from inference.predictive import (
+    PredictiveInterval,
+    coverage_by_regime,
+    predictive_interval,
+    predictive_intervals,
+)
 from inference.program import Program
 from inference.quadrature import GridOptions
 from inference.rewire import RewireResult, rewire
@@ -80,6 +85,7 @@ __all__ = [
     "occupancy",
     "predictive_check",
     "predictive_interval",
+    "predictive_intervals",
     "revise",
     "rewire",
     "shd",

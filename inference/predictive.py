@@ -15,14 +15,14 @@ on the rows of each regime (e.g. contact and no contact).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import torch
 from torch import Tensor
 
-__all__ = ["PredictiveInterval", "coverage_by_regime", "predictive_interval"]
+__all__ = ["PredictiveInterval", "coverage_by_regime", "predictive_interval", "predictive_intervals"]
 
 #: Rows times draws evaluated in one forward pass (bounds the memory of a call).
 CHUNK = 1 << 18
@@ -92,7 +92,33 @@ def predictive_interval(
         ValueError: an unknown site or one given in ``values``, a bad level, number of samples
             or seed, or values that :meth:`models.WorldModel.predict` refuses.
     """
-    _check(level, num_samples, seed)
+    return predictive_intervals(model, values, site, (level,), num_samples, seed)[0]
+
+
+def predictive_intervals(
+    model: Any,
+    values: Mapping[str, Any],
+    site: str,
+    levels: Sequence[float],
+    num_samples: int = 1000,
+    seed: int = 0,
+) -> tuple[PredictiveInterval, ...]:
+    """:func:`predictive_interval` at several ``levels`` from one set of draws (e.g. a reliability curve).
+
+    The interval at a level equals ``predictive_interval(..., level, num_samples, seed)``: the
+    draws are made once and read at each level's equal-tailed quantiles.
+
+    Returns:
+        one :class:`PredictiveInterval` per level, in the order of ``levels``.
+
+    Raises:
+        ValueError: as :func:`predictive_interval`, or an empty ``levels``.
+    """
+    levels = tuple(levels)
+    if not levels:
+        raise ValueError("levels is empty; give at least one level in (0, 1)")
+    for level in levels:
+        _check(level, num_samples, seed)
     if site not in model.graph:
         raise ValueError(f"site {site!r} is not in the model; it has {list(model.graph.names)}")
     if site in values:
@@ -102,16 +128,22 @@ def predictive_interval(
     draws = _draws(model, vals, site, n, num_samples, seed)
     ordered, _ = torch.sort(draws, 0)
     total = ordered.shape[0]
-    tail = (1.0 - float(level)) / 2.0
-    lo, hi = round(tail * (total - 1)), round((1.0 - tail) * (total - 1))
-    return PredictiveInterval(
-        lower=ordered[lo],
-        upper=ordered[hi],
-        mean=draws.mean(0),
-        sd=draws.std(0),
-        level=float(level),
-        num_samples=num_samples,
-    )
+    mean, sd = draws.mean(0), draws.std(0)
+    out = []
+    for level in levels:
+        tail = (1.0 - float(level)) / 2.0
+        lo, hi = round(tail * (total - 1)), round((1.0 - tail) * (total - 1))
+        out.append(
+            PredictiveInterval(
+                lower=ordered[lo],
+                upper=ordered[hi],
+                mean=mean,
+                sd=sd,
+                level=float(level),
+                num_samples=num_samples,
+            )
+        )
+    return tuple(out)
 
 
 def coverage_by_regime(

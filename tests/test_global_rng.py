@@ -146,6 +146,8 @@ def _gated_queries() -> None:
     interval = inference.predictive_interval(model, {"b": b[:3]}, "x", num_samples=8, seed=1)
     assert isinstance(interval, inference.PredictiveInterval)
     inference.coverage_by_regime(data["x"][:3], interval.lower, interval.upper, c[:3, 0])
+    several = inference.predictive_intervals(model, {"b": b[:3]}, "x", (0.5, 0.9), num_samples=8, seed=1)
+    assert len(several) == 2
 
 
 def _calibrated_models(tmp: Path) -> None:
@@ -318,7 +320,7 @@ CASES: dict[str, Callable[[Path], object]] = {
         _finger(), _finger_data(), loss="mse", schedule=FitSchedule(epochs=2, batch_size=8, validation=0.0)
     ),
     "heteroscedastic and ensemble models": _calibrated_models,
-    "gated site: fit, predict, counterfactual_mixture (MixtureCounterfactual), predictive_interval": (
+    "gated site: fit, predict, counterfactual_mixture (MixtureCounterfactual), predictive_interval(s)": (
         lambda tmp: _gated_queries()
     ),
     "curiosity": lambda tmp: _curiosity(),

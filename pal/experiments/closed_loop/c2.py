@@ -24,12 +24,20 @@ with the same starts). For the agent, ``model_err_cm``: the distance to its goal
 model predicted for its last executed action, and ``belief_err_cm``: the distance of its final
 state estimate (posterior mean) from it. For every executed push (touch), the model's predicted
 displacement of the box over the step with its 90 % interval is held against the true one
-(``pushes``, ``push_interval_coverage``).
+(``pushes``, ``push_interval_coverage``: the planner's own Normal of the step, per component).
+
+Calibration per regime (:mod:`.regimes`, :mod:`.regime_report`): every step the agent took in
+goal mode (its planned actions) is a held-out row of each object; the agent's model gives the
+displacement its predictive distribution from the actions, joint angles, sensed hand and
+perceived position before the step (contact, hand and members sampled,
+:func:`inference.predictive_intervals`), and its 90 % interval should cover 85-95 % of the true
+displacement components on the contact rows (the planned pushes) and on the no-contact rows,
+where the median predicted sd should be at most 1 mm (``regimes``; figure ``calibration``).
 
 Metrics: ``{inferred|random|scripted: {final_err_cm_median, _mean, _p25, _p75, within_2cm}}``,
 ``model_err_cm_median``, ``belief_err_cm_median``, ``initial_err_cm_median``,
-``random_over_inferred``, ``scripted_over_inferred``, ``episodes`` (one record per target) and
-``info``.
+``random_over_inferred``, ``scripted_over_inferred``, ``regimes`` (regime -> coverage, median
+sd and |error| in mm, rows, reliability), ``episodes`` (one record per target) and ``info``.
 """
 
 from __future__ import annotations
@@ -45,6 +53,8 @@ from pal.agent import Agent
 from pal.baselines.scripted_pusher import ScriptedPusher
 from pal.checks import check_int
 from pal.experiments.closed_loop.push_goals import GoalGeometry, push_goals
+from pal.experiments.closed_loop.regime_report import calibration_figure, regime_table, regime_targets
+from pal.experiments.closed_loop.regimes import regime_rows, summarize
 from pal.experiments.closed_loop.setup import QUICK_SETUP, TINY_SETUP, SetupConfig, babbled_agent, summary
 from pal.lab.registry import register
 from pal.lab.report import Precondition, Report, Table, Target
@@ -53,7 +63,7 @@ from pal.sim.pushing import PushingEnv
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["CONDITIONS", "TARGET_ERR_CM", "TARGET_VS_RANDOM", "Config", "goals", "run"]
+__all__ = ["CONDITIONS", "REGIMES", "TARGET_ERR_CM", "TARGET_VS_RANDOM", "Config", "goals", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +74,8 @@ TARGET_ERR_CM = 1.5
 TARGET_VS_RANDOM = 5.0
 #: A ratio of two conditions' distances counts only if each moved the box this far in an episode, cm.
 MOVED_CM = 0.5
+#: The regimes of the agent's goal-mode steps.
+REGIMES = ("planned contact", "planned no contact")
 #: Where the ball waits during C2 (out of the arm's reach, in view), table frame, m.
 BALL_PARK = (-0.22, 0.0, 0.0)
 
@@ -78,6 +90,7 @@ class Config:
         targets: goal episodes.
         episode_steps: steps per episode and controller.
         geometry: where the box starts and where its goal lies (m, deg).
+        num_samples: draws per planned step of the predictive distribution.
     """
 
     seed: int = 0
@@ -85,15 +98,17 @@ class Config:
     targets: int = 20
     episode_steps: int = 15
     geometry: GoalGeometry = GoalGeometry()
+    num_samples: int = 200
 
     def __post_init__(self) -> None:
+        check_int("num_samples", self.num_samples, minimum=2)
         check_int("seed", self.seed, minimum=0)
         check_int("targets", self.targets)
         check_int("episode_steps", self.episode_steps)
 
 
 QUICK = Config(setup=QUICK_SETUP, targets=2, episode_steps=3)
-TINY = Config(setup=TINY_SETUP, targets=1, episode_steps=2)
+TINY = Config(setup=TINY_SETUP, targets=1, episode_steps=2, num_samples=20)
 
 
 def goals(config: Config, heading: float, shoulder: np.ndarray) -> list[dict[str, Any]]:
@@ -120,7 +135,7 @@ def _inferred(
         agent.goal = {}
     else:
         agent.goal = {"box": est + (goal - np.asarray(spec["box"][:2]))}
-    last, path, pushes = None, [], []
+    last, path, pushes, planned = None, [], [], []
     modes: Counter[str] = Counter()
     for _ in range(steps):
         before = _truth(agent)
@@ -129,6 +144,7 @@ def _inferred(
         modes[decision.mode] += 1
         if decision.mode == "goal":
             last = decision
+            planned.append(len(agent.history))  # the row this step appends
         percept = agent.step(decision.action)
         if decision.mode == "goal" and percept.touch[0] > 0 and "box" in decision.step_mean:
             pushes.append([*decision.step_mean["box"], *decision.step_sd["box"], *(_truth(agent) - before)])
@@ -141,6 +157,7 @@ def _inferred(
         else 100 * float(np.linalg.norm(end - agent.goal["box"])),
         "modes": dict(modes),
         "pushes": pushes,
+        "planned_rows": planned,
     }
     return record, path
 
@@ -173,8 +190,8 @@ def _ratio(num: float | None, den: float | None) -> float | None:
     return None if num is None or not den else num / den
 
 
-def _run_episodes(config: Config, progress_bar: bool) -> tuple[list, dict, dict, list, int]:
-    """Every goal under every condition: episode records, distance traces, box paths, goal specs, fitted rows."""
+def _run_episodes(config: Config, progress_bar: bool) -> tuple[list, dict, dict, list, int, dict]:
+    """Every goal under every condition: episode records, distance traces, box paths, goal specs, fitted rows, regimes."""
     agent = babbled_agent(config.setup, config.seed, progress_bar=progress_bar)
     fitted = agent.refit()["rows"]
     env = agent.env.unwrapped
@@ -202,7 +219,20 @@ def _run_episodes(config: Config, progress_bar: bool) -> tuple[list, dict, dict,
         episodes.append(row)
     env.close()
     judge.close()
-    return episodes, traces, paths, specs, fitted
+    planned = [r for e in episodes for r in e["inferred"].pop("planned_rows")]
+    regimes: dict[str, Any] = {"rows": 0}
+    if planned:
+        rows = regime_rows(
+            agent.model,
+            agent.history,
+            np.asarray(planned),
+            "planned",
+            source="perceived",
+            num_samples=config.num_samples,
+            seed=config.seed,
+        )
+        regimes = summarize(rows)
+    return episodes, traces, paths, specs, fitted, regimes
 
 
 def _metrics(episodes: list[dict[str, Any]], pushes: np.ndarray, fitted: int) -> dict[str, Any]:
@@ -274,21 +304,7 @@ def _targets(metrics: dict[str, Any]) -> list[Target]:
             "median final distance of the scripted pusher / of the agent (> 1: the agent is closer)",
             moved("inferred", "scripted"),
         ),
-        Target(
-            "push_interval_coverage",
-            metrics["push_interval_coverage"],
-            0.85,
-            ">=",
-            "share of the box's true displacements over the agent's pushes inside its model's 90 % interval "
-            "(per component; 85-95 % is calibrated)",
-        ),
-        Target(
-            "push_interval_coverage_max",
-            metrics["push_interval_coverage"],
-            0.95,
-            "<=",
-            "the same share, at most 95 % (wider intervals than calibrated ones are underconfident)",
-        ),
+        *regime_targets(metrics["regimes"], "planned"),
         Target(
             "random_over_inferred",
             metrics["random_over_inferred"],
@@ -303,9 +319,11 @@ def _targets(metrics: dict[str, Any]) -> list[Target]:
 @register("c2", config=Config, quick=QUICK, tiny=TINY)
 def run(config: Config, progress_bar: bool = False) -> Report:
     """C2: pushing the box to goals, inferred actions vs random and scripted, in the simulator."""
-    episodes, traces, paths, specs, fitted = _run_episodes(config, progress_bar)
+    episodes, traces, paths, specs, fitted, regimes = _run_episodes(config, progress_bar)
     pushes = np.array([p for e in episodes for p in e["inferred"].pop("pushes")]).reshape(-1, 6)
     metrics = _metrics(episodes, pushes, fitted)
+    metrics["regimes"] = regimes
+    metrics["form"] = config.setup.agent.model.displacement
     for c in CONDITIONS:
         metrics[c]["max_box_displacement_cm"] = _moved_cm(paths[c])
     return Report(
@@ -322,6 +340,9 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             "episodes": _episodes_figure(traces),
             "paths": _paths_figure(paths, specs),
             "pushes": _pushes_figure(pushes),
+            "calibration": calibration_figure(
+                {metrics["form"]: regimes}, REGIMES, "C2: reliability of the planned steps' displacement"
+            ),
         },
     )
 
@@ -344,6 +365,7 @@ def _tables(m: dict[str, Any]) -> list[Table]:
         ["final belief (posterior mean) to goal, median [cm]", m["belief_err_cm_median"]],
         ["random / inferred", m["random_over_inferred"]],
         ["scripted / inferred", m["scripted_over_inferred"]],
+        ["pushes inside the planner's own 90 % Normal (step sd), per component", m["push_interval_coverage"]],
     ]
     agent += [[f"agent decisions: {mode}", n] for mode, n in sorted(m["inferred_modes"].items())]
     episodes = [
@@ -358,6 +380,7 @@ def _tables(m: dict[str, Any]) -> list[Table]:
         ),
         Table("The agent's own view", ["quantity", "value"], agent),
         Table("Episodes [cm]", ["goal", "start", *CONDITIONS], episodes),
+        regime_table({m["form"]: m["regimes"]}, REGIMES),
     ]
 
 

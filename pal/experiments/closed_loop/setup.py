@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from inference import SamplingConfig, coverage_by_regime, predictive_interval
+from inference import SamplingConfig
 from models import WorldModel
 from pal.agent import (
     Agent,
@@ -27,14 +27,15 @@ from pal.agent import (
     EstimateConfig,
     ModelConfig,
     PlanConfig,
+    build_graph,
     build_model,
     fit_model,
     pushing_spec,
 )
 from pal.agent.config import ESTIMATE_SVI, MODEL_SCHEDULE, PLAN_ACTION, PLAN_SAMPLING
-from pal.agent.graph import contact_rule
-from pal.agent.history import History, contact_label
+from pal.agent.history import History
 from pal.checks import check_float, check_int
+from pal.experiments.closed_loop.regimes import contact_coverage
 from pal.sim.pushing import PushingEnv
 
 __all__ = [
@@ -138,7 +139,13 @@ def split_rows(n: int, test_fraction: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fitted_model(
-    agent: Agent, config: SetupConfig, seed: int, source: str, rows: np.ndarray
+    agent: Agent,
+    config: SetupConfig,
+    seed: int,
+    source: str,
+    rows: np.ndarray,
+    *,
+    displacement: str | None = None,
 ) -> tuple[WorldModel, dict[str, int]]:
     """A new world model of the agent's spec fitted on ``rows`` of its history (``config.agent.model``).
 
@@ -148,12 +155,18 @@ def fitted_model(
         seed: seeds the model's initial weights and the fit.
         source: object positions from ``"perceived"`` (Π) or ``"truth"`` (the simulator).
         rows: indices of the history rows to fit on.
+        displacement: the displacement form (``"gated"`` or ``"smooth"``,
+            :attr:`pal.agent.config.ModelConfig.displacement`); None: the agent config's.
 
     Returns:
         ``(model, rows)``: ``rows`` counts the fitted transitions (``arm`` and per object).
     """
     m = config.agent.model
-    model = build_model(agent.spec, agent.graph, m, seed=seed)
+    graph = agent.graph
+    if displacement is not None and displacement != m.displacement:
+        m = replace(m, displacement=displacement)
+        graph = build_graph(agent.spec, (agent.low, agent.high), displacement=displacement)
+    model = build_model(agent.spec, graph, m, seed=seed)
     out = fit_model(model, agent.history, agent.spec, m, source=source, rows=rows, seed=seed)
     return model, out["rows"]
 
@@ -194,59 +207,4 @@ def predict_displacements(
             "rows": np.asarray(rows)[ok],
             "touch": touch[ok, k],
         }
-    return out
-
-
-def contact_coverage(
-    model: WorldModel,
-    history: History,
-    config: ModelConfig,
-    rows: np.ndarray,
-    *,
-    level: float = 0.9,
-    num_samples: int = 200,
-    seed: int = 0,
-    contact_given: bool = False,
-) -> dict[str, dict[str, Any]]:
-    """Coverage of the true displacements by the model's forward interval, on contact and no-contact rows.
-
-    The interval is :func:`inference.predictive_interval` of ``dpos.o`` from the actions, joint
-    angles, hand and true object positions before the step (the contact, hand and ensemble
-    members sampled). Rows are labelled by :func:`pal.agent.graph.contact_rule` of ``config``
-    with the gated form's rule (the touch sensor here), whatever the model's form. With
-    ``contact_given`` the sensed contact is given to the model as well (the touch strength to a
-    smooth model, the 0/1 switch to a gated one), so only the hand and the members are sampled.
-
-    Returns:
-        object -> ``{"contact": {"coverage", "rows"}, "no contact": {...}, "all": {...},
-        "sd_no_contact_median_mm": the median predictive sd (norm over components) on no-contact rows}``.
-    """
-    rule, floor = contact_rule(pushing_spec(), replace(config, displacement="gated"))
-    act, q_prev, hand_prev = (history.array(k)[rows] for k in ("act", "q_prev", "hand_prev"))
-    truth_prev, truth, touch = (history.array(k)[rows] for k in ("truth_prev", "truth", "touch"))
-    values = {"act": act, "q_prev": q_prev, "ee_prev": hand_prev}
-    values.update({f"pos_prev.{o}": truth_prev[:, k] for k, o in enumerate(history.objects)})
-    given = contact_rule(pushing_spec(), config)[0]
-    if contact_given:
-        values.update(
-            {
-                f"contact.{o}": contact_label(touch[:, k], truth[:, k] - truth_prev[:, k], given)
-                for k, o in enumerate(history.objects)
-            }
-        )
-    out = {}
-    for k, o in enumerate(history.objects):
-        interval = predictive_interval(
-            model, values, f"dpos.{o}", level=level, num_samples=num_samples, seed=seed
-        )
-        true = truth[:, k] - truth_prev[:, k]
-        regime = contact_label(touch[:, k], true, rule, floor)[:, 0].astype(np.int64)
-        res = coverage_by_regime(
-            true, interval.lower, interval.upper, regime, {0: "no contact", 1: "contact"}
-        )
-        sd = interval.sd.double().norm(dim=-1).numpy()
-        res["sd_no_contact_median_mm"] = (
-            float(np.median(sd[regime == 0]) * 1000) if (regime == 0).any() else None
-        )
-        out[o] = res
     return out

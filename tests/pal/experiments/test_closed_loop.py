@@ -37,11 +37,23 @@ def test_c1_compares_perceived_and_ground_truth_models(tiny_run):
     st = m["structure"]
     assert len(st["edges"]) == st["preset_edges"] - len(st["missing"]) + len(st["extra"])
     assert st["rows"] <= m["info"]["train_rows"]
-    # the 90 % interval is scored on the held-out pushes, pooled over objects
-    cov = m["coverage"]
-    scored = [v["pushes"] for v in per.values() if v["interval_coverage"] is not None]
-    assert cov["pushes"] == sum(scored) and 0.0 <= cov["pooled"] <= 1.0
-    assert rep.target("push_interval_coverage_low").value == cov["pooled"]
+    # both forms are fitted; the first (gated) gives the targets, the smooth one is a comparison column
+    assert set(m["forms"]) == set(m["regimes"]) == {"gated", "smooth"} and m["form"] == "gated"
+    assert m["forms"]["gated"]["mse_perceived"] == m["mse_perceived"]
+    for regimes in m["regimes"].values():
+        n = regimes["random contact"]["rows"] + regimes["random no contact"]["rows"]
+        assert n == regimes["all"]["rows"] <= 2 * m["info"]["test_rows"]
+    off = m["regimes"]["gated"]["random no contact"]
+    assert rep.target("random_no_contact_sd_mm").value == off["sd_median_mm"]
+    assert rep.target("random_no_contact_coverage_low").value == off["coverage"]
+    regime_rows = next(t for t in rep.tables if t.title.startswith("Held-out displacement per regime")).rows
+    assert [r[:2] for r in regime_rows] == [
+        ("random contact", "gated"),
+        ("random contact", "smooth"),
+        ("random no contact", "gated"),
+        ("random no contact", "smooth"),
+    ]
+    assert len(rep.figures["calibration"].axes) == 2
     assert rep.target("perceived_over_no_motion").value == pytest.approx(m["mse_perceived"] / m["mse_zero"])
     table = rep.tables[0]
     assert [r[0] for r in table.rows] == ["box", "ball", "mean"]
@@ -70,6 +82,9 @@ def test_c2_inferred_actions_beat_random_babbling(tiny_run):
     assert len(lines) == 3 * c2.TINY.targets + 1  # a trace per controller and goal, and the target line
     assert len(lines[0].get_xdata()) == c2.TINY.episode_steps + 1
     assert m["pushes"]["n"] == len(m["pushes"]["realized_cm"])
+    planned = m["inferred_modes"].get("goal", 0)
+    assert m["regimes"]["rows"] == 0 if planned == 0 else m["regimes"]["all"]["rows"] <= 2 * planned
+    assert {t.name for t in rep.targets} >= {"planned_contact_coverage_low", "planned_no_contact_sd_mm"}
     assert rep.figures["pushes"].axes[0].get_xlabel() == "realized displacement, cm"
     paths = rep.figures["paths"].axes[0].get_lines()  # a path per controller, the start and the goal
     assert len(paths) == 3 + 2 and len(paths[0].get_xdata()) == c2.TINY.episode_steps + 1
@@ -86,16 +101,26 @@ def test_c3_counterfactuals_beat_the_interventional_answer(tiny_run):
     rep = tiny_run("experiment", "c3").report
     m = rep.metrics
     assert m["n"] == c3.TINY.query.count
-    for key in ("perceived", "ground_truth_model"):
-        block = m[key]
-        # abduction keeps what the factual step showed: far closer to the replayed simulator
-        assert block["cf_err_cm_median"] < block["interventional_err_cm_median"]
-        assert block["cf_over_interventional"] == pytest.approx(
-            block["cf_err_cm_median"] / block["interventional_err_cm_median"]
-        )
+    assert set(m["forms"]) == {"gated", "smooth"} and m["perceived"] == m["forms"]["gated"]["perceived"]
+    for form in ("gated", "smooth"):
+        for key in ("perceived", "ground_truth_model"):
+            block = m["forms"][form][key]
+            # abduction keeps what the factual step showed: far closer to the replayed simulator
+            assert block["cf_err_cm_median"] < block["interventional_err_cm_median"]
+            assert block["cf_over_interventional"] == pytest.approx(
+                block["cf_err_cm_median"] / block["interventional_err_cm_median"]
+            )
+            assert block["cf_over_factual"] == pytest.approx(
+                block["cf_err_cm_median"] / block["factual_err_cm_median"]
+            )
     assert rep.target("cf_over_interventional").met
-    assert rep.tables[0].rows[0][0].startswith("perceived")
-    assert [t.get_text() for t in rep.figures["errors"].axes[0].get_xticklabels()] == list(c3.ANSWERS)
+    assert rep.target("cf_over_factual").value == m["perceived"]["cf_over_factual"]
+    assert [r[:2] for r in rep.tables[0].rows][::2] == [
+        ("gated", "perceived positions (the agent)"),
+        ("smooth", "perceived positions (the agent)"),
+    ]
+    for ax in rep.figures["errors"].axes:
+        assert [t.get_text() for t in ax.get_xticklabels()] == list(c3.ANSWERS)
 
 
 def test_c4_targets_need_three_seeds_of_fifty_steps():
