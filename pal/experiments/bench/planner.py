@@ -184,6 +184,52 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             rows[p] = _time_plans(agent, starts, cfg, config.repeats, config.seed)
             log.info("planner P=%d: %.3f s CPU, %.3f s wall, loss %.4f", p, *rows[p].values())
         rollout = _rollouts(agent, starts, chosen, horizon, config.seed)
+    return _report(config, rows, reference, rollout)
+
+
+def _tables(
+    config: Config,
+    rows: dict[int, dict[str, float]],
+    reference: dict[str, float],
+    rollout: dict,
+    loss_ratio: dict[int, float | None],
+) -> list[Table]:
+    """The step-time table over the populations, and the rollout table."""
+    chosen = config.plan.action.sampling.population
+    horizon = config.plan.action.horizon
+    ref_loss = reference["loss"]
+    s = config.plan.action.sampling
+    return [
+        Table(
+            f"One MPC step at horizon {horizon}, {config.threads} thread(s)",
+            ("population", "CPU s / step", "wall s / step", "planner loss", "loss / reference loss"),
+            [(p, r["cpu"], r["wall"], r["loss"], loss_ratio[p]) for p, r in rows.items()]
+            + [
+                (
+                    f"reference {config.reference} x {config.reference_iterations}",
+                    reference["cpu"],
+                    reference["wall"],
+                    ref_loss,
+                    1.0,
+                )
+            ],
+            caption=f"The chosen population is {chosen} ({s.elites} elites, {s.iterations} iterations, decay "
+            f"{s.population_decay}, kept elites {s.keep_elites}, noise exponent {s.noise_beta}).",
+        ),
+        Table(
+            f"One rollout of {chosen} candidates x {horizon} steps through the members",
+            ("path", "seconds"),
+            [("member by member", rollout["loop"]), ("stacked (one batched pass)", rollout["stacked"])],
+        ),
+    ]
+
+
+def _report(
+    config: Config, rows: dict[int, dict[str, float]], reference: dict[str, float], rollout: dict
+) -> Report:
+    """The report of :func:`run` from its measurements."""
+    chosen = config.plan.action.sampling.population
+    horizon = config.plan.action.horizon
     ref_loss = reference["loss"]
     loss_ratio = {p: ratio(r["loss"], ref_loss) for p, r in rows.items()}
     speedup = ratio(rollout["loop"], rollout["stacked"])
@@ -213,29 +259,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             "cpu_count": os.cpu_count(),
             "load_average_1min": os.getloadavg()[0],
         },
-        tables=[
-            Table(
-                f"One MPC step at horizon {horizon}, {config.threads} thread(s)",
-                ("population", "CPU s / step", "wall s / step", "planner loss", "loss / reference loss"),
-                [(p, r["cpu"], r["wall"], r["loss"], loss_ratio[p]) for p, r in rows.items()]
-                + [
-                    (
-                        f"reference {config.reference} x {config.reference_iterations}",
-                        reference["cpu"],
-                        reference["wall"],
-                        ref_loss,
-                        1.0,
-                    )
-                ],
-                caption=f"The chosen population is {chosen} ({s.elites} elites, {s.iterations} iterations, decay "
-                f"{s.population_decay}, kept elites {s.keep_elites}, noise exponent {s.noise_beta}).",
-            ),
-            Table(
-                f"One rollout of {chosen} candidates x {horizon} steps through the members",
-                ("path", "seconds"),
-                [("member by member", rollout["loop"]), ("stacked (one batched pass)", rollout["stacked"])],
-            ),
-        ],
+        tables=_tables(config, rows, reference, rollout, loss_ratio),
         targets=[
             Target(
                 "step_cpu_seconds",
