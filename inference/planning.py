@@ -128,7 +128,8 @@ class SearchResult:
     """Outcome of :func:`cross_entropy_search`.
 
     Attributes:
-        elites: ``(E, N, H, D)`` the final elites per unit, best first, within the box.
+        elites: ``(E, N, H, D)`` the E best candidates seen over all iterations per unit, best first,
+            within the box.
         losses: ``(E, N)`` their losses L(a).
         history: mean over units of the best loss after each iteration, length I.
     """
