@@ -13,7 +13,8 @@ action box comes first, for all units x candidates in one batch, starting from t
 start (one member of the first population); projected Adam then refines the best elites,
 and each unit keeps its best candidate. ``horizon=H > 1`` plans H-step sequences through
 :meth:`models.WorldModel.rollout`; ``risk`` weighs the disagreement of ensemble members
-(:mod:`inference.action_objective`). Without them (``sampling=None, horizon=1, risk=None``)
+(:mod:`inference.action_objective`). The ensembles' members are evaluated in one batched pass
+there (:func:`models.stacked.stacked_members`). Without them (``sampling=None, horizon=1, risk=None``)
 this is the thesis protocol, Adam from one start through the Pyro program. Options, result
 and input checks live in :mod:`inference.action_options`.
 """
@@ -60,6 +61,7 @@ from models.checks import (
     check_seed,
     describe,
 )
+from models.stacked import stacked_members
 from models.variables import Role
 from models.world import WorldModel, as_values, check_action_bounds
 
@@ -287,7 +289,7 @@ def _through_twin(
     start_t = torch.cat([v if horizon > 1 else v.unsqueeze(1) for v in start.values()], -1)
     low = torch.cat([model.bounds(a)[0] for a in actions])
     high = torch.cat([model.bounds(a)[1] for a in actions])
-    with frozen_parameters(model):
+    with frozen_parameters(model), stacked_members(model):
         best, history, search, final = plan(
             objective, start_t, low, high, opts.sampling, steps, opts.lr, generator, progress_bar
         )

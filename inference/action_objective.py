@@ -14,8 +14,13 @@ Per candidate and unit, with log p the log-preference (Eq. 4.45) taken on the fi
     risk None:                 L(a) = -log p(Phi(s, a, u))
     risk "mean":               L(a) = (1 / K) sum_k -log p(Phi^(k)(s, a, u))
     risk ("disagreement", w):  L(a) = -log p(mean_k Phi^(k)) + w sum_i sum_d Var_k[Phi^(k)_id] / scale_i^2
+    risk ("quantile", q):      L(a) = Q_q over k of -log p(Phi^(k)(s, a, u))   (q > 0.5: risk averse)
 
-Phi^(k) is ensemble member k (``predict(..., members=True)``), Var_k the population variance
+Phi^(k) is ensemble member k (``predict(..., members=True)``): the particles propagate TS-style,
+each particle keeping one member over the whole horizon (member k's state feeds member k's next
+step; with expected residuals one particle per member is exact, more would repeat it). Q_q is
+the q-quantile over the K particles with linear interpolation (``torch.quantile``: q = 0 the
+best member, 1 the worst, 0.5 the median). Var_k the population variance
 over members of the target sites i at the scored steps. w > 0 penalises disagreement (risk
 averse), w < 0 rewards it (exploration). For the Gaussian preference, "mean" equals
 ("disagreement", 0.5): the expected squared error is the squared error of the mean plus
@@ -103,20 +108,24 @@ def gaussian_log_preference(
 
 
 def check_risk(risk: Any) -> tuple[str | None, float]:
-    """``(kind, weight)`` from ``None``, ``"mean"`` or ``("disagreement", weight)``.
+    """``(kind, weight)`` from ``None``, ``"mean"``, ``("disagreement", weight)`` or ``("quantile", q)``.
 
     Raises:
-        ValueError: anything else, or a weight that is not a finite number.
+        ValueError: anything else, a weight that is not a finite number, or a quantile
+            level q outside [0, 1].
     """
+    expected = "None, 'mean', ('disagreement', weight) or ('quantile', q) with q in [0, 1]"
     if risk is None:
         return None, 0.0
     if isinstance(risk, str):
         if risk == "mean":
             return "mean", 0.0
-        raise ValueError(f"risk {risk!r} unknown; expected None, 'mean' or ('disagreement', weight)")
+        raise ValueError(f"risk {risk!r} unknown; expected {expected}")
     if isinstance(risk, tuple) and len(risk) == 2 and risk[0] == "disagreement":
         return "disagreement", check_float("disagreement weight", risk[1])
-    raise ValueError(f"risk must be None, 'mean' or ('disagreement', weight), got {describe(risk)}")
+    if isinstance(risk, tuple) and len(risk) == 2 and risk[0] == "quantile":
+        return "quantile", check_float("risk quantile q", risk[1], minimum=0.0, maximum=1.0)
+    raise ValueError(f"risk must be {expected}, got {describe(risk)}")
 
 
 def _tile(value: Tensor, r: int) -> Tensor:
@@ -268,5 +277,7 @@ class ActionObjective:
         k = next(iter(values.values())).shape[0]
         if self.risk == "mean":
             return -self._log_p(values, (k, *lead)).mean(0)
+        if self.risk == "quantile":
+            return torch.quantile(-self._log_p(values, (k, *lead)), self.weight, dim=0)
         mean = {name: v.mean(0) for name, v in values.items()}
         return -self._log_p(mean, lead) + self.weight * self.spread(values)

@@ -135,7 +135,9 @@ class ActionOptions:
             the argmax of a discrete site has no gradient.
         horizon: planning steps H >= 1 through the rollout (Alg. 4.1).
         target_at: with a horizon, ``"final"`` or ``"every"`` step.
-        risk: None, ``"mean"`` or ``("disagreement", w)`` over ensemble members.
+        risk: None (the members' mean model), ``"mean"`` (the mean cost over the members'
+            particles), ``("quantile", q)`` (their q-quantile, q > 0.5 risk averse) or
+            ``("disagreement", w)`` (:mod:`inference.action_objective`).
     """
 
     scale: float | Mapping[str, float] = 1.0

@@ -1,22 +1,28 @@
-"""The sampling stage of action inference: CEM / iCEM over the action box.
+"""The sampling stage of action inference: iCEM (the default) or plain CEM over the action box.
 
 For every unit n at once (one tensor program for all units x candidates), with the action
 sequence a in R^{H x D} (H steps, D the optimised actions' dims concatenated) and the box
-``[low, high]^D``:
+``[low, high]^D`` (iCEM: Pinneri et al. 2020, "Sample-efficient cross-entropy method for
+real-time planning"):
 
-    mu_0 = a_start (the thesis midpoint by default),  sigma_0 = init_std * (high - low)
-    for i = 1 .. I:
-        a^(p) = clip(mu + sigma * eps^(p), low, high),  p = 1 .. P,   a^(1) = clip(mu)
-        eps^(p) ~ coloured Gaussian noise over the horizon, PSD ~ 1 / f^beta   (iCEM; beta = 0: CEM)
-        E_i   = the ``elites`` candidates of lowest L(a) among these and E_{i-1}
+    mu_0 = a_start (the thesis midpoint, or the previous plan shifted by one step),
+    sigma_0 = init_std * (high - low)
+    for i = 0 .. I-1:
+        P_i   = max(ceil(P * gamma^-i), min(2 E, P))                      (population decay)
+        a^(p) = clip(mu + sigma * eps^(p), low, high),  p = 1 .. P_i,   a^(1) = clip(mu)
+        eps^(p) ~ coloured Gaussian noise over the horizon, PSD ~ 1 / f^beta   (beta = 0: white)
+        E_i   = the E candidates of lowest L(a) among these and the kept ones K_{i-1}
+        K_i   = the best ceil(xi E) of E_i                                   (kept elites)
         mu    <- alpha mu    + (1 - alpha) mean(E_i)
         sigma <- alpha sigma + (1 - alpha) sd(E_i)
 
-The current mean is a member of every population, so the first population contains the
-thesis start, and the elites of the previous iteration are kept, so the best loss never
-rises. :func:`plan` then refines the best elites with projected Adam (Alg. 4.2, CEM-GD
-style) and keeps per unit the best candidate. Randomness comes only from the generator
-passed in.
+with beta = ``noise_beta``, xi = ``keep_elites`` and gamma = ``population_decay``. Plain CEM
+is ``noise_beta=0, keep_elites=0, population_decay=1``. The current mean is a member of
+every population, so the first population contains the start; the result is the E best
+candidates seen over all iterations, so the best loss never rises. :func:`plan` then refines
+the best elites with projected Adam (Alg. 4.2, CEM-GD) when ``refine_steps`` > 0 and keeps per
+unit the best candidate. In model-predictive control the previous plan, shifted by one step
+(:func:`shift_plan`), is the next start. Randomness comes only from the generator passed in.
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ __all__ = [
     "cross_entropy_search",
     "plan",
     "projected_adam",
+    "shift_plan",
 ]
 
 Objective = Callable[[Tensor], Tensor]
@@ -45,15 +52,19 @@ Objective = Callable[[Tensor], Tensor]
 
 @dataclass(frozen=True)
 class SamplingConfig:
-    """Sizes of the sampling stage (CEM / iCEM) and of the gradient refinement after it.
+    """Sizes of the sampling stage (iCEM by default, plain CEM as an option) and of the refinement after it.
 
     Attributes:
-        population: new candidates P per unit and iteration (the current mean among them).
-        elites: candidates E kept per unit to refit the sampling distribution; <= population.
-        iterations: CEM iterations I, >= 1.
+        population: new candidates P per unit in the first iteration (the current mean among them).
+        elites: candidates E per unit that refit the sampling distribution; <= population.
+        iterations: iterations I, >= 1.
         alpha: momentum in [0, 1): weight of the previous mean and sd in the refit.
-        noise_beta: iCEM coloured-noise exponent beta >= 0 over the horizon (0: white noise,
-            plain CEM; 2: Brownian-like, smooth action sequences).
+        noise_beta: coloured-noise exponent beta >= 0 over the horizon (0: white noise, plain
+            CEM; 2, the default: Brownian-like, smooth action sequences, as iCEM uses).
+        keep_elites: fraction xi in [0, 1] of the elites carried into the next iteration's
+            population (iCEM: 0.3; plain CEM: 0).
+        population_decay: gamma >= 1; iteration i samples ``max(ceil(P gamma^-i), min(2E, P))``
+            new candidates (iCEM: 1.25; plain CEM: 1).
         init_std: initial sd sigma_0 as a fraction of the box width (high - low), > 0.
         refine_steps: projected Adam steps on the refined elites (Alg. 4.2); None uses
             ``infer_action``'s ``steps``; 0 skips the refinement.
@@ -68,7 +79,9 @@ class SamplingConfig:
     elites: int = 16
     iterations: int = 3
     alpha: float = 0.1
-    noise_beta: float = 0.0
+    noise_beta: float = 2.0
+    keep_elites: float = 0.3
+    population_decay: float = 1.25
     init_std: float = 0.5
     refine_steps: int | None = None
     refine_elites: int = 1
@@ -84,6 +97,8 @@ class SamplingConfig:
         check_int("iterations", self.iterations)
         check_float("alpha", self.alpha, minimum=0.0, maximum=1.0, max_open=True)
         check_float("noise_beta", self.noise_beta, minimum=0.0)
+        check_float("keep_elites", self.keep_elites, minimum=0.0, maximum=1.0)
+        check_float("population_decay", self.population_decay, minimum=1.0)
         check_float("init_std", self.init_std, minimum=0.0, min_open=True)
         if self.refine_steps is not None:
             check_int("refine_steps", self.refine_steps, minimum=0)
@@ -94,13 +109,27 @@ class SamplingConfig:
                 "Adam refines some of the elites"
             )
 
+    @property
+    def kept(self) -> int:
+        """Elites carried into the next iteration, ``ceil(keep_elites * elites)``."""
+        return math.ceil(self.keep_elites * self.elites - 1e-9)
+
+    def sizes(self) -> tuple[int, ...]:
+        """New candidates per iteration, ``P_i = max(ceil(P gamma^-i), min(2E, P))``, length I."""
+        floor = min(2 * self.elites, self.population)
+        return tuple(
+            max(math.ceil(self.population * self.population_decay**-i - 1e-9), floor)
+            for i in range(self.iterations)
+        )
+
 
 @dataclass(frozen=True)
 class SearchResult:
     """Outcome of :func:`cross_entropy_search`.
 
     Attributes:
-        elites: ``(E, N, H, D)`` the final elites per unit, best first, within the box.
+        elites: ``(E, N, H, D)`` the E best candidates seen over all iterations per unit, best first,
+            within the box.
         losses: ``(E, N)`` their losses L(a).
         history: mean over units of the best loss after each iteration, length I.
     """
@@ -167,40 +196,73 @@ def cross_entropy_search(
     config: SamplingConfig,
     generator: torch.Generator,
 ) -> SearchResult:
-    """CEM / iCEM over the action box for every unit at once (see the module docstring).
+    """ICEM / CEM over the action box for every unit at once (see the module docstring).
 
     Args:
         objective: ``a (R, N, H, D) -> L (R, N)`` losses per candidate and unit (called
-            under ``torch.no_grad``); NaN losses rank last.
-        start: ``(N, H, D)`` initial mean mu_0 within the box (the thesis midpoint start).
+            under ``torch.no_grad`` once per iteration with R = ``config.sizes()[i]``; the kept
+            elites keep their losses); NaN losses rank last.
+        start: ``(N, H, D)`` initial mean mu_0 within the box (the thesis midpoint start,
+            or a shifted previous plan).
         low: ``(D,)`` lower box bounds.
         high: ``(D,)`` upper box bounds.
-        config: population, elites, iterations, momentum alpha, noise exponent, init sd.
+        config: population and its decay, elites and the kept share, iterations, momentum
+            alpha, noise exponent, init sd.
         generator: the only source of randomness.
 
     Returns:
-        :class:`SearchResult` with the final elites, best first.
+        :class:`SearchResult`: the ``E`` best candidates seen over all iterations, best first.
     """
     n, horizon, d = start.shape
-    p, e = config.population, config.elites
+    e, keep = config.elites, config.kept
     mean = start.clone()
     std = (config.init_std * (high - low)).expand(n, horizon, d).clone()
-    elites = start.new_empty((0, n, horizon, d))
-    elite_losses = start.new_empty((0, n))
+    kept = start.new_empty((0, n, horizon, d))
+    kept_losses = start.new_empty((0, n))
+    best = start.new_empty((0, n, horizon, d))
+    best_losses = start.new_empty((0, n))
     history: list[float] = []
     with torch.no_grad():
-        for _ in range(config.iterations):
+        for p in config.sizes():
             eps = colored_noise((p, n, d, horizon), config.noise_beta, generator, start.dtype)
             cand = mean + std * eps.transpose(-1, -2)
             cand[0] = mean
             cand = torch.clamp(cand, low, high)
-            losses = torch.nan_to_num(objective(cand), nan=math.inf)
-            cand, losses = torch.cat([cand, elites]), torch.cat([losses, elite_losses])
-            elites, elite_losses = _select(cand, losses, e)
+            fresh = torch.nan_to_num(objective(cand), nan=math.inf)
+            elites, elite_losses = _select(torch.cat([cand, kept]), torch.cat([fresh, kept_losses]), e)
+            kept, kept_losses = elites[:keep], elite_losses[:keep]
+            best, best_losses = _select(torch.cat([best, cand]), torch.cat([best_losses, fresh]), e)
             mean = config.alpha * mean + (1 - config.alpha) * elites.mean(0)
             std = config.alpha * std + (1 - config.alpha) * elites.std(0, unbiased=False)
-            history.append(float(elite_losses[0].mean()))
-    return SearchResult(elites, elite_losses, tuple(history))
+            history.append(float(best_losses[0].mean()))
+    return SearchResult(best, best_losses, tuple(history))
+
+
+def shift_plan(sequence: Tensor, fill: Tensor | None = None) -> Tensor:
+    """The previous plan shifted by one step: the warm start of the next MPC step.
+
+        a'_t = a_{t+1}  (t < H - 1),    a'_{H-1} = fill  (default: a_{H-1}, the last step repeated)
+
+    Args:
+        sequence: ``(..., H, D)`` the plan made at the previous step.
+        fill: optional ``(D,)`` value of the new last step (e.g. the box midpoint).
+
+    Returns:
+        ``(..., H, D)``; a horizon of 1 gives ``fill`` or the sequence itself.
+
+    Raises:
+        ValueError: a sequence with fewer than 2 dims, or a ``fill`` of the wrong shape.
+    """
+    if not isinstance(sequence, Tensor) or sequence.ndim < 2:
+        got = tuple(sequence.shape) if isinstance(sequence, Tensor) else type(sequence).__name__
+        raise ValueError(f"sequence has shape {got}, expected (..., H, D)")
+    last = sequence[..., -1:, :]
+    if fill is not None:
+        if not isinstance(fill, Tensor) or fill.shape != sequence.shape[-1:]:
+            got = tuple(fill.shape) if isinstance(fill, Tensor) else type(fill).__name__
+            raise ValueError(f"fill has shape {got}, expected ({sequence.shape[-1]},)")
+        last = fill.to(sequence.dtype).expand_as(last)
+    return torch.cat([sequence[..., 1:, :], last], dim=-2)
 
 
 def projected_adam(

@@ -88,6 +88,8 @@ class EnsembleMechanism(Mechanism):
         self.members = nn.ModuleList(members)
         self.register_parameter("log_sigma", None)
         self.register_buffer("log_scale_offset", torch.zeros(self.out_dim, dtype=members[0].out_loc.dtype))
+        #: A snapshot of the members' stacked weights (:func:`models.stacked.stacked_members`), or None.
+        self.stacked: Any = None
 
     @classmethod
     def replicate(
@@ -159,7 +161,11 @@ class EnsembleMechanism(Mechanism):
                 raise ValueError(
                     f"paired parents have shape {tuple(parents.shape)}, expected ({self.size}, ..., {self.in_dim})"
                 )
+            if self.stacked is not None:  # one batched pass (models.stacked)
+                return self.stacked.loc_scale(parents)  # type: ignore[no-any-return]
             pairs = [m.loc_scale(parents[k]) for k, m in enumerate(self.members)]
+        elif self.stacked is not None:
+            return self.stacked.loc_scale(parents.expand(self.size, *parents.shape))  # type: ignore[no-any-return]
         else:
             pairs = [m.loc_scale(parents) for m in self.members]
         return torch.stack([p[0] for p in pairs]), torch.stack([p[1] for p in pairs])
@@ -169,6 +175,8 @@ class EnsembleMechanism(Mechanism):
         if self.size == 1:
             return self.members[0](parents)
         parents = self.check_input(parents)
+        if self.stacked is not None:
+            return self.member_loc_scale(parents)[0].mean(0)
         return torch.stack([m(parents) for m in self.members]).mean(0)
 
     def loc_scale(self, parents: Tensor) -> tuple[Tensor, Tensor]:

@@ -26,6 +26,7 @@ __all__ = [
     "MODEL_SCHEDULE",
     "PLAN_ACTION",
     "PLAN_SAMPLING",
+    "PREFERENCES",
     "AgentConfig",
     "BabbleConfig",
     "CuriosityConfig",
@@ -177,13 +178,28 @@ class EstimateConfig:
             )
 
 
-#: The agent's search: CEM / iCEM, then projected Adam on the best elite for 20 steps.
+#: The agent's search: iCEM (coloured noise beta 2, 30 % of the elites kept, population decay 1.25),
+#: then projected Adam on the best elite for 20 steps (CEM-GD).
 PLAN_SAMPLING = SamplingConfig(
-    population=64, elites=8, iterations=3, alpha=0.1, noise_beta=0.0, init_std=0.5, refine_steps=20
+    population=64,
+    elites=8,
+    iterations=3,
+    alpha=0.1,
+    noise_beta=2.0,
+    keep_elites=0.3,
+    population_decay=1.25,
+    init_std=0.5,
+    refine_steps=20,
 )
 
-#: The agent's action inference: horizon 2, preference scale 2 cm, the search above, Adam lr 0.05.
-PLAN_ACTION = ActionOptions(scale=0.02, lr=0.05, horizon=2, sampling=PLAN_SAMPLING)
+#: The agent's action inference: horizon 2, preference scale 2 cm, the search above, Adam lr 0.05,
+#: and the expected cost over the ensemble members' particles (risk "mean"), not the cost of the
+#: members' mean prediction: a planner on the mean model picks the actions where the mean is
+#: optimistic (the optimiser's curse).
+PLAN_ACTION = ActionOptions(scale=0.02, lr=0.05, horizon=2, sampling=PLAN_SAMPLING, risk="mean")
+
+#: The forms of the preference's cost c(x) (:attr:`PlanConfig.preference`).
+PREFERENCES = ("gaussian", "distance", "l1")
 
 
 @dataclass(frozen=True)
@@ -196,15 +212,22 @@ class PlanConfig:
             previous plan (leave ``log_preference`` None and ``init`` ``"midpoint"``):
             ``horizon`` (planning steps H), ``scale`` (preference scale, m), ``lr`` (the
             refinement's Adam), ``target_at`` (``"final"``: the targets at the horizon's end, or
-            ``"every"`` step), ``risk`` (None: the members' mean prediction; ``"mean"``: expected
-            cost over the ensemble members; ``("disagreement", w)``: cost of the mean plus w x the
-            members' variance on the targets, w > 0 risk averse, < 0 seeking) and ``sampling``
-            (the CEM / iCEM stage; ``sampling.refine_steps`` Adam steps on the best elite after
+            ``"every"`` step), ``risk`` (``"mean"``, the default: expected cost over the ensemble
+            members' particles; ``("quantile", q)``: their q-quantile, q > 0.5 risk averse;
+            None: the members' mean prediction; ``("disagreement", w)``: cost of the mean plus w x
+            the members' variance on the targets, w > 0 risk averse, < 0 seeking) and ``sampling``
+            (the iCEM / CEM stage; ``sampling.refine_steps`` Adam steps on the best elite after
             it, 0: none).
-        preference: ``"gaussian"`` (``-0.5 |x - target|^2 / scale^2``) or ``"distance"``
-            (``-|x - target| / scale``).
+        preference: the cost c(x) of :mod:`pal.agent.plan`: ``"gaussian"`` (``0.5 |x|^2 /
+            scale^2``), ``"distance"`` (``|x|_2 / scale``) or ``"l1"`` (``|x|_1 / scale``, PETS's
+            Pusher cost).
+        goal_weight: weight of each targeted object's cost to its target.
         effector_weight: weight of the effector's distance to each targeted object in the
             preference (0: none; it brings the effector to the object).
+        behind_weight: weight of the optional shaping term (0, the default: off) that pulls the
+            effector (x-y) to the point ``behind_offset`` m behind the object on the far side
+            from its target, where a push towards the target starts (:func:`pal.agent.plan.behind`).
+        behind_offset: that point's distance from the object's centre, m (> 0).
         action_weight: weight of ``|a|^2`` (action units squared) in the preference.
         move_weight: weight of ``|a - q_prev|^2`` (rad^2): for position servos, the size of the move
             (small moves have outcomes the model knows better).
@@ -215,7 +238,10 @@ class PlanConfig:
 
     action: ActionOptions = PLAN_ACTION
     preference: str = "gaussian"
+    goal_weight: float = 1.0
     effector_weight: float = 0.0
+    behind_weight: float = 0.0
+    behind_offset: float = 0.05
     action_weight: float = 0.0
     move_weight: float = 0.0
     warm_start: bool = True
@@ -243,9 +269,18 @@ class PlanConfig:
             raise ValueError(
                 "plan.action.sampling.refine_steps is None; give the Adam steps after it (0: none)"
             )
-        check_choice("preference", self.preference, ("gaussian", "distance"))
-        for name in ("effector_weight", "action_weight", "move_weight", "min_progress", "goal_tolerance"):
+        check_choice("preference", self.preference, PREFERENCES)
+        for name in (
+            "goal_weight",
+            "effector_weight",
+            "behind_weight",
+            "action_weight",
+            "move_weight",
+            "min_progress",
+            "goal_tolerance",
+        ):
             check_float(name, getattr(self, name), 0.0)
+        check_float("behind_offset", self.behind_offset, 0.0, open_low=True)
 
 
 @dataclass(frozen=True)

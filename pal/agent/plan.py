@@ -5,14 +5,23 @@ projected Adam) over ``H`` steps through :meth:`models.WorldModel.rollout`, for 
 state is the belief (the lag-1 roots: ``q_prev``, ``ee_prev``, ``pos_prev.o`` ...). The
 preference over the predicted trajectory is, per scored step,
 
-    log p = - sum_o [ c(pos.o - target_o) + w_e c(ee - pos.o) ] - w_a |act|^2 - w_m |act - q_prev|^2
+    log p = - sum_o [ w_g c(pos.o - target_o) + w_e c(ee - pos.o) + w_b c(ee - behind_o) ]
+            - w_a |act|^2 - w_m |act - q_prev|^2
 
-with ``c(x) = 0.5 |x|^2 / scale^2`` (Gaussian) or ``|x| / scale`` (distance), the effector term
-on its first d components, and the move term for position servos (actions in joint units). The agent executes the first action and plans again at the next
-step (model-predictive control), warm-started from the rest of the sequence. With
-``risk="mean"`` the cost is the expectation over the ensemble members (each on its own
-trajectory, as PETS propagates particles); with ``"disagreement"`` their spread on the target
-sites is weighed.
+with ``c(x) = 0.5 |x|^2 / scale^2`` (Gaussian), ``|x|_2 / scale`` (distance) or ``|x|_1 / scale``
+(L1, PETS's Pusher cost: ``w_g = 1.25, w_e = 0.5, w_a = 0.1``), the effector terms on its first
+d components, and the move term for position servos (actions in joint units). The optional
+shaping term (``w_b = behind_weight``, 0 by default) pulls the effector to the point behind the
+object on the far side from the goal, in the table plane (x-y),
+
+    behind_o = pos.o - r (target_o - pos.o) / |target_o - pos.o|,    r = ``behind_offset``,
+
+where a push along the object-goal line starts. The agent executes the first action and plans
+again at the next step (model-predictive control), warm-started from the rest of the sequence
+shifted by one step (:func:`inference.planning.shift_plan`). With ``risk="mean"`` the cost is
+the expectation over the ensemble members' particles (each member on its own trajectory, as
+PETS propagates particles), with ``("quantile", q)`` their q-quantile; with ``"disagreement"``
+their spread on the target sites is weighed.
 
 The returned :class:`Plan` also carries the model's one-step prediction of every targeted
 object's displacement under the first action, with its predictive sd (aleatoric and epistemic)
@@ -32,7 +41,7 @@ from inference import infer_action
 from models import WorldModel
 from pal.agent.config import PlanConfig
 
-__all__ = ["Plan", "one_step", "plan", "preference"]
+__all__ = ["Plan", "behind", "distance", "one_step", "plan", "preference"]
 
 
 @dataclass(frozen=True)
@@ -48,6 +57,7 @@ class Plan:
         step_mean, step_sd: object -> (d,) predicted displacement over the first step and its
             predictive sd (aleatoric and epistemic), m.
         mode: why it was chosen (``"goal"``, ``"curious"`` ...).
+        loss: the planner's loss of the sequence, ``-log p`` with the risk (None: not given).
     """
 
     action: np.ndarray
@@ -58,26 +68,46 @@ class Plan:
     step_mean: dict[str, np.ndarray]
     step_sd: dict[str, np.ndarray]
     mode: str = "goal"
+    loss: float | None = None
+
+
+def distance(x: Tensor, kind: str, scale: float) -> Tensor:
+    """``c(x)`` of the module docstring over the last axis: ``(..., d) -> (...)``.
+
+    ``kind`` is ``"gaussian"`` (``0.5 |x|^2 / scale^2``), ``"distance"`` (``|x|_2 / scale``) or
+    ``"l1"`` (``|x|_1 / scale``).
+    """
+    if kind == "gaussian":
+        return 0.5 * (x / scale).pow(2).sum(-1)
+    if kind == "l1":
+        return x.abs().sum(-1) / scale
+    return torch.sqrt(x.pow(2).sum(-1) + 1e-12) / scale
+
+
+def behind(pos: Tensor, target: Tensor, offset: float) -> Tensor:
+    """The point ``offset`` m behind ``pos`` on the far side from ``target`` in x-y: ``(..., 2)``."""
+    away = pos[..., :2] - target[..., :2]
+    return pos[..., :2] + offset * away / torch.sqrt(away.pow(2).sum(-1, keepdim=True) + 1e-12)
 
 
 def preference(
     targets: Mapping[str, Tensor], config: PlanConfig, effector: bool
 ) -> Callable[[Mapping[str, Tensor]], Tensor]:
     """The log-preference of the module docstring: ``values (..., N, dim) -> (..., N)``."""
-    scale = config.action.scale
-
-    def cost(x: Tensor) -> Tensor:
-        if config.preference == "gaussian":
-            return 0.5 * (x / scale).pow(2).sum(-1)
-        return torch.sqrt(x.pow(2).sum(-1) + 1e-12) / scale
+    scale, kind = config.action.scale, config.preference
 
     def log_p(values: Mapping[str, Tensor]) -> Tensor:
         total: Tensor | float = 0.0
         for o, t in targets.items():
             pos = values[f"pos.{o}"]
-            total = total + cost(pos - t)
+            total = total + config.goal_weight * distance(pos - t, kind, scale)
             if effector and config.effector_weight:
-                total = total + config.effector_weight * cost(values["ee"][..., : pos.shape[-1]] - pos)
+                total = total + config.effector_weight * distance(
+                    values["ee"][..., : pos.shape[-1]] - pos, kind, scale
+                )
+            if effector and config.behind_weight:
+                shaped = values["ee"][..., :2] - behind(pos, t, config.behind_offset)
+                total = total + config.behind_weight * distance(shaped, kind, scale)
         if config.action_weight:
             total = total + config.action_weight * values["act"].pow(2).sum(-1)
         if config.move_weight:
@@ -169,4 +199,5 @@ def plan(
         mean,
         sd,
         mode,
+        float(result.final_loss[0]),
     )

@@ -9,11 +9,14 @@ and with the same planner settings as the agent:
   ``o(t+1) - o(t) ~ Normal(mu_k, exp(logvar_k))``, the log-variance softly bounded by learned
   limits; each member is trained on its own bootstrap of the transitions by the Gaussian NLL
   (Adam, weight decay), on standardised targets;
-- **planner**: the cross-entropy method over action sequences of ``horizon`` steps within the
-  action box, the same population, elites, iterations, momentum, initial spread and noise
-  colour (iCEM's 1/f^beta samples over the horizon) as ``PlanConfig.action.sampling``; each candidate is rolled forward by every member on its own
-  mean trajectory and scored by the mean over members of the summed step cost; the best
-  sequence's first action is executed and the rest warm-starts the next step (MPC).
+- **planner**: the agent's sampling stage, :func:`inference.planning.cross_entropy_search`
+  (iCEM by default: coloured noise over the horizon, kept elites, population decay), over action
+  sequences of ``horizon`` steps within the action box, with the same
+  ``PlanConfig.action.sampling`` as the agent; each candidate is rolled forward by every member
+  on its own mean trajectory (TS-style particles, one per member) and scored by the mean over
+  members of the summed step cost; the best sequence's first action is executed and the
+  sequence shifted by one step (:func:`inference.planning.shift_plan`) warm-starts the next
+  step (MPC).
 
 It is not the authors' code: no trajectory sampling of the outputs (each member propagates its
 mean, as the agent's ``risk="mean"`` does), and no holdout-based early stopping.
@@ -30,6 +33,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from inference.planning import cross_entropy_search, shift_plan
 from pal.agent.config import PlanConfig
 from pal.checks import check_float, check_int
 
@@ -137,29 +141,14 @@ class ProbabilisticEnsemble(nn.Module):
         return history
 
 
-def _noise(shape: tuple[int, int, int], beta: float, generator: torch.Generator) -> Tensor:
-    """Unit-variance Gaussian noise ``(P, H, A)`` whose spectrum along H is ~ 1/f^beta (white for beta = 0)."""
-    p, h, a = shape
-    if beta == 0 or h == 1:
-        return torch.randn(shape, generator=generator)
-    freqs = torch.fft.rfftfreq(h)
-    freqs[0] = 1.0 / h
-    amp = freqs ** (-beta / 2)
-    spec = torch.complex(
-        torch.randn(p, a, len(freqs), generator=generator), torch.randn(p, a, len(freqs), generator=generator)
-    )
-    x = torch.fft.irfft(spec * amp, n=h)
-    return (x / x.std().clamp_min(1e-6)).transpose(1, 2)
-
-
 class CEMPlanner:
-    """CEM over action sequences through the ensemble, replanned every step (module docstring).
+    """iCEM / CEM over action sequences through the ensemble, replanned every step (module docstring).
 
     Args:
         model: the fitted ensemble.
         low, high: (A,) action bounds.
-        config: horizon, population, elites, iterations, alpha, init_std, noise_beta, warm_start
-            (the agent's planner settings; the preference fields are the cost's business).
+        config: ``action.horizon``, ``action.sampling`` and ``warm_start`` (the agent's planner
+            settings; the preference fields are the cost's business).
         cost: ``(obs (..., D), act (..., A)) -> (...)`` step cost.
         seed: the sampling's only source of randomness.
     """
@@ -197,26 +186,20 @@ class CEMPlanner:
 
     def act(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(first action (A,), predicted final observation of the plan (D,))`` from ``obs`` (D,)."""
-        h, c = self.config.action.horizon, self.config.action.sampling
+        h = self.config.action.horizon
         o = torch.as_tensor(obs, dtype=torch.float32)[None]
-        a_dim = self.low.shape[0]
-        mean = ((self.low + self.high) / 2).expand(h, a_dim).clone()
+        start = ((self.low + self.high) / 2).expand(1, h, self.low.shape[0]).clone()
         if self.config.warm_start and self._mean is not None:
-            mean = torch.cat([self._mean[1:], self._mean[-1:]])
-        std = (c.init_std * (self.high - self.low)).expand(h, a_dim).clone()
-        elites = torch.empty(0, h, a_dim)
-        elite_costs = torch.empty(0)
+            start = shift_plan(self._mean)[None]
+
+        def objective(a: Tensor) -> Tensor:  # (R, 1, H, A) -> (R, 1)
+            return self._costs(o, a[:, 0])[0][:, None]
+
+        found = cross_entropy_search(
+            objective, start, self.low, self.high, self.config.action.sampling, self.generator
+        )
+        best = found.elites[0, 0]
         with torch.no_grad():
-            for _ in range(c.iterations):
-                cand = mean + std * _noise((c.population, h, a_dim), c.noise_beta, self.generator)
-                cand[0] = mean
-                cand = torch.maximum(torch.minimum(cand, self.high), self.low)
-                costs, _ = self._costs(o, cand)
-                cand, costs = torch.cat([cand, elites]), torch.cat([costs, elite_costs])
-                best = torch.topk(costs, c.elites, largest=False).indices
-                elites, elite_costs = cand[best], costs[best]
-                mean = c.alpha * mean + (1 - c.alpha) * elites.mean(0)
-                std = c.alpha * std + (1 - c.alpha) * elites.std(0, unbiased=False)
-            _, final = self._costs(o, elites[:1])
-        self._mean = elites[0]
-        return elites[0, 0].numpy().astype(np.float64), final[0].numpy().astype(np.float64)
+            _, final = self._costs(o, best[None])
+        self._mean = best
+        return best[0].numpy().astype(np.float64), final[0].numpy().astype(np.float64)

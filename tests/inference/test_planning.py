@@ -25,6 +25,9 @@ FAST = SamplingConfig(population=64, elites=8, iterations=3, refine_steps=150)
         ({"init_std": 0.0}, "init_std must be > 0 \\(a finite number\\), got 0"),
         ({"refine_steps": -1}, "refine_steps must be a non-negative int, got -1"),
         ({"refine_elites": 17}, "refine_elites 17 is larger than elites 16"),
+        ({"keep_elites": 1.5}, "keep_elites must be >= 0 and <= 1 \\(a finite number\\), got 1.5"),
+        ({"keep_elites": -0.1}, "keep_elites must be >= 0 and <= 1 \\(a finite number\\), got -0.1"),
+        ({"population_decay": 0.9}, "population_decay must be >= 1 \\(a finite number\\), got 0.9"),
         ({"population": 64.0}, "population must be a positive int, got 64.0"),
     ],
 )
@@ -63,7 +66,8 @@ def test_cem_is_batched_over_units_and_keeps_its_best():
     found = cross_entropy_search(
         objective, torch.zeros(n, h, d), low, high, cfg, torch.Generator().manual_seed(3)
     )
-    assert calls == [(128, n, h, d)] * 4  # one call per iteration for all units x candidates
+    # one call per iteration for all units x candidates; iCEM's population decays by 1.25
+    assert calls == [(p, n, h, d) for p in (128, 103, 82, 66)] == [(p, n, h, d) for p in cfg.sizes()]
     assert found.elites.shape == (8, n, h, d) and found.losses.shape == (8, n)
     assert bool((found.losses[1:] >= found.losses[:-1]).all())
     assert list(found.history) == sorted(found.history, reverse=True)

@@ -16,9 +16,9 @@ within the action bounds. Two comparisons, each against the loop a user writes b
 
 1. gradient only (Alg. 4.2): ``infer_action`` (through the Pyro program) against bare
    projected Adam, ``num_steps`` iterations from the midpoint;
-2. the sampling planner: ``infer_action(..., sampling=...)`` (CEM over the action box, then
-   Adam on the best elite) against the same CEM + Adam in bare torch, with the same
-   population, elites, iterations, momentum, steps and random draws.
+2. the sampling planner: ``infer_action(..., sampling=...)`` (iCEM over the action box, then
+   Adam on the best elite) against the same iCEM + Adam in bare torch, with the same
+   population and its decay, elites and kept elites, iterations, momentum, steps and random draws.
 
 Figures: seconds per call (median of ``repeats``), ratios to the bare-torch versions (> 1:
 infer_action is slower), the largest action difference to them, and the share of targets
@@ -169,24 +169,34 @@ def bare_adam(
 def bare_cem_adam(
     model: WorldModel, q_prev: Tensor, target: Tensor, cfg: SamplingConfig, steps: int, lr: float, seed: int
 ) -> Tensor:
-    """CEM over the action box (the midpoint a member of each population), then Adam on the best elite."""
+    """The sampling stage over the action box, then Adam on the best elite.
+
+    iCEM at horizon 1: the midpoint a member of each population, the population decays, a share
+    of the elites is kept, and the best seen are returned.
+    """
     n = q_prev.shape[0]
     low, high = model.bounds(ACTION)
     gen = torch.Generator().manual_seed(seed)
     mean = ((low + high) / 2).expand(n, 1).clone()
     std = (cfg.init_std * (high - low)).expand(n, 1).clone()
-    elites, elite_loss = torch.empty(0, n, 1), torch.empty(0, n)
+    kept, kept_loss = torch.empty(0, n, 1), torch.empty(0, n)
+    best, best_loss = torch.empty(0, n, 1), torch.empty(0, n)
     with torch.no_grad():
-        for _ in range(cfg.iterations):
-            cand = mean + std * torch.randn(cfg.population, n, 1, generator=gen)
+        for p in cfg.sizes():
+            cand = mean + std * torch.randn(p, n, 1, generator=gen)  # horizon 1: white noise
             cand[0] = mean
             cand = torch.clamp(cand, low, high)
-            loss = _loss(model, q_prev, cand.reshape(-1, 1), target).reshape(cfg.population, n)
-            cand, loss = torch.cat([cand, elites]), torch.cat([loss, elite_loss])
-            elite_loss, idx = torch.topk(loss, cfg.elites, dim=0, largest=False)
-            elites = cand.gather(0, idx[..., None])
+            loss = _loss(model, q_prev, cand.reshape(-1, 1), target).reshape(p, n)
+            pool, pool_loss = torch.cat([cand, kept]), torch.cat([loss, kept_loss])
+            elite_loss, idx = torch.topk(pool_loss, cfg.elites, dim=0, largest=False)
+            elites = pool.gather(0, idx[..., None])
+            kept, kept_loss = elites[: cfg.kept], elite_loss[: cfg.kept]
+            pool, pool_loss = torch.cat([best, cand]), torch.cat([best_loss, loss])
+            best_loss, idx = torch.topk(pool_loss, cfg.elites, dim=0, largest=False)
+            best = pool.gather(0, idx[..., None])
             mean = cfg.alpha * mean + (1 - cfg.alpha) * elites.mean(0)
             std = cfg.alpha * std + (1 - cfg.alpha) * elites.std(0, unbiased=False)
+    elites, elite_loss = best, best_loss
     refined = bare_adam(model, q_prev, target, elites[0], steps, lr)
     with torch.no_grad():
         better = _loss(model, q_prev, refined, target) <= elite_loss[0]

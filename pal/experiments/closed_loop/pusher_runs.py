@@ -9,10 +9,11 @@ episodes (data aggregation, as PETS does), with the same number of environment s
 The step cost both planners minimise, per step, with ``p`` the object, ``g`` the goal and ``e``
 the fingertip (3-D, m) and ``a`` the torques:
 
-    c = |p - g| + w_e |e - p| + w_a |a|^2
+    c = w_g c(p - g) + w_e c(e - p) + w_b c(e_xy - behind(p, g)) + w_a |a|^2
 
-(the agent's :func:`pal.agent.plan.preference` with ``preference="distance"``, ``scale=1``,
-``target_at="every"``; ``w_e``, ``w_a`` from :class:`pal.agent.PlanConfig`).
+(the agent's :func:`pal.agent.plan.preference` with ``scale=1``, ``target_at="every"``; the
+form of ``c`` and the weights from :class:`pal.agent.PlanConfig`: PETS's L1 cost with 1.25,
+0.5, 0 and 0.1 by default).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import torch
 
 from pal.agent import Agent
 from pal.agent.config import PlanConfig
+from pal.agent.plan import behind, distance
 from pal.baselines.pets import BaselineConfig, CEMPlanner, ProbabilisticEnsemble
 
 __all__ = [
@@ -85,11 +87,15 @@ def distances(obs: np.ndarray) -> tuple[float, float]:
 
 def step_cost(config: PlanConfig) -> Any:
     """The baseline's step cost (module docstring): ``(obs (..., 23), act (..., 7)) -> (...)``."""
+    kind, scale = config.preference, config.action.scale
 
     def cost(obs: torch.Tensor, act: torch.Tensor) -> torch.Tensor:
-        obj = obs[..., _OBJ]
-        norm = lambda x: torch.sqrt(x.pow(2).sum(-1) + 1e-12)  # noqa: E731 - the agent's distance
-        c = norm(obj - obs[..., _GOAL]) + config.effector_weight * norm(obs[..., _TIP] - obj)
+        obj, goal, tip = obs[..., _OBJ], obs[..., _GOAL], obs[..., _TIP]
+        c = config.goal_weight * distance(obj - goal, kind, scale)
+        c = c + config.effector_weight * distance(tip - obj, kind, scale)
+        if config.behind_weight:
+            shaped = tip[..., :2] - behind(obj, goal, config.behind_offset)
+            c = c + config.behind_weight * distance(shaped, kind, scale)
         return c + config.action_weight * act.pow(2).sum(-1)
 
     return cost
