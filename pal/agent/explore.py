@@ -120,20 +120,20 @@ def push_counts(
     """``grid`` with the estimated positions of one object after every step in which it moved > ``moved`` m.
 
     Args:
-        est_prev, est: ``(N, 2)`` the estimate before and after each step (NaN rows: unknown, skipped).
+        est_prev, est: ``(N, d >= 2)`` the estimate before and after each step (NaN rows: unknown, skipped).
         grid: the counts to add to.
         moved: displacement that counts as a push, m.
     """
     d = np.linalg.norm(est - est_prev, axis=1)
     keep = np.isfinite(d) & (d > moved)
     if keep.any():
-        grid.partial_fit(est[keep])
+        grid.partial_fit(est[keep][:, :2])
     return grid
 
 
 def novelty(grid: GridCuriosity, points: Tensor) -> Tensor:
-    """``nu(x) = 1 / sqrt(1 + n(cell(x)))`` for ``(R, 2)`` positions, m: ``(R,)`` in (0, 1]."""
-    n = grid.counts_at(points.detach().numpy())
+    """``nu(x) = 1 / sqrt(1 + n(cell(x)))`` for ``(R, d >= 2)`` positions, m (the table plane x, y): ``(R,)`` in (0, 1]."""
+    n = grid.counts_at(points[..., :2].detach().numpy())
     return torch.as_tensor(1.0 / np.sqrt(1.0 + n), dtype=points.dtype)
 
 
