@@ -304,7 +304,11 @@ class CuriosityConfig:
         check_choice("method", self.method, ("contact", "disagreement", "density"))
         for name in ("horizon", "influence_samples"):
             check_int(name, getattr(self, name))
-        if isinstance(self.refit_every, bool) or not isinstance(self.refit_every, int) or self.refit_every < 1:
+        if (
+            isinstance(self.refit_every, bool)
+            or not isinstance(self.refit_every, int)
+            or self.refit_every < 1
+        ):
             raise ValueError(
                 f"curiosity.refit_every is {self.refit_every!r}; the curious agent refits its model every N steps "
                 "of its budget: give an int N >= 1"

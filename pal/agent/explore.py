@@ -49,7 +49,16 @@ from pal.agent.config import CuriosityConfig
 from pal.agent.curiosity import GridCuriosity
 from pal.agent.influence import influence
 
-__all__ = ["ContactSearch", "StepGate", "at_limit", "contact_search", "diagnose", "novelty", "push_counts", "step_gate"]
+__all__ = [
+    "ContactSearch",
+    "StepGate",
+    "at_limit",
+    "contact_search",
+    "diagnose",
+    "novelty",
+    "push_counts",
+    "step_gate",
+]
 
 
 @dataclass(frozen=True)
@@ -114,13 +123,12 @@ def step_gate(
     return StepGate(nxt, p_on, spread, position)
 
 
-def push_counts(
-    est_prev: np.ndarray, est: np.ndarray, grid: GridCuriosity, moved: float
-) -> GridCuriosity:
+def push_counts(est_prev: np.ndarray, est: np.ndarray, grid: GridCuriosity, moved: float) -> GridCuriosity:
     """``grid`` with the estimated positions of one object after every step in which it moved > ``moved`` m.
 
     Args:
-        est_prev, est: ``(N, d >= 2)`` the estimate before and after each step (NaN rows: unknown, skipped).
+        est_prev: ``(N, d >= 2)`` the estimate before each step (NaN rows: unknown, skipped), m.
+        est: ``(N, d >= 2)`` the estimate after it, m.
         grid: the counts to add to.
         moved: displacement that counts as a push, m.
     """
@@ -235,7 +243,9 @@ def diagnose(
     """
     _check_gated(model, objects)
     dtype = model.dtype
-    state = {k: torch.as_tensor(np.asarray(v, dtype=np.float64)[None], dtype=dtype) for k, v in belief.items()}
+    state = {
+        k: torch.as_tensor(np.asarray(v, dtype=np.float64)[None], dtype=dtype) for k, v in belief.items()
+    }
     act = torch.as_tensor(np.asarray(action, dtype=np.float64)[None], dtype=dtype)
     with torch.no_grad():
         g = step_gate(model, state, act, objects, scale)

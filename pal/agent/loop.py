@@ -37,9 +37,9 @@ from models import WorldModel
 from pal.agent.config import AgentConfig
 from pal.agent.curiosity import GridCuriosity
 from pal.agent.estimate import Estimator, belief
+from pal.agent.explore import contact_search, diagnose, push_counts
 from pal.agent.graph import build_graph, build_model, discover_parents
 from pal.agent.history import History
-from pal.agent.explore import contact_search, diagnose, push_counts
 from pal.agent.influence import explore
 from pal.agent.learn import Learner, site_data
 from pal.agent.plan import Plan, one_step, plan

@@ -220,8 +220,11 @@ def coverage_curve(
 
 
 def _explore(config: Config, checkpoints: np.ndarray, progress_bar: bool) -> tuple[dict, dict, list, dict]:
-    """Per condition, the coverage and contact curves of every seed; the curious agent's decision modes;
-    the gate rows (:func:`gate_rows`) and per condition the shares of actions at a joint limit."""
+    """Per condition the coverage and contact curves of every seed, the decision modes, gate rows, limit shares.
+
+    Returns ``(curves, contacts, modes, extra)``; ``extra`` holds the curious agent's gate rows
+    (:func:`gate_rows`) and per condition the shares of actions at a joint limit.
+    """
     warmup, budget = config.setup.babble_steps, config.budget
     curves: dict[str, list[np.ndarray]] = {c: [] for c in _CONDITIONS}
     contacts: dict[str, list[np.ndarray]] = {c: [] for c in _CONDITIONS}
@@ -321,7 +324,11 @@ def _targets(config: Config, metrics: dict[str, Any]) -> list[Target]:
         f"(had {touches} of {auc.get('pairs', 0)})",
     )
     tested = [
-        (f"{what}_{test}", tests[key], f"one-sided paired {name} over seeds, {words} of curiosity > random (p-value)")
+        (
+            f"{what}_{test}",
+            tests[key],
+            f"one-sided paired {name} over seeds, {words} of curiosity > random (p-value)",
+        )
         for what, words in (("coverage", "coverage"), ("contact", "contact rate"))
         for test, name, key in (
             ("paired_p", "t-test", f"{what}_p"),

@@ -7,7 +7,16 @@ import pytest
 import torch
 
 from models import BernoulliMechanism, LinearMechanism
-from pal.agent import Agent, AgentConfig, CuriosityConfig, ModelConfig, build_graph, build_model, pusher_spec, pushing_spec
+from pal.agent import (
+    Agent,
+    AgentConfig,
+    CuriosityConfig,
+    ModelConfig,
+    build_graph,
+    build_model,
+    pusher_spec,
+    pushing_spec,
+)
 from pal.agent.config import CURIOSITY_SAMPLING
 from pal.agent.curiosity import GridCuriosity
 from pal.agent.explore import at_limit, contact_search, novelty, push_counts, step_gate
@@ -23,7 +32,9 @@ def _model():
     w_c = torch.zeros(6)
     w_c[3] = -40.0  # parents: rel_prev (3), rel (3): logit = 2 - 40 rel_x
     known = {
-        "dq": LinearMechanism.from_coefficients(torch.cat([torch.eye(7), torch.zeros(7, 14)], 1), sigma=0.001),
+        "dq": LinearMechanism.from_coefficients(
+            torch.cat([torch.eye(7), torch.zeros(7, 14)], 1), sigma=0.001
+        ),
         "dee": LinearMechanism.from_coefficients(w_ee, sigma=0.001),
         "contact.object": BernoulliMechanism.from_coefficients(w_c, 2.0),
     }
@@ -53,7 +64,9 @@ def test_the_search_travels_to_the_object_and_reports_its_information():
     belief = {k: v[0].numpy() for k, v in _state(graph).items()}
     grids = {"object": GridCuriosity((-1, -1), (1, 1), (4, 4))}
     config = CuriosityConfig(horizon=5, sampling=replace(CURIOSITY_SAMPLING, population=32, iterations=2))
-    found = contact_search(model, belief, np.zeros(7), ("object",), grids, config, 0.02, torch.Generator().manual_seed(0))
+    found = contact_search(
+        model, belief, np.zeros(7), ("object",), grids, config, 0.02, torch.Generator().manual_seed(0)
+    )
     assert found.sequence.shape == (5, 7) and found.information > 0
     assert found.sequence[:, 0].sum() < -1.0  # the hand is sent towards -x, onto the object
     low, high = -2 * np.ones(7), 2 * np.ones(7)
@@ -84,8 +97,12 @@ def test_a_curiosity_refit_interval_below_one_is_refused(bad):
 def test_low_information_steps_fall_back_to_babbling():
     env = PushingEnv(camera=True, camera_size=(160, 120))
     tiny = AgentConfig(
-        model=ModelConfig(members=2, hidden=(8,), schedule=replace(ModelConfig().schedule, epochs=2, patience=None)),
-        curiosity=CuriosityConfig(horizon=2, sampling=replace(CURIOSITY_SAMPLING, population=4, elites=2, iterations=1)),
+        model=ModelConfig(
+            members=2, hidden=(8,), schedule=replace(ModelConfig().schedule, epochs=2, patience=None)
+        ),
+        curiosity=CuriosityConfig(
+            horizon=2, sampling=replace(CURIOSITY_SAMPLING, population=4, elites=2, iterations=1)
+        ),
         reset_every=None,
     )
     try:
@@ -100,4 +117,3 @@ def test_low_information_steps_fall_back_to_babbling():
         assert agent.decide("curious").mode == "curious"
     finally:
         env.close()
-
