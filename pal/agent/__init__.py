@@ -5,6 +5,7 @@
 - :mod:`pal.agent.senses`: perceive, o(t) -> percept (Π optional); :mod:`pal.agent.perception`: Π's front end;
 - :mod:`pal.agent.estimate`: the belief through the measurement sites;
 - :mod:`pal.agent.plan`: the planner, a pure function of model, belief and target (MPC);
+- :mod:`pal.agent.explore`: curiosity that seeks contact (the contact gate times the on branch's disagreement, with novelty);
 - :mod:`pal.agent.influence`: curiosity by ensemble disagreement gated by causal action influence;
 - :mod:`pal.agent.curiosity`: the density-based curiosity of Eq. 4.34-4.38 on a grid;
 - :mod:`pal.agent.learn`: refits and structural revisions;

@@ -20,6 +20,7 @@ from pal.perception import PipelineConfig
 
 __all__ = [
     "ARM_LOG_SCALE_BOUNDS",
+    "CURIOSITY_SAMPLING",
     "DISPLACEMENTS",
     "ESTIMATE_SVI",
     "LOG_SCALE_BOUNDS",
@@ -283,39 +284,75 @@ class PlanConfig:
         check_float("behind_offset", self.behind_offset, 0.0, open_low=True)
 
 
+#: The contact search: 64 candidates, 8 elites, 3 iterations of iCEM with pink-to-brown noise (beta 2: smooth
+#: reaching sequences), started at "hold" with a spread of 0.15 of each action's range.
+CURIOSITY_SAMPLING = SamplingConfig(population=64, elites=8, iterations=3, noise_beta=2.0, init_std=0.15)
+
+
 @dataclass(frozen=True)
 class CuriosityConfig:
-    """How a curious agent picks what to do (:mod:`pal.agent.curiosity`, :mod:`pal.agent.influence`).
+    """How a curious agent picks what to do (:mod:`pal.agent.explore`, :mod:`pal.agent.influence`, :mod:`pal.agent.curiosity`).
 
     Attributes:
-        method: ``"disagreement"`` (ensemble disagreement over object variables gated by the
-            causal action-influence score) or ``"density"`` (targets from Eq. 4.34-4.38 on a grid).
-        horizon: steps of the searched action sequences (disagreement).
-        sampling: the CEM search over them (:func:`inference.planning.cross_entropy_search`).
-        influence_samples: actions M per state in the influence estimate.
-        influence_scale: nats at which the gate opens fully (gate = min(1, I / scale)).
-        min_score: below this score (disagreement in ``plan.action.scale`` units) the agent babbles.
-        region, bins, locality: the density method's grid over the table (m, cells) and its
-            locality gain (the alpha of Eq. 4.36).
+        method: ``"contact"`` (the default: the contact gate ``P(contact | a) x`` on-branch
+            disagreement, times the novelty of the predicted object position, :mod:`pal.agent.explore`),
+            ``"disagreement"`` (ensemble disagreement gated by the causal action-influence score,
+            :mod:`pal.agent.influence`) or ``"density"`` (targets from Eq. 4.34-4.38 on a grid).
+        horizon: steps of the searched action sequences (contact, disagreement); 5 lets the hand
+            travel to an object before it touches it.
+        sampling: the search over them (:func:`inference.planning.cross_entropy_search`); for the
+            contact method it starts at "hold" with ``sampling.init_std`` (a share of each action's
+            range, 0.15) as its spread.
+        influence_samples: actions M per state in the influence estimate (CAI; a diagnostic of the
+            contact method).
+        influence_scale: nats at which the disagreement method's gate opens fully (gate = min(1, I / scale)).
+        min_score: below this score the agent babbles. Contact method: the best sequence's summed
+            novelty-weighted gates (disagreement in ``plan.action.scale`` units squared, weighted by
+            the contact probability); 0.05 is about a 50 % touch of an object whose on branches
+            disagree by 0.3 scale units (6 mm at 2 cm) in a cell pushed into once.
+            Disagreement method: its gated disagreement.
+        moved: an object whose estimate moved more than this over a step (m) was pushed; its
+            position counts in the novelty grid (contact method).
+        limit_weight: weight of the joint-limit penalty (contact method; 0: none).
+        limit_margin: share of each action's range next to a bound over which the penalty rises
+            from 0 to 1.
+        refit_every: the curious mode refits the model every this many steps (>= 1).
+        region, bins, locality: the grid over the table (m, cells) of the density method and of the
+            contact method's novelty counts, and the density method's locality gain (the alpha of Eq. 4.36).
     """
 
-    method: str = "disagreement"
-    horizon: int = 2
-    sampling: SamplingConfig = SamplingConfig(population=64, elites=8, iterations=3)
+    method: str = "contact"
+    horizon: int = 5
+    sampling: SamplingConfig = CURIOSITY_SAMPLING
     influence_samples: int = 8
     influence_scale: float = 0.5
-    min_score: float = 1e-3
+    min_score: float = 0.05
+    moved: float = 0.005
+    limit_weight: float = 1.0
+    limit_margin: float = 0.05
+    refit_every: int = 25
     region: tuple[tuple[float, float], tuple[float, float]] = ((-0.3, 0.0), (0.3, 0.45))
     bins: tuple[int, int] = (8, 8)
     locality: float = 0.5
 
     def __post_init__(self) -> None:
-        check_choice("method", self.method, ("disagreement", "density"))
+        check_choice("method", self.method, ("contact", "disagreement", "density"))
         for name in ("horizon", "influence_samples"):
             check_int(name, getattr(self, name))
+        if (
+            isinstance(self.refit_every, bool)
+            or not isinstance(self.refit_every, int)
+            or self.refit_every < 1
+        ):
+            raise ValueError(
+                f"curiosity.refit_every is {self.refit_every!r}; the curious agent refits its model every N steps "
+                "of its budget: give an int N >= 1"
+            )
         _check_type("sampling", self.sampling, SamplingConfig)
         check_float("influence_scale", self.influence_scale, 0.0, open_low=True)
-        check_float("min_score", self.min_score, 0.0)
+        for name in ("min_score", "moved", "limit_weight"):
+            check_float(name, getattr(self, name), 0.0)
+        check_float("limit_margin", self.limit_margin, 0.0, 0.5, open_low=True)
         check_float("locality", self.locality, 0.0)
         object.__setattr__(self, "bins", tuple(check_int("bins", b, minimum=2) for b in self.bins))
 
@@ -325,7 +362,7 @@ class LearnConfig:
     """Online learning: refits, and the structural revision when the residual monitor fires (Eq. 4.50).
 
     Attributes:
-        refit_every: refit period, steps (in the curious and goal modes).
+        refit_every: refit period, steps (in the goal mode; the curious mode's is ``curiosity.refit_every``).
         monitor: watch the windowed residuals and revise flagged mechanisms.
         window, threshold, patience: :class:`inference.ResidualMonitor` settings.
         revisions: the kinds :func:`inference.revise` tries.

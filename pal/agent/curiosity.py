@@ -94,6 +94,10 @@ class GridCuriosity:
         np.add.at(self.counts_, _cells(p, self.low, self.high, self.bins), 1)
         return self
 
+    def counts_at(self, points: object) -> np.ndarray:
+        """``(N,)`` counts of the cells of positions (N, 2), m (positions outside the region: the nearest edge cell)."""
+        return self.counts_[_cells(_points(points), self.low, self.high, self.bins)]
+
     def curiosity(self) -> np.ndarray:
         """p_cur over cells (bx * by,), sums to 1 (count form, Eq. 5.8)."""
         c = self.counts_.astype(float)

@@ -7,9 +7,9 @@
 2. **estimate** (:mod:`pal.agent.estimate`): the belief over the object positions, through the
    measurement sites for perceived objects (a lost object stays unobserved);
 3. **plan** (:mod:`pal.agent.plan`): a pure function of the model, the belief and a target; the
-   sampling planner over a horizon, replanned every step (MPC); curiosity targets come from
-   :mod:`pal.agent.influence` (gated ensemble disagreement) or :mod:`pal.agent.curiosity`
-   (the density of Eq. 4.34-4.38);
+   sampling planner over a horizon, replanned every step (MPC); curious actions come from
+   :mod:`pal.agent.explore` (the contact gate), :mod:`pal.agent.influence` (gated ensemble
+   disagreement) or :mod:`pal.agent.curiosity` (the density of Eq. 4.34-4.38);
 4. **act**: ``env.step(a)``, the transition recorded in :class:`pal.agent.history.History`
    (:mod:`pal.agent.record`);
 5. **learn** (:mod:`pal.agent.learn`): refits (Eq. 4.33) and revisions when the residual monitor fires.
@@ -37,6 +37,7 @@ from models import WorldModel
 from pal.agent.config import AgentConfig
 from pal.agent.curiosity import GridCuriosity
 from pal.agent.estimate import Estimator, belief
+from pal.agent.explore import contact_search, diagnose, push_counts
 from pal.agent.graph import build_graph, build_model, discover_parents
 from pal.agent.history import History
 from pal.agent.influence import explore
@@ -66,7 +67,9 @@ class Decision:
         predicted: object -> (d,) position the model predicts at the plan's horizon, m.
         objective: predicted distance to the targets at the horizon, m (None without a plan).
         step_mean, step_sd: object -> (d,) predicted displacement over this step and its sd, m.
-        score: the curiosity score (gated disagreement), or None.
+        score: the curiosity score (gated disagreement; the contact method's information), or None.
+        diagnostics: the contact method's gate, contact probability and CAI of the executed
+            action per object (:func:`pal.agent.explore.diagnose`), else empty.
     """
 
     mode: str
@@ -77,6 +80,7 @@ class Decision:
     step_mean: dict[str, np.ndarray] = field(default_factory=dict)
     step_sd: dict[str, np.ndarray] = field(default_factory=dict)
     score: float | None = None
+    diagnostics: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 def _decision(p: Plan, mode: str | None = None, score: float | None = None) -> Decision:
@@ -270,6 +274,8 @@ class Agent:
         if not known:
             return Decision("babble", self.random_action())
         c = self.config.curiosity
+        if c.method == "contact":
+            return self._contact(tuple(known))
         if c.method == "disagreement":
             generator = torch.Generator().manual_seed(self._seed())
             seq, score, _ = explore(
@@ -287,6 +293,25 @@ class Agent:
         if np.linalg.norm(self.estimate[o] - target) - p.objective < self.config.plan.min_progress:
             return Decision("babble", self.random_action(), p.targets, p.predicted, p.objective)
         return _decision(p)
+
+    def _contact(self, known: tuple[str, ...]) -> Decision:
+        """A curious step of the contact method (:mod:`pal.agent.explore`); babbles below ``min_score``."""
+        c = self.config.curiosity
+        (x0, y0), (x1, y1) = c.region
+        est_prev, est = self.history.array("est_prev"), self.history.array("est")
+        grids = {}
+        for o in known:
+            k = self.history.objects.index(o)
+            grid = GridCuriosity((x0, y0), (x1, y1), c.bins, c.locality)
+            grids[o] = push_counts(est_prev[:, k], est[:, k], grid, c.moved)
+        generator = torch.Generator().manual_seed(self._seed())
+        scale = self.config.plan.action.scale
+        found = contact_search(self.model, self.belief(), self._hold(), known, grids, c, scale, generator)
+        mode, action = "curious", found.sequence[0]
+        if found.information < c.min_score:
+            mode, action = "babble", self.random_action()
+        diag = diagnose(self.model, self.belief(), action, known, c, scale, generator)
+        return Decision(mode, action, score=found.information, diagnostics=diag)
 
     def _goal(self, known: list[str]) -> Decision:
         goal = self.goal or dict(self.percept.goals)
@@ -369,11 +394,12 @@ class Agent:
     ) -> list[Decision]:
         """Run ``steps`` loop steps in ``mode`` and return their decisions.
 
-        A fitted model is refitted every ``refit_every`` steps (default ``config.learn.refit_every``;
-        0 disables). Episodes restart every ``reset_every`` steps and when the environment ends one.
+        A fitted model is refitted every ``refit_every`` steps (default ``config.curiosity.refit_every``
+        in the curious mode, else ``config.learn.refit_every``; 0 disables). Episodes restart every ``reset_every`` steps and when the environment ends one.
         """
         check_int("steps", steps, minimum=0)
-        every = self.config.learn.refit_every if refit_every is None else refit_every
+        default = self.config.curiosity.refit_every if mode == "curious" else self.config.learn.refit_every
+        every = default if refit_every is None else refit_every
         decisions = []
         for _ in tqdm(range(steps), desc=f"loop ({mode})", disable=not progress_bar, leave=False):
             limit = self.config.reset_every

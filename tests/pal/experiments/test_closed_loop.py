@@ -123,14 +123,35 @@ def test_c3_counterfactuals_beat_the_interventional_answer(tiny_run):
         assert [t.get_text() for t in ax.get_xticklabels()] == list(c3.ANSWERS)
 
 
-def test_c4_targets_need_three_seeds_of_fifty_steps():
-    metrics = {"coverage_gain": 0.1, "contact_gain": 0.2, "paired_test": {"coverage_p": 0.01, "contact_p": 0.5}}
-    for config in (c4.TINY, c4.QUICK, c4.Config(runs=2), c4.Config(budget=49)):
+def test_c4_targets_need_five_seeds_of_200_steps_and_quick_is_not_evaluated():
+    tests = {"coverage_p": 0.01, "contact_p": 0.5, "coverage_wilcoxon_p": 0.03, "contact_wilcoxon_p": 0.2}
+    auc = {"gate": 0.95, "p_on": 0.96, "influence": 0.5, "pairs": 400, "touch_pairs": 100}
+    metrics = {"coverage_gain": 0.1, "contact_gain": 0.2, "paired_test": tests, "gate_auc": auc}
+    for config in (c4.TINY, c4.QUICK, c4.Config(runs=4), c4.Config(budget=199)):
         targets = c4._targets(config, metrics)
         assert {t.verdict for t in targets} == {"not evaluated"} and not any(t.met for t in targets)
-        assert "at least 3 seeds of at least 50 budget steps" in targets[0].precondition.reason
-    verdicts = [t.verdict for t in c4._targets(c4.Config(runs=3, budget=50), metrics)]
-    assert verdicts == ["met", "met", "met", "not met"]
+        assert "at least 5 seeds of at least 200 budget steps" in targets[0].precondition.reason
+    verdicts = {t.name: t.verdict for t in c4._targets(c4.Config(), metrics)}
+    assert verdicts == {
+        "coverage_gain": "met",
+        "contact_gain": "met",
+        "coverage_paired_p": "met",
+        "coverage_wilcoxon_p": "met",
+        "contact_paired_p": "not met",
+        "contact_wilcoxon_p": "not met",
+        "gate_auc": "met",
+    }
+    few = dict(metrics, gate_auc=dict(auc, touch_pairs=3))
+    assert {t.name: t.verdict for t in c4._targets(c4.Config(), few)}["gate_auc"] == "not evaluated"
+
+
+def test_c4_auc_and_wilcoxon():
+    assert c4.roc_auc(np.array([0.9, 0.8, 0.1, 0.2]), np.array([1, 1, 0, 0])) == pytest.approx(1.0)
+    assert c4.roc_auc(np.array([0.5, 0.5]), np.array([1, 0])) == pytest.approx(0.5)
+    assert c4.roc_auc(np.array([0.5, 0.4]), np.array([1, 1])) is None
+    a, b = [0.3, 0.5, 0.4, 0.6, 0.7], [0.1, 0.2, 0.3, 0.4, 0.5]
+    assert c4.wilcoxon_test(a, b) == pytest.approx(1 / 32, abs=1e-9)
+    assert c4.wilcoxon_test(b, a) > 0.5 and c4.wilcoxon_test([0.1, 0.2], [0.1, 0.2]) is None
 
 
 @pytest.mark.slow
@@ -147,8 +168,8 @@ def test_c4_coverage_report_and_curve(tiny_run):
     assert m["contact_rate"]["random"] == pytest.approx(np.mean(m["contact_per_seed"]["random"]))
     # 2 seeds x 2 steps: too few for any verdict
     assert {t.verdict for t in rep.targets} == {"not evaluated"} and not any(t.met for t in rep.targets)
-    for name in ("coverage", "contact"):
-        assert len(rep.figures[name].axes[0].get_lines()) == 2
+    assert [len(ax.get_lines()) for ax in rep.figures["exploration"].axes] == [2, 2]
+    assert set(m["at_limit"]) == {"curiosity", "random"} and set(m["gate_auc"]) >= {"gate", "influence"}
     assert (
         c4.paired_test([0.3, 0.5, 0.4], [0.1, 0.2, 0.3])
         < 0.05
