@@ -65,8 +65,9 @@ PLAN = PlanConfig(
 MODEL = ModelConfig(
     members=5, hidden=(64, 64), arm_hidden=(128, 128), schedule=replace(MODEL_SCHEDULE, epochs=200)
 )
-#: 60 episodes of 100 steps, the first random, scored at 1.5k, 3k and 6k steps
-#: (15k: ``--set aggregation.rounds=150 --set aggregation.checkpoints=1500,3000,6000,15000``).
+#: 60 episodes of 100 steps, the first random, scored at 1.5k, 3k and 6k steps (15k: ``--set
+#: aggregation.rounds=150 --set 'aggregation.checkpoints=[1500,3000,6000,15000]'``; to shrink, set the
+#: checkpoints before the rounds, since each setting is checked as it is applied).
 AGGREGATION = AggregationConfig(rounds=60, episode_steps=100, random_rounds=1, checkpoints=(1500, 3000, 6000))
 
 
