@@ -8,7 +8,7 @@
 - :mod:`pal.agent.explore`: curiosity that seeks contact (the contact gate times the on branch's disagreement, with novelty);
 - :mod:`pal.agent.influence`: curiosity by ensemble disagreement gated by causal action influence;
 - :mod:`pal.agent.curiosity`: the density-based curiosity of Eq. 4.34-4.38 on a grid;
-- :mod:`pal.agent.learn`: refits and structural revisions;
+- :mod:`pal.agent.learn`: refits and structural revisions; :mod:`pal.agent.aggregate`: PETS-style data aggregation;
 - :mod:`pal.agent.loop`: :class:`Agent`, which composes them; :mod:`pal.agent.config`: its settings;
 - :mod:`pal.agent.history`: the sensorimotor history H_t; :mod:`pal.agent.video`: the annotated video.
 

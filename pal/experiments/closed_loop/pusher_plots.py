@@ -1,9 +1,9 @@
-"""Figures of the ``pusher`` experiment: learning curves, object paths, predicted against realized distances."""
+"""Figures of the ``pusher`` experiment: learning curves, fingertip and object paths, predicted against realized distances."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -15,27 +15,35 @@ if TYPE_CHECKING:
 __all__ = ["curve_figure", "paths_figure", "prediction_figure"]
 
 _COLOURS = {"pal": "C0", "baseline": "C1", "random": "C3"}
+_LABELS = {"pal": "pal", "baseline": "PETS-style baseline", "random": "random torques"}
 
 
-def curve_figure(steps: Sequence[int], curves: Mapping[str, np.ndarray], random: float | None) -> Figure:
-    """Final x-y distance of each training episode against environment steps: mean ± sd over seeds (rows)."""
+def curve_figure(steps: Sequence[int], at: Mapping[str, Mapping[str, Any]]) -> Figure:
+    """Final x-y distance against environment steps per controller: mean over seeds x goals, band ± sd over seeds.
+
+    ``at``: checkpoint (str) -> controller -> scores with ``final_planar.mean`` and ``seed_sd``
+    (:func:`pal.experiments.closed_loop.pusher_metrics.block`).
+    """
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(5.2, 3.5))
-    x = np.asarray(steps)
-    for name, values in curves.items():
-        v = np.asarray(values, dtype=np.float64).reshape(-1, len(x))
-        mean, sd = v.mean(0), v.std(0)
+    x = np.asarray(steps, dtype=np.float64)
+    controllers = next(iter(at.values())).keys() if at else ()
+    for name in controllers:
+        mean = np.array(
+            [np.nan if (m := at[str(s)][name]["final_planar"]["mean"]) is None else m for s in steps]
+        )
+        sd = np.array([at[str(s)][name]["seed_sd"] or 0.0 for s in steps])
         ax.plot(
             x,
             mean,
             color=_COLOURS[name],
-            marker=".",
-            label="PETS-style baseline" if name == "baseline" else name,
+            marker="o",
+            ms=4,
+            ls="--" if name == "random" else "-",
+            label=_LABELS[name],
         )
         ax.fill_between(x, mean - sd, mean + sd, color=_COLOURS[name], alpha=0.2)
-    if random is not None:
-        ax.axhline(random, color=_COLOURS["random"], ls="--", lw=1, label="random (median)")
     ax.set(
         xlabel="environment steps", ylabel="final object-goal distance, m", title="Pusher-v5 learning curve"
     )
@@ -44,19 +52,27 @@ def curve_figure(steps: Sequence[int], curves: Mapping[str, np.ndarray], random:
     return fig
 
 
-def paths_figure(episodes: Mapping[str, Episode]) -> Figure:
-    """The object's x-y path of one evaluation episode per controller, and the goal."""
+def paths_figure(episodes: Mapping[str, Sequence[Episode]]) -> Figure:
+    """Fingertip (dotted) and object (solid) x-y paths per controller, one panel per goal (at most 3), and the goal."""
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(4.4, 4.0))
-    for name, e in episodes.items():
-        p = np.asarray(e.path)
-        ax.plot(p[:, 0], p[:, 1], color=_COLOURS[name], marker=".", ms=3, lw=1, label=name)
-        ax.plot(p[0, 0], p[0, 1], color=_COLOURS[name], marker="o", ls="none")
-    goal = next(iter(episodes.values())).goal
-    ax.plot(goal[0], goal[1], color="k", marker="*", ms=12, ls="none", label="goal")
-    ax.set(xlabel="x, m", ylabel="y, m", title="object path (first evaluation goal)", aspect="equal")
-    ax.legend(fontsize=7)
+    n = max((len(v) for v in episodes.values()), default=0)
+    fig, axes = plt.subplots(1, max(n, 1), figsize=(3.6 * max(n, 1), 3.6), squeeze=False)
+    for g, ax in enumerate(axes[0]):
+        goal = None
+        for name, eps in episodes.items():
+            if g >= len(eps):
+                continue
+            e = eps[g]
+            p, t = np.asarray(e.path), np.asarray(e.tip)
+            ax.plot(p[:, 0], p[:, 1], color=_COLOURS[name], lw=1.5, label=f"{name}: object")
+            ax.plot(t[:, 0], t[:, 1], color=_COLOURS[name], lw=0.8, ls=":", label=f"{name}: tip")
+            ax.plot(p[0, 0], p[0, 1], color=_COLOURS[name], marker="o", ls="none")
+            goal = e.goal
+        if goal:
+            ax.plot(goal[0], goal[1], color="k", marker="*", ms=12, ls="none", label="goal")
+        ax.set(xlabel="x, m", ylabel="y, m", title=f"goal {g + 1}", aspect="equal")
+    axes[0][0].legend(fontsize=6)
     fig.tight_layout()
     return fig
 

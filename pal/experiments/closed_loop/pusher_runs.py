@@ -1,10 +1,10 @@
 """The episodes of the ``pusher`` experiment: the agent, the PETS-style baseline and random actions on Pusher-v5.
 
 Every controller works on its own ``gymnasium.make("Pusher-v5")`` and is judged by what the
-environment reports: the object's and the goal's positions in the observation. A shared
-:class:`Transitions` wrapper records the full observations of the agent's babbling, so the
-baseline learns from exactly the same first transitions; after that each learns from its own
-episodes (data aggregation, as PETS does), with the same number of environment steps.
+environment reports: the fingertip's, the object's and the goal's positions in the observation.
+Each learner gathers its own data by aggregation (:mod:`pal.agent.aggregate`), with the same
+episode seeds and environment steps; :class:`Episode` is the record both leave, and random
+torques too.
 
 The step cost both planners minimise, per step, with ``p`` the object, ``g`` the goal and ``e``
 the fingertip (3-D, m) and ``a`` the torques:
@@ -27,55 +27,28 @@ import numpy as np
 import torch
 
 from pal.agent import Agent
+from pal.agent.aggregate import Rollout
 from pal.agent.config import PlanConfig
 from pal.agent.plan import behind, distance
-from pal.baselines.pets import BaselineConfig, CEMPlanner, ProbabilisticEnsemble
+from pal.baselines.pets_aggregate import PetsEpisode
 
 __all__ = [
     "ENV_ID",
+    "MOVED",
     "Episode",
-    "Transitions",
     "agent_episode",
-    "baseline_episode",
+    "agent_rollout",
     "distances",
+    "pets_record",
     "random_episode",
     "step_cost",
 ]
 
 #: Gymnasium's id of the benchmark task.
 ENV_ID = "Pusher-v5"
+#: An episode moved the object when it left its start by more than this in the table plane, m.
+MOVED = 0.005
 _TIP, _OBJ, _GOAL = slice(14, 17), slice(17, 20), slice(20, 23)
-
-
-class Transitions(gymnasium.Wrapper):
-    """Records ``(observation, action, next observation)`` of every step (the baseline's data)."""
-
-    def __init__(self, env: gymnasium.Env) -> None:
-        super().__init__(env)
-        self.obs: list[np.ndarray] = []
-        self.act: list[np.ndarray] = []
-        self.nxt: list[np.ndarray] = []
-        self._last: np.ndarray | None = None
-
-    def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
-        """Reset the wrapped environment and remember its first observation."""
-        obs, info = self.env.reset(**kwargs)
-        self._last = np.asarray(obs, dtype=np.float64)
-        return obs, info
-
-    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
-        """Step the wrapped environment and record the transition."""
-        obs, reward, terminated, truncated, info = self.env.step(action)
-        self.obs.append(self._last)
-        self.act.append(np.asarray(action, dtype=np.float64))
-        self.nxt.append(np.asarray(obs, dtype=np.float64))
-        self._last = np.asarray(obs, dtype=np.float64)
-        return obs, reward, terminated, truncated, info
-
-    def arrays(self, n: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The first ``n`` (default all) transitions: ``(N, 23)``, ``(N, 7)``, ``(N, 23)``."""
-        n = len(self.obs) if n is None else n
-        return np.stack(self.obs[:n]), np.stack(self.act[:n]), np.stack(self.nxt[:n])
 
 
 def distances(obs: np.ndarray) -> tuple[float, float]:
@@ -110,8 +83,10 @@ class Episode:
         start_planar: at the start (x-y).
         predicted_final: the plan's predicted x-y distance at its horizon's end, made at the
             step whose horizon ends with the episode (None for random actions).
-        cpu, wall: planning time per step (process CPU, wall clock).
-        path: (T + 1, 2) object x-y; goal: (2,) goal x-y.
+        cpu, wall: planning time per step (process CPU, wall clock; None for random actions).
+        path: (T + 1, 2) object x-y; tip: (T + 1, 2) fingertip x-y; goal: (2,) goal x-y.
+        min_tip_object: the smallest 3-D fingertip-object distance over the episode.
+        moved: the object's largest x-y displacement from its start.
     """
 
     final_planar: float
@@ -121,26 +96,33 @@ class Episode:
     cpu: float | None = None
     wall: float | None = None
     path: list[list[float]] = field(default_factory=list)
+    tip: list[list[float]] = field(default_factory=list)
     goal: list[float] = field(default_factory=list)
+    min_tip_object: float = float("nan")
+    moved: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-compatible fields (without the path)."""
-        return {k: v for k, v in self.__dict__.items() if k not in ("path", "goal")}
+        """JSON-compatible fields (without the paths)."""
+        return {k: v for k, v in self.__dict__.items() if k not in ("path", "tip", "goal")}
 
 
-def _finish(
-    obs0: np.ndarray, obs: np.ndarray, path: list, pred: float | None, cpu: list, wall: list
-) -> Episode:
-    planar, full = distances(obs)
+def _record(observations: np.ndarray, pred: float | None, cpu: list, wall: list) -> Episode:
+    """The :class:`Episode` of observations ``(T + 1, 23)``."""
+    o = np.asarray(observations, dtype=np.float64)
+    planar, full = distances(o[-1])
+    obj = o[:, _OBJ]
     return Episode(
         planar,
         full,
-        distances(obs0)[0],
+        distances(o[0])[0],
         pred,
         float(np.mean(cpu)) if cpu else None,
         float(np.mean(wall)) if wall else None,
-        [list(map(float, p)) for p in path],
-        list(map(float, np.asarray(obs0)[_GOAL][:2])),
+        obj[:, :2].tolist(),
+        o[:, _TIP][:, :2].tolist(),
+        o[0, _GOAL][:2].tolist(),
+        float(np.linalg.norm(o[:, _TIP] - obj, axis=1).min()),
+        float(np.linalg.norm(obj[:, :2] - obj[0, :2], axis=1).max()),
     )
 
 
@@ -150,62 +132,57 @@ def _observation(percept: Any) -> np.ndarray:
     return np.concatenate([p.q, p.v, p.effector, p.measurements["object"].position, p.goals["object"]])
 
 
-def agent_episode(agent: Agent, seed: int, steps: int, horizon: int) -> Episode:
-    """The agent in goal mode (MPC towards the observed goal) for ``steps`` steps from ``reset(seed)``."""
+def agent_episode(agent: Agent, seed: int, steps: int, horizon: int, random: bool = False) -> Episode:
+    """The agent in goal mode (MPC towards the observed goal), or random torques, for ``steps`` steps from ``reset(seed)``."""
     percept = agent.reset(seed=seed)
-    obs0 = _observation(percept)
-    path, cpu, wall, pred = [obs0[_OBJ][:2]], [], [], None
+    obs, cpu, wall, pred = [_observation(percept)], [], [], None
     for t in range(steps):
-        c0, w0 = time.process_time(), time.perf_counter()
-        decision = agent.decide("goal")
-        cpu.append(time.process_time() - c0)
-        wall.append(time.perf_counter() - w0)
-        if t == max(steps - horizon, 0) and decision.predicted:
-            goal = agent.percept.goals["object"]
-            pred = float(np.linalg.norm((decision.predicted["object"] - goal)[:2]))
-        percept = agent.step(decision.action)
-        path.append(percept.measurements["object"].position[:2])
-    obs = _observation(percept)
-    return _finish(obs0, obs, path, pred, cpu, wall)
+        if random:
+            action = agent.random_action()
+        else:
+            c0, w0 = time.process_time(), time.perf_counter()
+            decision = agent.decide("goal")
+            cpu.append(time.process_time() - c0)
+            wall.append(time.perf_counter() - w0)
+            action = decision.action
+            if t == max(steps - horizon, 0) and decision.predicted:
+                goal = agent.percept.goals["object"]
+                pred = float(np.linalg.norm((decision.predicted["object"] - goal)[:2]))
+        percept = agent.step(action)
+        obs.append(_observation(percept))
+        if agent.done:
+            break
+    return _record(np.stack(obs), pred, cpu, wall)
 
 
-def baseline_episode(env: gymnasium.Env, planner: CEMPlanner, seed: int, steps: int) -> Episode:
-    """The PETS-style baseline for ``steps`` steps from ``env.reset(seed=seed)``."""
-    obs, _ = env.reset(seed=seed)
-    obs0 = np.asarray(obs, dtype=np.float64)
-    planner.reset()
-    path, cpu, wall, pred = [obs0[_OBJ][:2]], [], [], None
-    horizon = planner.config.action.horizon
-    for t in range(steps):
-        c0, w0 = time.process_time(), time.perf_counter()
-        action, final = planner.act(np.asarray(obs, dtype=np.float64))
-        cpu.append(time.process_time() - c0)
-        wall.append(time.perf_counter() - w0)
-        if t == max(steps - horizon, 0):
-            pred = float(np.linalg.norm((final[_OBJ] - final[_GOAL])[:2]))
-        obs, *_ = env.step(action.astype(np.float32))
-        path.append(np.asarray(obs)[_OBJ][:2])
-    return _finish(obs0, np.asarray(obs, dtype=np.float64), path, pred, cpu, wall)
+def agent_rollout(horizon: int) -> Any:
+    """:func:`agent_episode` as the episode of :class:`pal.agent.aggregate.AgentLearner`."""
+
+    def episode(agent: Agent, seed: int, steps: int, random: bool) -> Rollout:
+        e = agent_episode(agent, seed, steps, horizon, random)
+        return Rollout(len(e.path) - 1, e)
+
+    return episode
+
+
+def pets_record(episode: PetsEpisode, horizon: int) -> Episode:
+    """The :class:`Episode` of a baseline episode (its prediction made ``horizon`` steps before the end)."""
+    pred = None
+    if len(episode.predicted):
+        final = episode.predicted[max(len(episode.predicted) - horizon, 0)]
+        pred = float(np.linalg.norm((final[_OBJ] - final[_GOAL])[:2]))
+    return _record(episode.observations, pred, episode.cpu, episode.wall)
 
 
 def random_episode(env: gymnasium.Env, seed: int, steps: int) -> Episode:
     """Uniform random torques for ``steps`` steps from ``env.reset(seed=seed)``."""
     obs, _ = env.reset(seed=seed)
-    obs0 = np.asarray(obs, dtype=np.float64)
     rng = np.random.default_rng(seed)
     space = env.action_space
-    path = [obs0[_OBJ][:2]]
+    path = [np.asarray(obs, dtype=np.float64)]
     for _ in range(steps):
-        obs, *_ = env.step(rng.uniform(space.low, space.high).astype(np.float32))
-        path.append(np.asarray(obs)[_OBJ][:2])
-    return _finish(obs0, np.asarray(obs, dtype=np.float64), path, None, [], [])
-
-
-def fit_baseline(
-    data: tuple[np.ndarray, np.ndarray, np.ndarray], config: BaselineConfig, seed: int
-) -> ProbabilisticEnsemble:
-    """A new PETS-style ensemble fitted on ``(obs, act, next_obs)``."""
-    obs, act, nxt = data
-    model = ProbabilisticEnsemble(obs.shape[1], act.shape[1], config, seed=seed)
-    model.fit(obs, act, nxt)
-    return model
+        obs, _, terminated, truncated, _ = env.step(rng.uniform(space.low, space.high).astype(np.float32))
+        path.append(np.asarray(obs, dtype=np.float64))
+        if terminated or truncated:
+            break
+    return _record(np.stack(path), None, [], [])

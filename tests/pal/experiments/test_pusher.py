@@ -1,35 +1,81 @@
-"""The pusher experiment on Gymnasium's Pusher-v5 and its PETS-style baseline (tiny budgets)."""
+"""The pusher experiment on Gymnasium's Pusher-v5, its PETS-style baseline and aggregation learner (tiny budgets)."""
 
 import json
+from dataclasses import replace
 
+import gymnasium
 import numpy as np
 import pytest
 import torch
 
 from pal.agent import PlanConfig
+from pal.agent.aggregate import AggregationConfig, run_rounds
 from pal.baselines.pets import BaselineConfig, CEMPlanner, ProbabilisticEnsemble
+from pal.baselines.pets_aggregate import PetsLearner
 from pal.experiments.closed_loop import pusher
-from pal.experiments.closed_loop.pusher_runs import Episode
+from pal.experiments.closed_loop.pusher_metrics import block, targets
+from pal.experiments.closed_loop.pusher_runs import Episode, step_cost
 
 
 @pytest.mark.slow
-def test_pusher_reports_the_three_controllers_at_equal_steps(tiny_run):
+def test_pusher_reports_checkpoint_rows_for_three_controllers_and_does_not_evaluate_unmoved_ratios(tiny_run):
     rep = tiny_run("experiment", "pusher").report
-    m = rep.metrics
-    assert m["env_steps"] == pusher.TINY.babble_steps + pusher.TINY.train_episodes * pusher.TINY.episode_steps
-    for c in pusher.CONTROLLERS:
-        assert m[c]["goals"] == pusher.TINY.eval_goals * pusher.TINY.runs
-        assert m[c]["final_planar"]["median"] <= m[c]["final_distance"]["median"]  # the goal sits lower
+    m, agg = rep.metrics, pusher.TINY.aggregation
+    assert m["checkpoints"] == list(agg.checkpoints)
+    curve = rep.tables[0]
+    assert [(r[0], r[1]) for r in curve.rows] == [(p, c) for p in agg.checkpoints for c in pusher.CONTROLLERS]
+    for point in agg.checkpoints:
+        row = m["at"][str(point)]
+        for c in pusher.CONTROLLERS:
+            assert row[c]["episodes"] == pusher.TINY.eval_goals * pusher.TINY.runs
+            assert (
+                row[c]["final_planar"]["median"] <= row[c]["final_distance"]["median"]
+            )  # the goal sits lower
+        for c in ("pal", "baseline"):
+            assert row[c]["env_steps"] == [point]
+            assert row[c]["predicted_final"]["mean"] is not None
+    for c in ("pal", "baseline"):
+        counts = m["training"][c]["counts"][0]
+        assert counts == {
+            "env_steps": agg.budget,
+            "episodes": agg.rounds,
+            "random_episodes": 1,
+            "refits": agg.rounds,
+            "warm_refits": agg.rounds - 1,
+        }
+    # three tiny steps move nothing: every ratio and the full-budget targets are not evaluated
+    verdicts = {t.name: t.verdict for t in rep.targets}
+    assert verdicts[f"pal_over_baseline_at_{agg.checkpoints[0]}"] == "not evaluated"
     assert (
-        rep.target("pal_over_baseline").value
-        == m["pal"]["final_planar"]["median"] / m["baseline"]["final_planar"]["median"]
+        verdicts["pal_median_final"] == "not evaluated"
+        and verdicts["pal_step_cpu_seconds"] == "not evaluated"
     )
-    assert 0 < rep.target("pal_step_cpu_seconds").value < 5.0
-    assert m["curve"]["steps"] == [pusher.TINY.babble_steps + pusher.TINY.episode_steps]
-    assert np.asarray(m["curve"]["pal"]).shape == (1, 1)
+    assert all(v != "met" for v in verdicts.values())
     assert rep.figures["learning_curve"].axes[0].get_xlabel() == "environment steps"
-    assert len(rep.figures["paths"].axes[0].get_lines()) == 2 * len(pusher.CONTROLLERS) + 1
+    # one goal: tip and object of each controller, their starts, and the goal
+    assert len(rep.figures["paths"].axes[0].get_lines()) == 3 * len(pusher.CONTROLLERS) + 1
     json.dumps(rep.metrics, allow_nan=False)
+
+
+def test_the_baseline_aggregates_its_own_episodes_with_warm_refits():
+    env = gymnasium.make("Pusher-v5")
+    plan = pusher.TINY.plan
+    learner = PetsLearner(
+        env, BaselineConfig(members=2, hidden=(8,), epochs=1), plan, step_cost(plan), seed=0
+    )
+    result = run_rounds(learner, AggregationConfig(rounds=3, episode_steps=4), seed=0)
+    env.close()
+    assert result.counts.to_dict() == {
+        "env_steps": 12,
+        "episodes": 3,
+        "random_episodes": 1,
+        "refits": 3,
+        "warm_refits": 2,
+    }
+    assert len(learner.data[0]) == 12
+    first, *later = result.episodes
+    assert len(first.predicted) == 0 and all(len(e.predicted) == 4 for e in later)  # random first, then CEM
+    assert all(e.observations.shape == (5, 23) for e in result.episodes)
 
 
 def test_the_baseline_learns_a_linear_system_and_plans_with_it():
@@ -53,35 +99,39 @@ def test_the_baseline_learns_a_linear_system_and_plans_with_it():
     assert action[0] < -0.3 and abs(final[0]) < 0.15
 
 
-def _episode(final: float, path: list[list[float]]) -> Episode:
-    return Episode(final, final, 0.2, 0.1, 0.01, 0.01, path, [0.0, 0.0])
+def _episode(final: float, moved: float) -> Episode:
+    return Episode(
+        final,
+        final,
+        0.2,
+        0.1,
+        0.01,
+        0.01,
+        [[0.1, 0.1], [0.1 + moved, 0.1]],
+        [[0.0, 0.0]] * 2,
+        [0.0, 0.0],
+        0.3,
+        moved,
+    )
 
 
-def _synthetic(moving: dict[str, float]) -> tuple[dict, dict]:
-    """Pooled evaluation episodes where controller c moves the object by moving[c] metres."""
-    config = pusher.TINY
-    pooled = {
-        c: [_episode(0.2 - moving[c], [[0.1, 0.1], [0.1 + moving[c], 0.1]])] for c in pusher.CONTROLLERS
-    }
-    per_seed = {config.seed: {"evaluation": pooled}}
-    metrics = {c: pusher._controller(config, per_seed, pooled[c], c) for c in pusher.CONTROLLERS}
-    return metrics, pooled
+def _at(moved: dict[str, list[float]]) -> dict:
+    """One checkpoint's scores where controller c moves the object by moved[c][g] metres on goal g."""
+    return {"6000": {c: block([[_episode(0.2 - d, d) for d in v]], 0.05) for c, v in moved.items()}}
 
 
-def test_a_ratio_of_two_controllers_that_never_moved_the_object_is_not_evaluated():
-    metrics, pooled = _synthetic({"pal": 0.0, "baseline": 0.0, "random": 0.0})
-    targets = {t.name: t for t in pusher._targets(metrics, pooled)}
-    ratio = targets["pal_over_baseline"]
+def test_a_ratio_counts_only_when_pal_moved_the_object_in_90_percent_and_the_baseline_at_all():
+    config = replace(pusher.TINY, aggregation=AggregationConfig(rounds=60, checkpoints=(6000,)))
+    still = {t.name: t for t in targets(config, _at({"pal": [0.0] * 10, "baseline": [0.0] * 10}))}
+    ratio = still["pal_over_baseline_at_6000"]
     assert ratio.value == 1.0 and ratio.verdict == "not evaluated" and ratio.met is False
     assert "moved > 5 mm" in ratio.precondition.reason
-    assert targets["pal_over_random"].verdict == "not evaluated"
-    assert targets["pal_final_distance"].precondition is None
-
-
-def test_a_ratio_counts_once_both_controllers_moved_the_object():
-    metrics, pooled = _synthetic({"pal": 0.05, "baseline": 0.02, "random": 0.001})
-    targets = {t.name: t for t in pusher._targets(metrics, pooled)}
-    assert metrics["pal"]["max_object_displacement"] == pytest.approx(0.05)
-    assert targets["pal_over_baseline"].evaluated and targets["pal_over_baseline"].verdict == "met"
-    assert targets["pal_over_baseline"].value == pytest.approx(0.15 / 0.18)
-    assert targets["pal_over_random"].verdict == "not evaluated"  # random moved it 1 mm only
+    some = {t.name: t for t in targets(config, _at({"pal": [0.1] * 8 + [0.0] * 2, "baseline": [0.02] * 10}))}
+    assert some["pal_over_baseline_at_6000"].verdict == "not evaluated"  # pal moved it in 80 % only
+    both = {
+        t.name: t for t in targets(config, _at({"pal": [0.1] * 9 + [0.0], "baseline": [0.0] * 9 + [0.02]}))
+    }
+    t = both["pal_over_baseline_at_6000"]
+    assert t.evaluated and t.verdict == "met" and t.value == pytest.approx(0.1 / 0.2)
+    # one seed of 10 goals is not the 3 x 20 the distance targets are stated for
+    assert both["pal_median_final"].verdict == "not evaluated"

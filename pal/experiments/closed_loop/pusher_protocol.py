@@ -1,0 +1,120 @@
+"""One seed of the ``pusher`` experiment: both learners' aggregation rounds, scored at the checkpoints.
+
+See :mod:`pal.experiments.closed_loop.pusher` for the protocol. The agent is evaluated by a
+second :class:`pal.agent.Agent` on its own environment that shares the learner's current world
+model, so evaluation episodes never enter the learner's data; the baseline is evaluated with
+its current ensemble on its own environment, without recording.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import gymnasium
+import numpy as np
+
+from pal.agent import Agent, AgentConfig, pusher_spec
+from pal.agent.aggregate import AgentLearner, Counts, run_rounds
+from pal.baselines.pets_aggregate import PetsLearner
+from pal.experiments.closed_loop.pusher_runs import (
+    ENV_ID,
+    MOVED,
+    Episode,
+    agent_episode,
+    agent_rollout,
+    pets_record,
+    random_episode,
+    step_cost,
+)
+
+__all__ = ["one_seed"]
+
+log = logging.getLogger(__name__)
+
+
+def _seed(*keys: int) -> int:
+    return int(np.random.SeedSequence(list(keys)).generate_state(1)[0])
+
+
+def _log_point(name: str, seed: int, point: int, counts: Counts, episodes: list[Episode]) -> None:
+    log.info(
+        "pusher seed %d %s at %d steps (%s): final %.3f m, moved %d/%d, min tip-object %.3f m",
+        seed,
+        name,
+        point,
+        counts,
+        float(np.mean([e.final_planar for e in episodes])),
+        sum(e.moved > MOVED for e in episodes),
+        len(episodes),
+        float(np.median([e.min_tip_object for e in episodes])),
+    )
+
+
+def _pal(config: Any, seed: int, goals: list[int]) -> dict[str, Any]:
+    """The agent's rounds and its checkpoint evaluations."""
+    cfg = AgentConfig(model=config.model, plan=config.plan, reset_every=None, servo=False)
+    steps, h = config.aggregation.episode_steps, config.plan.action.horizon
+    env, eval_env = gymnasium.make(ENV_ID), gymnasium.make(ENV_ID)
+    agent = Agent(env, pusher_spec(), cfg, seed=seed)
+
+    def evaluate(point: int, counts: Counts) -> dict[str, Any]:
+        judge = Agent(eval_env, pusher_spec(), cfg, seed=_seed(seed, 92, point), model=agent.model)
+        episodes = [agent_episode(judge, s, steps, h) for s in goals]
+        _log_point("pal", seed, point, counts, episodes)
+        return {"counts": counts.to_dict(), "episodes": episodes}
+
+    result = run_rounds(
+        AgentLearner(agent, agent_rollout(h)), config.aggregation, seed=seed, at_checkpoint=evaluate
+    )
+    env.close()
+    eval_env.close()
+    return {
+        "counts": result.counts.to_dict(),
+        "training": result.episodes,
+        "steps": result.steps,
+        "at": result.checkpoints,
+    }
+
+
+def _baseline(config: Any, seed: int, goals: list[int]) -> dict[str, Any]:
+    """The PETS-style baseline's rounds and its checkpoint evaluations."""
+    steps, h = config.aggregation.episode_steps, config.plan.action.horizon
+    env, eval_env = gymnasium.make(ENV_ID), gymnasium.make(ENV_ID)
+    learner = PetsLearner(env, config.baseline, config.plan, step_cost(config.plan), seed=_seed(seed, 80))
+
+    def evaluate(point: int, counts: Counts) -> dict[str, Any]:
+        episodes = [pets_record(learner.run(eval_env, s, steps, False, record=False), h) for s in goals]
+        _log_point("baseline", seed, point, counts, episodes)
+        return {"counts": counts.to_dict(), "episodes": episodes}
+
+    result = run_rounds(learner, config.aggregation, seed=seed, at_checkpoint=evaluate)
+    training = [pets_record(e, h) for e in result.episodes]
+    env.close()
+    eval_env.close()
+    return {
+        "counts": result.counts.to_dict(),
+        "training": training,
+        "steps": result.steps,
+        "at": result.checkpoints,
+    }
+
+
+def one_seed(config: Any, seed: int) -> dict[str, Any]:
+    """Both learners' rounds and random torques for one seed.
+
+    Args:
+        config: the experiment's :class:`pal.experiments.closed_loop.pusher.Config`.
+        seed: this run's seed (episode seeds, weights, samples).
+
+    Returns:
+        ``{"pal": run, "baseline": run, "random": [Episode per goal]}``, each run
+        ``{"counts", "training": [Episode per round], "steps": [env steps after each round],
+        "at": {checkpoint: {"counts", "episodes": [Episode per goal]}}}``.
+    """
+    goals = [_seed(seed, 91, g) for g in range(config.eval_goals)]
+    out = {"pal": _pal(config, seed, goals), "baseline": _baseline(config, seed, goals)}
+    env = gymnasium.make(ENV_ID)
+    out["random"] = [random_episode(env, s, config.aggregation.episode_steps) for s in goals]
+    env.close()
+    return out
