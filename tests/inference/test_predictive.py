@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from inference import coverage_by_regime, predictive_interval
+from inference import coverage_by_regime, predictive_interval, predictive_intervals
 from models import (
     BernoulliMechanism,
     CausalGraph,
@@ -17,6 +17,7 @@ from models import (
 )
 
 Z90 = 1.6448536
+Z = {0.5: 0.6744897501960817, 0.9: 1.6448536269514722, 0.95: 1.959963984540054}
 
 
 def chain():
@@ -116,3 +117,20 @@ def test_bad_inputs():
         coverage_by_regime(torch.zeros(3, 1), torch.zeros(3, 1), torch.zeros(2, 1), torch.zeros(3))
     with pytest.raises(ValueError, match="must not hold NaN"):
         coverage_by_regime(torch.full((1, 1), math.nan), torch.zeros(1, 1), torch.zeros(1, 1), torch.zeros(1))
+
+
+def test_intervals_at_several_levels_share_one_set_of_draws_and_match_the_closed_form():
+    x = torch.tensor([[0.0], [1.0]])
+    levels = (0.5, 0.9, 0.95)
+    many = predictive_intervals(chain(), {"X": x}, "Z", levels, num_samples=8000, seed=3)
+    sd = math.sqrt(1.5**2 * 0.5**2 + 0.3**2)
+    for level, interval in zip(levels, many, strict=True):
+        one = predictive_interval(chain(), {"X": x}, "Z", level=level, num_samples=8000, seed=3)
+        torch.testing.assert_close(interval.lower, one.lower, atol=0, rtol=0)  # the same draws
+        torch.testing.assert_close(interval.upper, one.upper, atol=0, rtol=0)
+        half = (interval.upper - interval.lower) / 2
+        torch.testing.assert_close(half, torch.full_like(half, Z[level] * sd), atol=0.04, rtol=0)
+    with pytest.raises(ValueError, match="levels is empty"):
+        predictive_intervals(chain(), {"X": x}, "Z", ())
+    with pytest.raises(ValueError, match="level must be a number in"):
+        predictive_intervals(chain(), {"X": x}, "Z", (0.5, 1.0))

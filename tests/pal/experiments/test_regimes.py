@@ -1,49 +1,12 @@
 """Object motion per regime: predictive intervals at several levels, coverage per regime, its targets."""
 
-import math
-
 import numpy as np
 import pytest
-import torch
 
-from inference import predictive_interval, predictive_intervals
-from models import CausalGraph, LinearMechanism, Variable, WorldModel
 from pal.agent import ModelConfig, build_graph, build_model, pushing_spec
 from pal.agent.history import History
 from pal.experiments.closed_loop.regime_report import MIN_ROWS, regime_targets
 from pal.experiments.closed_loop.regimes import LEVELS, RegimeRows, concat, regime_rows, summarize
-
-Z = {0.5: 0.6744897501960817, 0.9: 1.6448536269514722, 0.95: 1.959963984540054}
-
-
-def chain():
-    """X (root) -> Y = 2 X + 1 + 0.5 eps -> Z = -1.5 Y + 0.3 eps' (Z's sd: sqrt(1.5² 0.5² + 0.3²))."""
-    graph = CausalGraph(
-        [Variable("X", "observed"), Variable("Y", "latent"), Variable("Z", "latent")],
-        [("X", "Y"), ("Y", "Z")],
-    )
-    mechs = {
-        "Y": LinearMechanism.from_coefficients([[2.0]], 1.0, 0.5),
-        "Z": LinearMechanism.from_coefficients([[-1.5]], 0.0, 0.3),
-    }
-    return WorldModel(graph, mechs, seed=0)
-
-
-def test_intervals_at_several_levels_share_one_set_of_draws_and_match_the_closed_form():
-    x = torch.tensor([[0.0], [1.0]])
-    levels = (0.5, 0.9, 0.95)
-    many = predictive_intervals(chain(), {"X": x}, "Z", levels, num_samples=8000, seed=3)
-    sd = math.sqrt(1.5**2 * 0.5**2 + 0.3**2)
-    for level, interval in zip(levels, many, strict=True):
-        one = predictive_interval(chain(), {"X": x}, "Z", level=level, num_samples=8000, seed=3)
-        torch.testing.assert_close(interval.lower, one.lower, atol=0, rtol=0)  # the same draws
-        torch.testing.assert_close(interval.upper, one.upper, atol=0, rtol=0)
-        half = (interval.upper - interval.lower) / 2
-        torch.testing.assert_close(half, torch.full_like(half, Z[level] * sd), atol=0.04, rtol=0)
-    with pytest.raises(ValueError, match="levels is empty"):
-        predictive_intervals(chain(), {"X": x}, "Z", ())
-    with pytest.raises(ValueError, match="level must be a number in"):
-        predictive_intervals(chain(), {"X": x}, "Z", (0.5, 1.0))
 
 
 def synthetic(n_on: int, n_off: int, origin: str = "random") -> RegimeRows:
