@@ -32,6 +32,13 @@ relations on the real frames; on the real frames ≥ 70 % of the tracked objects
 frame pair, their median error against the inverse camera motion ≤ 2 degrees and ≤ 2 cm, no
 estimated pose more than 10 degrees or 5 cm wrong, ≥ 90 % of the objects seen in both frames
 keeping their id, and the support plane the desk (the floor in the room) for every seed.
+
+**A static sequence with camera truth.** The ``sequence`` block runs
+:mod:`pal.experiments.perception.sequence` (the ``perception-sequence`` experiment) on one core:
+a TUM-layout folder (``--set sequence.path=FOLDER sequence.camera=freiburg1``; by default the
+shipped 4-frame excerpt of freiburg1_xyz) at strides 1 and 3, with its targets (≥ 70 % posed,
+≤ 1.5 degrees / 1 cm, none wrong, ≥ 90 % ids kept, rotation better than no motion on ≥ 80 % of
+the stride-1 pairs, ≥ 15 frames per CPU second).
 """
 
 from __future__ import annotations
@@ -49,6 +56,13 @@ import cv2
 
 from pal.checks import check_choice, check_int
 from pal.experiments.perception.real_frames import RealConfig, evaluate_real
+from pal.experiments.perception.sequence import (
+    sequence_metrics,
+    sequence_results,
+    sequence_table,
+    sequence_targets,
+)
+from pal.experiments.perception.sequence_eval import SequenceConfig
 from pal.frames import RGBDFrame
 from pal.lab.registry import register
 from pal.lab.report import Report, Table, Target
@@ -82,6 +96,7 @@ class Config:
         one_core: pin to one CPU and one thread while timing.
         backend: camera backend (:data:`pal.sim.camera.BACKENDS`).
         real: the real samples timed and scored.
+        sequence: the static sequence scored and timed (:mod:`pal.experiments.perception.sequence`).
     """
 
     seed: int = 0
@@ -93,6 +108,7 @@ class Config:
     one_core: bool = True
     backend: str = "auto"
     real: RealConfig = RealConfig()
+    sequence: SequenceConfig = SequenceConfig()
 
     def __post_init__(self) -> None:
         check_choice("motion", self.motion, tuple(MOTIONS))
@@ -352,7 +368,14 @@ def _tables(
 #: ``--quick``: 10 simulated frames, every real frame, the support plane over 3 seeds.
 QUICK = Config(frames=10, repeats=1, real=RealConfig(support_seeds=3))
 #: The contract test's run: 3 small simulated frames, the first 2 frames of each real sample.
-TINY = Config(frames=3, width=160, height=120, repeats=1, real=RealConfig(frames=2, support_seeds=1))
+TINY = Config(
+    frames=3,
+    width=160,
+    height=120,
+    repeats=1,
+    real=RealConfig(frames=2, support_seeds=1),
+    sequence=SequenceConfig(strides=(3,)),
+)
 
 
 @register("perception", kind="bench", config=Config, quick=QUICK, tiny=TINY)
@@ -361,6 +384,8 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     timings, limits, backend = _time(config)
     real_timing, real_frames, real_states, real_cpu = _time_real(config)
     quality = evaluate_real(config.real, PipelineConfig(), config.seed)
+    with one_core(config.one_core):
+        seq = sequence_results(config.sequence, config.seed)
     seconds = {k: t.median for k, t in timings.items()}
     fps = {k: config.frames / s if s > 0 else None for k, s in seconds.items()}
     fps["real"] = real_frames / real_timing.median if real_timing.median > 0 else None
@@ -386,6 +411,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         "height": config.height,
         "motion": config.motion,
         "real": {k: v for k, v in quality.items() if k != "samples"},
+        "sequence": sequence_metrics(seq),
         "real_samples": {
             name: {k: v for k, v in q.items() if k not in ("rows",)} for name, q in quality["samples"].items()
         },
@@ -394,7 +420,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     return Report(
         title="Perception throughput (frames/s of Pi on real and simulated frames) and quality on the real ones",
         metrics=m,
-        tables=_tables(config, m, quality, fps, real_cpu),
+        tables=[*_tables(config, m, quality, fps, real_cpu), sequence_table(seq)],
         targets=[
             *[
                 Target(
@@ -407,6 +433,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 for k, how in (("no_pose", "without"), ("with_pose", "with"))
             ],
             *_real_targets(quality, fps["real"]),
+            *sequence_targets(seq),
         ],
         notes=[
             f"{config.frames} frames of {config.motion} (seed {config.seed}) at {size}, camera backend {backend}, "

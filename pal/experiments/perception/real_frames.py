@@ -52,7 +52,9 @@ __all__ = [
     "WRONG_M",
     "RealConfig",
     "evaluate_real",
+    "pair_rows",
     "reference_plane",
+    "summarise",
     "support_check",
 ]
 
@@ -133,7 +135,7 @@ def _pose_error(Ti: np.ndarray, Tj: np.ndarray, ref: np.ndarray) -> tuple[float,
     return rotation_angle_deg(Tj[:3, :3], want[:3, :3]), float(np.linalg.norm(Tj[:3, 3] - want[:3, 3]))
 
 
-def _pair(
+def pair_rows(
     fi: RGBDFrame, fj: RGBDFrame, si: PerceptionState, sj: PerceptionState, ref: np.ndarray, seen_iou: float
 ) -> list[dict[str, Any]]:
     """One row per object of frame i seen in both frames (module docstring)."""
@@ -166,6 +168,8 @@ def _pair(
             "trans_err_m": None,
             "rot_err_camera_deg": None,
             "trans_err_camera_m": None,
+            "rot_err_still_deg": None,
+            "trans_err_still_m": None,
             "reason": None,
             "area_px": o.mask.area,
         }
@@ -181,6 +185,7 @@ def _pair(
                 assert Ti is not None and Tj is not None
                 row["pose"] = True
                 row["rot_err_deg"], row["trans_err_m"] = _pose_error(Ti, Tj, ref)
+                row["rot_err_still_deg"], row["trans_err_still_m"] = _pose_error(Ti, Ti, ref)
                 if camera is not None:
                     row["rot_err_camera_deg"], row["trans_err_camera_m"] = _pose_error(Ti, Tj, camera)
         rows.append(row)
@@ -191,7 +196,8 @@ def _median(values: list[float]) -> float | None:
     return float(np.median(values)) if values else None
 
 
-def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Totals over pair rows: ids kept, share posed, median errors beside no motion's, wrong, reasons."""
     kept = [r for r in rows if r["kept"]]
     posed = [r for r in kept if r["pose"]]
     wrong = [r for r in posed if r["rot_err_deg"] > WRONG_DEG or r["trans_err_m"] > WRONG_M]
@@ -208,6 +214,11 @@ def _summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         ),
         "trans_err_camera_m_median": _median(
             [r["trans_err_camera_m"] for r in posed if r["trans_err_camera_m"] is not None]
+        ),
+        "rot_err_still_deg_median": _median([r["rot_err_still_deg"] for r in posed]),
+        "trans_err_still_m_median": _median([r["trans_err_still_m"] for r in posed]),
+        "rot_better_than_still": (
+            sum(r["rot_err_deg"] < r["rot_err_still_deg"] for r in posed) / len(posed) if posed else None
         ),
         "wrong_estimated": len(wrong),
         "rejected": sum(r["source"] == "rejected" for r in kept),
@@ -239,15 +250,15 @@ def evaluate_sample(
             raise ValueError(
                 f"{name}: no reference motion for frames {k}-{k + 1} (camera motion off, no poses)"
             )
-        pair_rows = _pair(frames[k], frames[k + 1], states[k], states[k + 1], ref, config.seen_iou)
-        rows += pair_rows
+        pair_rows_ = pair_rows(frames[k], frames[k + 1], states[k], states[k + 1], ref, config.seen_iou)
+        rows += pair_rows_
         entry = {
             "frames": [seq.stems[k], seq.stems[k + 1]],
             "reference": "estimated from the background" if world is None else "camera poses",
             "reference_motion": dict(zip(("rotation_deg", "translation"), _motion(ref), strict=True)),
             "camera": None if cam is None else cam.to_dict(),
             "objects": len([o for o in states[k].objects if o.visible]),
-            **_summary(pair_rows),
+            **summarise(pair_rows_),
         }
         if world is not None and estimate is not None:
             entry["camera_vs_reference"] = {
@@ -259,7 +270,7 @@ def evaluate_sample(
         "frames": n,
         "pairs": pairs,
         "objects_per_frame": [sum(o.visible for o in s.objects) for s in states],
-        **_summary(rows),
+        **summarise(rows),
         "rows": rows,
         "support": support_check(name, frames, seq.stems[:n], config.support_seeds, pipeline.segmentation),
     }
@@ -287,7 +298,7 @@ def evaluate_real(
         }
     return {
         "samples": per,
-        "total": _summary(rows),
+        "total": summarise(rows),
         "support_correct": sum(s["correct"] for s in support),
         "support_checks": sum(s["checks"] for s in support),
         "desk_camera_vs_published": published,

@@ -1,0 +1,165 @@
+"""Π over a recorded static-scene sequence with camera truth: coverage, pose errors, ids, speed.
+
+The scene is static, so between two evaluated frames i and j every object's motion in the
+camera frame is the inverse camera motion ``T_ji = inverse(world_from_camera_j)
+world_from_camera_i`` (the sequence's :meth:`camera_poses`, interpolated). The frames are
+``0, s, 2s, ...`` of the sequence (stride ``s``); each consecutive evaluated pair (i, j) is scored
+as in :func:`pal.experiments.perception.real_frames.pair_rows`:
+
+- **seen in both** / **kept id**: the object's mask moved by ``T_ji`` and one of frame j's are
+  each other's best overlap (IoU ≥ ``seen_iou``); the object keeps its id when that one has it;
+- **posed**: both poses of a kept object are ``estimated``; the share of kept objects posed;
+- **errors**: rotation angle and origin distance between ``camera_from_object(j)`` and
+  ``T_ji camera_from_object(i)``; *wrong* above 10 degrees or 5 cm;
+- **no motion**: the predictor ``camera_from_object(j) = camera_from_object(i)`` on the same
+  posed pairs, its errors, and the share of pairs where the estimated rotation beats it.
+
+Speed: wall and CPU seconds of the process per frame over the whole run (one pipeline, every
+evaluated frame in order) and the median milliseconds of every stage Π reports. Pairs whose
+frames lack a camera pose are skipped and counted.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import time
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pal.checks import check_choice, check_float, check_int
+from pal.experiments.perception.real_frames import pair_rows, summarise
+from pal.perception import Pipeline, PipelineConfig
+from pal.perception.tum import FREIBURG1_K, FREIBURG2_K, FREIBURG3_K, TUM_DEPTH_SCALE, TUMSequence
+
+__all__ = ["TUM_CAMERAS", "SequenceConfig", "evaluate_sequence", "excerpt_path", "open_sequence"]
+
+#: The TUM cameras by name: (3, 3) intrinsics, pixels.
+TUM_CAMERAS = {"freiburg1": FREIBURG1_K, "freiburg2": FREIBURG2_K, "freiburg3": FREIBURG3_K}
+
+
+def excerpt_path() -> Path:
+    """The shipped 4-frame excerpt of TUM RGB-D freiburg1_xyz (``sample_data/tum_fr1_xyz``)."""
+    path = Path(str(resources.files("pal.perception").joinpath("sample_data", "tum_fr1_xyz")))
+    if not (path / "rgb.txt").is_file():
+        raise FileNotFoundError(f"{path} is missing: this installation of pal has no sample data")
+    return path
+
+
+@dataclass(frozen=True)
+class SequenceConfig:
+    """What the sequence evaluation runs.
+
+    Attributes:
+        path: a TUM-layout folder (``rgb.txt``, ``depth.txt``, ``groundtruth.txt``, and
+            ``calibration.json`` with the intrinsics and depth scale); ``""``: the shipped
+            4-frame excerpt of freiburg1_xyz. Partial downloads are opened with ``missing="skip"``.
+        camera: ``"file"``: intrinsics and depth scale from the folder's ``calibration.json``;
+            ``"freiburg1"``, ``"freiburg2"``, ``"freiburg3"``: that TUM camera's intrinsics and
+            TUM's depth scale (1/5000 m per unit).
+        strides: frame strides evaluated, each over its own fresh pipeline.
+        frames: sequence frames used, from the first, before striding (None: all).
+        seen_iou: IoU of a moved mask with an object of the next frame for "seen in both".
+    """
+
+    path: str = ""
+    camera: str = "file"
+    strides: tuple[int, ...] = (1, 3)
+    frames: int | None = None
+    seen_iou: float = 0.3
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.path, str):
+            raise TypeError(f"path is {type(self.path).__name__}; expected a folder name (str)")
+        if not isinstance(self.strides, tuple) or not self.strides:
+            raise ValueError(f"strides is {self.strides!r}; expected a non-empty tuple of ints >= 1")
+        check_choice("camera", self.camera, ("file", *TUM_CAMERAS))
+        for s in self.strides:
+            check_int("strides", s, minimum=1)
+        if self.frames is not None:
+            check_int("frames", self.frames, minimum=2)
+        check_float("seen_iou", self.seen_iou, 0.0, 1.0, open_low=True)
+
+
+def open_sequence(path: str | os.PathLike[str], camera: str = "file") -> TUMSequence:
+    """The TUM-layout folder ``path`` (``""``: the shipped excerpt), camera as in :class:`SequenceConfig`."""
+    folder = excerpt_path() if str(path) == "" else Path(path)
+    if camera == "file":
+        return TUMSequence(folder, missing="skip")
+    if camera not in TUM_CAMERAS:
+        raise ValueError(f"camera {camera!r} unknown; expected 'file' or one of {list(TUM_CAMERAS)}")
+    return TUMSequence(folder, K=TUM_CAMERAS[camera], depth_scale=TUM_DEPTH_SCALE, missing="skip")
+
+
+def _run(pipe: Pipeline, frames: list[Any]) -> tuple[list[Any], float, float]:
+    """Π over ``frames`` in order: (states, wall seconds, CPU seconds of the process)."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    states = [pipe(f) for f in frames]
+    return states, time.perf_counter() - wall, time.process_time() - cpu
+
+
+def _stage_ms(states: list[Any]) -> dict[str, float]:
+    keys = sorted({k for s in states for k in s.timings})
+    return {k: 1000.0 * statistics.median(s.timings.get(k, 0.0) for s in states) for k in keys}
+
+
+def evaluate_sequence(
+    seq: TUMSequence,
+    stride: int,
+    config: SequenceConfig,
+    pipeline: PipelineConfig | None = None,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Run Π over frames ``0, stride, 2 stride, ...`` of ``seq`` and score it (module docstring).
+
+    Returns:
+        the totals of :func:`~pal.experiments.perception.real_frames.summarise` plus ``frames``,
+        ``pairs`` (scored), ``pairs_without_truth``, ``ids`` (distinct ids created),
+        ``objects_per_frame`` (median visible), ``fps_wall``, ``fps_cpu``, ``stage_ms``,
+        ``per_pair`` (pose share and kept share per pair) and ``rows``.
+    """
+    check_int("stride", stride, minimum=1)
+    n = len(seq) if config.frames is None else min(config.frames, len(seq))
+    index = list(range(0, n, stride))
+    if len(index) < 2:
+        raise ValueError(f"{seq.path}: stride {stride} over {n} frames leaves {len(index)} frame; need 2")
+    frames = [seq[k] for k in index]
+    poses = seq.camera_poses()
+    pipe = Pipeline(PipelineConfig(**{**(pipeline or PipelineConfig()).__dict__, "seed": seed}))
+    states, wall, cpu = _run(pipe, frames)
+    rows: list[dict[str, Any]] = []
+    per_pair, missing = [], 0
+    for a in range(len(index) - 1):
+        i, j = index[a], index[a + 1]
+        if not (poses.valid[i] and poses.valid[j]):
+            missing += 1
+            continue
+        ref = np.linalg.inv(poses.poses[j]) @ poses.poses[i]
+        got = pair_rows(frames[a], frames[a + 1], states[a], states[a + 1], ref, config.seen_iou)
+        s = summarise(got)
+        per_pair.append(
+            {"frames": [i, j], "kept_fraction": s["kept_fraction"], "pose_fraction": s["pose_fraction"]}
+        )
+        rows += got
+    if not per_pair:
+        raise ValueError(f"{seq.path}: no pair of evaluated frames has camera poses for both frames")
+    return {
+        **summarise(rows),
+        "stride": stride,
+        "frames": len(frames),
+        "pairs": len(per_pair),
+        "pairs_without_truth": missing,
+        "ids": len({o.obj_id for s in states for o in s.objects}),
+        "objects_per_frame": float(np.median([sum(o.visible for o in s.objects) for s in states])),
+        "seconds_wall": wall,
+        "seconds_cpu": cpu,
+        "fps_wall": len(frames) / wall if wall > 0 else None,
+        "fps_cpu": len(frames) / cpu if cpu > 0 else None,
+        "stage_ms": _stage_ms(states),
+        "per_pair": per_pair,
+        "rows": rows,
+    }
