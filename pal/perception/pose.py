@@ -71,6 +71,7 @@ from pal.perception.pnp import RgbdFit, pnp_ransac
 from pal.perception.pose_checks import Evidence, Limits, check_fit, motion_between
 from pal.perception.pose_config import PoseConfig
 from pal.perception.pose_dense import dense_checks, snapshot_surface
+from pal.perception.pose_filter import filter_static
 from pal.perception.pose_matching import FeaturePairs, choose_snapshots, fuse_pairs
 from pal.perception.rigid import to_homogeneous
 from pal.perception.spatial import lift, mask_points
@@ -273,6 +274,8 @@ class PoseEstimator:
         T = fit.matrix()
         cov = fit.covariance
         ratio = fit.num_inliers / pairs.n2
+        if not failed:
+            T = self._filtered(record, prior, T, t, moved, notes)
         reason = "; ".join(notes) if notes else "ok"
         if failed:
             reason = "rejected: " + "; ".join(failed) + (f" ({reason})" if notes else "")
@@ -292,6 +295,31 @@ class PoseEstimator:
             return Pose(t, "rejected", T, diag)
         self._accept(record, T, W, t, moved)
         return Pose(t, "estimated", T, diag, cov)
+
+    def _filtered(
+        self,
+        record: ObjectRecord,
+        prior: np.ndarray | None,
+        T: np.ndarray,
+        t: float,
+        moved: bool,
+        notes: list[str],
+    ) -> np.ndarray:
+        """``T`` blended with the egomotion prediction ``prior`` of a static object (:mod:`pal.perception.pose_filter`)."""
+        cfg = self.config
+        if (
+            cfg.filter is None
+            or prior is None
+            or moved
+            or record.moving
+            or record.world_pose is None
+            or t - record.world_pose[0] > cfg.checks.static_horizon_s
+        ):
+            return T
+        out, filtered = filter_static(prior, T, cfg.filter)
+        if filtered:
+            notes.append("filtered with the egomotion prior")
+        return out
 
     def _accept(self, record: ObjectRecord, T: np.ndarray, W: np.ndarray, t: float, moved: bool) -> None:
         """Update the record's world-frame state with an accepted ``camera_from_object`` T."""
@@ -358,8 +386,9 @@ class PoseEstimator:
             if feature_pose.source == "rejected" or feature_pose.camera_from_object is not None:
                 return None  # keep the feature pose (rejected or propagated) and its reason
             return Pose(t, "rejected", fit.T, diag)
-        self._accept(record, fit.T, W, t, False)
-        return Pose(t, "estimated", fit.T, diag, fit.covariance)
+        T = self._filtered(record, prior, fit.T, t, False, [])
+        self._accept(record, T, W, t, False)
+        return Pose(t, "estimated", T, diag, fit.covariance)
 
     def _depth_noise(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per-pair depth sigma and inlier tolerance, metres, at observed depths ``z`` (NaN: none).

@@ -10,6 +10,10 @@ values of the failed checks:
 - ``conditioning``: the Gauss-Newton covariance exists, with rotation and translation
   standard deviations at most ``max_rotation_std_deg`` and ``max_translation_std`` (few,
   clustered or nearly collinear inliers give poses that fit them and nothing else);
+- ``spread``: the inliers' second principal standard deviation (in the object frame) is at
+  least ``min_spread_sigmas`` times the depth noise ``sigma_z`` at the object's distance: a
+  far, thin set of inliers (a line or a small patch 3-5 m away) pins the pixels it fits and not
+  the rotation about it, and its depth cannot tell;
 - ``depth``: where the live pixels have depth, at least ``min_depth_agreement`` of the inliers
   lie within ``3 sigma_z + depth_tolerance`` of where the pose puts them (a pose that fits the
   pixels with the wrong depth is a mirror or scale error);
@@ -53,6 +57,7 @@ class PoseChecks:
         max_rmse_px: largest inlier reprojection RMSE, pixels at 640 columns.
         max_rotation_std_deg: largest rotation standard deviation, deg.
         max_translation_std: largest translation standard deviation, metres.
+        min_spread_sigmas: the inliers' second principal std must reach this many ``sigma_z``.
         min_depth_agreement: fraction of depth-backed inliers that must agree with the pose.
         depth_tolerance: depth disagreement allowed beyond 3 sigma of the sensor, metres.
         static_translation: how far an object presumed static may be from its predicted pose,
@@ -70,6 +75,7 @@ class PoseChecks:
     max_rmse_px: float = 3.0
     max_rotation_std_deg: float = 3.0
     max_translation_std: float = 0.03
+    min_spread_sigmas: float = 3.0
     min_depth_agreement: float = 0.5
     depth_tolerance: float = 0.01
     static_translation: float = 0.02
@@ -86,6 +92,7 @@ class PoseChecks:
             "max_rmse_px",
             "max_rotation_std_deg",
             "max_translation_std",
+            "min_spread_sigmas",
             "depth_tolerance",
             "static_translation",
             "static_rotation_deg",
@@ -191,6 +198,20 @@ def _static(
     )
 
 
+def _spread(inliers: np.ndarray, fit: RgbdFit, noise: DepthNoise, k: float) -> str | None:
+    """The ``spread`` check on (N, 3) object-frame inliers: a failure message or None."""
+    if len(inliers) < 3:
+        return None
+    z = float(np.median(inliers @ fit.R[2] + fit.t[2]))
+    sd = np.linalg.svd(inliers - inliers.mean(axis=0), compute_uv=False) / math.sqrt(len(inliers))
+    need = k * float(noise.sigma(z))
+    if sd[1] >= need:
+        return None
+    return (
+        f"spread: inliers {100 * sd[1]:.1f} cm wide at {z:.2f} m < {k:g} x depth noise ({100 * need:.1f} cm)"
+    )
+
+
 def check_fit(
     ev: Evidence,
     fit: RgbdFit,
@@ -233,6 +254,9 @@ def check_fit(
     rot_std, t_std = sigmas(fit.covariance)
     if rot_std > chk.max_rotation_std_deg or t_std > chk.max_translation_std:
         failed.append(f"conditioning: std {rot_std:.1f} deg, {t_std:.3f} m")
+    spread = _spread(ev.obj[fit.inliers], fit, limits.noise, chk.min_spread_sigmas)
+    if spread is not None:
+        failed.append(spread)
     deep = np.all(np.isfinite(ev.live3d), axis=1)
     near = (fit.inliers | (reprojection_errors(fit.matrix(), ev.obj, ev.img, frame.K) < ev.px)) & deep
     if near.sum() >= 3:

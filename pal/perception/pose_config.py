@@ -9,6 +9,7 @@ from pal.perception.features import FeatureConfig
 from pal.perception.icp import IcpConfig
 from pal.perception.noise import DepthNoise
 from pal.perception.pose_checks import PoseChecks
+from pal.perception.pose_filter import PoseFilter
 
 __all__ = ["PoseConfig"]
 
@@ -40,6 +41,8 @@ class PoseConfig:
         checks: the validity checks (:mod:`pal.perception.pose_checks`).
         icp: the dense RGB-D fit (:mod:`pal.perception.icp`) tried when the features give no
             accepted pose for an object presumed static; None: off.
+        filter: the temporal filter of a static object's accepted pose with the camera's
+            egomotion as prior (:mod:`pal.perception.pose_filter`); None: off.
     """
 
     features: FeatureConfig = field(default_factory=FeatureConfig)
@@ -61,6 +64,7 @@ class PoseConfig:
     guide_bits: int = 64
     checks: PoseChecks = PoseChecks()
     icp: IcpConfig | None = field(default_factory=IcpConfig)
+    filter: PoseFilter | None = field(default_factory=PoseFilter)
 
     def __post_init__(self) -> None:
         if not 0 < self.min_depth < self.max_depth:

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from pal.checks import check_choice, check_float, check_int
+from pal.experiments.perception.evaluation import rotation_angle_deg
 from pal.experiments.perception.real_frames import pair_rows, summarise
 from pal.perception import Pipeline, PipelineConfig
 from pal.perception.tum import FREIBURG1_K, FREIBURG2_K, FREIBURG3_K, TUM_DEPTH_SCALE, TUMSequence
@@ -118,7 +119,8 @@ def evaluate_sequence(
 
     Returns:
         the totals of :func:`~pal.experiments.perception.real_frames.summarise` plus ``frames``,
-        ``pairs`` (scored), ``pairs_without_truth``, ``ids`` (distinct ids created),
+        ``pairs`` (scored), ``pairs_without_truth``, ``camera_rot_err_deg_median`` and
+        ``camera_trans_err_m_median`` (Π's camera motion against the truth, pairs where it was measured), ``ids`` (distinct ids created),
         ``objects_per_frame`` (median visible), ``fps_wall``, ``fps_cpu``, ``stage_ms``,
         ``per_pair`` (pose share and kept share per pair) and ``rows``.
     """
@@ -133,12 +135,19 @@ def evaluate_sequence(
     states, wall, cpu = _run(pipe, frames)
     rows: list[dict[str, Any]] = []
     per_pair, missing = [], 0
+    camera_err: list[tuple[float, float]] = []
     for a in range(len(index) - 1):
         i, j = index[a], index[a + 1]
         if not (poses.valid[i] and poses.valid[j]):
             missing += 1
             continue
         ref = np.linalg.inv(poses.poses[j]) @ poses.poses[i]
+        cam = states[a + 1].camera
+        if cam is not None and cam.known:
+            est = cam.current_from_previous
+            camera_err.append(
+                (rotation_angle_deg(est[:3, :3], ref[:3, :3]), float(np.linalg.norm(est[:3, 3] - ref[:3, 3])))
+            )
         got = pair_rows(frames[a], frames[a + 1], states[a], states[a + 1], ref, config.seen_iou)
         s = summarise(got)
         per_pair.append(
@@ -153,6 +162,8 @@ def evaluate_sequence(
         "frames": len(frames),
         "pairs": len(per_pair),
         "pairs_without_truth": missing,
+        "camera_rot_err_deg_median": float(np.median([e[0] for e in camera_err])) if camera_err else None,
+        "camera_trans_err_m_median": float(np.median([e[1] for e in camera_err])) if camera_err else None,
         "ids": len({o.obj_id for s in states for o in s.objects}),
         "objects_per_frame": float(np.median([sum(o.visible for o in s.objects) for s in states])),
         "seconds_wall": wall,
