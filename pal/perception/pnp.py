@@ -102,6 +102,7 @@ def pnp_ransac(
     weights: np.ndarray | None = None,
     depth_tolerance: np.ndarray | float | None = None,
     depth_sigma: np.ndarray | float | None = None,
+    prior_enough: float = 0.8,
 ) -> RgbdFit | None:
     """Seeded PnP-RANSAC (module docstring).
 
@@ -123,6 +124,8 @@ def pnp_ransac(
             (N,)); None: depth does not gate inliers.
         depth_sigma: depth noise of the observations, metres (scalar or (N,)), for the joint
             refinement; None: pixels only.
+        prior_enough: a prior hypothesis whose inliers are at least this fraction of the pairs
+            is refined without drawing random hypotheses (the prediction already fits).
 
     Returns:
         ``x_cam = R x_ref + t`` with inliers, the reprojection RMSE in pixels and the
@@ -143,10 +146,13 @@ def pnp_ransac(
     priors = [np.asarray(T, float) for T in hypotheses]
     pool.add([T[:3, :3] for T in priors], [T[:3, 3] for T in priors])
     tried = 0
-    if image_points_3d is not None:
+    needed = pool.score()
+    if image_points_3d is not None and pool.fraction < prior_enough:
         live = np.asarray(image_points_3d, dtype=np.float64)
         tried = pool.add(*_kabsch_hypotheses(gen, obj, live, iterations))
-    needed = pool.score()
+        needed = pool.score()
+    if pool.fraction >= prior_enough:
+        needed = 0
     while tried < needed:
         tried += 1
         pool.add(*_ap3p_hypotheses(gen, obj, img, K, reprojection_error))

@@ -275,7 +275,7 @@ class PoseEstimator:
         cov = fit.covariance
         ratio = fit.num_inliers / pairs.n2
         if not failed:
-            T = self._filtered(record, prior, T, t, moved, notes)
+            T = self._filtered(record, prior, T, t, moved, notes, cov)
         reason = "; ".join(notes) if notes else "ok"
         if failed:
             reason = "rejected: " + "; ".join(failed) + (f" ({reason})" if notes else "")
@@ -304,6 +304,7 @@ class PoseEstimator:
         t: float,
         moved: bool,
         notes: list[str],
+        covariance: np.ndarray | None,
     ) -> np.ndarray:
         """``T`` blended with the egomotion prediction ``prior`` of a static object (:mod:`pal.perception.pose_filter`)."""
         cfg = self.config
@@ -316,7 +317,7 @@ class PoseEstimator:
             or t - record.world_pose[0] > cfg.checks.static_horizon_s
         ):
             return T
-        out, filtered = filter_static(prior, T, cfg.filter)
+        out, filtered = filter_static(prior, T, cfg.filter, covariance)
         if filtered:
             notes.append("filtered with the egomotion prior")
         return out
@@ -386,7 +387,7 @@ class PoseEstimator:
             if feature_pose.source == "rejected" or feature_pose.camera_from_object is not None:
                 return None  # keep the feature pose (rejected or propagated) and its reason
             return Pose(t, "rejected", fit.T, diag)
-        T = self._filtered(record, prior, fit.T, t, False, [])
+        T = self._filtered(record, prior, fit.T, t, False, [], fit.covariance)
         self._accept(record, T, W, t, False)
         return Pose(t, "estimated", T, diag, fit.covariance)
 
