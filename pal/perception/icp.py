@@ -90,7 +90,7 @@ class IcpConfig:
     iterations: int = 10
     gate: float = 0.05
     tolerance: float = 0.005
-    min_points: int = 80
+    min_points: int = 40
     min_agreement: float = 0.6
     max_condition: float = 6.0
     max_rmse_sigma: float = 2.5

@@ -339,7 +339,7 @@ class PoseEstimator:
         """The ICP pose (:mod:`pal.perception.icp`) when the features gave none, or None.
 
         Only an object presumed static is fitted (not moving, estimated within
-        ``checks.static_horizon_s``): the fit starts from where the camera's motion puts it
+        ``dense_horizon_s``): the fit starts from where the camera's motion puts it
         (its last world pose seen from the live camera) and uses the surface of the snapshot
         closest to that in orientation. A moving object's masks can hold pieces of the table
         or a hand that pin a pose its own surface cannot (a rolling one-colour ball), so it is
@@ -352,7 +352,7 @@ class PoseEstimator:
         if (
             record.world_pose is None
             or record.moving
-            or frame.timestamp - record.world_pose[0] > cfg.checks.static_horizon_s
+            or frame.timestamp - record.world_pose[0] > cfg.dense_horizon_s
         ):
             return None
         prior = np.linalg.inv(W) @ record.world_pose[1]

@@ -41,6 +41,9 @@ class PoseConfig:
         checks: the validity checks (:mod:`pal.perception.pose_checks`).
         icp: the dense RGB-D fit (:mod:`pal.perception.icp`) tried when the features give no
             accepted pose for an object presumed static; None: off.
+        dense_horizon_s: the dense fit is tried for an object not known to move whose last
+            estimate is at most this old, s (at least ``checks.static_horizon_s``): it starts
+            at the egomotion prediction and must pass the static check against it.
         filter: the temporal filter of a static object's accepted pose with the camera's
             egomotion as prior (:mod:`pal.perception.pose_filter`); None: off.
     """
@@ -64,9 +67,15 @@ class PoseConfig:
     guide_bits: int = 64
     checks: PoseChecks = PoseChecks()
     icp: IcpConfig | None = field(default_factory=IcpConfig)
+    dense_horizon_s: float = 1.0
     filter: PoseFilter | None = field(default_factory=PoseFilter)
 
     def __post_init__(self) -> None:
+        if not self.dense_horizon_s >= self.checks.static_horizon_s:
+            raise ValueError(
+                f"dense_horizon_s is {self.dense_horizon_s} s; expected >= checks.static_horizon_s "
+                f"({self.checks.static_horizon_s} s)"
+            )
         if not 0 < self.min_depth < self.max_depth:
             raise ValueError(f"depth range [{self.min_depth}, {self.max_depth}] m is invalid")
         if not 0 < self.ransac_threshold <= 0.1:

@@ -102,7 +102,7 @@ def dense_checks(
             failed.append(f"speed: {dist:.3f} m in {dt:.3f} s in the world frame")
         if math.radians(turn) > cfg.max_angular_speed * dt + math.radians(5.0 + 3 * rot_std):
             failed.append(f"speed: {turn:.1f} deg in {dt:.3f} s in the world frame")
-    recent = record.world_pose is not None and t - record.world_pose[0] <= chk.static_horizon_s
+    recent = record.world_pose is not None and t - record.world_pose[0] <= cfg.dense_horizon_s
     if not record.moving and recent:
         dist, turn = motion_between(prior, fit.T)
         if dist > chk.static_translation + 3 * t_std or turn > chk.static_rotation_deg + 3 * rot_std:
