@@ -280,6 +280,4 @@ def test_the_function_length_check_counts_from_def_to_the_last_line():
 )
 def test_functions_fit_on_a_screen(path):
     found = long_functions(path.read_text())
-    assert not found, (
-        f"{path.relative_to(ROOT)}: {found} over {MAX_FUNCTION_LINES} lines; split by their steps"
-    )
+    assert not found, f"{path.relative_to(ROOT)}: {found} over {MAX_FUNCTION_LINES} lines; split by their steps"

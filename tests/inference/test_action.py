@@ -413,10 +413,7 @@ def test_seed_decides_the_samples(plant):
         ({"sampling": {"population": 8}}, "sampling must be None or a SamplingConfig"),
         ({"risk": "max"}, "risk 'max' unknown"),
         ({"risk": ("disagreement", "big")}, "disagreement weight must be a finite number"),
-        (
-            {"risk": ("variance", 1.0)},
-            "risk must be None, 'mean', \\('disagreement', weight\\) or \\('quantile', q\\)",
-        ),
+        ({"risk": ("variance", 1.0)}, "risk must be None, 'mean', \\('disagreement', weight\\) or \\('quantile', q\\)"),
         (
             {"horizon": 2, "init": {"a": torch.zeros(2, 3, 1)}},
             "init\\['a'\\] has 3 steps, expected horizon 2",

@@ -416,7 +416,9 @@ def test_gated_counterfactual_with_the_switch_observed_is_exact_per_branch():
         x_c = loc_on + scale_on * u  # do(c = 1): the on branch replays the same u
         assert cf.noise["x"][:, i, 0].tolist() == pytest.approx([u], abs=1e-5)
         assert cf.samples["x"][:, 0, i, 0].tolist() == pytest.approx([x_b], abs=1e-5)
-        assert cf.samples["y"][:, 0, i, 0].tolist() == pytest.approx([-1.5 * x_b + 0.2 + 0.3 * u_y], abs=1e-5)
+        assert cf.samples["y"][:, 0, i, 0].tolist() == pytest.approx(
+            [-1.5 * x_b + 0.2 + 0.3 * u_y], abs=1e-5
+        )
         assert cf.samples["x"][:, 1, i, 0].tolist() == pytest.approx([x_c], abs=1e-5)
 
 

@@ -172,9 +172,7 @@ def test_explore_runs_both_conditions_and_reports_the_keys():
     fig = rep.figures["coverage"]
     line = fig.axes[0].get_lines()[1]  # random, mean occupancy over seeds
     assert len(line.get_ydata()) == 13 and np.all(np.diff(line.get_ydata()) >= 0)  # coverage never shrinks
-    assert (
-        sum(p.get_height() for p in fig.axes[2].patches[: cfg.curiosity.bins]) == 17
-    )  # every visited angle counted
+    assert sum(p.get_height() for p in fig.axes[2].patches[: cfg.curiosity.bins]) == 17  # every visited angle counted
     assert rep.tables[0].rows[0][0] == "curiosity"
 
 

@@ -175,9 +175,7 @@ def shared_groups(classes: list[type]) -> list[str]:
                 used.add(key)
                 continue
             problems.append(f"{key[0]} and {key[1]} both declare {shared}: nest one config class in both")
-    problems += [
-        f"ALLOWED_SHARED entry {k} no longer matches; remove it" for k in sorted(set(ALLOWED_SHARED) - used)
-    ]
+    problems += [f"ALLOWED_SHARED entry {k} no longer matches; remove it" for k in sorted(set(ALLOWED_SHARED) - used)]
     return problems
 
 

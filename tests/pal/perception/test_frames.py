@@ -198,11 +198,7 @@ def test_tum_layout_with_association_scale_and_intrinsics(tmp_path):
     assert f.depth[0, 0] == pytest.approx(3.0) and f.rgb[0, 0, 0] == 20
     assert f.timestamp == pytest.approx(1.066)
     gt, valid = seq.groundtruth()
-    assert valid.tolist() == [True, True, False] and gt[0, :3].tolist() == [
-        1,
-        2,
-        3,
-    ]  # nearest, before the first
+    assert valid.tolist() == [True, True, False] and gt[0, :3].tolist() == [1, 2, 3]  # nearest, before the first
     w = (1.033 - 1.001) / (1.034 - 1.001)  # interpolated between the two samples
     assert np.allclose(gt[1, :3], [1 + 3 * w, 2 + 3 * w, 3 + 3 * w], atol=1e-9) and gt[2].tolist() == [0] * 7
     (d / "calibration.json").write_text(

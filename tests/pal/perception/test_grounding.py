@@ -37,9 +37,7 @@ def test_near_is_the_metric_gap_so_a_wall_is_not_near_everything():
     for gap, expected in ((0.0, 0.99), (0.1, 0.5), (0.2, 0.0)):
         other = _box([0.08 + gap, 0.0], [0.16 + gap, 0.08], 0.0, 0.1)
         z = (CONFIG.near_distance - gap) / s
-        assert grade(cup, other, CONFIG)["near"] == pytest.approx(
-            0.5 * math.erfc(-z / math.sqrt(2)), abs=1e-12
-        )
+        assert grade(cup, other, CONFIG)["near"] == pytest.approx(0.5 * math.erfc(-z / math.sqrt(2)), abs=1e-12)
         assert grade(cup, other, CONFIG)["near"] == pytest.approx(expected, abs=0.011)
     shelf = _box([0.0, 0.0], [0.08, 0.08], 0.5, 0.52)  # straight above the cup, 40 cm up
     assert grade(cup, shelf, CONFIG)["near"] < 1e-6
@@ -97,7 +95,5 @@ def test_on_grades_a_rendered_stack_and_not_its_neighbour():
     g = {k: object_geometry(frame, Mask.from_full(frame.labels == k), S, CONFIG) for k in (1, 2, 3)}
     assert grade(g[2], g[1], CONFIG)["on"] > 0.7 and grade(g[1], g[2], CONFIG)["on"] == 0.0
     assert grade(g[3], g[1], CONFIG)["on"] == 0.0 and grade(g[2], g[3], CONFIG)["on"] == 0.0
-    assert (
-        on_support(g[1], CONFIG) > 0.7 and on_support(g[3], CONFIG) > 0.7 and on_support(g[2], CONFIG) < 0.05
-    )
+    assert on_support(g[1], CONFIG) > 0.7 and on_support(g[3], CONFIG) > 0.7 and on_support(g[2], CONFIG) < 0.05
     assert 0.3 < grade(g[1], g[3], CONFIG)["near"] < 0.6  # a 10.6 cm gap: about half near

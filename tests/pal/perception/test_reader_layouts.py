@@ -52,10 +52,7 @@ def test_a_custom_pattern_is_read_and_one_that_matches_nothing_is_named(tmp_path
     mine = FolderLayout("mine", "img_{stem}", "range/dep_{stem}")
     seq = open_sequence(tmp_path, K=K, depth_scale=0.001, layout=mine)  # open_sequence passes it on
     assert seq.layout == "mine" and len(seq) == 2 and seq[1].rgb[0, 0, 0] == 10
-    with pytest.raises(
-        SequenceError,
-        match=r"layout 'dashed' \(\{stem\}-color.<ext> \+ \{stem\}-depth.<ext>\) matches no file",
-    ):
+    with pytest.raises(SequenceError, match=r"layout 'dashed' \(\{stem\}-color.<ext> \+ \{stem\}-depth.<ext>\) matches no file"):
         FolderSequence(tmp_path, K=K, depth_scale=0.001, layout="dashed")
     with pytest.raises(ValueError, match="layout 'stripes' is unknown"):
         FolderSequence(tmp_path, K=K, depth_scale=0.001, layout="stripes")
@@ -81,8 +78,7 @@ def test_colour_and_depth_counts_that_differ_are_named(tmp_path):
     _write(tmp_path, "{stem}-color.png", "{stem}-depth.png", ["1", "2", "3"])
     (tmp_path / "2-depth.png").unlink()
     with pytest.raises(
-        SequenceError,
-        match=r"finds 3 colour and 2 depth files; colour without depth: \['2'\], depth without colour: \[\]",
+        SequenceError, match=r"finds 3 colour and 2 depth files; colour without depth: \['2'\], depth without colour: \[\]"
     ):
         open_sequence(tmp_path, K=K, depth_scale=0.001)
 
@@ -148,9 +144,7 @@ def test_ground_truth_is_interpolated_and_frames_before_it_are_marked_invalid(tm
     assert np.allclose(poses.poses[0], np.eye(4))
     for k in (2, 3):
         angle = Rotation.from_matrix(poses.poses[k][:3, :3]).as_euler("xyz", degrees=True)[2]
-        assert angle == pytest.approx(
-            90 * (seq.timestamps[k] - 10), abs=1e-6
-        )  # slerp, not the nearest sample
+        assert angle == pytest.approx(90 * (seq.timestamps[k] - 10), abs=1e-6)  # slerp, not the nearest sample
         assert poses.poses[k][0, 3] == pytest.approx(seq.timestamps[k] - 10, abs=1e-9)
 
 

@@ -34,9 +34,7 @@ def test_the_samples_read_as_rgb_metres_with_their_calibration():
     d = desk[1]  # a 16-bit PNG, 1/5000 m
     assert 1.0 < float(np.median(d.depth[d.depth > 0])) < 2.0 and d.timestamp == pytest.approx(1 / 30)
     poses, valid = room.camera_poses()
-    assert (
-        valid.tolist() == [True] * 3 and poses.shape == (3, 4, 4) and np.allclose(poses[:, 3], [0, 0, 0, 1])
-    )
+    assert valid.tolist() == [True] * 3 and poses.shape == (3, 4, 4) and np.allclose(poses[:, 3], [0, 0, 0, 1])
     assert np.allclose(poses[0, :3, :3] @ poses[0, :3, :3].T, np.eye(3))
     with pytest.raises(SequenceError, match="no camera poses"):
         desk.camera_poses()
