@@ -31,10 +31,14 @@ def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
 def choose_snapshots(
     record: ObjectRecord, max_snapshots: int, prior: np.ndarray | None = None
 ) -> list[Snapshot]:
-    """Up to ``max_snapshots`` anchored snapshots to match, the closest in orientation to ``prior`` first.
+    """Up to ``max_snapshots`` anchored snapshots to match, the closest in view to ``prior`` first.
 
     ``prior`` is the predicted (4, 4) ``camera_from_object``; without it, the last estimated
-    one; without either (or on ties), the newest first.
+    one; without either (or on ties), the newest first. The distance of two views is the angle
+    between their camera orientations plus the distance between their camera centres in the
+    object frame relative to the current one's range (rad): ``angle(R_s^T R) + |c_s - c| / |c|``
+    with ``c = -R^T t``, so a camera sliding past an object without turning prefers the
+    snapshots taken nearest to where it is now.
     """
     anchored = record.gallery.anchored()
     if not anchored:
@@ -43,8 +47,15 @@ def choose_snapshots(
     ref = prior if prior is not None else (last[0].camera_from_object if last else None)
     if ref is not None:
         R = ref[:3, :3]
-        # anchor = object_from_camera at capture, so its rotation transposed is camera_R_object then
-        key = {s.index: rotation_angle(s.anchor[:3, :3].T, R) for s in anchored}  # type: ignore[index]
+        centre = -R.T @ ref[:3, 3]
+        reach = max(float(np.linalg.norm(centre)), 1e-3)
+        # anchor = object_from_camera at capture: its rotation transposed is camera_R_object then,
+        # its translation the camera centre in the object frame
+        key = {
+            s.index: rotation_angle(s.anchor[:3, :3].T, R)
+            + float(np.linalg.norm(s.anchor[:3, 3] - centre)) / reach  # type: ignore[index]
+            for s in anchored
+        }
         order = sorted(anchored, key=lambda s: (key[s.index], -s.index))
     else:
         order = sorted(anchored, key=lambda s: -s.index)
