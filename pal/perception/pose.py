@@ -6,8 +6,8 @@ matching: :mod:`pal.perception.pose_matching`.
 **Canonical object frame.** The first view of an object with enough depth-backed features
 (``min_canonical_points``) or, with the dense fit on, enough depth pixels (twice its
 ``min_points``) on a surface that pins all six degrees of freedom (a box, not a ball:
-:func:`pal.perception.icp.geometric_condition`), and enough area and sharpness defines its
-frame: origin at the median 3-D point
+:func:`pal.perception.icp.geometric_condition`), and enough area (the gallery's ``min_area``,
+or half of it where ``small_canonical_points`` keypoints have depth) defines its frame: origin at the median 3-D point
 of that view's mask, axes parallel to the camera axes at that moment. That view becomes the
 canonical snapshot, anchored with ``object_from_camera = [I, -c0]``.
 
@@ -407,15 +407,19 @@ class PoseEstimator:
         cfg = self.config
         t = frame.timestamp
         adm = record.gallery.config
-        if mask.area < adm.min_area:
+        _, valid = lift(feats.keypoints, frame.depth, (0, 0), frame.K, cfg.min_depth, cfg.max_depth)
+        n3d = int(valid.sum())
+        small_ok = 2 * mask.area >= adm.min_area and n3d >= cfg.small_canonical_points
+        if mask.area < adm.min_area and not small_ok:
             return Pose(
                 t,
                 "lost",
                 None,
-                PoseDiagnostics(reason=f"no canonical frame yet: mask area {mask.area} < {adm.min_area} px"),
+                PoseDiagnostics(
+                    reason=f"no canonical frame yet: mask area {mask.area} < {adm.min_area} px"
+                    f" with {n3d} depth-backed features < {cfg.small_canonical_points}"
+                ),
             ), None
-        _, valid = lift(feats.keypoints, frame.depth, (0, 0), frame.K, cfg.min_depth, cfg.max_depth)
-        n3d = int(valid.sum())
         pts = mask_points(frame, mask, cfg.min_depth, cfg.max_depth)
         dense = (
             n3d < cfg.min_canonical_points

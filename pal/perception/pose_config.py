@@ -30,6 +30,8 @@ class PoseConfig:
         max_snapshots: snapshots tried per frame.
         anchor_min_inliers: inliers needed to anchor a new snapshot with the pose.
         min_canonical_points: depth-backed keypoints needed to define the canonical frame.
+        small_canonical_points: a mask smaller than the gallery's ``min_area`` (down to half
+            of it) defines the canonical frame when this many of its keypoints have depth.
         max_speed: a faster translation in the world frame since the last estimate is
             rejected, m/s ...
         max_angular_speed: ... or a faster rotation, rad/s.
@@ -60,6 +62,7 @@ class PoseConfig:
     max_snapshots: int = 3
     anchor_min_inliers: int = 12
     min_canonical_points: int = 8
+    small_canonical_points: int = 16
     max_speed: float = 2.0
     max_angular_speed: float = 2.0 * math.pi
     propagate_s: float = 0.5

@@ -84,3 +84,33 @@ def test_a_far_thin_set_of_inliers_is_rejected_and_a_wide_near_one_is_not():
     assert _spread(strip, fit_at(0.8), DepthNoise(), k) is None
     patch = np.column_stack([rng.uniform(-0.2, 0.2, 40), rng.uniform(-0.2, 0.2, 40), np.zeros(40)])
     assert _spread(patch, fit_at(4.0), DepthNoise(), k) is None
+
+
+def _first_pose(min_area: int, small_points: int):
+    from pal.perception.memory import AdmissionConfig, Gallery, ObjectRecord
+    from pal.perception.pose import PoseConfig, PoseEstimator
+    from pal.perception.segmentation import OracleSegmenter
+    from pal.perception.synthetic import Box, SyntheticCamera
+
+    cam = SyntheticCamera(640, 480)
+    T = cam.table.copy()
+    T[:3, 3] = (cam.table @ np.array([0.0, 0.0, 0.03, 1.0]))[:3]
+    f = cam.render([Box((0.12, 0.10, 0.06), T, label=1, seed=3)], 0.0)
+    mask = OracleSegmenter()(f)[0].mask
+    est = PoseEstimator(PoseConfig(small_canonical_points=small_points), rng=0)
+    rec = ObjectRecord(1, Gallery(AdmissionConfig(min_area=min_area)), 0.0, 0.0, mask, 1)
+    gray = f.gray()
+    pose, _ = est.estimate(rec, f, gray, mask, est.features(gray, mask))
+    return mask.area, pose
+
+
+def test_a_small_mask_with_enough_depth_backed_features_defines_the_canonical_frame():
+    area, _ = _first_pose(200, 16)
+    # the gallery asks for a little more than the box shows: with depth under many of its
+    # features the box still gets its frame; asked for more features than it has, it does not
+    ok = _first_pose(int(area * 1.2), 16)[1]
+    assert ok.is_valid and ok.diagnostics.solver == "canonical"
+    refused = _first_pose(int(area * 1.2), 100_000)[1]
+    assert refused.source == "lost" and "mask area" in refused.diagnostics.reason
+    too_small = _first_pose(int(area * 2.5), 16)[1]  # under half the gallery's min_area
+    assert too_small.source == "lost"
