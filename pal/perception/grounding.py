@@ -210,10 +210,12 @@ def bottom_visibility(depth: np.ndarray, mask: Mask, margin: float, below: int =
     rows = ys[:, None] + np.arange(1, below + 1)[None, :]
     inside = rows < height
     under = np.where(inside, depth[np.minimum(rows, height - 1), xs[:, None]], 0.0)
-    under = np.where(under > 0, under, np.nan)
-    seen = np.isfinite(under).any(axis=1)
+    under = np.sort(np.where(under > 0, under, np.inf), axis=1)  # readings first, holes (inf) last
+    count = np.isfinite(under).sum(axis=1)
+    seen = count > 0
     near = np.full(z.shape, np.inf)
-    near[seen] = np.nanmedian(under[seen], axis=1)
+    rows, c = np.flatnonzero(seen), count[seen]
+    near[seen] = 0.5 * (under[rows, (c - 1) // 2] + under[rows, c // 2])  # the median of the readings
     hidden = (ys + 1 >= height) | (near < z - margin)
     return float(1.0 - hidden.mean())
 
