@@ -145,20 +145,7 @@ def pnp_ransac(
     pool = _Hypotheses(obj, img, K, w, live_z, tol, reprojection_error, confidence, iterations)
     priors = [np.asarray(T, float) for T in hypotheses]
     pool.add([T[:3, :3] for T in priors], [T[:3, 3] for T in priors])
-    tried = 0
-    needed = pool.score()
-    if image_points_3d is not None and pool.fraction < prior_enough:
-        live = np.asarray(image_points_3d, dtype=np.float64)
-        tried = pool.add(*_kabsch_hypotheses(gen, obj, live, iterations))
-        needed = pool.score()
-    if pool.fraction >= prior_enough:
-        needed = 0
-    while tried < needed:
-        tried += 1
-        pool.add(*_ap3p_hypotheses(gen, obj, img, K, reprojection_error))
-        if len(pool.Rs) >= 32 or tried >= needed:
-            needed = pool.score()
-    T = pool.best()
+    T = _search(pool, gen, image_points_3d, prior_enough)
     if T is None:
         return None
     return refine_pose(
@@ -172,6 +159,30 @@ def pnp_ransac(
         depth_sigma=depth_sigma,
         depth_tolerance=tol,
     )
+
+
+def _search(
+    pool: _Hypotheses, gen: np.random.Generator, image_points_3d: np.ndarray | None, prior_enough: float
+) -> np.ndarray | None:
+    """The best hypothesis: the queued priors, then Kabsch and AP3P samples until confident.
+
+    No random hypothesis is drawn when a prior explains ``prior_enough`` of the pairs.
+    """
+    obj, img, K, iterations = pool.obj, pool.img, pool.K, pool.iterations
+    tried = 0
+    needed = pool.score()
+    if image_points_3d is not None and pool.fraction < prior_enough:
+        live = np.asarray(image_points_3d, dtype=np.float64)
+        tried = pool.add(*_kabsch_hypotheses(gen, obj, live, iterations))
+        needed = pool.score()
+    if pool.fraction >= prior_enough:
+        needed = 0
+    while tried < needed:
+        tried += 1
+        pool.add(*_ap3p_hypotheses(gen, obj, img, K, pool.reprojection_error))
+        if len(pool.Rs) >= 32 or tried >= needed:
+            needed = pool.score()
+    return pool.best()
 
 
 def _depth_gate(
