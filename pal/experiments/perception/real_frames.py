@@ -172,6 +172,7 @@ def pair_rows(
             "trans_err_still_m": None,
             "reason": None,
             "area_px": o.mask.area,
+            "area_change": abs(float(np.log(match.mask.area / o.mask.area))),
         }
         if row["kept"]:
             pi, pj = o.pose, match.pose
@@ -220,6 +221,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "rot_better_than_still": (
             sum(r["rot_err_deg"] < r["rot_err_still_deg"] for r in posed) / len(posed) if posed else None
         ),
+        "area_change_median": _median([r["area_change"] for r in kept]),
         "wrong_estimated": len(wrong),
         "rejected": sum(r["source"] == "rejected" for r in kept),
         "without_pose_reasons": dict(Counter(str(r["reason"]) for r in kept if not r["pose"]).most_common(5)),

@@ -119,6 +119,9 @@ def sequence_table(results: dict[int, dict[str, Any]]) -> Table:
         "seen in both",
         "kept id",
         "posed",
+        "posed 1st / 2nd half",
+        "mask area change",
+        "camera rot. err. [deg]",
         "rot. err. [deg]",
         "trans. err. [m]",
         "still rot. [deg]",
@@ -137,6 +140,9 @@ def sequence_table(results: dict[int, dict[str, Any]]) -> Table:
             r["seen_in_both"],
             r["kept_fraction"],
             r["pose_fraction"],
+            " / ".join("n/a" if v is None else f"{v:.3f}" for v in r["pose_fraction_halves"]),
+            r["area_change_median"],
+            r["camera_rot_err_deg_median"],
             r["rot_err_deg_median"],
             r["trans_err_m_median"],
             r["rot_err_still_deg_median"],
@@ -154,7 +160,8 @@ def sequence_table(results: dict[int, dict[str, Any]]) -> Table:
         cols,
         rows,
         "Errors are medians over posed pairs; still: the no-motion predictor on the same pairs. Wrong: more "
-        "than 10 deg or 5 cm off while marked estimated.",
+        "than 10 deg or 5 cm off while marked estimated. Mask area change: median |log(area_j / area_i)| of "
+        "the objects keeping their id. Camera rot. err.: Pi's own camera motion against the truth.",
     )
 
 

@@ -122,7 +122,8 @@ def evaluate_sequence(
         ``pairs`` (scored), ``pairs_without_truth``, ``camera_rot_err_deg_median`` and
         ``camera_trans_err_m_median`` (Π's camera motion against the truth, pairs where it was measured), ``ids`` (distinct ids created),
         ``objects_per_frame`` (median visible), ``fps_wall``, ``fps_cpu``, ``stage_ms``,
-        ``per_pair`` (pose share and kept share per pair) and ``rows``.
+        ``per_pair`` (pose share and kept share per pair), ``pose_fraction_halves`` (the
+        share posed over the first and the second half of the pairs) and ``rows``.
     """
     check_int("stride", stride, minimum=1)
     n = len(seq) if config.frames is None else min(config.frames, len(seq))
@@ -148,7 +149,10 @@ def evaluate_sequence(
             camera_err.append(
                 (rotation_angle_deg(est[:3, :3], ref[:3, :3]), float(np.linalg.norm(est[:3, 3] - ref[:3, 3])))
             )
-        got = pair_rows(frames[a], frames[a + 1], states[a], states[a + 1], ref, config.seen_iou)
+        got = [
+            {**r, "pair": a}
+            for r in pair_rows(frames[a], frames[a + 1], states[a], states[a + 1], ref, config.seen_iou)
+        ]
         s = summarise(got)
         per_pair.append(
             {"frames": [i, j], "kept_fraction": s["kept_fraction"], "pose_fraction": s["pose_fraction"]}
@@ -156,8 +160,13 @@ def evaluate_sequence(
         rows += got
     if not per_pair:
         raise ValueError(f"{seq.path}: no pair of evaluated frames has camera poses for both frames")
+    half = (len(index) - 1) / 2
     return {
         **summarise(rows),
+        "pose_fraction_halves": [
+            summarise([r for r in rows if (r["pair"] < half) == first])["pose_fraction"]
+            for first in (True, False)
+        ],
         "stride": stride,
         "frames": len(frames),
         "pairs": len(per_pair),

@@ -34,6 +34,7 @@ def test_stride_one_scores_ids_poses_and_the_no_motion_predictor(stride1):
     assert 0.0 < r["rot_err_still_deg_median"] < 2.0
     assert 0.0 <= r["rot_better_than_still"] <= 1.0
     assert r["fps_cpu"] > 0 and set(r["stage_ms"]) >= {"segmentation", "pose"}
+    assert 0.0 <= r["area_change_median"] < 0.5 and len(r["pose_fraction_halves"]) == 2
     posed = [row for row in r["rows"] if row["pose"]]
     assert all(row["rot_err_still_deg"] is not None for row in posed)
 
