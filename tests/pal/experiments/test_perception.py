@@ -289,7 +289,12 @@ def test_bench_perception_tiny(tiny_run):
         "real_wrong_estimated",
         "real_ids_kept",
         "real_support_plane",
+        *(
+            f"seq_s3_{k}"
+            for k in ("pose_fraction", "rot_err_deg", "trans_err_m", "wrong_estimated", "ids_kept")
+        ),
     ]
+    assert m["sequence"]["stride_3"]["frames"] == 2 and rep.target("seq_s3_wrong_estimated").value == 0
     assert (
         rep.target("fps_with_pose").value == m["fps_with_pose"]
         and rep.target("fps_with_pose").threshold == 10
