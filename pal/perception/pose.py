@@ -129,8 +129,8 @@ class PoseEstimator:
         """object_from_camera with which a snapshot taken at this pose may be anchored, or None.
 
         An estimated pose with at least ``anchor_min_inliers`` inliers anchors its view. Without
-        one, the view of an object presumed static (not moving, estimated within
-        ``checks.static_horizon_s``) is anchored where the camera's motion puts it, when that
+        one, the view of an object not known to move and estimated within ``dense_horizon_s``
+        is anchored where the camera's motion puts it, when that
         motion was measured (``camera_known``): a moving camera soon sees such an object from
         where its old snapshots no longer match, and the new view keeps its pose measurable.
         """
@@ -148,7 +148,7 @@ class PoseEstimator:
             and not pose.is_valid
             and not record.moving
             and record.world_pose is not None
-            and pose.timestamp - record.world_pose[0] <= self.config.checks.static_horizon_s
+            and pose.timestamp - record.world_pose[0] <= self.config.dense_horizon_s
         ):
             W = np.eye(4) if world_from_camera is None else world_from_camera
             return np.linalg.inv(np.linalg.inv(W) @ record.world_pose[1])

@@ -43,9 +43,10 @@ class PoseConfig:
         checks: the validity checks (:mod:`pal.perception.pose_checks`).
         icp: the dense RGB-D fit (:mod:`pal.perception.icp`) tried when the features give no
             accepted pose for an object presumed static; None: off.
-        dense_horizon_s: the dense fit is tried for an object not known to move whose last
-            estimate is at most this old, s (at least ``checks.static_horizon_s``): it starts
-            at the egomotion prediction and must pass the static check against it.
+        dense_horizon_s: the dense fit is tried, and a new view anchored where the camera's
+            motion puts it, for an object not known to move whose last estimate is at most
+            this old, s (at least ``checks.static_horizon_s``); the dense fit starts at the
+            egomotion prediction and must pass the static check against it.
         filter: the temporal filter of a static object's accepted pose with the camera's
             egomotion as prior (:mod:`pal.perception.pose_filter`); None: off.
     """
