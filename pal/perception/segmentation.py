@@ -40,6 +40,7 @@ import numpy as np
 from scipy import ndimage
 
 from pal.checks import check_float, check_int
+from pal.perception.creases import concave_creases, surface_normals
 from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask
 from pal.perception.noise import DepthNoise
@@ -132,6 +133,10 @@ class SegmentationConfig:
     jump_sigmas: float = 5.0
     hole_radius: int | None = None
     split_colour: bool = True
+    crease_tau: float = 0.3
+    normal_window: int = 5
+    normal_step: int = 3
+    cut_radius: float = 2.0
     min_size: float = 0.0025
     min_extent: float = 0.03
     min_area: int = 20
@@ -269,18 +274,27 @@ class GeometricSegmenter:
         radius = cfg.hole_radius if cfg.hole_radius is not None else max(1, round(3 * frame.width / 640))
         fg = bridge_invalid(fg, depth, radius, self._jump(fx))
         cut = depth_discontinuities(depth, jump) & fg
+        scale = frame.width / 640.0
+        if cfg.crease_tau > 0:
+            step = max(1, round(cfg.normal_step * scale))
+            pts, normals = surface_normals(depth, frame.K, 2 * max(1, round(cfg.normal_window * scale / 2)) + 1, step)
+            cut |= concave_creases(pts, normals, step, cfg.crease_tau, jump) & fg
         if cfg.split_colour:
             cut |= colour_depth_edges(frame.gray(), depth, sigma, fg)
+        r = round(cfg.cut_radius * scale)
+        if r > 0:
+            cut = cv2.dilate(cut.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))).view(bool)
         n, labels = cv2.connectedComponents((fg & ~cut).view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
         if n <= 1:
             return []
-        # cut pixels join the piece next to them, then pieces below the size rule their neighbour
-        grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int32)
-        labels = np.where(fg & (labels == 0), grown, labels)
+        # pieces below the size rule join their neighbour, then cut pixels the piece next to them
         sizes = metric_areas(labels, n, depth, fx, fy)
         if not keep_small and not (sizes[1:] >= cfg.min_size).all():
             labels = merge_small(labels, sizes >= cfg.min_size)
-            sizes = metric_areas(labels, n, depth, fx, fy)
+        for _ in range(r + 2):
+            grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int32)
+            labels = np.where(fg & (labels == 0), grown, labels)
+        sizes = metric_areas(labels, n, depth, fx, fy)
         pieces = []
         for j, sl in enumerate(ndimage.find_objects(labels), start=1):
             if sl is None:
