@@ -40,7 +40,7 @@ import numpy as np
 from scipy import ndimage
 
 from pal.checks import check_float, check_int
-from pal.perception.creases import concave_creases, surface_normals
+from pal.perception.creases import creases, surface_normals
 from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask
 from pal.perception.noise import DepthNoise
@@ -53,6 +53,7 @@ from pal.perception.regions import (
     fill_invalid_holes,
     merge_small,
     metric_areas,
+    supported_colour_edges,
 )
 from pal.perception.support import SupportChoice, SupportConfig, choose_support
 
@@ -134,10 +135,14 @@ class SegmentationConfig:
     hole_radius: int | None = None
     split_colour: bool = True
     crease_tau: float = 0.3
+    crease_sigmas: float = 4.0
+    colour_reach: float = 3.0
     normal_window: int = 5
     normal_step: int = 3
     cut_radius: float = 2.0
     min_size: float = 0.0025
+    grounded_size: float = 0.001
+    ground_height: float = 0.02
     min_extent: float = 0.03
     min_area: int = 20
     range_fraction: float = 0.9
@@ -232,8 +237,8 @@ class GeometricSegmenter:
         self.last_structure = tuple(zip(choice.structure, choice.structure_cells, strict=True))
         return choice.support
 
-    def _foreground(self, frame: RGBDFrame) -> tuple[np.ndarray, np.ndarray]:
-        """(H, W) bool foreground (step 2 of the module docstring) and (H, W) float32 depth sigma."""
+    def _foreground(self, frame: RGBDFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(H, W) bool foreground (step 2 of the module docstring), float32 depth sigma and height, metres."""
         cfg = self.config
         depth = frame.depth
         plane = self.fit_plane(frame)
@@ -241,7 +246,7 @@ class GeometricSegmenter:
         sigma = cfg.noise.sigma(depth)
         if plane is None:
             logger.debug("frame at t=%.3f s: too few valid depth pixels for a support plane", frame.timestamp)
-            return np.zeros(depth.shape, dtype=bool), sigma
+            return np.zeros(depth.shape, dtype=bool), sigma, np.zeros_like(sigma)
         height = plane_height(depth, frame.K, plane)
         fg = (
             (depth > cfg.min_depth)
@@ -258,16 +263,16 @@ class GeometricSegmenter:
                     : depth.shape[0], : depth.shape[1]
                 ]
                 fg &= ~((np.abs(plane_height(depth, frame.K, wall)) < thr) & (region > 0))
-        return fg, sigma
+        return fg, sigma, height
 
-    def _pieces(self, frame: RGBDFrame, keep_small: bool) -> list[tuple[int, int, np.ndarray, float]]:
-        """Foreground pieces ``(x0, y0, crop, size m²)`` (steps 3-5 of the module docstring).
+    def _pieces(self, frame: RGBDFrame, keep_small: bool) -> list[tuple[int, int, np.ndarray, float, float]]:
+        """Foreground pieces ``(x0, y0, crop, size m², smallest size kept m²)`` (steps 3-5 of the module docstring).
 
         With ``keep_small`` every piece is returned, whatever its size.
         """
         cfg = self.config
         depth = frame.depth
-        fg, sigma = self._foreground(frame)
+        fg, sigma, height = self._foreground(frame)
         invalid = depth <= 0
         fx, fy = float(frame.K[0, 0]), float(frame.K[1, 1])
         jump = self._jump(fx)(depth, sigma)
@@ -275,11 +280,16 @@ class GeometricSegmenter:
         fg = bridge_invalid(fg, depth, radius, self._jump(fx))
         cut = depth_discontinuities(depth, jump) & fg
         scale = frame.width / 640.0
+        convex = np.zeros_like(fg)
         if cfg.crease_tau > 0:
-            step = max(1, round(cfg.normal_step * scale))
-            pts, normals = surface_normals(depth, frame.K, 2 * max(1, round(cfg.normal_window * scale / 2)) + 1, step)
-            cut |= concave_creases(pts, normals, step, cfg.crease_tau, jump) & fg
+            concave, convex = self._creases(frame, fg, jump)
+            cut |= concave
         if cfg.split_colour:
+            if cfg.colour_reach > 0:
+                m = max(1, round(cfg.normal_step * scale)) + 2
+                inner = cv2.erode(fg.view(np.uint8), np.ones((2 * m + 1, 2 * m + 1), np.uint8)).view(bool)
+                reach = max(1, round(cfg.colour_reach * scale))
+                cut |= supported_colour_edges(frame.rgb, fg & ~convex, cut & inner, reach)
             cut |= colour_depth_edges(frame.gray(), depth, sigma, fg)
         r = round(cfg.cut_radius * scale)
         if r > 0:
@@ -287,21 +297,47 @@ class GeometricSegmenter:
         n, labels = cv2.connectedComponents((fg & ~cut).view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
         if n <= 1:
             return []
-        # pieces below the size rule join their neighbour, then cut pixels the piece next to them
-        sizes = metric_areas(labels, n, depth, fx, fy)
-        if not keep_small and not (sizes[1:] >= cfg.min_size).all():
-            labels = merge_small(labels, sizes >= cfg.min_size)
+        # cut pixels join the piece next to them, then pieces below the size rule their smooth neighbour
         for _ in range(r + 2):
             grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int32)
             labels = np.where(fg & (labels == 0), grown, labels)
         sizes = metric_areas(labels, n, depth, fx, fy)
+        low = fg & (height < cfg.ground_height)
+        smallest = np.where(np.bincount(labels[low], minlength=n) >= 3, cfg.grounded_size, cfg.min_size)
+        if not keep_small and not (sizes[1:] >= smallest[1:]).all():
+            labels = merge_small(labels, sizes >= smallest, _smooth_pairs(depth, jump))
+            sizes = metric_areas(labels, n, depth, fx, fy)
         pieces = []
         for j, sl in enumerate(ndimage.find_objects(labels), start=1):
             if sl is None:
                 continue
             crop = fill_invalid_holes(labels[sl] == j, invalid[sl])
-            pieces.append((sl[1].start, sl[0].start, crop, float(sizes[j])))
+            pieces.append((sl[1].start, sl[0].start, crop, float(sizes[j]), float(smallest[j])))
         return pieces
+
+    def _creases(self, frame: RGBDFrame, fg: np.ndarray, jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W) bool concave and convex creases inside the foreground (computed on its bounding box)."""
+        cfg = self.config
+        concave = np.zeros(fg.shape, dtype=bool)
+        convex = np.zeros(fg.shape, dtype=bool)
+        rows, cols = np.flatnonzero(fg.any(axis=1)), np.flatnonzero(fg.any(axis=0))
+        if rows.size == 0:
+            return concave, convex
+        scale = frame.width / 640.0
+        step = max(1, round(cfg.normal_step * scale))
+        window = 2 * max(1, round(cfg.normal_window * scale / 2)) + 1
+        m = 2 * step + window
+        y0, y1 = max(0, rows[0] - m), min(fg.shape[0], rows[-1] + m + 1)
+        x0, x1 = max(0, cols[0] - m), min(fg.shape[1], cols[-1] + m + 1)
+        K = frame.K.copy()
+        K[0, 2] -= x0
+        K[1, 2] -= y0
+        pts, normals = surface_normals(frame.depth[y0:y1, x0:x1], K, window, step)
+        sigma = cfg.noise.sigma(frame.depth[y0:y1, x0:x1]) * np.float32(cfg.crease_sigmas)
+        cc, cv = creases(pts, normals, step, cfg.crease_tau, jump[y0:y1, x0:x1], sigma)
+        concave[y0:y1, x0:x1] = cc & fg[y0:y1, x0:x1]
+        convex[y0:y1, x0:x1] = cv & fg[y0:y1, x0:x1]
+        return concave, convex
 
     def _jump(self, fx: float) -> Callable[..., np.ndarray]:
         """The depth-discontinuity threshold (metres) as a function of depth (metres)."""
@@ -316,9 +352,11 @@ class GeometricSegmenter:
 
         return jump
 
-    def _large_enough(self, frame: RGBDFrame, x0: int, y0: int, crop: np.ndarray, size: float) -> bool:
+    def _large_enough(
+        self, frame: RGBDFrame, x0: int, y0: int, crop: np.ndarray, size: float, smallest: float
+    ) -> bool:
         cfg = self.config
-        if int(np.count_nonzero(crop)) < cfg.min_area or size < cfg.min_size:
+        if int(np.count_nonzero(crop)) < cfg.min_area or size < smallest:
             return False
         h, w = crop.shape
         z = frame.depth[y0 : y0 + h, x0 : x0 + w]
@@ -337,7 +375,7 @@ class GeometricSegmenter:
     def foreground(self, frame: RGBDFrame) -> np.ndarray:
         """(H, W) bool: the pieces of the foreground, whatever their size (cuts removed, holes filled)."""
         out = np.zeros(frame.shape, dtype=bool)
-        for x0, y0, crop, _ in self._pieces(frame, True):
+        for x0, y0, crop, _, _ in self._pieces(frame, True):
             h, w = crop.shape
             out[y0 : y0 + h, x0 : x0 + w] |= crop
         return out
@@ -345,8 +383,8 @@ class GeometricSegmenter:
     def __call__(self, frame: RGBDFrame) -> list[Candidate]:
         """Candidates of ``frame`` in raster order of their first pixel, labelled 1, 2, ... in that order."""
         kept = []
-        for x0, y0, crop, size in self._pieces(frame, False):
-            if not self._large_enough(frame, x0, y0, crop, size):
+        for x0, y0, crop, size, smallest in self._pieces(frame, False):
+            if not self._large_enough(frame, x0, y0, crop, size, smallest):
                 continue
             first = int(np.argmax(crop[0]))  # the top row of a tight crop is never empty
             area = int(np.count_nonzero(crop))
@@ -354,6 +392,18 @@ class GeometricSegmenter:
             kept.append(((y0, x0 + first), mask, size))
         kept.sort(key=lambda item: item[0])
         return [Candidate(mask, k, size) for k, (_, mask, size) in enumerate(kept, start=1)]
+
+
+def _smooth_pairs(depth: np.ndarray, jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal (H, W-1) and vertical (H-1, W) neighbour pairs with valid depths closer than ``jump``."""
+    ok = depth > 0
+    out = []
+    for a, b, ta, tb, va, vb in (
+        (depth[:, 1:], depth[:, :-1], jump[:, 1:], jump[:, :-1], ok[:, 1:], ok[:, :-1]),
+        (depth[1:], depth[:-1], jump[1:], jump[:-1], ok[1:], ok[:-1]),
+    ):
+        out.append(va & vb & (np.abs(a - b) < np.minimum(ta, tb)))
+    return out[0], out[1]
 
 
 class OracleSegmenter:
