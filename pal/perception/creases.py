@@ -31,7 +31,9 @@ import numpy as np
 __all__ = ["creases", "normal_change", "surface_normals"]
 
 
-def surface_normals(depth: np.ndarray, K: np.ndarray, window: int, step: int) -> tuple[np.ndarray, np.ndarray]:
+def surface_normals(
+    depth: np.ndarray, K: np.ndarray, window: int, step: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Smoothed points and unit normals of a depth image.
 
     Args:

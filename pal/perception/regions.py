@@ -35,13 +35,14 @@ from scipy.sparse.csgraph import connected_components
 
 __all__ = [
     "bridge_invalid",
-    "supported_colour_edges",
     "colour_depth_edges",
     "depth_discontinuities",
     "fill_invalid_holes",
     "merge_small",
     "metric_area",
     "metric_areas",
+    "smooth_pairs",
+    "supported_colour_edges",
 ]
 
 _CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
@@ -213,7 +214,9 @@ def fill_invalid_holes(mask: np.ndarray, invalid: np.ndarray) -> np.ndarray:
     return mask | (holes & invalid)
 
 
-def merge_small(labels: np.ndarray, keep: np.ndarray, joinable: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+def merge_small(
+    labels: np.ndarray, keep: np.ndarray, joinable: tuple[np.ndarray, np.ndarray] | None = None
+) -> np.ndarray:
     """Give every piece not in ``keep`` to the kept neighbour it shares the longest border with.
 
     Args:
@@ -283,3 +286,23 @@ def metric_areas(labels: np.ndarray, n: int, depth: np.ndarray, fx: float, fy: f
 def metric_area(depth: np.ndarray, mask: np.ndarray, fx: float, fy: float) -> float:
     """Area of the visible surface under ``mask`` (h, w) bool, m² (see :func:`metric_areas`)."""
     return float(metric_areas(mask.astype(np.int32), 2, depth, fx, fy)[1])
+
+
+def smooth_pairs(depth: np.ndarray, jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal (H, W-1) and vertical (H-1, W) neighbour pairs with valid depths closer than ``jump``.
+
+    Args:
+        depth: (H, W) float32 metres, 0 = invalid.
+        jump: (H, W) depth-discontinuity threshold, metres.
+
+    Returns:
+        the ``joinable`` pairs of :func:`merge_small`.
+    """
+    ok = depth > 0
+    out = []
+    for a, b, ta, tb, va, vb in (
+        (depth[:, 1:], depth[:, :-1], jump[:, 1:], jump[:, :-1], ok[:, 1:], ok[:, :-1]),
+        (depth[1:], depth[:-1], jump[1:], jump[:-1], ok[1:], ok[:-1]),
+    ):
+        out.append(va & vb & (np.abs(a - b) < np.minimum(ta, tb)))
+    return out[0], out[1]

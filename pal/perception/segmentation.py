@@ -14,13 +14,25 @@ Two segmenters share the interface ``segmenter(frame) -> list[Candidate]``:
   3. invalid-depth gaps of up to ``hole_radius`` pixels between foreground pixels are
      **bridged** (:func:`~pal.perception.regions.bridge_invalid`), then 4-connected components
      are labelled;
-  4. each component is **cut** at depth discontinuities (``max(jump_min, jump_footprints * z /
-     fx, jump_sigmas * sigma_z)``) and, with ``split_colour``, at colour edges backed by a weak
-     depth step or a concave crease (:func:`~pal.perception.regions.colour_depth_edges`), so
-     touching objects separate; pieces below the size rule join their largest neighbour;
-  5. enclosed holes of invalid depth are **filled**, and pieces are kept when their visible
-     surface is at least ``min_size`` m² and ``min_extent`` m across (**metric size**, not
-     pixels; ``min_area`` pixels only drops specks).
+  4. each component is **cut** where touching objects meet: at depth discontinuities
+     (``max(jump_min, jump_footprints * z / fx, jump_sigmas * sigma_z)``), at **concave
+     creases** of the surface (``crease_tau``, :mod:`pal.perception.creases`: one object's
+     faces meet at convex edges, two touching objects at a concave one) and, with
+     ``split_colour``, at colour edges backed by depth evidence: pixels with a weak step or a
+     crease behind them (:func:`~pal.perception.regions.colour_depth_edges`), and whole colour
+     edge curves that touch a concave crease nearer than ``colour_range`` and run along no
+     convex edge (:func:`~pal.perception.regions.supported_colour_edges`: the boundary between
+     the coplanar tops of touching objects of one height). Print on one object touches no
+     such crease and does not cut. The cuts are widened by ``cut_radius`` pixels (at 640
+     columns) so that a gap in them does not join two objects, the pieces are labelled, and
+     the cut pixels go back to the piece next to them;
+  5. pieces below the size rule join the neighbour they share the longest **smooth** border
+     with (no depth discontinuity across it: texture slivers go back, a small object behind a
+     step stays apart); enclosed holes of invalid depth are **filled**, and pieces are kept
+     when their visible surface is at least ``min_size`` m² (``grounded_size`` for a piece
+     that **stands on the support**: some of its pixels lie within ``ground_height`` of it,
+     e.g. a tuna can or scissors) and ``min_extent`` m across (**metric size**, not pixels;
+     ``min_area`` pixels only drops specks).
 
   With ``track_plane`` the previous frame's support (and structure) is kept, refined by least
   squares, while it still explains the sampled points as well as when it was chosen, so the
@@ -53,6 +65,7 @@ from pal.perception.regions import (
     fill_invalid_holes,
     merge_small,
     metric_areas,
+    smooth_pairs,
     supported_colour_edges,
 )
 from pal.perception.support import SupportChoice, SupportConfig, choose_support
@@ -107,7 +120,20 @@ class SegmentationConfig:
         hole_radius: invalid gaps bridged between foreground pixels, pixels; None picks
             ``max(1, round(3 W / 640))``.
         split_colour: also cut at colour edges backed by depth evidence.
+        crease_tau: cut at concave creases sharper than this (``-c`` of
+            :mod:`pal.perception.creases`; 0.3 is about 17 degrees), 0 for none ...
+        crease_sigmas: ... and deeper than this many depth-noise sigmas.
+        colour_reach: a colour edge curve touches a crease within this many pixels (at 640
+            columns), 0: no colour edge curves.
+        colour_range: only creases nearer than this back colour edge curves, metres (farther,
+            a crease is measured over several centimetres and is too coarse).
+        normal_window: depth smoothing before the normals, pixels at 640 columns.
+        normal_step: normals and creases from points this many pixels apart (at 640 columns).
+        cut_radius: cuts are widened by this many pixels (at 640 columns) before labelling.
         min_size: smallest visible surface kept, m².
+        grounded_size: smallest visible surface kept for a piece standing on the support, m².
+        ground_height: a piece stands on the support when at least 3 of its pixels lie lower
+            than this above it, metres.
         min_extent: smallest 3-D extent kept (largest side of the points' box), metres.
         min_area: pieces below this many pixels are specks, dropped before anything else.
         range_fraction: pieces whose median depth exceeds this fraction of ``max_depth`` are
@@ -137,6 +163,7 @@ class SegmentationConfig:
     crease_tau: float = 0.3
     crease_sigmas: float = 4.0
     colour_reach: float = 3.0
+    colour_range: float = 1.5
     normal_window: int = 5
     normal_step: int = 3
     cut_radius: float = 2.0
@@ -165,8 +192,17 @@ class SegmentationConfig:
             "jump_footprints",
             "min_size",
             "min_extent",
+            "crease_sigmas",
+            "colour_reach",
+            "colour_range",
+            "cut_radius",
+            "grounded_size",
+            "ground_height",
         ):
             check_float(name, getattr(self, name), 0.0)
+        check_float("crease_tau", self.crease_tau, 0.0, 2.0, open_high=True)
+        check_int("normal_window", self.normal_window)
+        check_int("normal_step", self.normal_step)
         check_int("plane_iterations", self.plane_iterations)
         check_int("min_area", self.min_area)
         check_float("range_fraction", self.range_fraction, 0.0, 1.0, open_low=True)
@@ -280,7 +316,7 @@ class GeometricSegmenter:
         fg = bridge_invalid(fg, depth, radius, self._jump(fx))
         cut = depth_discontinuities(depth, jump) & fg
         scale = frame.width / 640.0
-        convex = np.zeros_like(fg)
+        concave = convex = np.zeros_like(fg)
         if cfg.crease_tau > 0:
             concave, convex = self._creases(frame, fg, jump)
             cut |= concave
@@ -289,11 +325,14 @@ class GeometricSegmenter:
                 m = max(1, round(cfg.normal_step * scale)) + 2
                 inner = cv2.erode(fg.view(np.uint8), np.ones((2 * m + 1, 2 * m + 1), np.uint8)).view(bool)
                 reach = max(1, round(cfg.colour_reach * scale))
-                cut |= supported_colour_edges(frame.rgb, fg & ~convex, cut & inner, reach)
+                near = depth < np.float32(cfg.colour_range)
+                cut |= supported_colour_edges(frame.rgb, fg & ~convex, concave & inner & near, reach)
             cut |= colour_depth_edges(frame.gray(), depth, sigma, fg)
         r = round(cfg.cut_radius * scale)
         if r > 0:
-            cut = cv2.dilate(cut.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))).view(bool)
+            cut = cv2.dilate(
+                cut.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+            ).view(bool)
         n, labels = cv2.connectedComponents((fg & ~cut).view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
         if n <= 1:
             return []
@@ -305,7 +344,7 @@ class GeometricSegmenter:
         low = fg & (height < cfg.ground_height)
         smallest = np.where(np.bincount(labels[low], minlength=n) >= 3, cfg.grounded_size, cfg.min_size)
         if not keep_small and not (sizes[1:] >= smallest[1:]).all():
-            labels = merge_small(labels, sizes >= smallest, _smooth_pairs(depth, jump))
+            labels = merge_small(labels, sizes >= smallest, smooth_pairs(depth, jump))
             sizes = metric_areas(labels, n, depth, fx, fy)
         pieces = []
         for j, sl in enumerate(ndimage.find_objects(labels), start=1):
@@ -392,18 +431,6 @@ class GeometricSegmenter:
             kept.append(((y0, x0 + first), mask, size))
         kept.sort(key=lambda item: item[0])
         return [Candidate(mask, k, size) for k, (_, mask, size) in enumerate(kept, start=1)]
-
-
-def _smooth_pairs(depth: np.ndarray, jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Horizontal (H, W-1) and vertical (H-1, W) neighbour pairs with valid depths closer than ``jump``."""
-    ok = depth > 0
-    out = []
-    for a, b, ta, tb, va, vb in (
-        (depth[:, 1:], depth[:, :-1], jump[:, 1:], jump[:, :-1], ok[:, 1:], ok[:, :-1]),
-        (depth[1:], depth[:-1], jump[1:], jump[:-1], ok[1:], ok[:-1]),
-    ):
-        out.append(va & vb & (np.abs(a - b) < np.minimum(ta, tb)))
-    return out[0], out[1]
 
 
 class OracleSegmenter:

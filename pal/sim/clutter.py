@@ -159,7 +159,9 @@ def clutter_xml(
                 f'gridlayout=".U..LFRB.D.."/><material name="m{o.label}" texture="t{o.label}" specular="0.15"/>'
             )
         else:
-            materials.append(f'<material name="m{o.label}" rgba="{r:.4f} {g:.4f} {b:.4f} {a}" specular="0.2"/>')
+            materials.append(
+                f'<material name="m{o.label}" rgba="{r:.4f} {g:.4f} {b:.4f} {a}" specular="0.2"/>'
+            )
         sx, sy, h = o.size
         size = f"{sx / 2:.5f} {sy / 2:.5f} {h / 2:.5f}" if o.shape == "box" else f"{sx / 2:.5f} {h / 2:.5f}"
         bodies.append(
@@ -209,7 +211,10 @@ def render_clutter(seed: int, config: ClutterConfig | None = None) -> ClutterSce
         lut[int(mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, f"obj{o.label}")) + 1] = o.label
     depth = view.depth
     if cfg.depth_sigma > 0:
-        z = depth + rng.normal(0.0, 1.0, depth.shape).astype(np.float32) * np.float32(cfg.depth_sigma) * depth**2
+        z = (
+            depth
+            + rng.normal(0.0, 1.0, depth.shape).astype(np.float32) * np.float32(cfg.depth_sigma) * depth**2
+        )
         depth = np.where(depth > 0, np.maximum(z, 0.0), 0.0).astype(np.float32)
     if cfg.sensor is not None:
         depth = sensor_depth(depth, cfg.sensor, rng)

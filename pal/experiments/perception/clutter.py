@@ -29,7 +29,6 @@ from pal.experiments.perception.mask_scores import OUTCOMES, ObjectScore, score_
 from pal.lab.registry import register
 from pal.lab.report import Precondition, Report, Table, Target
 from pal.perception.segmentation import GeometricSegmenter, SegmentationConfig
-from pal.perception.support import SupportConfig
 from pal.sim.clutter import ClutterConfig, render_clutter
 from pal.sim.clutter_layout import KINDS
 

@@ -69,7 +69,9 @@ def score_masks(
     """
     labels = np.asarray(labels)
     if labels.ndim != 2 or not np.issubdtype(labels.dtype, np.integer) or (labels.size and labels.min() < 0):
-        raise ValueError(f"labels has shape {labels.shape} and dtype {labels.dtype}, expected (H, W) ids >= 0")
+        raise ValueError(
+            f"labels has shape {labels.shape} and dtype {labels.dtype}, expected (H, W) ids >= 0"
+        )
     painted = np.zeros(labels.shape, np.int64)
     for k, m in enumerate(masks, start=1):
         if m.image_shape != labels.shape:
@@ -77,7 +79,9 @@ def score_masks(
         x0, y0, x1, y1 = m.bbox
         painted[y0:y1, x0:x1][m.crop] = k
     n = len(masks) + 1
-    counts = np.bincount(labels.ravel().astype(np.int64) * n + painted.ravel(), minlength=(int(labels.max()) + 1) * n)
+    counts = np.bincount(
+        labels.ravel().astype(np.int64) * n + painted.ravel(), minlength=(int(labels.max()) + 1) * n
+    )
     counts = counts.reshape(-1, n)
     cand_size = counts.sum(axis=0)
     out = []
