@@ -125,8 +125,8 @@ def footprint(obj: ClutterObject, xy: tuple[float, float] | np.ndarray | None = 
 
 
 def _axes(poly: np.ndarray) -> np.ndarray:
-    edges = np.roll(poly, -1, axis=0) - poly
-    return np.stack([-edges[:, 1], edges[:, 0]], axis=1)
+    edges = np.concatenate([poly[1:], poly[:1]]) - poly
+    return edges[:, ::-1] * np.array([-1.0, 1.0])
 
 
 def overlap(a: np.ndarray, b: np.ndarray) -> bool:
@@ -158,16 +158,35 @@ def _inside(poly: np.ndarray, area: tuple[float, float]) -> bool:
     return bool(np.all(np.abs(poly[:, 0]) <= area[0]) and np.all(np.abs(poly[:, 1]) <= area[1]))
 
 
+def _free(obj: ClutterObject, xy: np.ndarray, placed: list[np.ndarray]) -> bool:
+    """Whether the object's footprint at ``xy`` overlaps none of the placed footprints."""
+    if not placed:
+        return True
+    reach = float(np.hypot(obj.size[0], obj.size[1])) / 2.0 + 1e-3
+    centres = np.array([q[0] for q in placed])  # footprints carry their bounding circle first
+    radii = np.array([q[1, 0] for q in placed])
+    close = np.flatnonzero(np.hypot(*(centres - xy).T) <= reach + radii)
+    if close.size == 0:
+        return True
+    poly = footprint(obj, xy)
+    return not any(overlap(poly, placed[i][2:]) for i in close)
+
+
+def _with_circle(poly: np.ndarray) -> np.ndarray:
+    """``poly`` (M, 2) behind two rows: its centre and (its bounding radius, 0)."""
+    centre = poly.mean(axis=0)
+    return np.vstack([centre, [float(np.max(np.hypot(*(poly - centre).T))), 0.0], poly])
+
+
 def _slide(
     obj: ClutterObject, anchor: np.ndarray, direction: np.ndarray, placed: list[np.ndarray], precision: float
 ) -> np.ndarray | None:
     """The first centre along ``anchor + t direction`` (t >= 0) whose footprint overlaps nothing placed."""
 
     def free(t: float) -> bool:
-        poly = footprint(obj, anchor + t * direction)
-        return not any(overlap(poly, q) for q in placed)
+        return _free(obj, anchor + t * direction, placed)
 
-    step = 0.005
+    step = 0.01
     reach = 0.5
     t = 0.0
     while not free(t):
@@ -209,7 +228,7 @@ def layout(seed: int, config: LayoutConfig | None = None) -> tuple[ClutterObject
                 xy = _slide(obj, anchor, np.array([math.cos(a), math.sin(a)]), polys, cfg.precision)
             else:
                 xy = rng.uniform(-1.0, 1.0, 2) * np.asarray(cfg.area) * 0.7
-                if any(overlap(footprint(obj, xy), q) for q in polys):
+                if not _free(obj, xy, polys):
                     xy = None
             if xy is not None and _inside(footprint(obj, xy), cfg.area):
                 break
@@ -218,5 +237,5 @@ def layout(seed: int, config: LayoutConfig | None = None) -> tuple[ClutterObject
         obj = replace(obj, xy=(float(xy[0]), float(xy[1])), label=len(objects) + 1)
         group.append(len(objects))
         objects.append(obj)
-        polys.append(footprint(obj))
+        polys.append(_with_circle(footprint(obj)))
     return tuple(objects)

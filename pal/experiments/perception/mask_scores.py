@@ -6,8 +6,8 @@ painted in order, so a pixel belongs to at most one):
 
 - **clean**: some candidate has IoU ``N[i, k] / (|i| + |k| - N[i, k]) >= clean_iou`` with it;
 - else **missed**: less than half of its pixels lie in any candidate;
-- else **merged**: the candidate holding most of its pixels is mostly something else (less
-  than half of that candidate is this object), e.g. two touching objects in one mask;
+- else **merged**: the candidate holding most of its pixels also holds at least half of
+  another object, e.g. two touching objects in one mask;
 - else **split**: at least two candidates each hold ``split_share`` of its pixels;
 - else **partial**: one candidate holds it but covers too little of it (a shrunken mask).
 
@@ -98,8 +98,9 @@ def score_masks(
         elif inside.sum() < 0.5 * area:
             outcome = "missed"
         else:
-            k = int(np.argmax(inside))
-            if inside[k] < 0.5 * cand_size[k + 1]:
+            k = int(np.argmax(inside)) + 1
+            others = np.delete(counts[1:, k] >= 0.5 * np.maximum(counts[1:].sum(axis=1), 1), i - 1)
+            if others.any():
                 outcome = "merged"
             elif int((inside >= split_share * area).sum()) >= 2:
                 outcome = "split"
