@@ -314,25 +314,8 @@ class GeometricSegmenter:
         jump = self._jump(fx)(depth, sigma)
         radius = cfg.hole_radius if cfg.hole_radius is not None else max(1, round(3 * frame.width / 640))
         fg = bridge_invalid(fg, depth, radius, self._jump(fx))
-        cut = depth_discontinuities(depth, jump) & fg
-        scale = frame.width / 640.0
-        concave = convex = np.zeros_like(fg)
-        if cfg.crease_tau > 0:
-            concave, convex = self._creases(frame, fg, jump)
-            cut |= concave
-        if cfg.split_colour:
-            if cfg.colour_reach > 0:
-                m = max(1, round(cfg.normal_step * scale)) + 2
-                inner = cv2.erode(fg.view(np.uint8), np.ones((2 * m + 1, 2 * m + 1), np.uint8)).view(bool)
-                reach = max(1, round(cfg.colour_reach * scale))
-                near = depth < np.float32(cfg.colour_range)
-                cut |= supported_colour_edges(frame.rgb, fg & ~convex, concave & inner & near, reach)
-            cut |= colour_depth_edges(frame.gray(), depth, sigma, fg)
-        r = round(cfg.cut_radius * scale)
-        if r > 0:
-            cut = cv2.dilate(
-                cut.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-            ).view(bool)
+        cut = self._cuts(frame, fg, sigma, jump)
+        r = round(self.config.cut_radius * frame.width / 640.0)
         n, labels = cv2.connectedComponents((fg & ~cut).view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
         if n <= 1:
             return []
@@ -353,6 +336,31 @@ class GeometricSegmenter:
             crop = fill_invalid_holes(labels[sl] == j, invalid[sl])
             pieces.append((sl[1].start, sl[0].start, crop, float(sizes[j]), float(smallest[j])))
         return pieces
+
+    def _cuts(self, frame: RGBDFrame, fg: np.ndarray, sigma: np.ndarray, jump: np.ndarray) -> np.ndarray:
+        """(H, W) bool cut pixels (step 4 of the module docstring): jumps, widened creases and colour edges."""
+        cfg = self.config
+        depth = frame.depth
+        scale = frame.width / 640.0
+        weak = np.zeros_like(fg)
+        concave = convex = weak
+        if cfg.crease_tau > 0:
+            concave, convex = self._creases(frame, fg, jump)
+            weak = concave.copy()
+        if cfg.split_colour and cfg.colour_reach > 0:
+            m = max(1, round(cfg.normal_step * scale)) + 2
+            inner = cv2.erode(fg.view(np.uint8), np.ones((2 * m + 1, 2 * m + 1), np.uint8)).view(bool)
+            reach = max(1, round(cfg.colour_reach * scale))
+            near = depth < np.float32(cfg.colour_range)
+            weak |= supported_colour_edges(frame.rgb, fg & ~convex, concave & inner & near, reach)
+        r = round(cfg.cut_radius * scale)
+        if r > 0 and weak.any():
+            disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+            weak = cv2.dilate(weak.view(np.uint8), disk).view(bool)
+        cut = weak | (depth_discontinuities(depth, jump) & fg)
+        if cfg.split_colour:
+            cut |= colour_depth_edges(frame.gray(), depth, sigma, fg)
+        return cut & fg
 
     def _creases(self, frame: RGBDFrame, fg: np.ndarray, jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(H, W) bool concave and convex creases inside the foreground (computed on its bounding box)."""
