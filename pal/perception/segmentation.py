@@ -23,9 +23,9 @@ Two segmenters share the interface ``segmenter(frame) -> list[Candidate]``:
      edge curves that touch a concave crease nearer than ``colour_range`` and run along no
      convex edge (:func:`~pal.perception.regions.supported_colour_edges`: the boundary between
      the coplanar tops of touching objects of one height). Print on one object touches no
-     such crease and does not cut. The cuts are widened by ``cut_radius`` pixels (at 640
-     columns) so that a gap in them does not join two objects, the pieces are labelled, and
-     the cut pixels go back to the piece next to them;
+     such crease and does not cut. The crease and colour-curve cuts are widened by
+     ``cut_width`` metres (at most 3 pixels) so that a gap in them does not join two objects,
+     the pieces are labelled, and the cut pixels go back to the piece next to them;
   5. pieces below the size rule join the neighbour they share the longest **smooth** border
      with (no depth discontinuity across it: texture slivers go back, a small object behind a
      step stays apart); enclosed holes of invalid depth are **filled**, and pieces are kept
@@ -129,7 +129,8 @@ class SegmentationConfig:
             a crease is measured over several centimetres and is too coarse).
         normal_window: depth smoothing before the normals, pixels at 640 columns.
         normal_step: normals and creases from points this many pixels apart (at 640 columns).
-        cut_radius: cuts are widened by this many pixels (at 640 columns) before labelling.
+        cut_width: crease and colour-curve cuts are widened by this many metres on either
+            side (at most 3 pixels).
         min_size: smallest visible surface kept, m².
         grounded_size: smallest visible surface kept for a piece standing on the support, m².
         ground_height: a piece stands on the support when at least 3 of its pixels lie lower
@@ -166,7 +167,7 @@ class SegmentationConfig:
     colour_range: float = 1.5
     normal_window: int = 5
     normal_step: int = 3
-    cut_radius: float = 2.0
+    cut_width: float = 0.005
     min_size: float = 0.0025
     grounded_size: float = 0.001
     ground_height: float = 0.02
@@ -195,7 +196,7 @@ class SegmentationConfig:
             "crease_sigmas",
             "colour_reach",
             "colour_range",
-            "cut_radius",
+            "cut_width",
             "grounded_size",
             "ground_height",
         ):
@@ -315,7 +316,7 @@ class GeometricSegmenter:
         radius = cfg.hole_radius if cfg.hole_radius is not None else max(1, round(3 * frame.width / 640))
         fg = bridge_invalid(fg, depth, radius, self._jump(fx))
         cut = self._cuts(frame, fg, sigma, jump)
-        r = round(self.config.cut_radius * frame.width / 640.0)
+        r = 3
         n, labels = cv2.connectedComponents((fg & ~cut).view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
         if n <= 1:
             return []
@@ -353,13 +354,19 @@ class GeometricSegmenter:
             reach = max(1, round(cfg.colour_reach * scale))
             near = depth < np.float32(cfg.colour_range)
             weak |= supported_colour_edges(frame.rgb, fg & ~convex, concave & inner & near, reach)
-        r = round(cfg.cut_radius * scale)
-        if r > 0 and weak.any():
-            disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-            weak = cv2.dilate(weak.view(np.uint8), disk).view(bool)
-        cut = weak | (depth_discontinuities(depth, jump) & fg)
+        strong = depth_discontinuities(depth, jump) & fg
         if cfg.split_colour:
-            cut |= colour_depth_edges(frame.gray(), depth, sigma, fg)
+            strong |= colour_depth_edges(frame.gray(), depth, sigma, fg)
+        # widen the crease and colour-curve cuts by cut_width metres: fx w / z pixels, at most 3
+        # (depth cuts stay thin: widened, they would shatter thin things such as chair slats)
+        radius = np.where(depth > 0, np.float32(cfg.cut_width * frame.K[0, 0]) / np.maximum(depth, 1e-6), 0.0)
+        radius = np.rint(np.minimum(radius, 3.0)).astype(np.int8)
+        cut = weak | strong
+        for r in range(1, 4):
+            sel = weak & (radius == r)
+            if sel.any():
+                disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+                cut |= cv2.dilate(sel.view(np.uint8), disk).view(bool)
         return cut & fg
 
     def _creases(self, frame: RGBDFrame, fg: np.ndarray, jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

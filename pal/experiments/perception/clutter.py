@@ -9,7 +9,7 @@ clean (a mask with IoU >= 0.7), merged, split, missed or partial.
 
 The same frames are segmented by a **baseline**: Σ without the cuts at concave creases,
 without widening the cuts, without the smaller size for pieces standing on the support and
-without the support's smallest footprint (``SegmentationConfig(crease_tau=0, cut_radius=0,
+without the support's smallest footprint (``SegmentationConfig(crease_tau=0, cut_width=0,
 grounded_size=min_size, support=SupportConfig(min_area=0))``), which cuts only at depth jumps
 and at colour edges with depth evidence.
 
@@ -73,7 +73,7 @@ def baseline_segmentation(config: SegmentationConfig) -> SegmentationConfig:
     return dataclasses.replace(
         config,
         crease_tau=0.0,
-        cut_radius=0.0,
+        cut_width=0.0,
         grounded_size=config.min_size,
         support=dataclasses.replace(config.support, min_area=0.0),
     )

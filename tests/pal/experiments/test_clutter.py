@@ -56,5 +56,5 @@ def test_bad_labels_and_masks_are_refused():
 def test_the_baseline_turns_off_only_the_new_cuts():
     cfg = SegmentationConfig(jump_min=0.015)
     base = baseline_segmentation(cfg)
-    assert base.crease_tau == 0 and base.cut_radius == 0 and base.support.min_area == 0
+    assert base.crease_tau == 0 and base.cut_width == 0 and base.support.min_area == 0
     assert base.grounded_size == cfg.min_size and base.jump_min == 0.015

@@ -96,7 +96,7 @@ def test_touching_boxes_of_different_heights_split_and_a_printed_box_does_not(ca
     assert len(got) == 2
     for g in gt:
         assert max(iou(g.mask, c.mask) for c in got) >= 0.8
-    old = GeometricSegmenter(SegmentationConfig(crease_tau=0.0, cut_radius=0.0), rng=0)(f)
+    old = GeometricSegmenter(SegmentationConfig(crease_tau=0.0, cut_width=0.0), rng=0)(f)
     assert len(old) == 1  # depth jumps alone keep them together
     single = cam.render([Box((0.16, 0.10, 0.12), on_table(cam, 0.0, 0.0, 0.06), label=1, seed=3, cells=12)])
     assert len(GeometricSegmenter(SegmentationConfig(), rng=0)(single)) == 1
@@ -116,7 +116,7 @@ def test_a_flat_object_on_the_support_is_kept(cam):
 def test_new_segmentation_settings_are_checked():
     with pytest.raises(ValueError, match="crease_tau"):
         SegmentationConfig(crease_tau=2.0)
-    with pytest.raises(ValueError, match="cut_radius"):
-        SegmentationConfig(cut_radius=-1.0)
+    with pytest.raises(ValueError, match="cut_width"):
+        SegmentationConfig(cut_width=-1.0)
     with pytest.raises(ValueError, match="normal_step"):
         SegmentationConfig(normal_step=0)
