@@ -153,16 +153,22 @@ def supported_colour_edges(
     Returns:
         (h, w) bool cut pixels (a subset of ``region``).
     """
-    edges = (cv2.Canny(rgb, low, high, L2gradient=True) > 0) & region
-    if not edges.any() or not evidence.any():
-        return np.zeros(region.shape, dtype=bool)
+    out = np.zeros(region.shape, dtype=bool)
+    rows, cols = np.flatnonzero(region.any(axis=1)), np.flatnonzero(region.any(axis=0))
+    if rows.size == 0 or not evidence.any():
+        return out
+    box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))  # Canny on the region's box only
+    edges = (cv2.Canny(np.ascontiguousarray(rgb[box]), low, high, L2gradient=True) > 0) & region[box]
+    if not edges.any():
+        return out
     n, curves = cv2.connectedComponents(edges.view(np.uint8), connectivity=8, ltype=cv2.CV_32S)
     k = 2 * reach + 1
-    near = cv2.dilate(evidence.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))) > 0
+    near = cv2.dilate(evidence[box].view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))) > 0
     touch = np.bincount(curves[near & edges], minlength=n)
     keep = touch >= min_touch
     keep[0] = False
-    return keep[curves]
+    out[box] = keep[curves]
+    return out
 
 
 def bridge_invalid(

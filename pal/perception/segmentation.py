@@ -165,7 +165,7 @@ class SegmentationConfig:
     crease_sigmas: float = 4.0
     colour_reach: float = 3.0
     colour_range: float = 1.5
-    normal_window: int = 5
+    normal_window: int = 7
     normal_step: int = 3
     cut_width: float = 0.005
     min_size: float = 0.0025
@@ -352,8 +352,8 @@ class GeometricSegmenter:
             m = max(1, round(cfg.normal_step * scale)) + 2
             inner = cv2.erode(fg.view(np.uint8), np.ones((2 * m + 1, 2 * m + 1), np.uint8)).view(bool)
             reach = max(1, round(cfg.colour_reach * scale))
-            near = depth < np.float32(cfg.colour_range)
-            weak |= supported_colour_edges(frame.rgb, fg & ~convex, concave & inner & near, reach)
+            near = fg & (depth < np.float32(cfg.colour_range))
+            weak |= supported_colour_edges(frame.rgb, near & ~convex, concave & inner & near, reach)
         strong = depth_discontinuities(depth, jump) & fg
         if cfg.split_colour:
             strong |= colour_depth_edges(frame.gray(), depth, sigma, fg)
@@ -370,27 +370,32 @@ class GeometricSegmenter:
         return cut & fg
 
     def _creases(self, frame: RGBDFrame, fg: np.ndarray, jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(H, W) bool concave and convex creases inside the foreground (computed on its bounding box)."""
+        """(H, W) bool concave and convex creases inside the foreground (on its bounding box, about 320 columns)."""
         cfg = self.config
         concave = np.zeros(fg.shape, dtype=bool)
         convex = np.zeros(fg.shape, dtype=bool)
         rows, cols = np.flatnonzero(fg.any(axis=1)), np.flatnonzero(fg.any(axis=0))
         if rows.size == 0:
             return concave, convex
-        scale = frame.width / 640.0
+        # on a grid of about 320 columns: s pixels apart
+        s = max(1, frame.width // 320)
+        scale = frame.width / 640.0 / s
         step = max(1, round(cfg.normal_step * scale))
         window = 2 * max(1, round(cfg.normal_window * scale / 2)) + 1
-        m = 2 * step + window
+        m = s * (2 * step + window)
         y0, y1 = max(0, rows[0] - m), min(fg.shape[0], rows[-1] + m + 1)
         x0, x1 = max(0, cols[0] - m), min(fg.shape[1], cols[-1] + m + 1)
         K = frame.K.copy()
         K[0, 2] -= x0
         K[1, 2] -= y0
-        pts, normals = surface_normals(frame.depth[y0:y1, x0:x1], K, window, step)
-        sigma = cfg.noise.sigma(frame.depth[y0:y1, x0:x1]) * np.float32(cfg.crease_sigmas)
-        cc, cv = creases(pts, normals, step, cfg.crease_tau, jump[y0:y1, x0:x1], sigma)
-        concave[y0:y1, x0:x1] = cc & fg[y0:y1, x0:x1]
-        convex[y0:y1, x0:x1] = cv & fg[y0:y1, x0:x1]
+        K[:2] /= s
+        depth = frame.depth[y0:y1:s, x0:x1:s]
+        pts, normals = surface_normals(depth, K, window, step)
+        sigma = cfg.noise.sigma(depth) * np.float32(cfg.crease_sigmas)
+        cc, cv = creases(pts, normals, step, cfg.crease_tau, jump[y0:y1:s, x0:x1:s], sigma)
+        h, w = y1 - y0, x1 - x0
+        concave[y0:y1, x0:x1] = np.repeat(np.repeat(cc, s, 0), s, 1)[:h, :w] & fg[y0:y1, x0:x1]
+        convex[y0:y1, x0:x1] = np.repeat(np.repeat(cv, s, 0), s, 1)[:h, :w] & fg[y0:y1, x0:x1]
         return concave, convex
 
     def _jump(self, fx: float) -> Callable[..., np.ndarray]:
