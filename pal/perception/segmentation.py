@@ -19,13 +19,12 @@ Two segmenters share the interface ``segmenter(frame) -> list[Candidate]``:
      creases** of the surface (``crease_tau``, :mod:`pal.perception.creases`: one object's
      faces meet at convex edges, two touching objects at a concave one) and, with
      ``split_colour``, at colour edges backed by depth evidence: pixels with a weak step or a
-     crease behind them (:func:`~pal.perception.regions.colour_depth_edges`), and whole colour
-     edge curves that touch a concave crease nearer than ``colour_range`` and run along no
-     convex edge (:func:`~pal.perception.regions.supported_colour_edges`: the boundary between
-     the coplanar tops of touching objects of one height). Print on one object touches no
-     such crease and does not cut. The crease and colour-curve cuts are widened by
-     ``cut_width`` metres (at most 3 pixels) so that a gap in them does not join two objects,
-     the pieces are labelled, and the cut pixels go back to the piece next to them;
+     crease behind them (:func:`~pal.perception.regions.colour_depth_edges`), and colour edge
+     curves that touch a concave crease nearer than ``colour_range`` and follow no convex edge
+     (:func:`~pal.perception.regions.supported_colour_edges`: between the coplanar tops of
+     touching objects); print on one object touches no such crease. Crease and colour-curve
+     cuts are widened by ``cut_width`` metres (at most 3 pixels) so that a gap in them does
+     not join two objects; the cut pixels go back to the piece next to them;
   5. pieces below the size rule join the neighbour they share the longest **smooth** border
      with (no depth discontinuity across it: texture slivers go back, a small object behind a
      step stays apart); enclosed holes of invalid depth are **filled**, and pieces are kept
@@ -372,8 +371,7 @@ class GeometricSegmenter:
     def _creases(self, frame: RGBDFrame, fg: np.ndarray, jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(H, W) bool concave and convex creases inside the foreground (on its bounding box, about 320 columns)."""
         cfg = self.config
-        concave = np.zeros(fg.shape, dtype=bool)
-        convex = np.zeros(fg.shape, dtype=bool)
+        concave, convex = np.zeros(fg.shape, dtype=bool), np.zeros(fg.shape, dtype=bool)
         rows, cols = np.flatnonzero(fg.any(axis=1)), np.flatnonzero(fg.any(axis=0))
         if rows.size == 0:
             return concave, convex
@@ -393,9 +391,8 @@ class GeometricSegmenter:
         pts, normals = surface_normals(depth, K, window, step)
         sigma = cfg.noise.sigma(depth) * np.float32(cfg.crease_sigmas)
         cc, cv = creases(pts, normals, step, cfg.crease_tau, jump[y0:y1:s, x0:x1:s], sigma)
-        h, w = y1 - y0, x1 - x0
-        concave[y0:y1, x0:x1] = np.repeat(np.repeat(cc, s, 0), s, 1)[:h, :w] & fg[y0:y1, x0:x1]
-        convex[y0:y1, x0:x1] = np.repeat(np.repeat(cv, s, 0), s, 1)[:h, :w] & fg[y0:y1, x0:x1]
+        for out, sub in ((concave, cc), (convex, cv)):
+            out[y0:y1, x0:x1] = np.repeat(np.repeat(sub, s, 0), s, 1)[: y1 - y0, : x1 - x0] & fg[y0:y1, x0:x1]
         return concave, convex
 
     def _jump(self, fx: float) -> Callable[..., np.ndarray]:
