@@ -33,9 +33,8 @@ Two segmenters share the interface ``segmenter(frame) -> list[Candidate]``:
      e.g. a tuna can or scissors) and ``min_extent`` m across (**metric size**, not pixels;
      ``min_area`` pixels only drops specks).
 
-  With ``track_plane`` the previous frame's support (and structure) is kept, refined by least
-  squares, while it still explains the sampled points as well as when it was chosen, so the
-  planes are searched again only when the view changes.
+  With ``track_plane`` the previous frame's planes are kept, refined by least squares, while
+  they explain the sampled points as well as when chosen (searched again when the view changes).
 - :class:`OracleSegmenter`: one candidate per ground-truth id in ``frame.labels`` (e.g.
   MuJoCo segmentation), for ablations and evaluation.
 """
@@ -43,6 +42,7 @@ Two segmenters share the interface ``segmenter(frame) -> list[Candidate]``:
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -128,8 +128,8 @@ class SegmentationConfig:
             a crease is measured over several centimetres and is too coarse).
         normal_window: depth smoothing before the normals, pixels at 640 columns.
         normal_step: normals and creases from points this many pixels apart (at 640 columns).
-        cut_width: crease and colour-curve cuts are widened by this many metres on either
-            side (at most 3 pixels).
+        crease_pixels: creases are found on every s-th pixel of the foreground's box, at most this many.
+        cut_width: crease and colour-curve cuts are widened by this many metres (<= 3 pixels).
         min_size: smallest visible surface kept, m².
         grounded_size: smallest visible surface kept for a piece standing on the support, m².
         ground_height: a piece stands on the support when at least 3 of its pixels lie lower
@@ -166,6 +166,7 @@ class SegmentationConfig:
     colour_range: float = 1.5
     normal_window: int = 7
     normal_step: int = 3
+    crease_pixels: int = 80_000
     cut_width: float = 0.005
     min_size: float = 0.0025
     grounded_size: float = 0.001
@@ -203,6 +204,7 @@ class SegmentationConfig:
         check_float("crease_tau", self.crease_tau, 0.0, 2.0, open_high=True)
         check_int("normal_window", self.normal_window)
         check_int("normal_step", self.normal_step)
+        check_int("crease_pixels", self.crease_pixels)
         check_int("plane_iterations", self.plane_iterations)
         check_int("min_area", self.min_area)
         check_float("range_fraction", self.range_fraction, 0.0, 1.0, open_low=True)
@@ -375,8 +377,9 @@ class GeometricSegmenter:
         rows, cols = np.flatnonzero(fg.any(axis=1)), np.flatnonzero(fg.any(axis=0))
         if rows.size == 0:
             return concave, convex
-        # on a grid of about 320 columns: s pixels apart
-        s = max(1, frame.width // 320)
+        # on a grid s pixels apart, s chosen so that the foreground's box has at most crease_pixels
+        box = (rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1)
+        s = max(1, math.ceil(math.sqrt(box / cfg.crease_pixels)))
         scale = frame.width / 640.0 / s
         step = max(1, round(cfg.normal_step * scale))
         window = 2 * max(1, round(cfg.normal_window * scale / 2)) + 1
