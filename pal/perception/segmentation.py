@@ -126,9 +126,9 @@ class SegmentationConfig:
             columns), 0: no colour edge curves.
         colour_range: only creases nearer than this back colour edge curves, metres (farther,
             a crease is measured over several centimetres and is too coarse).
-        normal_window: depth smoothing before the normals, pixels at 640 columns.
+        normal_window: depth smoothing before the normals, grid pixels at 640 columns.
         normal_step: normals and creases from points this many pixels apart (at 640 columns).
-        crease_pixels: creases are found on every s-th pixel of the foreground's box, at most this many.
+        crease_pixels: creases are found on every s-th pixel, at most this many of the foreground.
         cut_width: crease and colour-curve cuts are widened by this many metres (<= 3 pixels).
         min_size: smallest visible surface kept, m².
         grounded_size: smallest visible surface kept for a piece standing on the support, m².
@@ -164,7 +164,7 @@ class SegmentationConfig:
     crease_sigmas: float = 4.0
     colour_reach: float = 3.0
     colour_range: float = 1.5
-    normal_window: int = 7
+    normal_window: int = 5
     normal_step: int = 3
     crease_pixels: int = 80_000
     cut_width: float = 0.005
@@ -377,12 +377,10 @@ class GeometricSegmenter:
         rows, cols = np.flatnonzero(fg.any(axis=1)), np.flatnonzero(fg.any(axis=0))
         if rows.size == 0:
             return concave, convex
-        # on a grid s pixels apart, s chosen so that the foreground's box has at most crease_pixels
-        box = (rows[-1] - rows[0] + 1) * (cols[-1] - cols[0] + 1)
-        s = max(1, math.ceil(math.sqrt(box / cfg.crease_pixels)))
-        scale = frame.width / 640.0 / s
-        step = max(1, round(cfg.normal_step * scale))
-        window = 2 * max(1, round(cfg.normal_window * scale / 2)) + 1
+        # every s-th pixel, s chosen so that at most crease_pixels of the foreground are used
+        s = max(1, math.ceil(math.sqrt(np.count_nonzero(fg) / cfg.crease_pixels)))
+        step = max(1, round(cfg.normal_step * frame.width / 640.0 / s))
+        window = 2 * max(1, round(cfg.normal_window * frame.width / 640.0 / 2)) + 1
         m = s * (2 * step + window)
         y0, y1 = max(0, rows[0] - m), min(fg.shape[0], rows[-1] + m + 1)
         x0, x1 = max(0, cols[0] - m), min(fg.shape[1], cols[-1] + m + 1)
