@@ -371,7 +371,7 @@ class GeometricSegmenter:
         return cut & fg
 
     def _creases(self, frame: RGBDFrame, fg: np.ndarray, jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(H, W) bool concave and convex creases inside the foreground (on its bounding box, about 320 columns)."""
+        """(H, W) bool concave and convex creases inside the foreground (its bounding box, every s-th pixel)."""
         cfg = self.config
         concave, convex = np.zeros(fg.shape, dtype=bool), np.zeros(fg.shape, dtype=bool)
         rows, cols = np.flatnonzero(fg.any(axis=1)), np.flatnonzero(fg.any(axis=0))
