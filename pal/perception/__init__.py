@@ -6,7 +6,8 @@ Stages (one module each): :mod:`~pal.perception.frames` (re-exports the frame co
 (recordings; :mod:`~pal.perception.calibration` for their camera, :mod:`~pal.perception.samples`
 for the real frames shipped with pal), :mod:`~pal.perception.noise` (the sensor's noise model),
 :mod:`~pal.perception.plane` / :mod:`~pal.perception.support` (the support plane),
-:mod:`~pal.perception.segmentation` (Σ, Eq. 4.8; :mod:`~pal.perception.regions`),
+:mod:`~pal.perception.segmentation` (Σ, Eq. 4.8; :mod:`~pal.perception.regions`,
+:mod:`~pal.perception.creases`),
 :mod:`~pal.perception.egomotion` (the camera's motion, :mod:`~pal.perception.pnp`),
 :mod:`~pal.perception.tracking` (Eq. 4.9-4.11; :mod:`~pal.perception.association`), :mod:`~pal.perception.memory` (EEMS, Eq. 4.12-4.13),
 :mod:`~pal.perception.pose` (Eq. 4.14-4.17; :mod:`~pal.perception.pose_config`, :mod:`~pal.perception.pose_matching`, :mod:`~pal.perception.pose_checks`, :mod:`~pal.perception.icp`, :mod:`~pal.perception.pose_dense`), :mod:`~pal.perception.trajectory` (Eq. 4.18),

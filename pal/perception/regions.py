@@ -8,6 +8,9 @@ one per object.
 - :func:`colour_depth_edges`: colour edges (Canny) that coincide with depth evidence, a weak
   step (more than ``k`` sigma) or a concave crease (the pixel lies behind the local mean
   surface): where two touching objects meet. Colour edges alone (print on a box) do not cut.
+- :func:`supported_colour_edges`: whole curves of colour edges that touch evidence of a
+  boundary (a jump or a concave crease between two objects): the boundary between touching
+  objects of the same height, whose coplanar tops have no depth evidence of their own.
 - :func:`bridge_invalid`: invalid-depth gaps of at most ``radius`` pixels between foreground
   pixels of similar depth join the foreground (the dark rim of a can between its lid and its
   body); a gap between a near and a far surface (a monitor's edge against the wall behind it)
@@ -15,7 +18,8 @@ one per object.
 - :func:`fill_invalid_holes`: invalid-depth holes enclosed by a mask join it (a hole with
   valid depth is background seen through the object and stays out).
 - :func:`merge_small`: pieces below the minimum size join the neighbouring piece they share
-  the longest border with (cuts along texture never leave slivers behind).
+  the longest border with (cuts along texture never leave slivers behind), optionally only
+  across smooth borders (a small object behind a depth step stays apart).
 - :func:`metric_areas`: each piece's visible surface area ``sum z² / (fx fy)``, m², the size
   rule of the segmenter (pixels shrink with distance, metres do not).
 """
@@ -26,6 +30,8 @@ from collections.abc import Callable
 
 import cv2
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 __all__ = [
     "bridge_invalid",
@@ -35,6 +41,8 @@ __all__ = [
     "merge_small",
     "metric_area",
     "metric_areas",
+    "smooth_pairs",
+    "supported_colour_edges",
 ]
 
 _CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
@@ -114,6 +122,55 @@ def colour_depth_edges(
     return out
 
 
+def supported_colour_edges(
+    rgb: np.ndarray,
+    region: np.ndarray,
+    evidence: np.ndarray,
+    reach: int,
+    *,
+    low: float = 40.0,
+    high: float = 120.0,
+    min_touch: int = 3,
+) -> np.ndarray:
+    """Colour edge curves inside ``region`` that touch geometric evidence of a boundary.
+
+    Two objects of the same height that touch share a colour boundary but no depth step on
+    their coplanar tops; the crease between their sides (or a jump) marks the same boundary a
+    little further on. A curve of colour edges (Canny on the colour image, 8-connected) is
+    kept whole when at least ``min_touch`` of its pixels lie within ``reach`` pixels of
+    ``evidence``; print inside one object's face touches no such evidence and is not kept.
+
+    Args:
+        rgb: (h, w, 3) uint8 colour image.
+        region: (h, w) bool, where cuts may fall (the foreground).
+        evidence: (h, w) bool boundary pixels between objects (jumps, concave creases) away
+            from the support.
+        reach: pixels.
+        low: Canny's lower hysteresis threshold, grey levels.
+        high: Canny's upper hysteresis threshold, grey levels.
+        min_touch: pixels of a curve near the evidence for the curve to count.
+
+    Returns:
+        (h, w) bool cut pixels (a subset of ``region``).
+    """
+    out = np.zeros(region.shape, dtype=bool)
+    rows, cols = np.flatnonzero(region.any(axis=1)), np.flatnonzero(region.any(axis=0))
+    if rows.size == 0 or not evidence.any():
+        return out
+    box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))  # Canny on the region's box only
+    edges = (cv2.Canny(np.ascontiguousarray(rgb[box]), low, high, L2gradient=True) > 0) & region[box]
+    if not edges.any():
+        return out
+    n, curves = cv2.connectedComponents(edges.view(np.uint8), connectivity=8, ltype=cv2.CV_32S)
+    k = 2 * reach + 1
+    near = cv2.dilate(evidence[box].view(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))) > 0
+    touch = np.bincount(curves[near & edges], minlength=n)
+    keep = touch >= min_touch
+    keep[0] = False
+    out[box] = keep[curves]
+    return out
+
+
 def bridge_invalid(
     foreground: np.ndarray, depth: np.ndarray, radius: int, jump: Callable[[np.ndarray], np.ndarray]
 ) -> np.ndarray:
@@ -163,36 +220,55 @@ def fill_invalid_holes(mask: np.ndarray, invalid: np.ndarray) -> np.ndarray:
     return mask | (holes & invalid)
 
 
-def merge_small(labels: np.ndarray, keep: np.ndarray) -> np.ndarray:
+def merge_small(
+    labels: np.ndarray, keep: np.ndarray, joinable: tuple[np.ndarray, np.ndarray] | None = None
+) -> np.ndarray:
     """Give every piece not in ``keep`` to the kept neighbour it shares the longest border with.
 
     Args:
         labels: (h, w) int32 piece labels, 0 = none.
         keep: (n,) bool per label (index 0 ignored): pieces large enough to stand alone.
+        joinable: optional ((h, w - 1), (h - 1, w)) bool: which horizontal and vertical
+            neighbour pairs may count as border (e.g. not across a depth discontinuity). With
+            it, small pieces without a kept neighbour join the small pieces they border (the
+            fragments of one printed face become one piece again) instead of being removed.
 
     Returns:
-        (h, w) int32 labels where every piece is a kept one (small pieces without a kept
-        4-neighbour are removed: label 0).
+        (h, w) int32 labels: without ``joinable`` every piece is a kept one (small pieces
+        without a kept 4-neighbour are removed: label 0).
     """
     n = keep.shape[0]
     if keep[1:].all():
         return labels
     pairs = []
-    for x, y in ((labels[:, 1:], labels[:, :-1]), (labels[1:, :], labels[:-1, :])):
+    pairs_of = ((labels[:, 1:], labels[:, :-1]), (labels[1:, :], labels[:-1, :]))
+    for k, (x, y) in enumerate(pairs_of):
         sel = (x != y) & (x > 0) & (y > 0)
+        if joinable is not None:
+            sel &= joinable[k]
         pairs.append((x[sel], y[sel]))
     a = np.concatenate([pairs[0][0], pairs[1][0]])
     b = np.concatenate([pairs[0][1], pairs[1][1]])
     a, b = np.concatenate([a, b]), np.concatenate([b, a])
     ok = ~keep[a] & keep[b]  # border of a small piece with a kept one
     target = np.arange(n)
-    target[~keep] = 0
+    if joinable is None:
+        target[~keep] = 0
     if ok.any():
         border = np.bincount(a[ok] * n + b[ok], minlength=n * n).reshape(n, n)
         small = np.flatnonzero(~keep)
         best = border[small].argmax(axis=1)
         has = border[small, best] > 0
         target[small[has]] = best[has]
+    if joinable is not None:
+        alone = ~keep & (target == np.arange(n))  # small pieces that found no kept neighbour
+        both = alone[a] & alone[b]
+        if both.any():
+            graph = csr_matrix((np.ones(int(both.sum())), (a[both], b[both])), shape=(n, n))
+            _, group = connected_components(graph, directed=False)
+            first = np.full(n, n, np.int64)
+            np.minimum.at(first, group[alone], np.flatnonzero(alone))
+            target[alone] = first[group[alone]]
     target[0] = 0
     return target[labels]
 
@@ -216,3 +292,23 @@ def metric_areas(labels: np.ndarray, n: int, depth: np.ndarray, fx: float, fy: f
 def metric_area(depth: np.ndarray, mask: np.ndarray, fx: float, fy: float) -> float:
     """Area of the visible surface under ``mask`` (h, w) bool, m² (see :func:`metric_areas`)."""
     return float(metric_areas(mask.astype(np.int32), 2, depth, fx, fy)[1])
+
+
+def smooth_pairs(depth: np.ndarray, jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal (H, W-1) and vertical (H-1, W) neighbour pairs with valid depths closer than ``jump``.
+
+    Args:
+        depth: (H, W) float32 metres, 0 = invalid.
+        jump: (H, W) depth-discontinuity threshold, metres.
+
+    Returns:
+        the ``joinable`` pairs of :func:`merge_small`.
+    """
+    ok = depth > 0
+    out = []
+    for a, b, ta, tb, va, vb in (
+        (depth[:, 1:], depth[:, :-1], jump[:, 1:], jump[:, :-1], ok[:, 1:], ok[:, :-1]),
+        (depth[1:], depth[:-1], jump[1:], jump[:-1], ok[1:], ok[:-1]),
+    ):
+        out.append(va & vb & (np.abs(a - b) < np.minimum(ta, tb)))
+    return out[0], out[1]

@@ -14,17 +14,27 @@ Two segmenters share the interface ``segmenter(frame) -> list[Candidate]``:
   3. invalid-depth gaps of up to ``hole_radius`` pixels between foreground pixels are
      **bridged** (:func:`~pal.perception.regions.bridge_invalid`), then 4-connected components
      are labelled;
-  4. each component is **cut** at depth discontinuities (``max(jump_min, jump_footprints * z /
-     fx, jump_sigmas * sigma_z)``) and, with ``split_colour``, at colour edges backed by a weak
-     depth step or a concave crease (:func:`~pal.perception.regions.colour_depth_edges`), so
-     touching objects separate; pieces below the size rule join their largest neighbour;
-  5. enclosed holes of invalid depth are **filled**, and pieces are kept when their visible
-     surface is at least ``min_size`` m² and ``min_extent`` m across (**metric size**, not
-     pixels; ``min_area`` pixels only drops specks).
+  4. each component is **cut** where touching objects meet: at depth discontinuities
+     (``max(jump_min, jump_footprints * z / fx, jump_sigmas * sigma_z)``), at **concave
+     creases** of the surface (``crease_tau``, :mod:`pal.perception.creases`: one object's
+     faces meet at convex edges, two touching objects at a concave one) and, with
+     ``split_colour``, at colour edges backed by depth evidence: pixels with a weak step or a
+     crease behind them (:func:`~pal.perception.regions.colour_depth_edges`), and colour edge
+     curves that touch a concave crease nearer than ``colour_range`` and follow no convex edge
+     (:func:`~pal.perception.regions.supported_colour_edges`: between the coplanar tops of
+     touching objects); print on one object touches no such crease. Crease and colour-curve
+     cuts are widened by ``cut_width`` metres (at most 3 pixels) so that a gap in them does
+     not join two objects; the cut pixels go back to the piece next to them;
+  5. pieces below the size rule join the neighbour they share the longest **smooth** border
+     with (no depth discontinuity across it: texture slivers go back, a small object behind a
+     step stays apart); enclosed holes of invalid depth are **filled**, and pieces are kept
+     when their visible surface is at least ``min_size`` m² (``grounded_size`` for a piece
+     that **stands on the support**: some of its pixels lie within ``ground_height`` of it,
+     e.g. a tuna can or scissors) and ``min_extent`` m across (**metric size**, not pixels;
+     ``min_area`` pixels only drops specks).
 
-  With ``track_plane`` the previous frame's support (and structure) is kept, refined by least
-  squares, while it still explains the sampled points as well as when it was chosen, so the
-  planes are searched again only when the view changes.
+  With ``track_plane`` the previous frame's planes are kept, refined by least squares, while
+  they explain the sampled points as well as when chosen (searched again when the view changes).
 - :class:`OracleSegmenter`: one candidate per ground-truth id in ``frame.labels`` (e.g.
   MuJoCo segmentation), for ablations and evaluation.
 """
@@ -32,6 +42,7 @@ Two segmenters share the interface ``segmenter(frame) -> list[Candidate]``:
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -40,6 +51,7 @@ import numpy as np
 from scipy import ndimage
 
 from pal.checks import check_float, check_int
+from pal.perception.creases import creases, surface_normals
 from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask
 from pal.perception.noise import DepthNoise
@@ -52,6 +64,8 @@ from pal.perception.regions import (
     fill_invalid_holes,
     merge_small,
     metric_areas,
+    smooth_pairs,
+    supported_colour_edges,
 )
 from pal.perception.support import SupportChoice, SupportConfig, choose_support
 
@@ -105,7 +119,21 @@ class SegmentationConfig:
         hole_radius: invalid gaps bridged between foreground pixels, pixels; None picks
             ``max(1, round(3 W / 640))``.
         split_colour: also cut at colour edges backed by depth evidence.
+        crease_tau: cut at concave creases sharper than this (``-c`` of
+            :mod:`pal.perception.creases`; 0.3 is about 17 degrees), 0 for none ...
+        crease_sigmas: ... and deeper than this many depth-noise sigmas.
+        colour_reach: a colour edge curve touches a crease within this many pixels (at 640
+            columns), 0: no colour edge curves.
+        colour_range: only creases nearer than this back colour edge curves, metres (farther,
+            a crease is measured over several centimetres and is too coarse).
+        normal_window: depth smoothing before the normals, grid pixels at 640 columns.
+        normal_step: normals and creases from points this many pixels apart (at 640 columns).
+        crease_pixels: creases are found on every s-th pixel, at most this many of the foreground.
+        cut_width: crease and colour-curve cuts are widened by this many metres (<= 3 pixels).
         min_size: smallest visible surface kept, m².
+        grounded_size: smallest visible surface kept for a piece standing on the support, m².
+        ground_height: a piece stands on the support when at least 3 of its pixels lie lower
+            than this above it, metres.
         min_extent: smallest 3-D extent kept (largest side of the points' box), metres.
         min_area: pieces below this many pixels are specks, dropped before anything else.
         range_fraction: pieces whose median depth exceeds this fraction of ``max_depth`` are
@@ -132,7 +160,17 @@ class SegmentationConfig:
     jump_sigmas: float = 5.0
     hole_radius: int | None = None
     split_colour: bool = True
+    crease_tau: float = 0.3
+    crease_sigmas: float = 4.0
+    colour_reach: float = 3.0
+    colour_range: float = 1.5
+    normal_window: int = 5
+    normal_step: int = 3
+    crease_pixels: int = 80_000
+    cut_width: float = 0.005
     min_size: float = 0.0025
+    grounded_size: float = 0.001
+    ground_height: float = 0.02
     min_extent: float = 0.03
     min_area: int = 20
     range_fraction: float = 0.9
@@ -155,8 +193,18 @@ class SegmentationConfig:
             "jump_footprints",
             "min_size",
             "min_extent",
+            "crease_sigmas",
+            "colour_reach",
+            "colour_range",
+            "cut_width",
+            "grounded_size",
+            "ground_height",
         ):
             check_float(name, getattr(self, name), 0.0)
+        check_float("crease_tau", self.crease_tau, 0.0, 2.0, open_high=True)
+        check_int("normal_window", self.normal_window)
+        check_int("normal_step", self.normal_step)
+        check_int("crease_pixels", self.crease_pixels)
         check_int("plane_iterations", self.plane_iterations)
         check_int("min_area", self.min_area)
         check_float("range_fraction", self.range_fraction, 0.0, 1.0, open_low=True)
@@ -227,8 +275,8 @@ class GeometricSegmenter:
         self.last_structure = tuple(zip(choice.structure, choice.structure_cells, strict=True))
         return choice.support
 
-    def _foreground(self, frame: RGBDFrame) -> tuple[np.ndarray, np.ndarray]:
-        """(H, W) bool foreground (step 2 of the module docstring) and (H, W) float32 depth sigma."""
+    def _foreground(self, frame: RGBDFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(H, W) bool foreground (step 2 of the module docstring), float32 depth sigma and height, metres."""
         cfg = self.config
         depth = frame.depth
         plane = self.fit_plane(frame)
@@ -236,7 +284,7 @@ class GeometricSegmenter:
         sigma = cfg.noise.sigma(depth)
         if plane is None:
             logger.debug("frame at t=%.3f s: too few valid depth pixels for a support plane", frame.timestamp)
-            return np.zeros(depth.shape, dtype=bool), sigma
+            return np.zeros(depth.shape, dtype=bool), sigma, np.zeros_like(sigma)
         height = plane_height(depth, frame.K, plane)
         fg = (
             (depth > cfg.min_depth)
@@ -253,41 +301,100 @@ class GeometricSegmenter:
                     : depth.shape[0], : depth.shape[1]
                 ]
                 fg &= ~((np.abs(plane_height(depth, frame.K, wall)) < thr) & (region > 0))
-        return fg, sigma
+        return fg, sigma, height
 
-    def _pieces(self, frame: RGBDFrame, keep_small: bool) -> list[tuple[int, int, np.ndarray, float]]:
-        """Foreground pieces ``(x0, y0, crop, size m²)`` (steps 3-5 of the module docstring).
+    def _pieces(self, frame: RGBDFrame, keep_small: bool) -> list[tuple[int, int, np.ndarray, float, float]]:
+        """Foreground pieces ``(x0, y0, crop, size m², smallest size kept m²)`` (steps 3-5 of the module docstring).
 
         With ``keep_small`` every piece is returned, whatever its size.
         """
         cfg = self.config
         depth = frame.depth
-        fg, sigma = self._foreground(frame)
+        fg, sigma, height = self._foreground(frame)
         invalid = depth <= 0
         fx, fy = float(frame.K[0, 0]), float(frame.K[1, 1])
         jump = self._jump(fx)(depth, sigma)
         radius = cfg.hole_radius if cfg.hole_radius is not None else max(1, round(3 * frame.width / 640))
         fg = bridge_invalid(fg, depth, radius, self._jump(fx))
-        cut = depth_discontinuities(depth, jump) & fg
-        if cfg.split_colour:
-            cut |= colour_depth_edges(frame.gray(), depth, sigma, fg)
+        cut = self._cuts(frame, fg, sigma, jump)
+        r = 3
         n, labels = cv2.connectedComponents((fg & ~cut).view(np.uint8), connectivity=4, ltype=cv2.CV_32S)
         if n <= 1:
             return []
-        # cut pixels join the piece next to them, then pieces below the size rule their neighbour
-        grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int32)
-        labels = np.where(fg & (labels == 0), grown, labels)
+        # cut pixels join the piece next to them, then pieces below the size rule their smooth neighbour
+        for _ in range(r + 2):
+            grown = cv2.dilate(labels.astype(np.float32), np.ones((3, 3), np.uint8)).astype(np.int32)
+            labels = np.where(fg & (labels == 0), grown, labels)
         sizes = metric_areas(labels, n, depth, fx, fy)
-        if not keep_small and not (sizes[1:] >= cfg.min_size).all():
-            labels = merge_small(labels, sizes >= cfg.min_size)
+        low = fg & (height < cfg.ground_height)
+        smallest = np.where(np.bincount(labels[low], minlength=n) >= 3, cfg.grounded_size, cfg.min_size)
+        if not keep_small and not (sizes[1:] >= smallest[1:]).all():
+            labels = merge_small(labels, sizes >= smallest, smooth_pairs(depth, jump))
             sizes = metric_areas(labels, n, depth, fx, fy)
         pieces = []
         for j, sl in enumerate(ndimage.find_objects(labels), start=1):
             if sl is None:
                 continue
             crop = fill_invalid_holes(labels[sl] == j, invalid[sl])
-            pieces.append((sl[1].start, sl[0].start, crop, float(sizes[j])))
+            pieces.append((sl[1].start, sl[0].start, crop, float(sizes[j]), float(smallest[j])))
         return pieces
+
+    def _cuts(self, frame: RGBDFrame, fg: np.ndarray, sigma: np.ndarray, jump: np.ndarray) -> np.ndarray:
+        """(H, W) bool cut pixels (step 4 of the module docstring): jumps, widened creases and colour edges."""
+        cfg = self.config
+        depth = frame.depth
+        scale = frame.width / 640.0
+        weak = np.zeros_like(fg)
+        concave = convex = weak
+        if cfg.crease_tau > 0:
+            concave, convex = self._creases(frame, fg, jump)
+            weak = concave.copy()
+        if cfg.split_colour and cfg.colour_reach > 0:
+            m = max(1, round(cfg.normal_step * scale)) + 2
+            inner = cv2.erode(fg.view(np.uint8), np.ones((2 * m + 1, 2 * m + 1), np.uint8)).view(bool)
+            reach = max(1, round(cfg.colour_reach * scale))
+            near = fg & (depth < np.float32(cfg.colour_range))
+            weak |= supported_colour_edges(frame.rgb, near & ~convex, concave & inner & near, reach)
+        strong = depth_discontinuities(depth, jump) & fg
+        if cfg.split_colour:
+            strong |= colour_depth_edges(frame.gray(), depth, sigma, fg)
+        # widen the crease and colour-curve cuts by cut_width metres: fx w / z pixels, at most 3
+        # (depth cuts stay thin: widened, they would shatter thin things such as chair slats)
+        radius = np.where(depth > 0, np.float32(cfg.cut_width * frame.K[0, 0]) / np.maximum(depth, 1e-6), 0.0)
+        radius = np.rint(np.minimum(radius, 3.0)).astype(np.int8)
+        cut = weak | strong
+        for r in range(1, 4):
+            sel = weak & (radius == r)
+            if sel.any():
+                disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+                cut |= cv2.dilate(sel.view(np.uint8), disk).view(bool)
+        return cut & fg
+
+    def _creases(self, frame: RGBDFrame, fg: np.ndarray, jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(H, W) bool concave and convex creases inside the foreground (its bounding box, every s-th pixel)."""
+        cfg = self.config
+        concave, convex = np.zeros(fg.shape, dtype=bool), np.zeros(fg.shape, dtype=bool)
+        rows, cols = np.flatnonzero(fg.any(axis=1)), np.flatnonzero(fg.any(axis=0))
+        if rows.size == 0:
+            return concave, convex
+        # every s-th pixel, s chosen so that at most crease_pixels of the foreground are used
+        s = max(1, math.ceil(math.sqrt(np.count_nonzero(fg) / cfg.crease_pixels)))
+        step = max(1, round(cfg.normal_step * frame.width / 640.0 / s))
+        window = 2 * max(1, round(cfg.normal_window * frame.width / 640.0 / 2)) + 1
+        m = s * (2 * step + window)
+        y0, y1 = max(0, rows[0] - m), min(fg.shape[0], rows[-1] + m + 1)
+        x0, x1 = max(0, cols[0] - m), min(fg.shape[1], cols[-1] + m + 1)
+        K = frame.K.copy()
+        K[0, 2] -= x0
+        K[1, 2] -= y0
+        K[:2] /= s
+        depth = frame.depth[y0:y1:s, x0:x1:s]
+        pts, normals = surface_normals(depth, K, window, step)
+        sigma = cfg.noise.sigma(depth) * np.float32(cfg.crease_sigmas)
+        cc, cv = creases(pts, normals, step, cfg.crease_tau, jump[y0:y1:s, x0:x1:s], sigma)
+        for out, sub in ((concave, cc), (convex, cv)):
+            out[y0:y1, x0:x1] = np.repeat(np.repeat(sub, s, 0), s, 1)[: y1 - y0, : x1 - x0] & fg[y0:y1, x0:x1]
+        return concave, convex
 
     def _jump(self, fx: float) -> Callable[..., np.ndarray]:
         """The depth-discontinuity threshold (metres) as a function of depth (metres)."""
@@ -302,9 +409,11 @@ class GeometricSegmenter:
 
         return jump
 
-    def _large_enough(self, frame: RGBDFrame, x0: int, y0: int, crop: np.ndarray, size: float) -> bool:
+    def _large_enough(
+        self, frame: RGBDFrame, x0: int, y0: int, crop: np.ndarray, size: float, smallest: float
+    ) -> bool:
         cfg = self.config
-        if int(np.count_nonzero(crop)) < cfg.min_area or size < cfg.min_size:
+        if int(np.count_nonzero(crop)) < cfg.min_area or size < smallest:
             return False
         h, w = crop.shape
         z = frame.depth[y0 : y0 + h, x0 : x0 + w]
@@ -323,7 +432,7 @@ class GeometricSegmenter:
     def foreground(self, frame: RGBDFrame) -> np.ndarray:
         """(H, W) bool: the pieces of the foreground, whatever their size (cuts removed, holes filled)."""
         out = np.zeros(frame.shape, dtype=bool)
-        for x0, y0, crop, _ in self._pieces(frame, True):
+        for x0, y0, crop, _, _ in self._pieces(frame, True):
             h, w = crop.shape
             out[y0 : y0 + h, x0 : x0 + w] |= crop
         return out
@@ -331,8 +440,8 @@ class GeometricSegmenter:
     def __call__(self, frame: RGBDFrame) -> list[Candidate]:
         """Candidates of ``frame`` in raster order of their first pixel, labelled 1, 2, ... in that order."""
         kept = []
-        for x0, y0, crop, size in self._pieces(frame, False):
-            if not self._large_enough(frame, x0, y0, crop, size):
+        for x0, y0, crop, size, smallest in self._pieces(frame, False):
+            if not self._large_enough(frame, x0, y0, crop, size, smallest):
                 continue
             first = int(np.argmax(crop[0]))  # the top row of a tight crop is never empty
             area = int(np.count_nonzero(crop))

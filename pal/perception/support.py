@@ -15,6 +15,9 @@ what it supports:
   one (the nearest support below it);
 - the support is the candidate on which the most points rest. Ties and frames where nothing
   rests on any plane go to the largest plane.
+- candidates whose surface's footprint (hull area) is below ``min_area`` are not
+  supports: they are the tops of objects, e.g. a plane through the lids of touching short
+  cans and boxes (unless no candidate is that large);
 - only candidates whose normal is within ``max_tilt_deg`` of the up direction ``up`` (camera
   coordinates) are considered. By default ``up`` is the image's up direction ``(0, -1, 0)``
   with 60 degrees of tilt: a camera held upright or looking down at a table (walls are then
@@ -69,6 +72,7 @@ class SupportConfig:
     max_tilt_deg: float = 60.0
     structure_area: float = 1.5
     structure_angle_deg: float = 60.0
+    min_area: float = 0.08
 
     def __post_init__(self) -> None:
         check_int("max_planes", self.max_planes)
@@ -78,6 +82,7 @@ class SupportConfig:
         check_float("max_tilt_deg", self.max_tilt_deg, 0.0, 90.0, open_low=True)
         check_float("structure_area", self.structure_area, 0.0, open_low=True)
         check_float("structure_angle_deg", self.structure_angle_deg, 0.0, 90.0)
+        check_float("min_area", self.min_area, 0.0)
         if self.up is not None:
             up = np.asarray(self.up, dtype=np.float64)
             if up.shape != (3,) or not np.all(np.isfinite(up)) or np.linalg.norm(up) < 1e-9:
@@ -224,6 +229,8 @@ def choose_support(
         allowed = [
             k for k, p in enumerate(planes) if float(p.normal @ np.asarray(config.up)) >= cos_tilt
         ] or allowed
+    if config.min_area > 0:
+        allowed = [k for k in allowed if areas[k] >= config.min_area] or allowed
     sub = heights[allowed]
     nearest = np.argmin(sub, axis=0)
     resting = np.isfinite(sub.min(axis=0))

@@ -11,6 +11,8 @@
 - :mod:`pal.sim.ranges`: command-range overrides and the effective ranges found in babbling data.
 - :mod:`pal.sim.tabletop`, :mod:`pal.sim.motions`, :mod:`pal.sim.recording`: the tabletop
   scene, scripted object motions (thesis Table 5.1) and recordings with ground truth.
+- :mod:`pal.sim.clutter`, :mod:`pal.sim.clutter_layout`: the cluttered tabletop, seeded
+  layouts of touching boxes and cylinders rendered with known masks.
 - :mod:`pal.sim.pushing`: :class:`PushingEnv`, the arm pushing a box and a ball on the table (scene: :mod:`pal.sim.pushing_scene`).
 
 This package imports neither :mod:`models`, :mod:`inference` nor :mod:`pal.perception`: frames

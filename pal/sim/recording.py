@@ -57,7 +57,7 @@ from pal.sim.tabletop import (
     scene_digest,
 )
 
-__all__ = ["MAX_FPS", "Realism", "RecordConfig", "RecordedFrame", "record", "render_run"]
+__all__ = ["MAX_FPS", "Realism", "RecordConfig", "RecordedFrame", "record", "render_run", "sensor_depth"]
 
 logger = logging.getLogger(__name__)
 
@@ -174,7 +174,7 @@ def _blend(a: np.ndarray, b: np.ndarray, s: float) -> np.ndarray:
     return T
 
 
-def _sensor(depth: np.ndarray, realism: Realism, rng: np.random.Generator) -> np.ndarray:
+def sensor_depth(depth: np.ndarray, realism: Realism, rng: np.random.Generator) -> np.ndarray:
     """Quantisation, projector shadows, edge and random dropouts (module docstring)."""
     out = depth.copy()
     valid = out > 0
@@ -243,7 +243,7 @@ def render_run(config: RecordConfig, run: Script | None = None) -> Iterator[Reco
                 z = depth + unit * np.float32(config.depth_noise) * depth * depth  # std grows with z²
                 depth = np.where(depth > 0, np.maximum(z, 0.0), 0.0).astype(np.float32)
             if real is not None:
-                depth = _sensor(depth, real, noise)
+                depth = sensor_depth(depth, real, noise)
             if config.rgb_noise > 0:
                 rgb = rgb + noise.normal(0.0, config.rgb_noise, rgb.shape)
             rgb = np.clip(np.rint(rgb), 0, 255).astype(np.uint8)
