@@ -8,8 +8,10 @@ SCMs in the same run (:mod:`pal.baselines.counterfactual_peers`):
 * ``mlp50_unit_ms``: one unit of a random 50-node SCM with default MLP mechanisms,
   ``do`` on the root with the most descendants.
 * ``units_per_s``: a batch of 10 000 chain units in one call.
-* ``scenarios_ms``: K = 1, 2, 4, 8 scenarios (different ``do`` values) on the MLP SCM
-  with 1 000 units, one call each.
+* ``scenarios_ms``: K = 1, 2, 8, 32 scenarios (different ``do`` values) on the MLP SCM
+  with 1 000 units, one call each; our K calls are timed interleaved, so a change in
+  machine load hits every K alike. ``scenario_growth[lib][K]`` is a library's time for K
+  scenarios over its time for one (:mod:`pal.experiments.bench.counterfactual_render`).
 
 ``ratios[peer]`` is ours / peer for the times and peer / ours for ``units_per_s``, so a
 ratio below 1 always means that pal is faster. Every figure is a median after a warm-up
@@ -23,7 +25,7 @@ import dataclasses
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -35,12 +37,10 @@ from models.presets import chain_graph, random_graph
 from models.world import WorldModel
 from pal.baselines.counterfactual_peers import available, make_peer
 from pal.checks import check_float, check_int
+from pal.experiments.bench.counterfactual_render import growth, scenario_figure, table
 from pal.lab.registry import register
-from pal.lab.report import Precondition, Report, Table, Target
-from pal.lab.timing import Timing, measure, ratio, torch_threads
-
-if TYPE_CHECKING:
-    from matplotlib.figure import Figure
+from pal.lab.report import Precondition, Report, Target
+from pal.lab.timing import Timing, measure, measure_interleaved, ratio, torch_threads
 
 __all__ = [
     "CHAIN_WEIGHTS",
@@ -89,7 +89,7 @@ class Config:
     mlp_nodes: int = 50
     chain_units: int = 10_000
     scenario_units: int = 1_000
-    scenarios: tuple[int, ...] = (1, 2, 4, 8)
+    scenarios: tuple[int, ...] = (1, 2, 8, 32)
     repeats: int = 50
     batch_repeats: int = 5
     peers: tuple[str, ...] = ("chirho", "dowhy")
@@ -131,65 +131,6 @@ def ratios(ours: PeerFigures, peer: PeerFigures) -> dict[str, Any]:
         "units_per_s": ratio(peer.units_per_s, ours.units_per_s),
         "scenarios_ms": {k: ratio(v, peer.scenarios_ms.get(k)) for k, v in ours.scenarios_ms.items()},
     }
-
-
-def _table(config: Config, libs: dict[str, PeerFigures | None], rel: dict[str, Any]) -> Table:
-    peers = [n for n in libs if n != "pal"]
-
-    def row(
-        label: str, get: Callable[[PeerFigures], Any], rget: Callable[[dict[str, Any]], Any]
-    ) -> list[Any]:
-        values = [None if fig is None else get(fig) for fig in libs.values()]
-        return [label, *values, *(None if rel[n] is None else rget(rel[n]) for n in peers)]
-
-    rows = [
-        row("chain, 1 unit (ms)", lambda f: f.chain_unit_ms, lambda r: r["chain_unit_ms"]),
-        row(
-            f"MLP {config.mlp_nodes} nodes, 1 unit (ms)",
-            lambda f: f.mlp50_unit_ms,
-            lambda r: r["mlp50_unit_ms"],
-        ),
-        row(
-            f"chain, {config.chain_units} units (units/s)",
-            lambda f: f.units_per_s,
-            lambda r: r["units_per_s"],
-        ),
-    ]
-    for k in (str(k) for k in config.scenarios):
-        rows.append(
-            row(
-                f"MLP, {config.scenario_units} units, {k} scenarios (ms)",
-                lambda f, k=k: f.scenarios_ms.get(k),
-                lambda r, k=k: r["scenarios_ms"][k],
-            )
-        )
-    return Table(
-        "Counterfactual queries: pal against its peers on the same SCMs",
-        ["figure", *libs, *(f"pal/{n}" for n in peers)],
-        rows,
-        caption="Ratios pal/peer are ours/peer for times and peer/ours for units/s: < 1 means pal is faster.",
-    )
-
-
-def _figure(config: Config, libs: dict[str, PeerFigures | None]) -> Figure:
-    """Time against the number of scenarios K, one line per library."""
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5, 3.5))
-    for name, figs in libs.items():
-        if figs is not None:
-            ax.plot(
-                [int(k) for k in figs.scenarios_ms], list(figs.scenarios_ms.values()), marker="o", label=name
-            )
-    ax.set(
-        xlabel="scenarios K",
-        ylabel="ms per call",
-        yscale="log",
-        title=f"{config.scenario_units} units, {config.mlp_nodes}-node MLP SCM",
-    )
-    ax.legend()
-    fig.tight_layout()
-    return fig
 
 
 # ---------------------------------------------------------------------------- models
@@ -234,11 +175,13 @@ def _ours(config: Config, chain: WorldModel, mlp: WorldModel, data: dict[str, An
             lambda: counterfactual(chain, data["chain_batch"], {"x": CHAIN_DO}), config.batch_repeats
         ),
     }
-    for k in config.scenarios:
+
+    def call(k: int) -> Callable[[], Any]:
         scenarios = [{node: v} for v in _values(k)]
-        out[f"k{k}"] = measure(
-            lambda s=scenarios: counterfactual(mlp, data["scenario"], s), config.batch_repeats
-        )
+        return lambda: counterfactual(mlp, data["scenario"], scenarios)
+
+    calls = {f"k{k}": call(k) for k in config.scenarios}
+    out.update(measure_interleaved(calls, config.batch_repeats))
     return out
 
 
@@ -338,15 +281,40 @@ def _peer(
     return figs, max(chain_diff, mlp_diff)
 
 
+def _growth_targets(config: Config, libs: dict[str, PeerFigures | None]) -> list[Target]:
+    """Time of K = 8 scenarios (else the largest K) over one, alone and against ChiRho's."""
+    first = str(config.scenarios[0])
+    k = "8" if 8 in config.scenarios[1:] else str(config.scenarios[-1])
+    ours = growth(libs["pal"].scenarios_ms, first)[k] if libs["pal"] is not None else None
+    chirho = libs.get("chirho")
+    theirs = None if chirho is None else growth(chirho.scenarios_ms, first)[k]
+    return [
+        Target(
+            f"scenarios_{k}_vs_{first}",
+            ours,
+            1.5,
+            "<=",
+            f"time of {k} scenarios / time of {first}",
+            Precondition.nonzero(ours, f"the time of {first} scenarios"),
+        ),
+        Target(
+            f"scenarios_{k}_vs_{first}_vs_chirho",
+            ratio(ours, theirs),
+            1.0,
+            "<",
+            f"our growth from {first} to {k} scenarios / ChiRho's in the same run",
+            Precondition.nonzero(theirs, "ChiRho's growth (not measured without the bench extra)"),
+        ),
+    ]
+
+
 def _targets(
     config: Config,
     pal: PeerFigures,
     libs: dict[str, PeerFigures | None],
     rel: dict[str, Any],
-    growth: float | None,
 ) -> list[Target]:
     """Our unit time, batch rate and scenario growth; our time per unit against each peer's."""
-    first, last = (str(k) for k in (config.scenarios[0], config.scenarios[-1]))
     return [
         Target("chain_unit_ms", pal.chain_unit_ms, 2.0, "<=", "one chain unit, ms"),
         Target(
@@ -356,14 +324,7 @@ def _targets(
             ">=",
             f"chain units per second in a batch of {config.chain_units}",
         ),
-        Target(
-            f"scenarios_{last}_vs_{first}",
-            growth,
-            1.5,
-            "<=",
-            f"time of {last} scenarios / time of {first}",
-            Precondition.nonzero(pal.scenarios_ms[first], f"the time of {first} scenarios"),
-        ),
+        *_growth_targets(config, libs),
         *(
             Target(
                 f"{figure}_vs_{name}",
@@ -446,8 +407,9 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             bar.update()
         bar.close()
     rel = {n: None if f is None else ratios(pal, f) for n, f in libs.items() if n != "pal"}
-    first, last = (str(k) for k in (config.scenarios[0], config.scenarios[-1]))
-    growth = ratio(pal.scenarios_ms[last], pal.scenarios_ms[first])
+    first = str(config.scenarios[0])
+    scenario_growth = {n: None if f is None else growth(f.scenarios_ms, first) for n, f in libs.items()}
+    sizes = {k: getattr(config, k) for k in ("mlp_nodes", "chain_units", "scenario_units")}
     notes = [f"do() on {node} in the MLP SCM; medians after a warm-up call; torch threads: {config.threads}."]
     for name in ("chirho", "dowhy"):
         fig = libs[name]
@@ -462,11 +424,11 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             **{n: None if f is None else dataclasses.asdict(f) for n, f in libs.items()},
             "ratios": rel,
             "agreement": agreement,
-            "scenario_growth": growth,
+            "scenario_growth": scenario_growth,
             "intervened": node,
         },
-        tables=[_table(config, libs, rel)],
-        targets=_targets(config, pal, libs, rel, growth),
+        tables=[table(sizes, config.scenarios, libs, rel)],
+        targets=_targets(config, pal, libs, rel),
         notes=notes,
-        figures={"scenarios": _figure(config, libs)},
+        figures={"scenarios": scenario_figure(sizes, libs)},
     )
