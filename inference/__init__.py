@@ -16,6 +16,7 @@ from inference.curiosity import CuriositySampler, normalized_entropy, occupancy
 from inference.diagnostics import Diagnostics, PoorPosteriorWarning
 from inference.discovery import DiscoveryOptions, DiscoveryResult, discover, shd
 from inference.effects import EffectResult, treatment_effect
+from inference.unit_effects import UnitEffects, unit_effects
 from inference.ensemble import Ensemble
 from inference.equivalence import CPDAG, EdgeComparison, compare_edges, cpdag
 from inference.fit import CalibrationOptions, FitResult, FitSchedule, fit
@@ -67,6 +68,7 @@ __all__ = [
     "SVIOptions",
     "SamplingConfig",
     "StateResult",
+    "UnitEffects",
     "abduct",
     "active_subgraph",
     "admissible_parents",
@@ -92,4 +94,5 @@ __all__ = [
     "simulate",
     "subgraph_model",
     "treatment_effect",
+    "unit_effects",
 ]
