@@ -16,7 +16,6 @@ from inference.curiosity import CuriositySampler, normalized_entropy, occupancy
 from inference.diagnostics import Diagnostics, PoorPosteriorWarning
 from inference.discovery import DiscoveryOptions, DiscoveryResult, discover, shd
 from inference.effects import EffectResult, treatment_effect
-from inference.unit_effects import UnitEffects, unit_effects
 from inference.ensemble import Ensemble
 from inference.equivalence import CPDAG, EdgeComparison, compare_edges, cpdag
 from inference.fit import CalibrationOptions, FitResult, FitSchedule, fit
@@ -36,6 +35,7 @@ from inference.quadrature import GridOptions
 from inference.rewire import RewireResult, rewire
 from inference.state import StateResult, infer_state
 from inference.svi_state import SVIOptions
+from inference.unit_effects import UnitEffects, unit_effects
 
 __all__ = [
     "CPDAG",
