@@ -132,19 +132,9 @@ def treatment_effect(
     clip = check_float("clip", clip, minimum=0.0, maximum=0.5, min_open=True, max_open=True)
     desc = check_treatment_site(model, treatment, outcome)
     g = model.graph
-    vals, n = as_values(g, data, what="data", dtype=model.dtype)
-    needed = [v for v in g.names if v not in desc] + [outcome]
-    missing = [v for v in needed if v not in vals]
-    if missing:
-        raise ValueError(
-            f"data needs columns for {missing} (the treatment, the outcome and every non-descendant)"
-        )
-    _check_binary(vals[treatment], treatment)
-    model.check_codes(vals, "data")
+    vals, n = _check_rows(model, data, treatment, outcome, desc)
     t, y = vals[treatment][:, 0].double(), vals[outcome][:, 0].double()
     n_t = int(t.sum())
-    if n_t == 0 or n_t == n:
-        raise ValueError(f"data has {n_t} treated rows of {n}; both arms are needed")
     given = {k: vals[k] for k in g.names if k not in desc}
     m = {}
     with torch.no_grad():
@@ -177,6 +167,26 @@ def treatment_effect(
         naive,
         units,
     )
+
+
+def _check_rows(
+    model: WorldModel, data: Any, treatment: str, outcome: str, desc: set[str]
+) -> tuple[dict[str, Tensor], int]:
+    """The rows as tensors, with the treatment, the outcome, every non-descendant and both arms."""
+    g = model.graph
+    vals, n = as_values(g, data, what="data", dtype=model.dtype)
+    needed = [v for v in g.names if v not in desc] + [outcome]
+    missing = [v for v in needed if v not in vals]
+    if missing or n is None:
+        raise ValueError(
+            f"data needs columns for {missing} (the treatment, the outcome and every non-descendant)"
+        )
+    _check_binary(vals[treatment], treatment)
+    model.check_codes(vals, "data")
+    n_t = int(vals[treatment].sum())
+    if n_t == 0 or n_t == n:
+        raise ValueError(f"data has {n_t} treated rows of {n}; both arms are needed")
+    return vals, n
 
 
 def _check_binary(column: Tensor, treatment: str) -> None:

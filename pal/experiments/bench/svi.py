@@ -30,6 +30,7 @@ import logging
 import math
 import warnings
 from dataclasses import dataclass
+from typing import Any
 
 import pyro
 import pyro.distributions as dist
@@ -179,7 +180,11 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             )
             bar.update()
         bar.close()
-    full, short = timings["full"], timings["short"]
+    return _report(config, timings["full"], timings["short"], flagged)
+
+
+def _report(config: Config, full: dict[str, Any], short: dict[str, Any], flagged: list[str]) -> Report:
+    """Rates, the loop-only rates, the final losses and the target (not evaluated after a warning)."""
     loss = {k: float(t.result) for k, t in full.items()}
     if not math.isclose(loss["infer_state"], loss["plain_pyro"], rel_tol=1e-3, abs_tol=1e-3):
         log.warning(
