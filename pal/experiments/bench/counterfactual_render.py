@@ -1,7 +1,8 @@
 """The table and figure of ``pal bench counterfactual`` (:mod:`pal.experiments.bench.counterfactual`).
 
 Each library's figures are an object with the attributes ``chain_unit_ms``,
-``mlp50_unit_ms``, ``units_per_s`` and ``scenarios_ms`` (K -> ms per call), or None when the
+``mlp50_unit_ms``, ``units_per_s``, ``scenarios_ms`` and ``scenarios_cpu_ms`` (K -> wall and
+CPU ms per call), or None when the
 library was not measured. The growth of a library is its time for K scenarios over its time
 for the first K of the run: 1 would be free scenarios, K a full replay per scenario.
 """
@@ -64,16 +65,16 @@ def table(
                 lambda r, k=k: r["scenarios_ms"][k],
             )
         )
-    for k in (str(k) for k in scenarios[1:]):
-        values = [None if f is None else growth(f.scenarios_ms, first)[k] for f in libs.values()]
-        pal = values[0]
-        rows.append(
-            [
-                f"{k} scenarios / {first} (growth)",
-                *values,
-                *(ratio(pal, v) for v in values[1:]),
-            ]
-        )
+    for clock, attr in (("wall", "scenarios_ms"), ("CPU", "scenarios_cpu_ms")):
+        for k in (str(k) for k in scenarios[1:]):
+            values = [None if f is None else growth(getattr(f, attr), first).get(k) for f in libs.values()]
+            rows.append(
+                [
+                    f"{k} scenarios / {first} (growth, {clock} time)",
+                    *values,
+                    *(ratio(values[0], v) for v in values[1:]),
+                ]
+            )
     return Table(
         "Counterfactual queries: pal against its peers on the same SCMs",
         ["figure", *libs, *(f"pal/{n}" for n in peers)],
