@@ -20,10 +20,15 @@ program, and no member is picked per unit.
 A discrete site (:mod:`models.discrete`) is the Gumbel-max SCM ``x = argmax_k (l_k(pa) + g_k)``
 (Oberst and Sontag 2019): abduction draws its ``(N, K)`` Gumbel noise from the exact posterior
 given the observed category (the top-down construction), and prediction takes the argmax
-under the counterfactual parents. Then S draws are made even when every variable is observed,
-and ``exact`` is False, unless no scenario recomputes a discrete site it does not set (each
-discrete site is intervened on, or descends from no intervention): then its Gumbel draws do not
-matter, one pass answers the query and ``exact`` is True (a binary treatment that is set).
+under the counterfactual parents. Its Gumbel draws matter only where a scenario recomputes it
+without setting it (it descends from an intervention): a site that is set (a binary treatment
+under do(T = 0) and do(T = 1)) or that no intervention reaches keeps one value in every draw.
+With every variable observed and no such site, one pass answers the query and ``exact`` is
+True. Otherwise only those sites get S draws, and only they and their descendants are replayed
+S times (:mod:`inference.counterfactual_fast`); ``exact`` is then False.
+
+A scenario that repeats an earlier one (same sites, equal values, the same shift callable) is
+computed once, with a warning, and its answer given in both places.
 
 The model may be a program: ``counterfactual(do(m, {...}), ...)`` or under handlers entered
 with ``with`` (an ``Intervene`` there holds in the factual and the counterfactual world; a
@@ -33,10 +38,12 @@ and evidence instead of inferring one; otherwise ``guide`` picks the method
 (:func:`inference.infer_state`; ``"auto"``: the exact grid when at most 2 continuous latent
 components per unit, else the mean-field guide).
 
-K scenarios and S posterior draws run as one batch of ``K * S * N`` units, so the cost is
-linear in K and S. A plain :class:`models.WorldModel` with no handler active takes the fast
-path: only the descendants of the intervened sites are recomputed, with the torch twin
-:meth:`models.WorldModel.predict`.
+Abduction runs once; the K scenarios (and S posterior draws) are then one batch of
+``K * S * N`` units, so the cost is linear in K and S. A plain :class:`models.WorldModel` with
+no handler active takes the fast path: only the descendants of the intervened sites are
+recomputed, with the torch twin :meth:`models.WorldModel.predict`. Each scenario still
+evaluates those descendants' mechanisms on its own N rows, so the time of K scenarios grows
+by that replay per scenario over the shared validation and abduction.
 """
 
 from __future__ import annotations
@@ -76,7 +83,7 @@ class CounterfactualResult:
 
     Attributes:
         samples: name -> ``(S, K, N, dim)``; S = 1 when the evidence was complete and no
-            scenario recomputes a discrete site it does not set.
+            scenario recomputes a discrete site it does not set (the module docstring).
         noise: name -> ``(S, N, dim)`` abducted standardised residuals (``(S, N, K)``
             Gumbel noise for a discrete site).
         exact: True when every variable was observed and no scenario recomputes a discrete
