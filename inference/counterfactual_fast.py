@@ -30,7 +30,7 @@ from inference.interventions import action_bounds
 from inference.program import Program
 from inference.state import StateResult
 from models.discrete import gumbel_posterior
-from models.world import WorldModel
+from models.world import WorldModel, check_action_bounds
 
 
 def _combine(scenarios: Sequence[Mapping[str, Any]], n: int) -> dict[str, Callable[[Tensor], Tensor]]:
@@ -107,8 +107,13 @@ def _replay_descendants(
     """
     tiled = {k: v.repeat(k_total, 1) for k, v in factual.items()}
     given = {k: v for k, v in tiled.items() if k not in affected and k not in changed}
-    given.update({k: assign[k](tiled[k]) for k in changed})
-    return model.predict(given, {k: noise[k] for k in affected})
+    assigned = {k: assign[k](tiled[k]) for k in changed}
+    # the factual values, the abducted noise and the scenarios were checked once; only the
+    # assigned values (shift callables) can still break an action bound or a category code
+    check_action_bounds(model.graph, assigned, "interventions")
+    model.check_codes(assigned, "interventions")
+    with torch.no_grad():
+        return model._predict({**given, **assigned}, {k: noise[k] for k in affected}, None)
 
 
 def _fast(
