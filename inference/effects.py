@@ -165,7 +165,7 @@ def treatment_effect(
         n_t,
         clipped,
         naive,
-        units,
+        units=units,
     )
 
 
