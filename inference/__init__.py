@@ -35,6 +35,7 @@ from inference.quadrature import GridOptions
 from inference.rewire import RewireResult, rewire
 from inference.state import StateResult, infer_state
 from inference.svi_state import SVIOptions
+from inference.unit_effects import UnitEffects, unit_effects
 
 __all__ = [
     "CPDAG",
@@ -67,6 +68,7 @@ __all__ = [
     "SVIOptions",
     "SamplingConfig",
     "StateResult",
+    "UnitEffects",
     "abduct",
     "active_subgraph",
     "admissible_parents",
@@ -92,4 +94,5 @@ __all__ = [
     "simulate",
     "subgraph_model",
     "treatment_effect",
+    "unit_effects",
 ]

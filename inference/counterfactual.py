@@ -20,10 +20,15 @@ program, and no member is picked per unit.
 A discrete site (:mod:`models.discrete`) is the Gumbel-max SCM ``x = argmax_k (l_k(pa) + g_k)``
 (Oberst and Sontag 2019): abduction draws its ``(N, K)`` Gumbel noise from the exact posterior
 given the observed category (the top-down construction), and prediction takes the argmax
-under the counterfactual parents. Then S draws are made even when every variable is observed,
-and ``exact`` is False, unless no scenario recomputes a discrete site it does not set (each
-discrete site is intervened on, or descends from no intervention): then its Gumbel draws do not
-matter, one pass answers the query and ``exact`` is True (a binary treatment that is set).
+under the counterfactual parents. Its Gumbel draws matter only where a scenario recomputes it
+without setting it (it descends from an intervention): a site that is set (a binary treatment
+under do(T = 0) and do(T = 1)) or that no intervention reaches keeps one value in every draw.
+With every variable observed and no such site, one pass answers the query and ``exact`` is
+True. Otherwise only those sites get S draws, and only they and their descendants are replayed
+S times (:mod:`inference.counterfactual_fast`); ``exact`` is then False.
+
+A scenario that repeats an earlier one (same sites, equal values, the same shift callable) is
+computed once, with a warning, and its answer given in both places.
 
 The model may be a program: ``counterfactual(do(m, {...}), ...)`` or under handlers entered
 with ``with`` (an ``Intervene`` there holds in the factual and the counterfactual world; a
@@ -33,15 +38,18 @@ and evidence instead of inferring one; otherwise ``guide`` picks the method
 (:func:`inference.infer_state`; ``"auto"``: the exact grid when at most 2 continuous latent
 components per unit, else the mean-field guide).
 
-K scenarios and S posterior draws run as one batch of ``K * S * N`` units, so the cost is
-linear in K and S. A plain :class:`models.WorldModel` with no handler active takes the fast
-path: only the descendants of the intervened sites are recomputed, with the torch twin
-:meth:`models.WorldModel.predict`.
+Abduction runs once; the K scenarios (and S posterior draws) are then one batch of
+``K * S * N`` units, so the cost is linear in K and S. A plain :class:`models.WorldModel` with
+no handler active takes the fast path: only the descendants of the intervened sites are
+recomputed, with the torch twin :meth:`models.WorldModel.predict`. Each scenario still
+evaluates those descendants' mechanisms on its own N rows, so the time of K scenarios grows
+by that replay per scenario over the shared validation and abduction.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+import warnings
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -50,8 +58,9 @@ import torch
 from pyro import poutine
 from torch import Tensor
 
-from inference.abduction import _abduct, _abduct_plain, _posterior, _torch_abduction, abduct
+from inference.abduction import _posterior, abduct
 from inference.active import no_handler_active
+from inference.counterfactual_fast import _fast, _stacked
 from inference.handlers import AbductNoise, Intervene, ReplayNoise
 from inference.interventions import action_bounds, check_interventions
 from inference.program import Program, as_program, check_active_handlers, read_sites
@@ -63,7 +72,7 @@ from models.checks import (
     check_seed,
     describe,
 )
-from models.world import WorldModel, as_values, check_action_bounds
+from models.world import as_values, check_action_bounds
 
 __all__ = ["CounterfactualResult", "abduct", "counterfactual"]
 
@@ -74,7 +83,7 @@ class CounterfactualResult:
 
     Attributes:
         samples: name -> ``(S, K, N, dim)``; S = 1 when the evidence was complete and no
-            scenario recomputes a discrete site it does not set.
+            scenario recomputes a discrete site it does not set (the module docstring).
         noise: name -> ``(S, N, dim)`` abducted standardised residuals (``(S, N, K)``
             Gumbel noise for a discrete site).
         exact: True when every variable was observed and no scenario recomputes a discrete
@@ -116,84 +125,6 @@ class CounterfactualResult:
         if self.posterior is not None:
             out["posterior"] = self.posterior.to_dict()
         return out
-
-
-def _combine(scenarios: Sequence[Mapping[str, Any]], n: int) -> dict[str, Callable[[Tensor], Tensor]]:
-    """One callable per intervened site acting block-wise on the ``(K * n, dim)`` batch.
-
-    Tensor values are scalars, ``(dim,)`` or ``(n, dim)``; callables act on a block.
-    """
-    names = sorted({k for s in scenarios for k in s})
-    k_total = len(scenarios)
-
-    def site_fn(name: str) -> Callable[[Tensor], Tensor]:
-        specs = [s.get(name) for s in scenarios]
-
-        def apply(natural: Tensor) -> Tensor:
-            blocks = natural.reshape(k_total, n, natural.shape[-1]).unbind(0)
-            return torch.cat(
-                [_apply(name, spec, block) for spec, block in zip(specs, blocks, strict=True)], 0
-            )
-
-        return apply
-
-    return {name: site_fn(name) for name in names}
-
-
-def _apply(name: str, spec: Any, block: Tensor) -> Tensor:
-    """One scenario's assignment on its block of the batch (``None``: no intervention)."""
-    if spec is None:
-        return block
-    if callable(spec) and not isinstance(spec, Tensor):
-        new = spec(block)
-        if not isinstance(new, Tensor) or new.shape != block.shape:
-            raise ValueError(
-                f"shift intervention on {name!r} must return a tensor of shape {tuple(block.shape)}"
-            )
-        if not bool(torch.isfinite(new).all()):
-            raise ValueError(f"shift intervention on {name!r} produced NaN or inf")
-        return new
-    return spec.expand_as(block)
-
-
-def _stacked(scenarios: Sequence[Mapping[str, Any]]) -> dict[str, Callable[[Tensor], Tensor]]:
-    """One callable per intervened site acting on a ``(K, S, N, dim)`` batch (scenario axis first)."""
-    names = sorted({k for s in scenarios for k in s})
-
-    def site_fn(name: str) -> Callable[[Tensor], Tensor]:
-        specs = [s.get(name) for s in scenarios]
-
-        def apply(natural: Tensor) -> Tensor:
-            while natural.ndim < 4:  # (N, dim) or (S, N, dim) of a site the plates broadcast later
-                natural = natural.unsqueeze(0)
-            blocks = natural.expand(len(specs), *natural.shape[1:]).unbind(0)
-            return torch.stack([_apply(name, spec, block) for spec, block in zip(specs, blocks, strict=True)])
-
-        return apply
-
-    return {name: site_fn(name) for name in names}
-
-
-def _replay_descendants(
-    model: WorldModel,
-    factual: Mapping[str, Tensor],
-    assign: Mapping[str, Callable[[Tensor], Tensor]],
-    noise: Mapping[str, Tensor],
-    changed: set[str],
-    affected: set[str],
-    k_total: int,
-) -> dict[str, Tensor]:
-    """Prediction step when no intervened site lies downstream of another.
-
-    Sites outside ``affected`` (the descendants of the intervened sites) keep their
-    factual values exactly, so only the affected mechanisms are evaluated:
-    ``x_i = f_i(pa_i) + sigma_i(pa_i) * eps_i`` (Eq. 4.39) with the abducted ``eps_i``. The
-    result equals replaying the whole intervened program.
-    """
-    tiled = {k: v.repeat(k_total, 1) for k, v in factual.items()}
-    given = {k: v for k, v in tiled.items() if k not in affected and k not in changed}
-    given.update({k: assign[k](tiled[k]) for k in changed})
-    return model.predict(given, {k: noise[k] for k in affected})
 
 
 def _scenarios(program: Program, interventions: Any, n: int) -> list[dict[str, Any]]:
@@ -284,83 +215,75 @@ def counterfactual(
     state = None
     if latent or posterior is not None:
         state = _posterior(program, obs, evidence, n, latent, posterior, guide, num_samples, options, seed)
-    discrete = _gumbel_matters(graph, world.discrete, scenarios) if plain else bool(world.discrete)
-    s = state.num_samples if state is not None else (num_samples if discrete else 1)
+    unique, index = _unique(scenarios)
+    uncertain = _uncertain(graph, world.discrete, unique)
+    s = state.num_samples if state is not None else (num_samples if uncertain else 1)
     generator = torch.Generator().manual_seed(seed)
     if plain:  # draws only from the local generator
-        samples, noise = _fast(world, obs, evidence, acts, state, latent, scenarios, s, n, generator)
+        samples, noise = _fast(world, evidence, acts, state, latent, unique, uncertain, s, n, generator)
     else:
         with torch.random.fork_rng():  # nothing is drawn from it, but a handler might: keep it as it was
             torch.manual_seed(seed)
-            samples, noise = _general(program, evidence, acts, state, latent, scenarios, s, n, generator)
-    return CounterfactualResult(samples, noise, exact=not latent and not discrete, posterior=state)
+            samples, noise = _general(program, evidence, acts, state, latent, unique, s, n, generator)
+    if len(unique) < len(scenarios):
+        samples = {k: v[:, index] for k, v in samples.items()}
+    return CounterfactualResult(samples, noise, exact=not latent and not uncertain, posterior=state)
 
 
-def _gumbel_matters(graph: Any, discrete: Any, scenarios: list[dict[str, Any]]) -> bool:
-    """Whether some scenario recomputes a discrete site it does not set (so its Gumbel draws count).
+def _uncertain(graph: Any, discrete: Any, scenarios: list[dict[str, Any]]) -> set[str]:
+    """The discrete sites that some scenario recomputes without setting them (their Gumbel draws count).
 
     A discrete site that a scenario sets, or that descends from none of its interventions,
-    takes the same value in every draw: with every site observed, the counterfactual is then
-    one deterministic pass.
+    takes its factual (or set) value in every draw: with every site observed and no such
+    site left, the counterfactual is one deterministic pass.
     """
+    out: set[str] = set()
     for sc in scenarios:
         below = set().union(*(graph.descendants(k) for k in sc)) if sc else set()
-        if any(d in below and d not in sc for d in discrete):
-            return True
-    return False
+        out |= {d for d in discrete if d in below and d not in sc}
+    return out
 
 
-def _fast(
-    model: WorldModel,
-    obs: Mapping[str, Tensor],
-    evidence: Mapping[str, Tensor],
-    acts: Mapping[str, Tensor],
-    state: StateResult | None,
-    latent: tuple[str, ...],
-    scenarios: list[dict[str, Any]],
-    s: int,
-    n: int,
-    generator: torch.Generator,
-) -> tuple[dict[str, Tensor], dict[str, Tensor]]:
-    """A plain model: ``S * N`` rows, only the descendants of the intervened sites recomputed."""
-    graph = model.graph
-    world = {k: v.expand(s, *v.shape).reshape(s * n, -1) for k, v in evidence.items()}
-    if state is not None:
-        world.update({k: state.samples[k].reshape(s * n, -1) for k in latent})
-    factual_acts = {k: v.expand(s, *v.shape).reshape(s * n, -1) for k, v in acts.items()}
-    if _torch_abduction(model, factual_acts):
-        noise = _abduct_plain(model, {**world, **factual_acts}, factual_acts)
-    else:
-        noise = _abduct(Program(model), {**world, **factual_acts}, s * n, factual_acts, generator)
-    changed = {k for sc in scenarios for k in sc}
-    # Executed actions not re-set by a scenario keep their factual values; per-unit
-    # values are tiled over the S posterior draws.
-    k_total = len(scenarios)
-    tiled_sc = [
-        {
-            **factual_acts,
-            **{k: (v.repeat(s, 1) if isinstance(v, Tensor) and v.ndim == 2 else v) for k, v in sc.items()},
-        }
-        for sc in scenarios
-    ]
-    assign = _combine(tiled_sc, s * n)
-    tiled = {k: v.repeat(k_total, 1) for k, v in noise.items()}
-    affected = set().union(*(graph.descendants(k) for k in changed))
-    if affected & changed:
-        # an intervened site downstream of another: its pre-intervention value must be
-        # recomputed, so replay the whole intervened program
-        program = Intervene(assign, bounds=action_bounds(graph, assign))(ReplayNoise(tiled)(model))
-        with torch.no_grad(), pyro.validation_enabled(False):  # replayed values are ours
-            values = program(None, k_total * s * n)
-    else:
-        values = _replay_descendants(
-            model, {**world, **factual_acts}, assign, tiled, changed, affected, k_total
-        )
-    samples = {
-        k: v.reshape(k_total, s, n, v.shape[-1]).transpose(0, 1).contiguous() for k, v in values.items()
-    }
-    noise_out = {k: v.reshape(s, n, v.shape[-1]) for k, v in noise.items()}
-    return samples, noise_out
+def _same_spec(a: Any, b: Any) -> bool:
+    if isinstance(a, Tensor) and isinstance(b, Tensor):
+        return a.shape == b.shape and bool(torch.equal(a, b))
+    return a is b
+
+
+def _unique(scenarios: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], list[int]]:
+    """The distinct scenarios and, for each given one, its index among them.
+
+    A scenario that repeats an earlier one (same sites, equal values, the same shift
+    callable) is computed once; a warning names both.
+    """
+    unique: list[dict[str, Any]] = []
+    index: list[int] = []
+    for k, sc in enumerate(scenarios):
+        for j, other in enumerate(unique):
+            if sc.keys() == other.keys() and all(_same_spec(sc[v], other[v]) for v in sc):
+                first = index.index(j)
+                warnings.warn(
+                    f"scenario {k} repeats scenario {first} ({_describe(sc)}); it is computed once and "
+                    "its answer given twice",
+                    UserWarning,
+                    stacklevel=3,
+                )
+                index.append(j)
+                break
+        else:
+            index.append(len(unique))
+            unique.append(sc)
+    return unique, index
+
+
+def _describe(scenario: Mapping[str, Any]) -> str:
+    parts = []
+    for name, spec in scenario.items():
+        if isinstance(spec, Tensor) and spec.numel() <= 4:
+            parts.append(f"{name}={spec.reshape(-1).tolist()}")
+        else:
+            parts.append(f"{name}={describe(spec)}")
+    return "do(" + ", ".join(parts) + ")" if parts else "no intervention"
 
 
 def _general(

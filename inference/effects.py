@@ -21,6 +21,9 @@ Estimators (``estimator=``), over the N rows of ``data``:
       ATE = mean_i [ m_1 - m_0 + t_i (y_i - m_1) / e_i - (1 - t_i) (y_i - m_0) / (1 - e_i) ]
       ATT = [ sum_i t_i (y_i - m_0) - sum_i (1 - t_i) e_i / (1 - e_i) (y_i - m_0) ] / sum_i t_i
 
+Beside the average, :attr:`EffectResult.units` holds every row's own effect
+``m_1(x_i) - m_0(x_i)`` (the CATE) with an interval (:mod:`inference.unit_effects`).
+
 The interval is ``estimate +- z sd(psi) / sqrt(N)`` from the estimator's influence function
 psi (normal approximation; the fitted models are taken as given). Propensities are clipped
 to ``[clip, 1 - clip]``; :attr:`EffectResult.clipped` counts the units that were.
@@ -32,10 +35,12 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import torch
 from scipy.stats import norm
 from torch import Tensor
 
+from inference.unit_effects import UnitEffects, _index, _unit_effects, check_treatment_site
 from models.checks import check_choice, check_float
 from models.world import WorldModel, as_values, require_world_model
 
@@ -59,6 +64,8 @@ class EffectResult:
         n, treated: rows used and treated rows among them.
         clipped: units whose propensity was clipped (0 for standardisation).
         naive: difference of the mean outcomes of treated and untreated rows.
+        units: every row's effect and interval (:class:`inference.unit_effects.UnitEffects`;
+            ``units.table()`` is a DataFrame when the data were one).
     """
 
     estimate: float
@@ -72,14 +79,18 @@ class EffectResult:
     treated: int
     clipped: int
     naive: float
+    units: UnitEffects | None = None
 
     def covers(self, value: float) -> bool:
         """Whether ``value`` lies in the interval."""
         return self.low <= value <= self.high
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-compatible fields."""
-        return dict(self.__dict__)
+        """JSON-compatible fields (the unit effects as lists)."""
+        out = {k: v for k, v in self.__dict__.items() if k != "units"}
+        if self.units is not None:
+            out["units"] = {k: np.asarray(v).tolist() for k, v in self.units.table().items()}
+        return out
 
 
 def treatment_effect(
@@ -119,29 +130,11 @@ def treatment_effect(
     estimator = check_choice("estimator", estimator, ESTIMATORS)
     level = check_float("level", level, minimum=0.0, maximum=1.0, min_open=True, max_open=True)
     clip = check_float("clip", clip, minimum=0.0, maximum=0.5, min_open=True, max_open=True)
+    desc = check_treatment_site(model, treatment, outcome)
     g = model.graph
-    g.check_name(treatment, what="treatment")
-    g.check_name(outcome, what="outcome")
-    if model.categories(treatment) != 2 or g.is_root(treatment):
-        raise ValueError(
-            f"treatment {treatment!r} must be a Bernoulli site with parents (its mechanism is the "
-            "propensity); declare it with discrete={name: 2} and give it its confounders as parents"
-        )
-    desc = g.descendants(treatment)
-    if outcome not in desc or model.categories(outcome) is not None:
-        raise ValueError(f"outcome {outcome!r} must be a continuous descendant of {treatment!r}")
-    vals, n = as_values(g, data, what="data", dtype=model.dtype)
-    needed = [v for v in g.names if v not in desc] + [outcome]
-    missing = [v for v in needed if v not in vals]
-    if missing:
-        raise ValueError(
-            f"data needs columns for {missing} (the treatment, the outcome and every non-descendant)"
-        )
-    model.check_codes(vals, "data")
+    vals, n = _check_rows(model, data, treatment, outcome, desc)
     t, y = vals[treatment][:, 0].double(), vals[outcome][:, 0].double()
     n_t = int(t.sum())
-    if n_t == 0 or n_t == n:
-        raise ValueError(f"data has {n_t} treated rows of {n}; both arms are needed")
     given = {k: vals[k] for k in g.names if k not in desc}
     m = {}
     with torch.no_grad():
@@ -159,9 +152,52 @@ def treatment_effect(
     se = float(psi.std() / math.sqrt(n))
     z = float(norm.ppf(0.5 + level / 2))
     naive = float(y[t == 1].mean() - y[t == 0].mean())
+    units = _unit_effects(model, given, treatment, outcome, n, level, _index(data))
     return EffectResult(
-        estimate, estimate - z * se, estimate + z * se, se, level, target, estimator, n, n_t, clipped, naive
+        estimate,
+        estimate - z * se,
+        estimate + z * se,
+        se,
+        level,
+        target,
+        estimator,
+        n,
+        n_t,
+        clipped,
+        naive,
+        units=units,
     )
+
+
+def _check_rows(
+    model: WorldModel, data: Any, treatment: str, outcome: str, desc: set[str]
+) -> tuple[dict[str, Tensor], int]:
+    """The rows as tensors, with the treatment, the outcome, every non-descendant and both arms."""
+    g = model.graph
+    vals, n = as_values(g, data, what="data", dtype=model.dtype)
+    needed = [v for v in g.names if v not in desc] + [outcome]
+    missing = [v for v in needed if v not in vals]
+    if missing or n is None:
+        raise ValueError(
+            f"data needs columns for {missing} (the treatment, the outcome and every non-descendant)"
+        )
+    _check_binary(vals[treatment], treatment)
+    model.check_codes(vals, "data")
+    n_t = int(vals[treatment].sum())
+    if n_t == 0 or n_t == n:
+        raise ValueError(f"data has {n_t} treated rows of {n}; both arms are needed")
+    return vals, n
+
+
+def _check_binary(column: Tensor, treatment: str) -> None:
+    """Refuse a treatment column with a value other than 0 and 1, naming it."""
+    values = torch.unique(column)
+    other = values[(values != 0) & (values != 1)]
+    if other.numel():
+        raise ValueError(
+            f"treatment column {treatment!r} has the value {float(other[0]):g} "
+            f"(values: {[float(v) for v in values[:6]]}); a binary treatment takes 0 and 1 only"
+        )
 
 
 def _influence(

@@ -404,7 +404,7 @@ def _composed() -> None:
 
 
 def _tables_and_effects() -> None:
-    """Table, as_table, CausalGraph.from_edges, cpdag, compare_edges, DiscoveryOptions, treatment_effect."""
+    """Table, as_table, CausalGraph.from_edges, cpdag, compare_edges, DiscoveryOptions, treatment_effect, unit_effects."""
     rng = np.random.default_rng(0)
     x = rng.normal(size=200)
     t = (rng.random(200) < 1 / (1 + np.exp(-x))).astype(float)
@@ -414,7 +414,8 @@ def _tables_and_effects() -> None:
     m = WorldModel(g, seed=0, kind="linear", discrete={"t": 2})
     fit(m, table, schedule=inference.FitSchedule(epochs=2, batch_size=64), seed=0)
     r = inference.treatment_effect(m, table, "t", "y [kg]")
-    assert isinstance(r, inference.EffectResult)
+    assert isinstance(r, inference.EffectResult) and isinstance(r.units, inference.UnitEffects)
+    assert isinstance(inference.unit_effects(m, table, "t", "y [kg]"), inference.UnitEffects)
     res = discover(table, options=inference.DiscoveryOptions(bootstrap=1, features=8), seed=0)
     assert isinstance(res.cpdag, inference.CPDAG)
     assert isinstance(inference.compare_edges(res.graph, [("x", "t"), ("t", "x")]), inference.EdgeComparison)

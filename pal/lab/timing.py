@@ -3,7 +3,9 @@
 Every figure is the median of ``repeats`` timed calls (``time.perf_counter``) after
 ``warmup`` untimed calls, so lazy initialisation, allocator growth and first-call
 dispatch costs stay out of it. :func:`measure_interleaved` alternates the contenders
-within each repeat, so a change in machine load hits both sides of a ratio alike.
+within each repeat, so a change in machine load hits both sides of a ratio alike. The CPU
+time of the calling thread (``time.thread_time``) is recorded beside the wall time: on a
+loaded machine it moves far less, and with one torch thread it is the whole cost of a call.
 """
 
 from __future__ import annotations
@@ -29,10 +31,12 @@ class Timing:
     Attributes:
         seconds: wall time of each timed repeat, s.
         result: return value of the last call (not compared, not printed).
+        cpu_seconds: CPU time of the calling thread in each timed repeat, s.
     """
 
     seconds: tuple[float, ...]
     result: Any = field(default=None, repr=False, compare=False)
+    cpu_seconds: tuple[float, ...] = ()
 
     @property
     def median(self) -> float:
@@ -43,6 +47,11 @@ class Timing:
     def ms(self) -> float:
         """Median wall time, ms."""
         return 1e3 * self.median
+
+    @property
+    def cpu_median(self) -> float:
+        """Median CPU time of the calling thread, s (0 when not recorded)."""
+        return statistics.median(self.cpu_seconds) if self.cpu_seconds else 0.0
 
 
 def _check(repeats: int, warmup: int) -> None:
@@ -78,6 +87,7 @@ def measure_interleaved(
         raise ValueError("fns is empty; give at least one call to time")
     ctx = torch.no_grad if no_grad else contextlib.nullcontext
     times: dict[str, list[float]] = {k: [] for k in fns}
+    cpu: dict[str, list[float]] = {k: [] for k in fns}
     results: dict[str, Any] = {}
     with ctx():
         for _ in range(warmup):
@@ -85,10 +95,11 @@ def measure_interleaved(
                 fn()
         for _ in range(repeats):
             for name, fn in fns.items():
-                start = time.perf_counter()
+                start, start_cpu = time.perf_counter(), time.thread_time()
                 results[name] = fn()
                 times[name].append(time.perf_counter() - start)
-    return {k: Timing(tuple(v), results[k]) for k, v in times.items()}
+                cpu[name].append(time.thread_time() - start_cpu)
+    return {k: Timing(tuple(v), results[k], tuple(cpu[k])) for k, v in times.items()}
 
 
 def ratio(numerator: float | None, denominator: float | None) -> float | None:

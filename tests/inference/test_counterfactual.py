@@ -177,7 +177,8 @@ def test_state_errors(chain):
 
 @pytest.mark.parametrize(("kind", "members"), [("mlp", 1), ("hetero", 1), ("mlp", 3), ("hetero", 3)])
 def test_descendants_only_replay_equals_the_full_intervened_program(kind, members):
-    from inference.counterfactual import _combine, abduct
+    from inference.counterfactual import abduct
+    from inference.counterfactual_fast import _combine
     from inference.handlers import Intervene, ReplayNoise
     from inference.interventions import check_interventions
     from models import random_graph
@@ -344,7 +345,7 @@ def test_a_latent_heteroscedastic_site_is_inferred_then_abducted():
 @pytest.mark.parametrize("kind", ["mlp", "hetero", "ensemble"])
 def test_torch_abduction_equals_the_program_abduction(kind):
     """The fast path's torch abduction is the AbductNoise handler's, site for site."""
-    from inference.counterfactual import _abduct, _abduct_plain, _torch_abduction
+    from inference.abduction import _abduct, _abduct_plain, _torch_abduction
     from inference.program import Program
     from models import finger_graph
 

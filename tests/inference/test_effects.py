@@ -72,3 +72,35 @@ def test_bad_arguments_are_refused():
         treatment_effect(model, as_table(ones), "t", "y")
     with pytest.raises(ValueError, match="target"):
         treatment_effect(model, rows, "t", "y", target="atc")
+
+
+def test_unit_effects_of_a_single_member_model_are_exact_with_zero_width():
+    from inference.unit_effects import unit_effects
+
+    rows = as_table(confounded(50))
+    r = treatment_effect(true_model(), rows, "t", "y")
+    np.testing.assert_allclose(r.units.effect, 2.0, atol=1e-5)  # Y = 2 T + 3 X: every unit's effect is 2
+    assert r.units.members == 1 and np.array_equal(r.units.low, r.units.high)
+    assert isinstance(r.units.table(), dict)
+    # new units from their covariates alone: the treatment and outcome columns are not read
+    alone = unit_effects(true_model(), {"x": np.ones((3, 1))}, "t", "y")
+    np.testing.assert_allclose(alone.effect, 2.0, atol=1e-5)
+    with pytest.raises(ValueError, match=r"needs columns for \['x'\]"):
+        unit_effects(true_model(), {"t": np.ones((3, 1))}, "t", "y")
+
+
+def test_unit_level_bad_input_names_the_value():
+    from inference.unit_effects import unit_effects
+
+    data = confounded(100)
+    model = true_model()
+    with pytest.raises(ValueError, match="needs a treatment: got treatment=None"):
+        unit_effects(model, as_table(data), None, "y")
+    with pytest.raises(ValueError, match="needs a treatment: got treatment=None"):
+        treatment_effect(model, as_table(data), None, "y")
+    third = {**data, "t": np.where(np.arange(100) == 7, 2.0, data["t"])}
+    with pytest.raises(ValueError, match=r"treatment column 't' has the value 2 .*takes 0 and 1 only"):
+        treatment_effect(model, as_table(third), "t", "y")
+    for clip in (0.0, 0.5, 0.7, -0.1):
+        with pytest.raises(ValueError, match=f"clip.*{clip:g}"):
+            treatment_effect(model, as_table(data), "t", "y", clip=clip)

@@ -43,22 +43,33 @@ def test_counterfactual_quick():
     rep = bench_counterfactual.run(config)
     m = rep.metrics
     assert {"pal", "chirho", "dowhy", "ratios", "agreement", "scenario_growth", "intervened"} == set(m)
-    _check_figures(m["pal"], {"1", "2", "4", "8"})
-    assert m["scenario_growth"] == pytest.approx(
-        m["pal"]["scenarios_ms"]["8"] / m["pal"]["scenarios_ms"]["1"]
+    ks = {"1", "2", "8", "32"}
+    _check_figures(m["pal"], ks)
+    assert set(m["pal"]["scenarios_cpu_ms"]) == ks and all(
+        _positive(v) for v in m["pal"]["scenarios_cpu_ms"].values()
     )
+    growth = m["scenario_growth"]["pal"]
+    assert growth["wall"]["8"] == pytest.approx(m["pal"]["scenarios_ms"]["8"] / m["pal"]["scenarios_ms"]["1"])
+    assert growth["cpu"]["8"] == pytest.approx(
+        m["pal"]["scenarios_cpu_ms"]["8"] / m["pal"]["scenarios_cpu_ms"]["1"]
+    )
+    assert rep.target("scenarios_8_vs_1").value == pytest.approx(growth["cpu"]["8"])
     for peer in ("chirho", "dowhy"):
         if not available(peer):
-            assert m[peer] is None and m["ratios"][peer] is None
+            assert m[peer] is None and m["ratios"][peer] is None and m["scenario_growth"][peer] is None
             continue
-        _check_figures(m[peer], {"1", "2", "4", "8"})
+        _check_figures(m[peer], ks)
         ratios = m["ratios"][peer]
         assert _positive(ratios["chain_unit_ms"]) and _positive(ratios["units_per_s"])
         assert m["agreement"][peer] <= bench_counterfactual.TOLERANCE
+    chirho = rep.target("scenarios_8_vs_1_vs_chirho")
+    assert chirho.threshold == 1.0 and (chirho.value is None) == (not available("chirho"))
     table = rep.tables[0]
-    assert table.columns[:4] == ("figure", "pal", "chirho", "dowhy") and len(table.rows) == 3 + 4
+    # 3 unit figures, 4 scenario times, 3 growths each by wall and CPU time
+    assert table.columns[:4] == ("figure", "pal", "chirho", "dowhy") and len(table.rows) == 3 + 4 + 6
     per_unit = {f"{f}_vs_{n}" for f in ("chain_unit_ms", "mlp50_unit_ms") for n in ("chirho", "dowhy")}
-    assert {t.name for t in rep.targets} == {"chain_unit_ms", "units_per_s", "scenarios_8_vs_1"} | per_unit
+    growth_targets = {"scenarios_8_vs_1", "scenarios_8_vs_1_vs_chirho"}
+    assert {t.name for t in rep.targets} == {"chain_unit_ms", "units_per_s"} | growth_targets | per_unit
     assert rep.target("scenarios_8_vs_1").threshold == 1.5
     for name in per_unit:
         peer = name.rsplit("_vs_", 1)[1]
@@ -67,7 +78,7 @@ def test_counterfactual_quick():
             None if m["ratios"][peer] is None else m["ratios"][peer][name.rsplit("_vs_", 1)[0]]
         )
     ax = rep.figures["scenarios"].axes[0]
-    assert ax.get_xlabel() == "scenarios K" and list(ax.get_lines()[0].get_xdata()) == [1, 2, 4, 8]
+    assert ax.get_xlabel() == "scenarios K" and list(ax.get_lines()[0].get_xdata()) == [1, 2, 8, 32]
 
 
 def _chain_factual(n: int) -> dict[str, torch.Tensor]:
@@ -98,18 +109,20 @@ def test_peer_chain_counterfactual_agrees_with_pal(peer_name):
     assert theirs["z"][0, 0, 0].item() == pytest.approx(0.0, abs=1e-5)
 
 
-# the benchmark times SVI steps; its budgets are not meant to converge
-@pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
-def test_svi_quick():
-    rep = bench_svi.run(registry.get("bench", "svi").quick)
+def test_svi_tiny_reports_its_figures_and_refuses_a_guide_that_pal_warns_about():
+    rep = bench_svi.run(registry.get("bench", "svi").tiny)  # 6 steps: the guide has not fitted
     m = rep.metrics
-    for key in ("steps_per_s", "steps_per_s_loop"):
+    for key in ("steps_per_s", "steps_per_s_loop", "cpu_seconds"):
         assert set(m[key]) == {"infer_state", "plain_pyro"}
     assert all(_positive(v) for v in m["steps_per_s"].values())
     assert m["ratio"] == pytest.approx(m["steps_per_s"]["infer_state"] / m["steps_per_s"]["plain_pyro"])
+    assert m["ratio_cpu"] == pytest.approx(m["cpu_seconds"]["plain_pyro"] / m["cpu_seconds"]["infer_state"])
     # same seed and settings: the same optimisation trajectory
     assert m["final_loss"]["infer_state"] == pytest.approx(m["final_loss"]["plain_pyro"], rel=1e-3)
-    assert rep.target("ratio").threshold == pytest.approx(1 / 1.3)
+    assert m["pal_warnings"] and "6 steps" in m["pal_warnings"][-1]
+    for name in ("ratio", "ratio_cpu"):
+        target = rep.target(name)
+        assert target.threshold == pytest.approx(1 / 1.3) and target.verdict == "not evaluated"
 
 
 # the benchmark times SVI steps; its budgets are not meant to converge
