@@ -59,6 +59,7 @@ class EffectResult:
         n, treated: rows used and treated rows among them.
         clipped: units whose propensity was clipped (0 for standardisation).
         naive: difference of the mean outcomes of treated and untreated rows.
+        clip: the bound: propensities were clipped to ``[clip, 1 - clip]``.
     """
 
     estimate: float
@@ -72,6 +73,7 @@ class EffectResult:
     treated: int
     clipped: int
     naive: float
+    clip: float = 1e-3
 
     def covers(self, value: float) -> bool:
         """Whether ``value`` lies in the interval."""
@@ -160,7 +162,7 @@ def treatment_effect(
     z = float(norm.ppf(0.5 + level / 2))
     naive = float(y[t == 1].mean() - y[t == 0].mean())
     return EffectResult(
-        estimate, estimate - z * se, estimate + z * se, se, level, target, estimator, n, n_t, clipped, naive
+        estimate, estimate - z * se, estimate + z * se, se, level, target, estimator, n, n_t, clipped, naive, clip
     )
 
 
