@@ -162,7 +162,18 @@ def treatment_effect(
     z = float(norm.ppf(0.5 + level / 2))
     naive = float(y[t == 1].mean() - y[t == 0].mean())
     return EffectResult(
-        estimate, estimate - z * se, estimate + z * se, se, level, target, estimator, n, n_t, clipped, naive, clip
+        estimate,
+        estimate - z * se,
+        estimate + z * se,
+        se,
+        level,
+        target,
+        estimator,
+        n,
+        n_t,
+        clipped,
+        naive,
+        clip,
     )
 
 
