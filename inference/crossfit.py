@@ -163,7 +163,7 @@ class CrossFitScorer:
         return self.residuals(child, parent_sets)[1]
 
     def score_rows(self, child: str, parent_sets: Sequence[Sequence[str]]) -> tuple[Tensor, Tensor]:
-        """:meth:`score` ``(C,)`` and the per-row held-out log-likelihoods ``(C, n_i)`` nats,
+        """:meth:`score` ``(C,)`` and the per-row held-out log-likelihoods ``(C, n_i)`` nats.
 
             l_r = -1/2 sum_d [ log(2 pi s_d^2) + u_rd^2 / s_d^2 ],   s_d^2 = max(mean_r u_rd^2, floor),
 

@@ -70,9 +70,9 @@ from tqdm.auto import tqdm
 
 from inference.admissible import StructureData, admissible_parents, as_variables
 from inference.crossfit import CrossFitScorer, RepeatedScorer
+from inference.equivalence import CPDAG, compare_edges, cpdag
 from inference.marginals import TRANSFORMS, transform_columns
 from inference.prune import prune
-from inference.equivalence import CPDAG, compare_edges, cpdag
 from inference.search import Dag, LocalScores, hill_climb
 from models.checks import (
     check_bool,

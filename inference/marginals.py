@@ -22,7 +22,7 @@ from scipy.stats import rankdata
 
 from models.checks import as_float_array, check_choice
 
-__all__ = ["SKEW", "KURTOSIS", "TRANSFORMS", "normal_scores", "skewed", "transform_columns"]
+__all__ = ["KURTOSIS", "SKEW", "TRANSFORMS", "normal_scores", "skewed", "transform_columns"]
 
 TRANSFORMS = ("auto", "rank", "none")
 
@@ -38,6 +38,8 @@ def normal_scores(x: np.ndarray) -> np.ndarray:
 
 def skewed(x: np.ndarray) -> np.ndarray:
     """``(k,)`` bool: the columns of ``x`` ``(N, k)`` that ``"auto"`` transforms (constant columns: False)."""
+    big = np.abs(x).max(0)
+    x = x / np.where(big > 0, big, 1.0)  # skewness and kurtosis do not depend on the units
     centred = x - x.mean(0)
     sd = centred.std(0)
     z = centred / np.where(sd > 0, sd, 1.0)

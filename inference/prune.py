@@ -28,7 +28,7 @@ __all__ = ["prune"]
 
 
 def _z(scores: LocalScores, child: str, parents: list[str], p: str, delta: float) -> float:
-    """z of parent ``p`` (inf when the per-row differences do not vary)."""
+    """Z of parent ``p`` (inf when the per-row differences do not vary)."""
     d = scores.rows(child, tuple(parents)) - scores.rows(child, tuple(q for q in parents if q != p))
     se = float(d.std()) * math.sqrt(d.numel()) if d.numel() > 1 else 0.0
     if se <= 0:
