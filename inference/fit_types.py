@@ -8,7 +8,7 @@ The default schedule (``schedule=None``, :meth:`FitSchedule.auto`) scales with t
 rows N so that it behaves from N = 200 to N = 10^6:
 
     validation = 0.2 (N < 10 000) or 0.1,        n_train = N - round(validation * N)
-    small tables (n_train <= 20 000): full batch, epochs 3000, patience 100, lr 0.03,
+    small tables (n_train <= 20 000): full batch, epochs 3000, patience 100, lr 0.02,
         tolerance 1 (a mechanism with at most one parameter per 100 training rows keeps its
         latest epoch within one standard error of its best held-out criterion)
     larger tables: batch_size = clip(n_train // 8, 32, 2048),
@@ -155,7 +155,7 @@ class FitSchedule:
         validation = 0.2 if n < 10_000 else 0.1
         n_train = n - round(validation * n)
         if n_train <= FULL_BATCH_ROWS:
-            return cls(3000, n_train, 0.03, validation, 100, tolerance=1.0)
+            return cls(3000, n_train, 0.02, validation, 100, tolerance=1.0)
         batch = int(min(2048, max(32, n_train // 8)))
         steps = math.ceil(n_train / batch)
         epochs = int(min(500, max(10, math.ceil(10_000 / steps))))
