@@ -432,10 +432,7 @@ def discover(
     vs, data = _inputs(variables, data)
     required = set(check_edges("required", required))
     allowed = admissible_parents(vs, tiers=tiers, forbidden=forbidden, required=required)
-    if isinstance(data, Mapping):
-        data, transformed = transform_columns(data, opts.transform)
-    else:
-        transformed = ()
+    data, transformed = transform_columns(data, opts.transform) if isinstance(data, Mapping) else (data, ())
     sdata = StructureData.build(vs, data, intervened)
     bar = tqdm(desc="discover", disable=not progress_bar, leave=False, bar_format="{desc} [{elapsed}]")
     try:

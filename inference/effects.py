@@ -161,20 +161,8 @@ def treatment_effect(
     se = float(psi.std() / math.sqrt(n))
     z = float(norm.ppf(0.5 + level / 2))
     naive = float(y[t == 1].mean() - y[t == 0].mean())
-    return EffectResult(
-        estimate,
-        estimate - z * se,
-        estimate + z * se,
-        se,
-        level,
-        target,
-        estimator,
-        n,
-        n_t,
-        clipped,
-        naive,
-        clip,
-    )
+    low, high = estimate - z * se, estimate + z * se
+    return EffectResult(estimate, low, high, se, level, target, estimator, n, n_t, clipped, naive, clip)
 
 
 def _influence(

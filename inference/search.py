@@ -141,6 +141,15 @@ class LocalScores:
         return self.rows_cache[child, parents]
 
 
+def _screened(
+    screen: tuple[LocalScores, int], dag: Dag, child: str, ps: tuple[str, ...], cands: list[str]
+) -> list[str]:
+    """The k candidate parents of ``child`` with the largest cheap gains (ties: declaration order)."""
+    cheap, k = screen
+    gains = cheap.many(child, [dag.sorted({*ps, p}) for p in cands])
+    return [p for _, p in sorted(zip(gains, cands, strict=True), key=lambda t: -t[0])[:k]]
+
+
 def hill_climb(
     scores: LocalScores,
     allowed: Mapping[str, tuple[str, ...]],
@@ -170,10 +179,7 @@ def hill_climb(
         if not cands:
             return []
         if screen is not None and len(cands) > screen[1]:
-            cheap, k = screen
-            base = cheap.one(child, ps)
-            gains = cheap.many(child, [dag.sorted({*ps, p}) for p in cands])
-            cands = [p for _, p in sorted(zip(gains, cands, strict=True), key=lambda t: -t[0])[:k]]
+            cands = _screened(screen, dag, child, ps, cands)
         base = scores.one(child, ps)
         vals = scores.many(child, [dag.sorted({*ps, p}) for p in cands])
         return [(v - base, "add", p, child) for p, v in zip(cands, vals, strict=True)]
