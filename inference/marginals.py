@@ -27,7 +27,7 @@ __all__ = ["KURTOSIS", "SKEW", "TRANSFORMS", "normal_scores", "skewed", "transfo
 TRANSFORMS = ("auto", "rank", "none")
 
 #: ``"auto"`` thresholds: |skewness| and excess kurtosis above which a column is rank transformed.
-SKEW, KURTOSIS = 1.0, 3.0
+SKEW, KURTOSIS = 2.0, 6.0
 
 
 def normal_scores(x: np.ndarray) -> np.ndarray:
