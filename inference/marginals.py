@@ -63,7 +63,7 @@ def transform_columns(data: Mapping[str, object], how: str) -> tuple[dict[str, o
         if a.ndim != 2 or not np.isfinite(a).all():
             continue  # StructureData.build refuses it with the full message
         pick = np.ones(a.shape[1], dtype=bool) if how == "rank" else skewed(a)
-        pick &= a.std(0) > 0
+        pick &= a.max(0) > a.min(0)  # not constant
         if pick.any():
             a = a.astype(np.float64, copy=True)
             a[:, pick] = normal_scores(a[:, pick])
