@@ -195,7 +195,8 @@ class CrossFitScorer:
         lams = torch.tensor(self.ridge, dtype=torch.float64)[:, None]  # (R, 1)
         best_err = torch.full((c,), math.inf, dtype=torch.float64)
         best = torch.empty(c, n_i, dc, dtype=torch.float64)
-        for length in self.length if self.data.columns(parent_sets[0]) and self.features else self.length[:1]:
+        lengths = self.length if self.data.columns(parent_sets[0]) and self.features else self.length[:1]
+        for length in lengths:
             aug = self._design(x, parent_sets, length, child)  # (C, n_i, 1 + F + Dc)
             f = aug.shape[-1] - 1 - dc
             phi = aug[..., 1 : 1 + f]
@@ -218,6 +219,9 @@ class CrossFitScorer:
                 fitted = (phi[:, b] @ beta.reshape(c, f, -1)).reshape(c, -1, len(self.ridge), dc)
                 resid[:, :, b] = (y[b][None, :, None, :] - offset[:, None] - fitted).permute(2, 0, 1, 3)
             err, pick = resid.pow(2).mean((2, 3)).min(0)  # (C,): best ridge per candidate
+            if len(lengths) == 1:  # nothing to compare with
+                best = resid[pick, torch.arange(c)]
+                break
             better = err < best_err
             best_err = torch.where(better, err, best_err)
             best[better] = resid[pick, torch.arange(c)][better]
