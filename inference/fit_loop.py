@@ -52,14 +52,6 @@ def member_loss(member: Mechanism, x: Tensor, y: Tensor, loss: str, beta: float)
     return nll.mean() + member.penalty(), resid
 
 
-def site_nll(mech: Mechanism, x: Tensor, y: Tensor) -> float:
-    """Mean NLL of the site at ``y``, nats per unit and dim (Normal, or the categorical of a discrete site)."""
-    if isinstance(mech, DiscreteMechanism):
-        return float(-mech.distribution(x).log_prob(y).mean())
-    loc, scale = mech.loc_scale(x)
-    return float(-torch.distributions.Normal(loc, scale).log_prob(y).mean())
-
-
 @dataclass
 class Run:
     """The data and the state of one training run: mechanisms, columns, rows, curves, best epochs.
