@@ -119,7 +119,7 @@ def train(
         worst = _epoch(run, optim, schedule, gen)
         _validate(run)
         if schedule.patience is not None:
-            _early_stop(run, epoch, schedule.patience, schedule.tolerance)
+            _early_stop(run, epoch, schedule.patience, schedule.plateau_se)
             if not run.active:
                 break
         bar.set_postfix(mse=f"{worst:.4g}")
@@ -190,7 +190,7 @@ def _validate(run: Run) -> None:
 
 
 #: A mechanism with at most this many trainable parameters per training row cannot overfit
-#: noticeably; :attr:`FitSchedule.tolerance` applies to it.
+#: noticeably; :attr:`FitSchedule.plateau_se` applies to it.
 ROWS_PER_PARAMETER = 100
 
 

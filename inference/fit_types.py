@@ -9,7 +9,7 @@ rows N so that it behaves from N = 200 to N = 10^6:
 
     validation = 0.2 (N < 10 000) or 0.1,        n_train = N - round(validation * N)
     small tables (n_train <= 20 000): full batch, epochs 3000, patience 100, lr 0.02,
-        tolerance 1 (a mechanism with at most one parameter per 100 training rows keeps its
+        plateau_se 1 (a mechanism with at most one parameter per 100 training rows keeps its
         latest epoch within one standard error of its best held-out criterion)
     larger tables: batch_size = clip(n_train // 8, 32, 2048),
         epochs = clip(ceil(10 000 / steps per epoch), 10, 500)   (~10 000 Adam steps),
@@ -118,9 +118,9 @@ class FitSchedule:
         bootstrap: train each member of an ensemble on its own bootstrap resample.
         beta: the beta of ``"beta_nll"``, in [0, 1].
         calibration: how held-out residuals set the scales (:class:`CalibrationOptions`).
-        tolerance: with ``patience``, a mechanism with at most one trainable parameter per
+        plateau_se: with ``patience``, a mechanism with at most one trainable parameter per
             100 training rows keeps a later epoch whose validation criterion is within
-            ``tolerance`` standard errors of its lowest (>= 0; 0: the lowest epoch).
+            ``plateau_se`` standard errors of its lowest (>= 0; 0: the lowest epoch).
     """
 
     epochs: int = 120
@@ -131,11 +131,11 @@ class FitSchedule:
     bootstrap: bool = True
     beta: float = 0.5
     calibration: CalibrationOptions = CalibrationOptions()
-    tolerance: float = 0.0
+    plateau_se: float = 0.0
 
     def __post_init__(self) -> None:
         check_int("epochs", self.epochs, minimum=1)
-        check_float("tolerance", self.tolerance, minimum=0.0)
+        check_float("plateau_se", self.plateau_se, minimum=0.0)
         check_int("batch_size", self.batch_size, minimum=1)
         check_float("lr", self.lr, minimum=0.0, min_open=True)
         check_float("validation", self.validation, minimum=0.0, maximum=1.0, max_open=True)
@@ -155,7 +155,7 @@ class FitSchedule:
         validation = 0.2 if n < 10_000 else 0.1
         n_train = n - round(validation * n)
         if n_train <= FULL_BATCH_ROWS:
-            return cls(3000, n_train, 0.02, validation, 100, tolerance=1.0)
+            return cls(3000, n_train, 0.02, validation, 100, plateau_se=1.0)
         batch = int(min(2048, max(32, n_train // 8)))
         steps = math.ceil(n_train / batch)
         epochs = int(min(500, max(10, math.ceil(10_000 / steps))))
