@@ -33,21 +33,18 @@ the edges observational data cannot orient; :func:`shd` documents how reversed a
 undirected edges count, and :func:`inference.equivalence.compare_edges` compares with a
 reference graph that has cycles.
 
-**Which graph to compare with a peer's.** :attr:`DiscoveryResult.graph` is a DAG whose
-orientations come from the held-out likelihood (nonlinear additive noise and interventions
-orient edges that the equivalence class leaves open); :attr:`DiscoveryResult.cpdag` keeps only
-what the background knowledge and the skeleton's v-structures imply. Against a reference DAG
-(a known or consensus graph), compare ``shd(result.graph, truth)`` with a peer's CPDAG scored
-against the same DAG (:func:`pal.baselines.discovery_peers.cpdag_shd`: an undirected edge
-counts 1, an orientation not committed to). To compare equivalence classes, compare
-``shd(result.cpdag, cpdag(truth))`` with the peer's CPDAG against ``cpdag(truth)``. Do not
-score pal's CPDAG against a DAG: it gives up the orientations pal found and is charged for
-each (the CPDAG scores worse than the DAG it came from whenever those orientations are right).
+**Which graph to compare with a peer's.** :attr:`DiscoveryResult.graph` is a DAG oriented by
+held-out likelihoods (nonlinear additive noise and interventions orient edges that the
+equivalence class leaves open); :attr:`DiscoveryResult.cpdag` keeps only what v-structures and
+background knowledge imply. Against a reference DAG, compare ``shd(result.graph, truth)`` with
+the peer's CPDAG scored against that DAG (:func:`pal.baselines.discovery_peers.cpdag_shd`, an
+undirected edge counting 1); to compare equivalence classes, score ``result.cpdag`` and the
+peer's CPDAG against ``cpdag(truth)``. pal's CPDAG against a DAG is charged for every
+orientation it found and gave up.
 
-Robustness: columns that are skewed or heavy-tailed are replaced by their normal scores
-first (``options.transform``, :mod:`inference.marginals`), and an edge is kept only if its
-held-out gain is both at least ``prune_nats`` and at least ``min_z`` standard errors
-(:mod:`inference.prune`), so an edge earns its place on many rows, not on a few outliers.
+Robustness: skewed or heavy-tailed columns enter as normal scores (``options.transform``,
+:mod:`inference.marginals`), and an edge needs a held-out gain of ``prune_nats`` and of
+``min_z`` standard errors (:mod:`inference.prune`): it must earn its place on many rows.
 
 ``discover(table)`` takes a pandas DataFrame, a :class:`models.tables.Table` or a mapping of
 1-d columns directly: every column becomes an observed scalar variable named by the table
@@ -59,13 +56,11 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-import torch
 from tqdm.auto import tqdm
 
 from inference.admissible import StructureData, admissible_parents, as_variables
@@ -74,6 +69,7 @@ from inference.equivalence import CPDAG, compare_edges, cpdag
 from inference.marginals import TRANSFORMS, transform_columns
 from inference.prune import prune
 from inference.search import Dag, LocalScores, hill_climb
+from inference.stability import edge_stability
 from models.checks import (
     check_bool,
     check_choice,
@@ -95,6 +91,9 @@ log = logging.getLogger(__name__)
 
 SPARSIFIERS = ("none", "gated")
 
+#: Rows from which ``DiscoveryOptions(length=None)`` uses one length scale instead of a grid.
+GRID_ROWS = 500
+
 #: Random features of the cheap scorer that screens candidate parents (``DiscoveryOptions.screen``).
 SCREEN_FEATURES = 8
 
@@ -114,7 +113,8 @@ class DiscoveryOptions:
         features: random Fourier features M of the held-out scorer (:class:`CrossFitScorer`).
         ridge: ridge penalties on the feature weights to choose from.
         folds: cross-fitting folds K >= 2.
-        length: RBF length scale(s) per sqrt(|P|) to choose from, in standard deviations.
+        length: RBF length scale(s) per sqrt(|P|) to choose from, in standard deviations; None:
+            (0.7, 2.0) below ``GRID_ROWS`` rows (few rows orient more edges with the choice), else 1.0.
         floor: smallest residual variance, in standardised units.
         repeats: average the score over this many fold splits and feature draws
             (:class:`RepeatedScorer`); costs ``repeats`` times as much.
@@ -141,7 +141,7 @@ class DiscoveryOptions:
     features: int = 64
     ridge: float | Sequence[float] = (1e-3, 1e-2, 1e-1, 1.0)
     folds: int = 2
-    length: float | Sequence[float] = (1.0,)
+    length: float | Sequence[float] | None = None
     floor: float = 1e-6
     repeats: int = 1
     gated: Mapping[str, Any] | None = None
@@ -174,7 +174,9 @@ class DiscoveryOptions:
         """JSON-compatible fields."""
         out = dict(self.__dict__)
         out["ridge"] = list(self.ridge) if isinstance(self.ridge, Sequence) else self.ridge
-        out["length"] = list(self.length) if isinstance(self.length, Sequence) else self.length
+        out["length"] = (
+            list(self.length) if isinstance(self.length, Sequence) else self.length
+        )  # None: by rows
         out["gated"] = dict(self.gated) if self.gated else None
         return out
 
@@ -268,6 +270,11 @@ def shd(learnt: Any, truth: Any) -> int:
 def _states(graph: Any, what: str) -> dict[frozenset[str], Any]:
     edges = graph.edges if isinstance(graph, CausalGraph) else check_edges(what, graph)
     return {frozenset(e): tuple(e) for e in edges}
+
+
+def _resolved(opts: DiscoveryOptions, n: int) -> DiscoveryOptions:
+    """``opts`` with ``length=None`` replaced by the grid for ``n`` rows (the settings record it)."""
+    return opts if opts.length is not None else replace(opts, length=(0.7, 2.0) if n < GRID_ROWS else (1.0,))
 
 
 def _finite(x: float | None) -> float | None:
@@ -434,6 +441,7 @@ def discover(
     allowed = admissible_parents(vs, tiers=tiers, forbidden=forbidden, required=required)
     data, transformed = transform_columns(data, opts.transform) if isinstance(data, Mapping) else (data, ())
     sdata = StructureData.build(vs, data, intervened)
+    opts = _resolved(opts, sdata.n)
     bar = tqdm(desc="discover", disable=not progress_bar, leave=False, bar_format="{desc} [{elapsed}]")
     try:
         graph, ratios, order, history, total, calls, zs = _search(
@@ -441,7 +449,7 @@ def discover(
         )
     finally:
         bar.close()
-    stability, adjacency = _stability(vs, sdata, allowed, required, opts, seed, progress_bar)
+    stability, adjacency = edge_stability(vs, sdata, allowed, required, opts, seed, progress_bar, _search)
     seconds = time.perf_counter() - start
     log.info(
         "discover: %d edges over %d variables in %.2f s (%d sets scored)",
@@ -459,37 +467,4 @@ def discover(
     dag = cpdag(graph, allowed=allowed, required=required)
     return DiscoveryResult(
         graph, ratios, order, tuple(history), total, calls, seconds, settings, dag, stability, adjacency, zs
-    )
-
-
-def _stability(
-    vs: Sequence[Any],
-    sdata: StructureData,
-    allowed: Mapping[str, tuple[str, ...]],
-    required: set[tuple[str, str]],
-    opts: DiscoveryOptions,
-    seed: int,
-    progress_bar: bool,
-) -> tuple[dict[tuple[str, str], float], dict[tuple[str, str], float]]:
-    """Edge and adjacency frequencies over ``opts.bootstrap`` subsamples of the rows."""
-    if not opts.bootstrap:
-        return {}, {}
-    n = sdata.n
-    m = max(8, round(opts.subsample * n))
-    gen = np.random.default_rng([seed, 0x5AB])
-    index = {name: i for i, name in enumerate(sdata.names)}
-    edges: Counter[tuple[str, str]] = Counter()
-    pairs: Counter[tuple[str, str]] = Counter()
-    for b in tqdm(range(opts.bootstrap), desc="discover: subsamples", disable=not progress_bar, leave=False):
-        rows = torch.from_numpy(np.sort(gen.choice(n, size=m, replace=False)))
-        sub = StructureData(
-            sdata.names, sdata.x[rows], sdata.slices, {k: v[rows] for k, v in sdata.rows.items()}
-        )
-        graph = _search(vs, sub, allowed, required, opts, seed + 1 + b, None)[0]
-        edges.update(graph.edges)
-        pairs.update((p, c) if index[p] < index[c] else (c, p) for p, c in graph.edges)
-    key = lambda e: (index[e[1]], index[e[0]])  # noqa: E731
-    return (
-        {e: edges[e] / opts.bootstrap for e in sorted(edges, key=key)},
-        {e: pairs[e] / opts.bootstrap for e in sorted(pairs, key=key)},
     )
