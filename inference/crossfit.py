@@ -162,6 +162,17 @@ class CrossFitScorer:
         """S_i(P) in nats for each candidate set: ``(C,)`` float64."""
         return self.residuals(child, parent_sets)[1]
 
+    def score_rows(self, child: str, parent_sets: Sequence[Sequence[str]]) -> tuple[Tensor, Tensor]:
+        """:meth:`score` ``(C,)`` and the per-row held-out log-likelihoods ``(C, n_i)`` nats.
+
+            l_r = -1/2 sum_d [ log(2 pi s_d^2) + u_rd^2 / s_d^2 ],   s_d^2 = max(mean_r u_rd^2, floor),
+
+        which sum to the score unless a variance sits at the floor.
+        """
+        resid, score = self.residuals(child, parent_sets)
+        var = resid.pow(2).mean(1, keepdim=True).clamp_min(self.floor)  # (C, 1, Dc)
+        return score, -0.5 * (torch.log(2 * math.pi * var) + resid.pow(2) / var).sum(-1)
+
     def residuals(self, child: str, parent_sets: Sequence[Sequence[str]]) -> tuple[Tensor, Tensor]:
         """Out-of-fold residuals ``(C, n_i, dim)`` and scores ``(C,)`` of the candidate sets.
 
@@ -184,7 +195,8 @@ class CrossFitScorer:
         lams = torch.tensor(self.ridge, dtype=torch.float64)[:, None]  # (R, 1)
         best_err = torch.full((c,), math.inf, dtype=torch.float64)
         best = torch.empty(c, n_i, dc, dtype=torch.float64)
-        for length in self.length if self.data.columns(parent_sets[0]) and self.features else self.length[:1]:
+        lengths = self.length if self.data.columns(parent_sets[0]) and self.features else self.length[:1]
+        for length in lengths:
             aug = self._design(x, parent_sets, length, child)  # (C, n_i, 1 + F + Dc)
             f = aug.shape[-1] - 1 - dc
             phi = aug[..., 1 : 1 + f]
@@ -207,6 +219,9 @@ class CrossFitScorer:
                 fitted = (phi[:, b] @ beta.reshape(c, f, -1)).reshape(c, -1, len(self.ridge), dc)
                 resid[:, :, b] = (y[b][None, :, None, :] - offset[:, None] - fitted).permute(2, 0, 1, 3)
             err, pick = resid.pow(2).mean((2, 3)).min(0)  # (C,): best ridge per candidate
+            if len(lengths) == 1:  # nothing to compare with
+                best = resid[pick, torch.arange(c)]
+                break
             better = err < best_err
             best_err = torch.where(better, err, best_err)
             best[better] = resid[pick, torch.arange(c)][better]
@@ -241,3 +256,8 @@ class RepeatedScorer:
     def score(self, child: str, parent_sets: Sequence[Sequence[str]]) -> Tensor:
         """Mean S_i(P) over the repeats, ``(C,)`` nats."""
         return torch.stack([s.score(child, parent_sets) for s in self.scorers]).mean(0)
+
+    def score_rows(self, child: str, parent_sets: Sequence[Sequence[str]]) -> tuple[Tensor, Tensor]:
+        """Mean score ``(C,)`` and mean per-row log-likelihoods ``(C, n_i)`` over the repeats."""
+        pairs = [s.score_rows(child, parent_sets) for s in self.scorers]
+        return torch.stack([p[0] for p in pairs]).mean(0), torch.stack([p[1] for p in pairs]).mean(0)

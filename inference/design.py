@@ -32,6 +32,7 @@ import networkx as nx
 from inference.admissible import StructureData, as_variables
 from inference.crossfit import RepeatedScorer
 from inference.discovery import DiscoveryResult, sigmoid
+from inference.marginals import transform_columns
 from models.checks import check_float, check_int, check_mapping, describe
 from models.variables import Role
 
@@ -54,6 +55,8 @@ def orientation_margins(
     graph = _check_result(result).graph
     vs = as_variables(graph)
     settings = result.settings
+    if isinstance(data, Mapping):  # the columns discover transformed, transformed alike
+        data = transform_columns(data, settings.get("transform", "none"))[0]
     sdata = StructureData.build(vs, data, intervened)
     scorer = RepeatedScorer(
         sdata,

@@ -33,6 +33,19 @@ the edges observational data cannot orient; :func:`shd` documents how reversed a
 undirected edges count, and :func:`inference.equivalence.compare_edges` compares with a
 reference graph that has cycles.
 
+**Which graph to compare with a peer's.** :attr:`DiscoveryResult.graph` is a DAG oriented by
+held-out likelihoods (nonlinear additive noise and interventions orient edges that the
+equivalence class leaves open); :attr:`DiscoveryResult.cpdag` keeps only what v-structures and
+background knowledge imply. Against a reference DAG, compare ``shd(result.graph, truth)`` with
+the peer's CPDAG scored against that DAG (:func:`pal.baselines.discovery_peers.cpdag_shd`, an
+undirected edge counting 1); to compare equivalence classes, score ``result.cpdag`` and the
+peer's CPDAG against ``cpdag(truth)``. pal's CPDAG against a DAG is charged for every
+orientation it found and gave up.
+
+Robustness: skewed or heavy-tailed columns enter as normal scores (``options.transform``,
+:mod:`inference.marginals`), and an edge needs a held-out gain of ``prune_nats`` and of
+``min_z`` standard errors (:mod:`inference.prune`): it must earn its place on many rows.
+
 ``discover(table)`` takes a pandas DataFrame, a :class:`models.tables.Table` or a mapping of
 1-d columns directly: every column becomes an observed scalar variable named by the table
 name rule (:mod:`models.tables`).
@@ -43,19 +56,20 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-import torch
 from tqdm.auto import tqdm
 
 from inference.admissible import StructureData, admissible_parents, as_variables
-from inference.crossfit import RepeatedScorer
+from inference.crossfit import CrossFitScorer, RepeatedScorer
 from inference.equivalence import CPDAG, compare_edges, cpdag
+from inference.marginals import TRANSFORMS, transform_columns
+from inference.prune import prune
 from inference.search import Dag, LocalScores, hill_climb
+from inference.stability import edge_stability
 from models.checks import (
     check_bool,
     check_choice,
@@ -77,6 +91,12 @@ log = logging.getLogger(__name__)
 
 SPARSIFIERS = ("none", "gated")
 
+#: Rows from which ``DiscoveryOptions(length=None)`` uses one length scale instead of a grid.
+GRID_ROWS = 500
+
+#: Random features of the cheap scorer that screens candidate parents (``DiscoveryOptions.screen``).
+SCREEN_FEATURES = 8
+
 
 @dataclass(frozen=True)
 class DiscoveryOptions:
@@ -93,7 +113,8 @@ class DiscoveryOptions:
         features: random Fourier features M of the held-out scorer (:class:`CrossFitScorer`).
         ridge: ridge penalties on the feature weights to choose from.
         folds: cross-fitting folds K >= 2.
-        length: RBF length scale(s) per sqrt(|P|) to choose from, in standard deviations.
+        length: RBF length scale(s) per sqrt(|P|) to choose from, in standard deviations; None:
+            (0.7, 2.0) below ``GRID_ROWS`` rows (few rows orient more edges with the choice), else 1.0.
         floor: smallest residual variance, in standardised units.
         repeats: average the score over this many fold splits and feature draws
             (:class:`RepeatedScorer`); costs ``repeats`` times as much.
@@ -102,6 +123,13 @@ class DiscoveryOptions:
         bootstrap: number B of random subsamples (without replacement) the whole search is
             repeated on to measure edge stability; 0 for none. Costs B more searches.
         subsample: fraction of the rows in each subsample, in (0, 1).
+        min_z: an edge is kept only if its held-out log-likelihood ratio is at least this many
+            standard errors (across rows) above 0 (:mod:`inference.prune`); 0 turns the test off.
+        transform: ``"auto"`` (normal scores of skewed or heavy-tailed columns),
+            ``"rank"`` (of every column) or ``"none"`` (:mod:`inference.marginals`).
+        screen: per addition step, the full scorer scores only this many candidate parents
+            of a child, the best by a cheap scorer (8 random features); None scores all
+            (:mod:`inference.search`).
     """
 
     min_gain: float = 10.0
@@ -113,12 +141,15 @@ class DiscoveryOptions:
     features: int = 64
     ridge: float | Sequence[float] = (1e-3, 1e-2, 1e-1, 1.0)
     folds: int = 2
-    length: float | Sequence[float] = (0.7, 2.0)
+    length: float | Sequence[float] | None = None
     floor: float = 1e-6
     repeats: int = 1
     gated: Mapping[str, Any] | None = None
     bootstrap: int = 0
     subsample: float = 0.8
+    min_z: float = 2.0
+    transform: str = "auto"
+    screen: int | None = 4
 
     def __post_init__(self) -> None:
         check_choice("sparsify", self.sparsify, SPARSIFIERS)
@@ -134,12 +165,18 @@ class DiscoveryOptions:
         check_keywords("gated", self.gated, GATED_KWARGS)
         check_int("bootstrap", self.bootstrap, minimum=0)
         check_float("subsample", self.subsample, minimum=0.0, maximum=1.0, min_open=True, max_open=True)
+        check_float("min_z", self.min_z, minimum=0.0)
+        check_choice("transform", self.transform, TRANSFORMS)
+        if self.screen is not None:
+            check_int("screen", self.screen, minimum=1)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-compatible fields."""
         out = dict(self.__dict__)
         out["ridge"] = list(self.ridge) if isinstance(self.ridge, Sequence) else self.ridge
-        out["length"] = list(self.length) if isinstance(self.length, Sequence) else self.length
+        out["length"] = (
+            list(self.length) if isinstance(self.length, Sequence) else self.length
+        )  # None: by rows
         out["gated"] = dict(self.gated) if self.gated else None
         return out
 
@@ -166,6 +203,8 @@ class DiscoveryResult:
             without ``bootstrap``.
         adjacency_stability: ``(a, b)`` (declaration order) -> fraction of subsamples with
             an edge between a and b either way.
+        z: edge -> its held-out log-likelihood ratio in standard errors (:mod:`inference.prune`;
+            inf for a required edge or with ``min_z = 0``).
     """
 
     graph: CausalGraph
@@ -179,6 +218,7 @@ class DiscoveryResult:
     cpdag: CPDAG | None = None
     stability: dict[tuple[str, str], float] = field(default_factory=dict)
     adjacency_stability: dict[tuple[str, str], float] = field(default_factory=dict)
+    z: dict[tuple[str, str], float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-compatible summary (graph JSON included)."""
@@ -191,6 +231,7 @@ class DiscoveryResult:
                     "confidence": self.graph.confidence[p, c],
                     "log_ratio": self.log_ratio[p, c],
                     "stability": self.stability.get((p, c)),
+                    "z": _finite(self.z.get((p, c))),
                 }
                 for p, c in self.graph.edges
             ],
@@ -231,34 +272,14 @@ def _states(graph: Any, what: str) -> dict[frozenset[str], Any]:
     return {frozenset(e): tuple(e) for e in edges}
 
 
-def _prune(
-    scores: LocalScores,
-    dag_parents: dict[str, list[str]],
-    index: Mapping[str, int],
-    prune_nats: float,
-    required: set[tuple[str, str]],
-) -> tuple[dict[tuple[str, str], float], float]:
-    """Backward elimination per child; returns edge -> Delta and the total score."""
-    ratios: dict[tuple[str, str], float] = {}
-    total = 0.0
-    for child, parents in dag_parents.items():
-        while True:
-            full = scores.one(child, tuple(parents))
-            if not parents:
-                total += full
-                break
-            reduced = scores.many(child, [tuple(q for q in parents if q != p) for p in parents])
-            deltas = {p: full - r for p, r in zip(parents, reduced, strict=True)}
-            free = {p: d for p, d in deltas.items() if (p, child) not in required}
-            weakest = min(free, key=free.__getitem__) if free else None
-            if weakest is not None and free[weakest] < prune_nats:
-                parents = sorted((q for q in parents if q != weakest), key=index.__getitem__)
-                continue
-            total += full
-            ratios.update({(p, child): d for p, d in deltas.items()})
-            break
-        dag_parents[child] = parents
-    return ratios, total
+def _resolved(opts: DiscoveryOptions, n: int) -> DiscoveryOptions:
+    """``opts`` with ``length=None`` replaced by the grid for ``n`` rows (the settings record it)."""
+    return opts if opts.length is not None else replace(opts, length=(0.7, 2.0) if n < GRID_ROWS else (1.0,))
+
+
+def _finite(x: float | None) -> float | None:
+    """``x`` for JSON: None when it is absent or not finite."""
+    return x if x is not None and math.isfinite(x) else None
 
 
 def sigmoid(x: float) -> float:
@@ -306,8 +327,8 @@ def _search(
     opts: DiscoveryOptions,
     seed: int,
     bar: Any,
-) -> tuple[CausalGraph, dict[tuple[str, str], float], tuple[str, ...], list[Any], float, int]:
-    """One search, sparsification and pruning on ``sdata``."""
+) -> tuple[CausalGraph, dict[tuple[str, str], float], tuple[str, ...], list[Any], float, int, dict]:
+    """One search, sparsification and pruning on ``sdata``; the last item is edge -> z."""
     scorer = RepeatedScorer(
         sdata,
         repeats=opts.repeats,
@@ -319,6 +340,18 @@ def _search(
         seed=seed,
     )
     scores = LocalScores(scorer)
+    screen = None
+    if opts.screen is not None and opts.features > SCREEN_FEATURES:
+        cheap = CrossFitScorer(
+            sdata,
+            features=SCREEN_FEATURES,
+            ridge=0.1,
+            folds=opts.folds,
+            length=1.0,
+            floor=opts.floor,
+            seed=seed,
+        )
+        screen = (LocalScores(cheap), opts.screen)
     dag = Dag(sdata.names)
     for p, c in sorted(required, key=lambda e: (dag.index[e[1]], dag.index[e[0]])):
         dag.add(p, c)
@@ -332,6 +365,7 @@ def _search(
         max_parents=opts.max_parents,
         required=required,
         max_moves=opts.max_moves,
+        screen=screen,
         on_move=None
         if bar is None
         else lambda m: bar.set_description_str(f"discover: {m[0]} {m[1]} -> {m[2]}"),
@@ -348,10 +382,10 @@ def _search(
             c: sorted({*chosen[c], *(p for p, cc in required if cc == c)}, key=dag.index.__getitem__)
             for c in sdata.names
         }
-    ratios, total = _prune(scores, parents, dag.index, opts.prune_nats, required)
+    ratios, zs, total = prune(scores, parents, dag.index, opts.prune_nats, required, opts.min_z)
     edges = [(p, c) for c in sdata.names for p in parents[c]]
     graph = CausalGraph(vs, edges, {e: sigmoid(ratios[e]) for e in edges})
-    return graph, {e: float(ratios[e]) for e in edges}, order, history, float(total), scorer.calls
+    return graph, {e: float(ratios[e]) for e in edges}, order, history, float(total), scorer.calls, zs
 
 
 def discover(
@@ -405,13 +439,17 @@ def discover(
     vs, data = _inputs(variables, data)
     required = set(check_edges("required", required))
     allowed = admissible_parents(vs, tiers=tiers, forbidden=forbidden, required=required)
+    data, transformed = transform_columns(data, opts.transform) if isinstance(data, Mapping) else (data, ())
     sdata = StructureData.build(vs, data, intervened)
+    opts = _resolved(opts, sdata.n)
     bar = tqdm(desc="discover", disable=not progress_bar, leave=False, bar_format="{desc} [{elapsed}]")
     try:
-        graph, ratios, order, history, total, calls = _search(vs, sdata, allowed, required, opts, seed, bar)
+        graph, ratios, order, history, total, calls, zs = _search(
+            vs, sdata, allowed, required, opts, seed, bar
+        )
     finally:
         bar.close()
-    stability, adjacency = _stability(vs, sdata, allowed, required, opts, seed, progress_bar)
+    stability, adjacency = edge_stability(vs, sdata, allowed, required, opts, seed, progress_bar, _search)
     seconds = time.perf_counter() - start
     log.info(
         "discover: %d edges over %d variables in %.2f s (%d sets scored)",
@@ -424,41 +462,9 @@ def discover(
         **opts.to_dict(),
         "seed": seed,
         "intervened_rows": {k: int((~v).sum()) for k, v in sdata.rows.items() if not bool(v.all())},
+        "transformed": list(transformed),
     }
     dag = cpdag(graph, allowed=allowed, required=required)
     return DiscoveryResult(
-        graph, ratios, order, tuple(history), total, calls, seconds, settings, dag, stability, adjacency
-    )
-
-
-def _stability(
-    vs: Sequence[Any],
-    sdata: StructureData,
-    allowed: Mapping[str, tuple[str, ...]],
-    required: set[tuple[str, str]],
-    opts: DiscoveryOptions,
-    seed: int,
-    progress_bar: bool,
-) -> tuple[dict[tuple[str, str], float], dict[tuple[str, str], float]]:
-    """Edge and adjacency frequencies over ``opts.bootstrap`` subsamples of the rows."""
-    if not opts.bootstrap:
-        return {}, {}
-    n = sdata.n
-    m = max(8, round(opts.subsample * n))
-    gen = np.random.default_rng([seed, 0x5AB])
-    index = {name: i for i, name in enumerate(sdata.names)}
-    edges: Counter[tuple[str, str]] = Counter()
-    pairs: Counter[tuple[str, str]] = Counter()
-    for b in tqdm(range(opts.bootstrap), desc="discover: subsamples", disable=not progress_bar, leave=False):
-        rows = torch.from_numpy(np.sort(gen.choice(n, size=m, replace=False)))
-        sub = StructureData(
-            sdata.names, sdata.x[rows], sdata.slices, {k: v[rows] for k, v in sdata.rows.items()}
-        )
-        graph = _search(vs, sub, allowed, required, opts, seed + 1 + b, None)[0]
-        edges.update(graph.edges)
-        pairs.update((p, c) if index[p] < index[c] else (c, p) for p, c in graph.edges)
-    key = lambda e: (index[e[1]], index[e[0]])  # noqa: E731
-    return (
-        {e: edges[e] / opts.bootstrap for e in sorted(edges, key=key)},
-        {e: pairs[e] / opts.bootstrap for e in sorted(pairs, key=key)},
+        graph, ratios, order, tuple(history), total, calls, seconds, settings, dag, stability, adjacency, zs
     )

@@ -64,6 +64,7 @@ class EffectResult:
         n, treated: rows used and treated rows among them.
         clipped: units whose propensity was clipped (0 for standardisation).
         naive: difference of the mean outcomes of treated and untreated rows.
+        clip: the bound: propensities were clipped to ``[clip, 1 - clip]``.
         units: every row's effect and interval (:class:`inference.unit_effects.UnitEffects`;
             ``units.table()`` is a DataFrame when the data were one).
     """
@@ -79,6 +80,7 @@ class EffectResult:
     treated: int
     clipped: int
     naive: float
+    clip: float = 1e-3
     units: UnitEffects | None = None
 
     def covers(self, value: float) -> bool:
@@ -165,6 +167,7 @@ def treatment_effect(
         n_t,
         clipped,
         naive,
+        clip,
         units=units,
     )
 

@@ -52,14 +52,6 @@ def member_loss(member: Mechanism, x: Tensor, y: Tensor, loss: str, beta: float)
     return nll.mean() + member.penalty(), resid
 
 
-def site_nll(mech: Mechanism, x: Tensor, y: Tensor) -> float:
-    """Mean NLL of the site at ``y``, nats per unit and dim (Normal, or the categorical of a discrete site)."""
-    if isinstance(mech, DiscreteMechanism):
-        return float(-mech.distribution(x).log_prob(y).mean())
-    loc, scale = mech.loc_scale(x)
-    return float(-torch.distributions.Normal(loc, scale).log_prob(y).mean())
-
-
 @dataclass
 class Run:
     """The data and the state of one training run: mechanisms, columns, rows, curves, best epochs.
@@ -88,6 +80,9 @@ class Run:
     val_curves: dict[str, list[float]] = field(default_factory=dict)
     nll_curves: dict[str, list[float]] = field(default_factory=dict)
     best: dict[str, tuple[float, int, dict[str, Tensor]]] = field(default_factory=dict)
+    lowest: dict[str, tuple[float, float]] = field(default_factory=dict)
+    se_curves: dict[str, list[float]] = field(default_factory=dict)
+    tolerant: set[str] = field(default_factory=set)
     active: list[str] = field(default_factory=list)
     val_rows: dict[str, Tensor] = field(default_factory=dict)
 
@@ -111,9 +106,10 @@ def train(
                 p for name, p in member.named_parameters() if run.losses[v] != "mse" or name != "log_sigma"
             ]
     optim = torch.optim.Adam(params, lr=schedule.lr)
-    for curves in (run.train_curves, run.val_curves, run.nll_curves):
+    for curves in (run.train_curves, run.val_curves, run.nll_curves, run.se_curves):
         curves.update({v: [] for v in run.targets})
     run.active = list(run.targets)
+    run.tolerant = {v for v in run.targets if _few_parameters(run.mechs[v], len(run.train_idx))}
     for v in run.targets:
         run.mechs[v].train()
     bar = tqdm(range(schedule.epochs), desc=desc, disable=not progress_bar, leave=False)
@@ -123,7 +119,7 @@ def train(
         worst = _epoch(run, optim, schedule, gen)
         _validate(run)
         if schedule.patience is not None:
-            _early_stop(run, epoch, schedule.patience)
+            _early_stop(run, epoch, schedule.patience, schedule.plateau_se)
             if not run.active:
                 break
         bar.set_postfix(mse=f"{worst:.4g}")
@@ -166,7 +162,12 @@ def _epoch(run: Run, optim: torch.optim.Optimizer, schedule: FitSchedule, gen: t
 
 
 def _validate(run: Run) -> None:
-    """Append the validation MSE (and NLL, or the cross-entropy of a discrete site) of every active site."""
+    """Append the validation criterion of every active site and its standard error.
+
+    The criterion is the MSE of the loc (and the NLL for ``"nll"`` / ``"beta_nll"``), the
+    cross-entropy of a discrete site; ``se_curves`` holds ``sd(per-row criterion) / sqrt(n_val)``
+    of the one that early stopping reads.
+    """
     with torch.no_grad():
         for v in run.active:
             mech, rows = run.mechs[v], run.validation(v)
@@ -174,23 +175,57 @@ def _validate(run: Run) -> None:
                 continue
             x, y = run.inputs[v][rows], run.outputs[v][rows]
             if v in run.discrete:  # the validation criterion is the cross-entropy
-                run.val_curves[v].append(site_nll(mech, x, y))
+                per_row = -mech.distribution(x).log_prob(y)
+                run.val_curves[v].append(float(per_row.mean()))
                 run.nll_curves[v].append(run.val_curves[v][-1])
+                run.se_curves[v].append(_se(per_row))
                 continue
-            run.val_curves[v].append(float(((y - mech(x)) ** 2).mean()))
+            per_row = ((y - mech(x)) ** 2).mean(-1)
+            run.val_curves[v].append(float(per_row.mean()))
             if run.losses[v] != "mse":
-                run.nll_curves[v].append(site_nll(mech, x, y))
+                loc, scale = mech.loc_scale(x)
+                per_row = -torch.distributions.Normal(loc, scale).log_prob(y).mean(-1)
+                run.nll_curves[v].append(float(per_row.mean()))
+            run.se_curves[v].append(_se(per_row))
 
 
-def _early_stop(run: Run, epoch: int, patience: int) -> None:
-    """Keep each site's best epoch; stop the sites without a better one for ``patience`` epochs."""
+#: A mechanism with at most this many trainable parameters per training row cannot overfit
+#: noticeably; :attr:`FitSchedule.plateau_se` applies to it.
+ROWS_PER_PARAMETER = 100
+
+
+def _few_parameters(mech: Mechanism, n_train: int) -> bool:
+    """Whether ``mech`` has at most ``n_train / ROWS_PER_PARAMETER`` trainable parameters."""
+    count = sum(p.numel() for p in mech.parameters() if p.requires_grad)
+    return count * ROWS_PER_PARAMETER <= n_train
+
+
+def _se(per_row: Tensor) -> float:
+    """Standard error of the mean of ``per_row`` (0 for one row)."""
+    n = per_row.numel()
+    return float(per_row.std() / math.sqrt(n)) if n > 1 else 0.0
+
+
+def _early_stop(run: Run, epoch: int, patience: int, tolerance: float = 0.0) -> None:
+    """Keep each site's epoch; stop the sites without a kept epoch for ``patience`` epochs.
+
+    An epoch is kept when its criterion is below the lowest so far, or, for a mechanism with
+    few parameters (``run.tolerant``: at most one per ``ROWS_PER_PARAMETER`` training rows),
+    within ``tolerance`` standard errors of that lowest value: such a mechanism cannot
+    overfit, so its longest-trained parameters whose held-out criterion is not
+    distinguishably worse than the best are kept (a slow optimiser is not stopped by noise).
+    """
     for v in list(run.active):
         if not len(run.validation(v)):
             continue
         score = run.val_curves[v][-1] if run.losses[v] == "mse" else run.nll_curves[v][-1]
         if not math.isfinite(score):
             raise FloatingPointError(f"validation loss of {v!r} is {score}; lower lr")
-        if v not in run.best or score < run.best[v][0]:
+        lowest = run.lowest.get(v)
+        if lowest is None or score < lowest[0]:
+            lowest = run.lowest[v] = (score, run.se_curves[v][-1])
+        within = v in run.tolerant and score <= lowest[0] + tolerance * lowest[1]
+        if score == lowest[0] or (tolerance > 0 and within):
             state = {key: t.detach().clone() for key, t in run.mechs[v].state_dict().items()}
             run.best[v] = (score, epoch + 1, state)
         elif epoch + 1 - run.best[v][1] >= patience:

@@ -8,13 +8,19 @@ The default schedule (``schedule=None``, :meth:`FitSchedule.auto`) scales with t
 rows N so that it behaves from N = 200 to N = 10^6:
 
     validation = 0.2 (N < 10 000) or 0.1,        n_train = N - round(validation * N)
-    batch_size = clip(n_train // 8, 32, 2048)    (at least 8 steps per epoch below 16 k rows)
-    epochs     = clip(ceil(10 000 / steps per epoch), 10, 500)      (~10 000 Adam steps)
-    patience   = max(5, epochs // 10),  lr = 0.01
+    small tables (n_train <= 20 000): full batch, epochs 3000, patience 100, lr 0.02,
+        plateau_se 1 (a mechanism with at most one parameter per 100 training rows keeps its
+        latest epoch within one standard error of its best held-out criterion)
+    larger tables: batch_size = clip(n_train // 8, 32, 2048),
+        epochs = clip(ceil(10 000 / steps per epoch), 10, 500)   (~10 000 Adam steps),
+        patience = max(5, epochs // 10),  lr = 0.01
 
-so small tables get many small steps and are stopped by the held-out rows (a plain minibatch
-schedule without them overfits: the noise sd shrinks towards 0), and large ones a few epochs
-of 2048-row batches. Below 20 rows there is no split and no early stopping.
+Every small-table epoch is one Adam step on every training row, so the held-out curve is
+smooth and early stopping reads it without minibatch noise; a flexible mechanism (an MLP on a
+few hundred rows) stops after tens to hundreds of steps, and one that cannot overfit (a linear
+or logistic mechanism on thousands of rows) runs until it has converged, not until noise in
+its held-out loss first rises. A plain schedule without held-out rows overfits (the noise sd
+shrinks towards 0). Below 20 rows there is no split and no early stopping.
 
 The thesis protocol (§5.2.1) is ``fit(model, data, loss="mse",
 schedule=FitSchedule(epochs=120, batch_size=2048, lr=0.01, validation=0.0))``: no held-out
@@ -37,6 +43,9 @@ if TYPE_CHECKING:
 __all__ = ["CALIBRATION_RULES", "FIT_KWARGS", "LOSSES", "CalibrationOptions", "FitResult", "FitSchedule"]
 
 LOSSES = ("mse", "nll", "beta_nll")
+
+#: Most training rows for which :meth:`FitSchedule.auto` trains full batch.
+FULL_BATCH_ROWS = 20_000
 
 #: The rules of :class:`CalibrationOptions`: unit z-variance, or the conformal quantile at a level.
 CALIBRATION_RULES = ("variance", "conformal")
@@ -109,6 +118,9 @@ class FitSchedule:
         bootstrap: train each member of an ensemble on its own bootstrap resample.
         beta: the beta of ``"beta_nll"``, in [0, 1].
         calibration: how held-out residuals set the scales (:class:`CalibrationOptions`).
+        plateau_se: with ``patience``, a mechanism with at most one trainable parameter per
+            100 training rows keeps a later epoch whose validation criterion is within
+            ``plateau_se`` standard errors of its lowest (>= 0; 0: the lowest epoch).
     """
 
     epochs: int = 120
@@ -119,9 +131,11 @@ class FitSchedule:
     bootstrap: bool = True
     beta: float = 0.5
     calibration: CalibrationOptions = CalibrationOptions()
+    plateau_se: float = 0.0
 
     def __post_init__(self) -> None:
         check_int("epochs", self.epochs, minimum=1)
+        check_float("plateau_se", self.plateau_se, minimum=0.0)
         check_int("batch_size", self.batch_size, minimum=1)
         check_float("lr", self.lr, minimum=0.0, min_open=True)
         check_float("validation", self.validation, minimum=0.0, maximum=1.0, max_open=True)
@@ -140,6 +154,8 @@ class FitSchedule:
             return cls(epochs=200, batch_size=max(n, 1), lr=0.01, validation=0.0, patience=None)
         validation = 0.2 if n < 10_000 else 0.1
         n_train = n - round(validation * n)
+        if n_train <= FULL_BATCH_ROWS:
+            return cls(3000, n_train, 0.02, validation, 100, plateau_se=1.0)
         batch = int(min(2048, max(32, n_train // 8)))
         steps = math.ceil(n_train / batch)
         epochs = int(min(500, max(10, math.ceil(10_000 / steps))))

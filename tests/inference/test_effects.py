@@ -104,3 +104,13 @@ def test_unit_level_bad_input_names_the_value():
     for clip in (0.0, 0.5, 0.7, -0.1):
         with pytest.raises(ValueError, match=f"clip.*{clip:g}"):
             treatment_effect(model, as_table(data), "t", "y", clip=clip)
+def test_propensity_clipping_is_reported_with_its_bound():
+    rows = as_table(confounded(n=400))
+    loose = treatment_effect(true_model(), rows, "t", "y", target="att", clip=1e-3)
+    tight = treatment_effect(true_model(), rows, "t", "y", target="att", clip=0.2)
+    assert (loose.clip, tight.clip) == (1e-3, 0.2) and tight.to_dict()["clip"] == 0.2
+    # sigmoid(1.5 x) < 0.2 for x < -0.92: about 18 % of N(0, 1) rows, and as many above 0.8
+    assert 0.2 * 400 < tight.clipped < 0.5 * 400 and loose.clipped < tight.clipped
+    for bad, text in ((0.0, "0"), (0.5, "0.5"), (0.7, "0.7")):
+        with pytest.raises(ValueError, match=rf"clip must be > 0 and < 0.5 .* got {text}$"):
+            treatment_effect(true_model(), rows, "t", "y", clip=bad)

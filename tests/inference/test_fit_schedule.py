@@ -28,7 +28,8 @@ def test_small_tables_get_an_honest_noise_sd(n):
 
 def test_the_schedule_scales_with_the_rows():
     small, large = FitSchedule.auto(200), FitSchedule.auto(1_000_000)
-    assert (small.validation, small.batch_size, small.epochs, small.patience) == (0.2, 32, 500, 50)
+    assert (small.validation, small.batch_size, small.epochs, small.patience) == (0.2, 160, 3000, 100)
+    assert small.plateau_se == 1.0 and large.plateau_se == 0.0
     assert (large.validation, large.batch_size, large.epochs, large.patience) == (0.1, 2048, 23, 5)
     for n in (200, 1000, 10_000, 100_000, 1_000_000):
         s = FitSchedule.auto(n)

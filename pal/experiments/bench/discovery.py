@@ -10,6 +10,9 @@
    subgraph of the query (:func:`inference.context.active_subgraph`). Figures: seconds of
    each, ``ratio`` = subgraph / whole (< 1: the subgraph is faster), extraction seconds,
    and the largest action difference (the subgraph must give the whole graph's actions).
+3. Weak data (:mod:`pal.experiments.structure.robust`): edges found on shuffled columns (the
+   permutation baseline) and SHD on measurement-like simulated data against the empty graph,
+   PC and GRaSP.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from inference.discovery import discover, shd
 from models import CausalGraph, WorldModel, joint_chain_graph
 from pal.baselines import discovery_peers as peers
 from pal.checks import check_int
+from pal.experiments.structure.robust import RobustConfig, measurement_shd, permutation_edges
 from pal.experiments.structure.scm import SCMConfig, standardised
 from pal.lab.registry import register
 from pal.lab.report import Precondition, Report, Table, Target
@@ -70,6 +74,7 @@ class Config:
         seed: seeds the SCMs, their data, the learners and the world model's weights.
         scm: sizes of the synthetic SCMs.
         context: the contextualisation query.
+        robust: the permutation baseline and the measurement-like data.
         repeats: timed calls per figure (median).
         threads: torch intra-op threads during the timings (None: leave as is).
     """
@@ -77,6 +82,7 @@ class Config:
     seed: int = 0
     scm: SCMConfig = SCMConfig(dims=(10, 20))
     context: ContextConfig = ContextConfig()
+    robust: RobustConfig = RobustConfig()
     repeats: int = 3
     threads: int | None = 1
 
@@ -234,12 +240,57 @@ def _discovery_targets(disc: dict[str, dict[str, Any]]) -> list[Target]:
     return out
 
 
+#: The permutation baseline: at most this many edges on shuffled columns, on average.
+SHUFFLED_EDGES = 1.0
+
+
+def _robust_table(config: RobustConfig, perm: dict[str, Any], meas: dict[str, Any]) -> Table:
+    m = meas["mean"]
+    return Table(
+        f"Weak data: shuffled columns (d = {config.shuffled_d}, n = {config.shuffled_n}, "
+        f"{config.shuffled_seeds} seeds) and measurement-like data (d = {config.d}, n = {config.n}, "
+        f"{config.seeds} seeds)",
+        ("edges on shuffled columns", "SHD (DAG)", "SHD (CPDAG)", "edges", "empty graph", "PC", "GRaSP"),
+        [(perm["mean_edges"], m["pal"], m["pal_cpdag"], m["pal_edges"], m["empty"], m["pc"], m["grasp"])],
+        "Means over seeds; PC and GRaSP (CPDAGs, an undirected edge counting 1) n/a without causal-learn.",
+    )
+
+
+def _robust_targets(perm: dict[str, Any], meas: dict[str, Any]) -> list[Target]:
+    m = meas["mean"]
+    out = [
+        Target(
+            "weak.shuffled_edges",
+            perm["mean_edges"],
+            SHUFFLED_EDGES,
+            "<=",
+            "mean edges that discover finds on independently shuffled columns",
+        ),
+        Target(
+            "weak.shd_vs_empty", m["pal"], m["empty"], "<", "mean SHD of discover, below the empty graph's"
+        ),
+    ]
+    if m["pc"] is not None:
+        out.append(Target("weak.shd_vs_pc", m["pal"], m["pc"], "<", "mean SHD of discover, below PC's"))
+    return out
+
+
 @register(
     "discovery",
     kind="bench",
     config=Config,
-    quick=Config(scm=SCMConfig(dims=(8,), n=300), context=ContextConfig(10, 8, 20), repeats=1),
-    tiny=Config(scm=SCMConfig(dims=(5,), n=120), context=ContextConfig(3, 4, 5), repeats=1),
+    quick=Config(
+        scm=SCMConfig(dims=(8,), n=300),
+        context=ContextConfig(10, 8, 20),
+        robust=RobustConfig(6, 300, 3, 6, 300, 2),
+        repeats=1,
+    ),
+    tiny=Config(
+        scm=SCMConfig(dims=(5,), n=120),
+        context=ContextConfig(3, 4, 5),
+        robust=RobustConfig(4, 100, 1, 4, 100, 1),
+        repeats=1,
+    ),
 )
 def run(config: Config, progress_bar: bool = False) -> Report:
     """Seconds of structure learning against GRaSP and PC, and of action inference on the active subgraph."""
@@ -249,15 +300,24 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             peers.warm_up()
         disc = _discovery(config, use_peers)
         ctx = _context(config.context, config.seed, config.repeats)
+        perm = permutation_edges(config.robust, config.seed)
+        meas = measurement_shd(config.robust, config.seed, use_peers)
     notes = [f"Synthetic SCMs with n = {config.scm.n} standardised rows; {config.threads} torch thread(s)."]
     if not use_peers:
         notes.append("causal-learn is not installed, so the GRaSP and PC columns are n/a.")
     return Report(
         title="Structure-learning and contextualisation benchmark",
-        metrics={"discovery": disc, "context": ctx, "causal_learn": use_peers},
-        tables=_tables(disc, ctx),
+        metrics={
+            "discovery": disc,
+            "context": ctx,
+            "permutation": perm,
+            "measurement": meas,
+            "causal_learn": use_peers,
+        },
+        tables=[*_tables(disc, ctx), _robust_table(config.robust, perm, meas)],
         targets=[
             *_discovery_targets(disc),
+            *_robust_targets(perm, meas),
             Target(
                 "context.max_action_diff",
                 ctx["max_action_diff"],
