@@ -3,14 +3,9 @@
 Three tables, each an X -> T -> Y model with every confounder a parent of the treatment T
 (a Bernoulli site: the propensity) and of the outcome Y:
 
-* ``semi``: a semi-synthetic table with known unit effects, ``rows`` x 26 (24 covariates,
-  T, Y): 6 standard-normal and 18 binary covariates X, T ~ Bernoulli(sigmoid(-1.5 + X a)),
-  and the response surface of Hill (2011, setting B),
-
-      Y(0) = exp(0.5 (X + 0.5) b) + U,   Y(1) = X b - w + U,   U ~ N(0, 1),
-
-  b with entries in {0, .1, .2, .3, .4} (probabilities .6, .1, .1, .1, .1), w such that the
-  effect on the treated is 4. MLP mechanisms. PEHE = sqrt(mean_i (tau_hat_i - tau_i)^2), with
+* ``semi``: :func:`pal.datasets.semi_synthetic.ihdp_like`, a table of IHDP's shape with known
+  unit effects, ``rows`` x 26 (24 covariates, T, Y; Hill's response surface B, the effect on
+  the treated 4). MLP mechanisms. PEHE = sqrt(mean_i (tau_hat_i - tau_i)^2), with
   tau_hat_i = m_1(x_i) - m_0(x_i) the model's effect of do(T) on unit i.
 * ``lalonde``: NSW trainees + CPS controls (16 177 rows), linear mechanisms on the
   Dehejia-Wahba covariates; the doubly robust ATT against the experimental 1794 USD.
@@ -41,6 +36,7 @@ from inference.effects import treatment_effect
 from models import CausalGraph, WorldModel
 from pal.checks import check_int
 from pal.datasets import NHEFS_EFFECT, NSW_EFFECT, lalonde, nhefs
+from pal.datasets.semi_synthetic import ihdp_like
 from pal.lab.registry import register
 from pal.lab.report import Precondition, Report, Table, Target
 from pal.lab.timing import ratio, torch_threads
@@ -116,15 +112,8 @@ def minibatch_schedule(n: int) -> FitSchedule:
 
 def semi_synthetic(rows: int, seed: int) -> tuple[pd.DataFrame, np.ndarray]:
     """The semi-synthetic table (module docstring) and its true unit effects ``(rows,)``."""
-    rng = np.random.default_rng(seed)
-    x = np.hstack([rng.standard_normal((rows, 6)), (rng.random((rows, 18)) < rng.uniform(0.2, 0.8, 18))])
-    b = rng.choice([0, 0.1, 0.2, 0.3, 0.4], size=24, p=[0.6, 0.1, 0.1, 0.1, 0.1])
-    t = (rng.random(rows) < 1 / (1 + np.exp(1.5 - x @ rng.normal(0, 0.4, 24)))).astype(float)
-    mu0, mu1 = np.exp(0.5 * (x + 0.5) @ b), x @ b
-    mu1 = mu1 - (mu1 - mu0)[t == 1].mean() + 4.0
-    frame = pd.DataFrame({f"x{i}": x[:, i] for i in range(24)})
-    frame["t"], frame["y"] = t, np.where(t == 1, mu1, mu0) + rng.standard_normal(rows)
-    return frame, mu1 - mu0
+    table = ihdp_like(rows, seed)
+    return pd.DataFrame(table.columns), table.effect
 
 
 def _graph(confounders: tuple[str, ...] | list[str], t: str, y: str) -> CausalGraph:
@@ -150,7 +139,7 @@ def _semi(config: Config, schedule: FitSchedule | None) -> dict[str, Any]:
 
 def _semi_one(rows: int, seed: int, schedule: FitSchedule | None) -> dict[str, Any]:
     frame, tau = semi_synthetic(rows, seed)
-    conf = [f"x{i}" for i in range(24)]
+    conf = [c for c in frame.columns if c not in ("t", "y")]
     model = WorldModel(_graph(conf, "t", "y"), seed=seed, discrete={"t": 2})
     result, wall, cpu = _timed(lambda: fit(model, frame, schedule=schedule, seed=seed))
     given = {c: torch.tensor(frame[c].to_numpy(), dtype=model.dtype)[:, None] for c in conf}
@@ -231,7 +220,7 @@ def _dowhy_seconds(config: Config) -> float | None:
     from dowhy import gcm
 
     frame, _ = semi_synthetic(config.rows, config.seed)
-    graph = _graph([f"x{i}" for i in range(24)], "t", "y")
+    graph = _graph([c for c in frame.columns if c not in ("t", "y")], "t", "y")
     gcm.config.disable_progress_bars()
     start = time.perf_counter()
     scm = gcm.InvertibleStructuralCausalModel(nx.DiGraph(graph.edges))
