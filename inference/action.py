@@ -88,6 +88,7 @@ def infer_action(
     options: ActionOptions | None = None,
     seed: int = 0,
     progress_bar: bool = False,
+    noise: Mapping[str, Any] | None = None,
 ) -> ActionResult:
     """Find actions whose predicted consequences match the targets (Alg. 4.2).
 
@@ -118,6 +119,11 @@ def infer_action(
         options: :class:`ActionOptions` (preference, lr, init, sampling, horizon, risk).
         seed: seeds ``init="random"`` and the sampling stage (local generator).
         progress_bar: show a tqdm bar over the Adam steps.
+        noise: optional name -> ``(N, dim)`` (held on every step) or ``(N, H, dim)``
+            standardised residuals of non-root sites replayed in the torch twin's predictions,
+            ``x = f(pa) + sigma(pa) u`` (e.g. residuals abducted from executed transitions);
+            the other sites keep the expected residual 0. Only through the torch twin (a plain
+            model with ``sampling``, a horizon or a risk).
 
     Returns:
         :class:`ActionResult`. After each Adam step the actions are clipped to their
@@ -151,13 +157,38 @@ def infer_action(
             "``with`` around the call"
         )
     if opts.sampling is None and opts.horizon == 1 and risk_kind[0] is None:
+        if noise:
+            raise ValueError(
+                "noise= replays residuals in the torch twin; give sampling, a horizon or a risk "
+                "(or wrap the model in ReplayNoise for the thesis protocol)"
+            )
         return _through_program(program, query, opts.init, steps, opts.lr, generator, progress_bar)
     _check_planning(program.world.graph, query, opts.horizon, risk_kind)
     if not plain:
+        if noise:
+            raise ValueError("noise= replays residuals in the torch twin; pass a plain model, no handlers")
         return _sampled_program(
             program, query, opts.init, opts.sampling, steps, opts.lr, generator, progress_bar
         )
-    return _through_twin(program.world, query, opts, risk_kind, steps, generator, progress_bar)
+    given = _check_noise(program.world, noise, query.n, opts.horizon)
+    return _through_twin(program.world, query, opts, risk_kind, steps, generator, progress_bar, given)
+
+
+def _check_noise(model: WorldModel, noise: Mapping[str, Any] | None, n: int, horizon: int) -> dict[str, Tensor]:
+    """The replayed residuals of :func:`infer_action`, checked: non-root names, ``(N, dim)`` or ``(N, H, dim)``."""
+    out: dict[str, Tensor] = {}
+    graph = model.graph
+    for name, raw in dict(noise or {}).items():
+        if not isinstance(name, str) or name not in graph or graph.is_root(name):
+            raise ValueError(f"noise names {name!r}, not a non-root site; non-roots: {list(graph.non_roots)}")
+        eps = torch.as_tensor(raw, dtype=model.dtype)
+        shapes = [(n, graph[name].dim)] + ([(n, horizon, graph[name].dim)] if horizon > 1 else [])
+        if tuple(eps.shape) not in shapes:
+            raise ValueError(f"noise[{name!r}] has shape {tuple(eps.shape)}, expected one of {shapes}")
+        if not torch.isfinite(eps).all():
+            raise ValueError(f"noise[{name!r}] is not finite")
+        out[name] = eps
+    return out
 
 
 @dataclass(frozen=True)
@@ -270,6 +301,7 @@ def _through_twin(
     steps: int,
     generator: torch.Generator,
     progress_bar: bool,
+    noise: Mapping[str, Tensor] | None = None,
 ) -> ActionResult:
     """Sampling stage and Adam through the torch twins (predict, rollout) of a plain model."""
     actions, horizon, n = query.actions, opts.horizon, query.n
@@ -277,7 +309,7 @@ def _through_twin(
         model,
         query.given,
         actions,
-        {},
+        dict(noise or {}),
         query.log_preference,
         n,
         horizon,
