@@ -26,7 +26,7 @@ within_010_model, objective_first, objective_last}}`` and ``info``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -188,8 +188,9 @@ def targets(error: dict[str, Any]) -> list[Target]:
     config=Config,
     quick=Config(protocol=QUICK_PROTOCOL, targets=32),
     tiny=Config(
-        protocol=TINY_PROTOCOL,
+        protocol=replace(TINY_PROTOCOL, graphs=("thesis", "state", "dynamics", "velocity")),
         targets=4,
+        two_step=True,
         action=ActionConfig(
             num_steps=20, options=ActionOptions(sampling=SamplingConfig(population=16, elites=4))
         ),
