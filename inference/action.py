@@ -119,11 +119,8 @@ def infer_action(
         options: :class:`ActionOptions` (preference, lr, init, sampling, horizon, risk).
         seed: seeds ``init="random"`` and the sampling stage (local generator).
         progress_bar: show a tqdm bar over the Adam steps.
-        noise: optional name -> ``(N, dim)`` (held on every step) or ``(N, H, dim)``
-            standardised residuals of non-root sites replayed in the torch twin's predictions,
-            ``x = f(pa) + sigma(pa) u`` (e.g. residuals abducted from executed transitions);
-            the other sites keep the expected residual 0. Only through the torch twin (a plain
-            model with ``sampling``, a horizon or a risk).
+        noise: name -> ``(N, dim)`` (every step) or ``(N, H, dim)`` standardised residuals u
+            of non-roots, ``x = f(pa) + sigma(pa) u`` in the torch twin (others 0).
 
     Returns:
         :class:`ActionResult`. After each Adam step the actions are clipped to their
@@ -148,7 +145,24 @@ def infer_action(
     progress_bar = check_bool("progress_bar", progress_bar)
     query = _query(program.world, state, targets, actions, opts)
     generator = torch.Generator().manual_seed(seed)
-    if opts.sampling is None and _discrete_downstream(program.world, query.actions):
+    opts = _search_options(program.world, query, opts, risk_kind, plain)
+    thesis = opts.sampling is None and opts.horizon == 1 and risk_kind[0] is None
+    given = _check_noise(program.world, noise, query.n, opts.horizon, plain and not thesis)
+    if thesis:
+        return _through_program(program, query, opts.init, steps, opts.lr, generator, progress_bar)
+    _check_planning(program.world.graph, query, opts.horizon, risk_kind)
+    if not plain:
+        return _sampled_program(
+            program, query, opts.init, opts.sampling, steps, opts.lr, generator, progress_bar
+        )
+    return _through_twin(program.world, query, opts, risk_kind, steps, generator, progress_bar, given)
+
+
+def _search_options(
+    model: WorldModel, query: _Query, opts: ActionOptions, risk_kind: tuple[str | None, float], plain: bool
+) -> ActionOptions:
+    """A sampling stage when a discrete site lies downstream of the actions; a horizon or risk needs a plain model."""
+    if opts.sampling is None and _discrete_downstream(model, query.actions):
         opts = dataclasses.replace(opts, sampling=SamplingConfig())
     if not plain and (opts.horizon > 1 or risk_kind[0] is not None):
         raise ValueError(
@@ -156,26 +170,18 @@ def infer_action(
             "itself (fixed values in state) instead of a program with handlers, and enter no handler with "
             "``with`` around the call"
         )
-    if opts.sampling is None and opts.horizon == 1 and risk_kind[0] is None:
-        if noise:
-            raise ValueError(
-                "noise= replays residuals in the torch twin; give sampling, a horizon or a risk "
-                "(or wrap the model in ReplayNoise for the thesis protocol)"
-            )
-        return _through_program(program, query, opts.init, steps, opts.lr, generator, progress_bar)
-    _check_planning(program.world.graph, query, opts.horizon, risk_kind)
-    if not plain:
-        if noise:
-            raise ValueError("noise= replays residuals in the torch twin; pass a plain model, no handlers")
-        return _sampled_program(
-            program, query, opts.init, opts.sampling, steps, opts.lr, generator, progress_bar
-        )
-    given = _check_noise(program.world, noise, query.n, opts.horizon)
-    return _through_twin(program.world, query, opts, risk_kind, steps, generator, progress_bar, given)
+    return opts
 
 
-def _check_noise(model: WorldModel, noise: Mapping[str, Any] | None, n: int, horizon: int) -> dict[str, Tensor]:
+def _check_noise(
+    model: WorldModel, noise: Mapping[str, Any] | None, n: int, horizon: int, twin: bool
+) -> dict[str, Tensor]:
     """The replayed residuals of :func:`infer_action`, checked: non-root names, ``(N, dim)`` or ``(N, H, dim)``."""
+    if noise and not twin:
+        raise ValueError(
+            "noise= replays residuals in the torch twin of a plain model: give sampling, a horizon or a "
+            "risk, and no handlers (or wrap the model in ReplayNoise for the thesis protocol)"
+        )
     out: dict[str, Tensor] = {}
     graph = model.graph
     for name, raw in dict(noise or {}).items():

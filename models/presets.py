@@ -112,19 +112,7 @@ def joint_chain_graph(
         if variant in ("state", "dynamics", "velocity"):
             edges.append((f"q_prev.{j}", f"dq.{j}"))
         if variant == "velocity":
-            variables += [
-                Variable(
-                    f"v_prev.{j}",
-                    Role.OBSERVED,
-                    unit="rad/s",
-                    lag=1,
-                    lag_of=f"v.{j}",
-                    description="joint velocity at the step's start",
-                ),
-                Variable(f"v.{j}", Role.LATENT, unit="rad/s", description="joint velocity at the step's end"),
-            ]
-            edges += [(f"v_prev.{j}", f"dq.{j}")]
-            edges += [(p, f"v.{j}") for p in (f"act.{j}", f"q_prev.{j}", f"v_prev.{j}")]
+            _velocity(j, variables, edges)
         if variant == "dynamics":
             variables.append(
                 Variable(
@@ -138,6 +126,23 @@ def joint_chain_graph(
             )
             edges.append((f"dq_prev.{j}", f"dq.{j}"))
     return CausalGraph(variables, edges)
+
+
+def _velocity(j: str, variables: list[Variable], edges: list[tuple[str, str]]) -> None:
+    """Add the ``"velocity"`` variant's ``v_prev.j -> dq.j`` and ``act.j, q_prev.j, v_prev.j -> v.j``."""
+    variables += [
+        Variable(
+            f"v_prev.{j}",
+            Role.OBSERVED,
+            unit="rad/s",
+            lag=1,
+            lag_of=f"v.{j}",
+            description="joint velocity at the step's start",
+        ),
+        Variable(f"v.{j}", Role.LATENT, unit="rad/s", description="joint velocity at the step's end"),
+    ]
+    edges.append((f"v_prev.{j}", f"dq.{j}"))
+    edges += [(p, f"v.{j}") for p in (f"act.{j}", f"q_prev.{j}", f"v_prev.{j}")]
 
 
 def finger_graph(variant: str = "thesis", joint: str = "finger") -> CausalGraph:

@@ -85,7 +85,9 @@ def resolve_servo(env: gymnasium.Env, servo: bool | None) -> bool:
     others = {n: k for n, k in kinds.items() if k != "position"}
     if servo is None:
         if others and len(others) < len(kinds):
-            log.info("actuators %s are not position servos; babbling and holding treat all as torques", others)
+            log.info(
+                "actuators %s are not position servos; babbling and holding treat all as torques", others
+            )
         return not others
     if servo and others:
         name, kind = next(iter(others.items()))
@@ -102,7 +104,9 @@ def resolve_servo(env: gymnasium.Env, servo: bool | None) -> bool:
     return servo
 
 
-def _addresses(model: mujoco.MjModel, joints: tuple[str, ...]) -> tuple[list[int], list[int], list[bool]] | None:
+def _addresses(
+    model: mujoco.MjModel, joints: tuple[str, ...]
+) -> tuple[list[int], list[int], list[bool]] | None:
     qpos, dof, hinge = [], [], []
     for name in joints:
         j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)

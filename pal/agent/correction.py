@@ -35,7 +35,9 @@ from pal.agent.senses import Percept
 __all__ = ["Correction", "abduct", "realized"]
 
 
-def abduct(model: WorldModel, values: Mapping[str, np.ndarray], sites: tuple[str, ...]) -> dict[str, np.ndarray]:
+def abduct(
+    model: WorldModel, values: Mapping[str, np.ndarray], sites: tuple[str, ...]
+) -> dict[str, np.ndarray]:
     """The exact standardised residual ``u = (x - f(pa)) / sigma(pa)`` of each site, (dim,).
 
     Args:
@@ -55,7 +57,13 @@ def abduct(model: WorldModel, values: Mapping[str, np.ndarray], sites: tuple[str
         missing = [n for n in need if n not in values]
         if missing:
             raise ValueError(f"abducting {s!r} needs the values of {missing}")
-        pa = torch.cat([torch.as_tensor(np.asarray(values[p]), dtype=model.dtype).reshape(1, -1) for p in graph.parents(s)], -1)
+        pa = torch.cat(
+            [
+                torch.as_tensor(np.asarray(values[p]), dtype=model.dtype).reshape(1, -1)
+                for p in graph.parents(s)
+            ],
+            -1,
+        )
         with torch.no_grad():
             loc, scale = model.mechanism(s).loc_scale(pa)
         x = torch.as_tensor(np.asarray(values[s]), dtype=model.dtype).reshape(1, -1)
@@ -109,7 +117,9 @@ class Correction:
         self.steps += 1
         return dict(self.estimate)
 
-    def observe(self, model: WorldModel, before: Mapping[str, np.ndarray], action: np.ndarray, new: Percept) -> None:
+    def observe(
+        self, model: WorldModel, before: Mapping[str, np.ndarray], action: np.ndarray, new: Percept
+    ) -> None:
         """Abduct the sites of one executed transition (``before``: the graph's roots then) and update."""
         if not self.config.enabled:
             return

@@ -34,7 +34,11 @@ def check_targets(spec: EnvSpec, targets: Mapping[str, Any]) -> dict[str, np.nda
         if name not in spec.goal_names:
             raise ValueError(
                 f"target names unknown object {name!r}; objects are {list(spec.object_names)}"
-                + (f", the effector is {spec.effector_name!r}" if spec.effector is not None else ", and there is no effector")
+                + (
+                    f", the effector is {spec.effector_name!r}"
+                    if spec.effector is not None
+                    else ", and there is no effector"
+                )
             )
         d = spec.goal_dim(name)
         v = np.asarray(value, dtype=np.float64)

@@ -40,8 +40,8 @@ from pal.agent.correction import Correction
 from pal.agent.curiosity import GridCuriosity
 from pal.agent.estimate import Estimator, belief
 from pal.agent.explore import contact_search, diagnose, push_counts
-from pal.agent.graph import build_graph, build_model, discover_parents
 from pal.agent.goals import check_reachable, check_targets, current
+from pal.agent.graph import build_graph, build_model, discover_parents
 from pal.agent.history import History
 from pal.agent.influence import explore
 from pal.agent.learn import Learner, site_data
@@ -238,14 +238,20 @@ class Agent:
         init = None
         if cfg.warm_start and self._sequence is not None:
             init = np.concatenate([self._sequence[1:], self._sequence[-1:]])
-        elif self.servo and len(self.low) == len(
-            self.percept.q
-        ):  # start the search from holding still
+        elif self.servo and len(self.low) == len(self.percept.q):  # start the search from holding still
             init = np.tile(np.clip(self.percept.q, self.low, self.high), (cfg.action.horizon, 1))
         effector = self.spec.effector_name if self.spec.effector is not None else None
         noise = self.correction.noise(self.model)
         p = plan(
-            self.model, self.belief(), targets, cfg, seed=self._seed(), init=init, mode=mode, effector=effector, noise=noise
+            self.model,
+            self.belief(),
+            targets,
+            cfg,
+            seed=self._seed(),
+            init=init,
+            mode=mode,
+            effector=effector,
+            noise=noise,
         )
         self._sequence = p.sequence
         return p
@@ -324,7 +330,11 @@ class Agent:
     def _goal(self, known: list[str]) -> Decision:
         goal = self.goal or dict(self.percept.goals)
         now_at = {o: current(self.spec, self.percept, self.estimate, o) for o in goal}
-        goal = {o: t for o, t in goal.items() if o in known or (o not in self.spec.object_names and now_at[o] is not None)}
+        goal = {
+            o: t
+            for o, t in goal.items()
+            if o in known or (o not in self.spec.object_names and now_at[o] is not None)
+        }
         if not goal:
             log.debug("goal mode: no goal's object is known yet; holding")
             return Decision("hold", self._hold())

@@ -109,7 +109,9 @@ def preference(
         total: Tensor | float = 0.0
         for o, t in targets.items():
             if o == reach:
-                total = total + config.goal_weight * distance(values["ee"][..., : t.shape[-1]] - t, kind, scale)
+                total = total + config.goal_weight * distance(
+                    values["ee"][..., : t.shape[-1]] - t, kind, scale
+                )
                 continue
             pos = values[f"pos.{o}"]
             total = total + config.goal_weight * distance(pos - t, kind, scale)
@@ -179,10 +181,8 @@ def plan(
         seed: seeds the sampling stage.
         init: optional (H, A) start of the search (a warm start), within the action bounds.
         mode: recorded in the plan.
-        effector: the effector's name: a target of that name is one for the effector ``ee``
-            (its first d components), not for an object.
-        noise: optional site -> (dim,) standardised residual held on every rollout step instead
-            of the expected 0 (the online correction, :mod:`pal.agent.correction`).
+        effector: the effector's name: a target of that name is for ``ee`` (its first d components).
+        noise: site -> (dim,) residual replayed on every rollout step (:mod:`pal.agent.correction`).
 
     Raises:
         ValueError: a target or belief entry that is missing or of the wrong shape (see
@@ -202,7 +202,9 @@ def plan(
         start = {"act": a[None] if h > 1 else a[:1]}
     given = None
     if noise:
-        given = {k: torch.as_tensor(np.asarray(v, dtype=np.float64)[None], dtype=dtype) for k, v in noise.items()}
+        given = {
+            k: torch.as_tensor(np.asarray(v, dtype=np.float64)[None], dtype=dtype) for k, v in noise.items()
+        }
     result = infer_action(
         model,
         state,
@@ -216,7 +218,8 @@ def plan(
     )
     acts = result.actions["act"][0].numpy().astype(np.float64).reshape(h, -1)
     final = {
-        o: result.predicted[site(o, effector)][0].reshape(-1, result.predicted[site(o, effector)].shape[-1])[-1]
+        o: result.predicted[site(o, effector)][0]
+        .reshape(-1, result.predicted[site(o, effector)].shape[-1])[-1]
         .numpy()[: tgt[o].shape[-1]]
         for o in tgt
     }

@@ -258,7 +258,9 @@ class EnvSpec:
         if not isinstance(self.effector_name, str) or not self.effector_name or "." in self.effector_name:
             raise ValueError(f"effector_name {self.effector_name!r} must be a non-empty string without dots")
         if self.effector_name in names:
-            raise ValueError(f"effector_name {self.effector_name!r} is also an object's name; goals would be ambiguous")
+            raise ValueError(
+                f"effector_name {self.effector_name!r} is also an object's name; goals would be ambiguous"
+            )
         if self.effector_goal is None:
             return
         if self.effector is None:

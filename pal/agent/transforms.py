@@ -59,7 +59,9 @@ class Transform:
         if self.sign not in (1.0, -1.0):
             raise ValueError(f"sign is {self.sign!r}; expected +1 or -1")
         object.__setattr__(self, "to", tuple(check_int("reference index", i, minimum=0) for i in self.to))
-        object.__setattr__(self, "order", tuple(check_int("index map entry", i, minimum=0) for i in self.order))
+        object.__setattr__(
+            self, "order", tuple(check_int("index map entry", i, minimum=0) for i in self.order)
+        )
         if self.kind == "absolute_from_relative" and not self.to:
             raise ValueError("absolute_from_relative needs the reference's observation indices (to=...)")
         if self.kind == "index_map" and not self.order:
@@ -122,7 +124,9 @@ class Transform:
                 raise ValueError("absolute_from_relative reads its reference from the observation")
             return x - self.sign * np.asarray(observation, dtype=np.float64)[list(self.to)]
         if sorted(self.order) != list(range(len(self.order))):
-            raise ValueError(f"index map {list(self.order)} selects entries; only a permutation has an inverse")
+            raise ValueError(
+                f"index map {list(self.order)} selects entries; only a permutation has an inverse"
+            )
         out = np.empty_like(x)
         out[..., list(self.order)] = x
         return out

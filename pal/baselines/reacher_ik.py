@@ -32,7 +32,9 @@ def _wrap(x: np.ndarray) -> np.ndarray:
     return (x + np.pi) % (2 * np.pi) - np.pi
 
 
-def inverse_kinematics(goal: np.ndarray, elbow: float = 1.0, links: tuple[float, float] = LINKS) -> np.ndarray:
+def inverse_kinematics(
+    goal: np.ndarray, elbow: float = 1.0, links: tuple[float, float] = LINKS
+) -> np.ndarray:
     """Joint angles (2,), rad, that put the fingertip at ``goal`` (2,), m (clipped to the reachable annulus).
 
     Raises:

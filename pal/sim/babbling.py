@@ -40,12 +40,13 @@ from pal.sim.bodies import check_name, load_model
 from pal.sim.env import STATE_SPEC, BabblingEnv
 from pal.sim.policies import POLICIES, make_policy
 from pal.sim.ranges import babbling_ranges, effective_ranges
+from pal.sim.transitions import TransitionBlock
 
 __all__ = [
     "BACKENDS",
     "BabbleConfig",
     "BabblingSource",
-    "TransitionBlock",
+    "TransitionBlock",  # re-exported from pal.sim.transitions
     "babble",
     "check_config",
     "collect",
@@ -126,32 +127,6 @@ class BabbleConfig:
             value = getattr(self, key)
             if isinstance(value, str):
                 raise ValueError(f"{key} must be a tuple of names, got the string {value!r}")
-
-
-@dataclass(frozen=True)
-class TransitionBlock:
-    """Consecutive transitions (n rows, J joints, U actuators, S state entries).
-
-    Attributes:
-        ctrl: (n, U) float32 applied commands.
-        q_prev, q: (n, J) float64 joint positions before and after each step, rad.
-        dq_prev: (n, J) float64 displacement of the step before, q(t-1) - q(t-2), rad
-            (0 at the first step of an episode).
-        states: (n, S) float64 simulator states before each step.
-        step, episode: (n,) int64 global step and episode indices.
-        v_prev, v: (n, J) float64 joint velocities (MuJoCo's ``qvel``) before and after each
-            step, rad/s (None: not recorded).
-    """
-
-    ctrl: np.ndarray
-    q_prev: np.ndarray
-    q: np.ndarray
-    dq_prev: np.ndarray
-    states: np.ndarray
-    step: np.ndarray
-    episode: np.ndarray
-    v_prev: np.ndarray | None = None
-    v: np.ndarray | None = None
 
 
 class BabblingSource:
@@ -262,7 +237,9 @@ class BabblingSource:
         if n:
             self._last_dq = dq[-1].copy()
         self.step_index += n
-        return TransitionBlock(applied.astype(np.float32), q_prev, q, dq_prev, states, steps, episode, v_prev, v)
+        return TransitionBlock(
+            applied.astype(np.float32), q_prev, q, dq_prev, states, steps, episode, v_prev, v
+        )
 
     # ------------------------------------------------------------------ resuming
     def resume_state(self) -> dict[str, Any]:

@@ -52,7 +52,11 @@ def test_the_velocity_variant_carries_the_joint_velocity_forward():
     """q_prev, v_prev, act -> dq, v; rollout feeds v into v_prev (a Markov state on torque-driven joints)."""
     g = finger_graph("velocity")
     assert g["v_prev.finger"].lag_of == "v.finger" and g["v_prev.finger"].unit == "rad/s"
-    assert set(g.parents("dq.finger")) == set(g.parents("v.finger")) == {"act.finger", "q_prev.finger", "v_prev.finger"}
+    assert (
+        set(g.parents("dq.finger"))
+        == set(g.parents("v.finger"))
+        == {"act.finger", "q_prev.finger", "v_prev.finger"}
+    )
     dt = 0.05
     lin = lambda w: LinearMechanism.from_coefficients([w])  # noqa: E731
     pa = list(g.parents("dq.finger"))
@@ -62,7 +66,9 @@ def test_the_velocity_variant_carries_the_joint_velocity_forward():
         {
             "v.finger": lin([coef[p] for p in pa]),
             "dq.finger": lin([dt * coef[p] for p in pa]),
-            "q.finger": lin([1.0 if p in ("dq.finger", "q_prev.finger") else 0.0 for p in g.parents("q.finger")]),
+            "q.finger": lin(
+                [1.0 if p in ("dq.finger", "q_prev.finger") else 0.0 for p in g.parents("q.finger")]
+            ),
         },
     )
     traj = model.rollout(

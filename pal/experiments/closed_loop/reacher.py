@@ -114,13 +114,25 @@ def _one_seed(config: Config, seed: int) -> dict[str, list[float]]:
 
 def _summary(d: np.ndarray) -> dict[str, float]:
     cm = 100.0 * d
-    return {"median_cm": float(np.median(cm)), "within_2cm": float(np.mean(cm < 2.0)), "max_cm": float(cm.max())}
+    return {
+        "median_cm": float(np.median(cm)),
+        "within_2cm": float(np.mean(cm < 2.0)),
+        "max_cm": float(cm.max()),
+    }
 
 
-@register("reacher", config=Config, quick=Config(seeds=1, babble=2000, goals=5), tiny=Config(
-    seeds=1, babble=60, goals=1, steps=2,
-    model=ModelConfig(hidden=(8,), members=2, schedule=replace(MODEL_SCHEDULE, epochs=2, patience=None)),
-))
+@register(
+    "reacher",
+    config=Config,
+    quick=Config(seeds=1, babble=2000, goals=5),
+    tiny=Config(
+        seeds=1,
+        babble=60,
+        goals=1,
+        steps=2,
+        model=ModelConfig(hidden=(8,), members=2, schedule=replace(MODEL_SCHEDULE, epochs=2, patience=None)),
+    ),
+)
 def run(config: Config, progress_bar: bool = False) -> Report:
     """Run the reaching comparison of the module docstring."""
     runs = [_one_seed(config, config.seed + k) for k in range(config.seeds)]
@@ -128,17 +140,33 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     times = np.concatenate([r["time"] for r in runs])
     metrics = {arm: _summary(d) for arm, d in dist.items()}
     metrics["mpc_step_cpu_s"] = float(np.mean(times))
-    metrics["episodes"] = int(len(dist["plain"]))
-    solvable = Precondition(bool(metrics["ik"]["median_cm"] < 0.5), "the IK + PD baseline reaches its goals (median < 0.5 cm)")
+    metrics["episodes"] = len(dist["plain"])
+    solvable = Precondition(
+        bool(metrics["ik"]["median_cm"] < 0.5), "the IK + PD baseline reaches its goals (median < 0.5 cm)"
+    )
     targets = []
     for arm in ("plain", "corrected"):
         m = metrics[arm]
         targets += [
-            Target(f"median_cm.{arm}", m["median_cm"], 0.5, "<=", f"median final distance, cm ({arm})", solvable),
-            Target(f"within_2cm.{arm}", m["within_2cm"], 0.95, ">=", f"share of finals within 2 cm ({arm})", solvable),
+            Target(
+                f"median_cm.{arm}", m["median_cm"], 0.5, "<=", f"median final distance, cm ({arm})", solvable
+            ),
+            Target(
+                f"within_2cm.{arm}",
+                m["within_2cm"],
+                0.95,
+                ">=",
+                f"share of finals within 2 cm ({arm})",
+                solvable,
+            ),
         ]
-    targets.append(Target("mpc_step_cpu_s", metrics["mpc_step_cpu_s"], 0.1, "<=", "CPU s of one MPC decision"))
-    rows = [(arm, m["median_cm"], m["within_2cm"], m["max_cm"]) for arm, m in ((a, metrics[a]) for a in ("plain", "corrected", "ik"))]
+    targets.append(
+        Target("mpc_step_cpu_s", metrics["mpc_step_cpu_s"], 0.1, "<=", "CPU s of one MPC decision")
+    )
+    rows = [
+        (arm, m["median_cm"], m["within_2cm"], m["max_cm"])
+        for arm, m in ((a, metrics[a]) for a in ("plain", "corrected", "ik"))
+    ]
     table = Table(
         "Reacher-v5: final fingertip-goal distance",
         ("controller", "median cm", "within 2 cm", "max cm"),
@@ -146,5 +174,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         caption=f"{config.seeds} seed(s) x {config.goals} goals, {config.babble} babbling steps, {config.steps} steps per goal; "
         "plain / corrected: the agent without / with the online correction; ik: analytic IK + PD.",
     )
-    notes = [f"MPC: horizon {config.plan.action.horizon}, {config.plan.preference} cost on every step, one torch thread."]
+    notes = [
+        f"MPC: horizon {config.plan.action.horizon}, {config.plan.preference} cost on every step, one torch thread."
+    ]
     return Report("Reaching on Reacher-v5 through Agent(env, spec)", metrics, [table], targets, notes)

@@ -27,7 +27,13 @@ __all__ = ["abducted_dq", "two_step"]
 def abducted_dq(model: WorldModel, values: dict[str, np.ndarray], site: str) -> np.ndarray:
     """``u = (x - f(pa)) / sigma(pa)`` of ``site`` per row, ``(n, 1)``, from realized ``values`` (name -> ``(n, 1)``)."""
     parents = model.graph.parents(site)
-    pa = torch.cat([torch.as_tensor(np.asarray(values[p], np.float64).reshape(-1, 1), dtype=model.dtype) for p in parents], -1)
+    pa = torch.cat(
+        [
+            torch.as_tensor(np.asarray(values[p], np.float64).reshape(-1, 1), dtype=model.dtype)
+            for p in parents
+        ],
+        -1,
+    )
     with torch.no_grad():
         loc, scale = model.mechanism(site).loc_scale(pa)
     x = torch.as_tensor(np.asarray(values[site], np.float64).reshape(-1, 1), dtype=model.dtype)
@@ -49,7 +55,8 @@ def two_step(
     Args:
         prep: the protocol's data and realizer.
         model: a fitted graph.
-        rows: ``(n,)`` test rows; target: ``(n,)`` target angles, rad.
+        rows: ``(n,)`` test rows.
+        target: ``(n,)`` target angles, rad.
         state: the model's non-action roots at those rows (name -> ``(n, 1)``).
         first: ``(actions (n,), realized q (n,))`` of the one-shot protocol.
         action: the inference settings (they need a sampling stage: residuals replay in the torch twin).
@@ -57,7 +64,11 @@ def two_step(
     """
     act, q_prev, dq, _ = prep.joint.names
     a1, q1 = first
-    values = {**state, act: a1.reshape(-1, 1), dq: (q1 - np.asarray(state[q_prev]).reshape(-1)).reshape(-1, 1)}
+    values = {
+        **state,
+        act: a1.reshape(-1, 1),
+        dq: (q1 - np.asarray(state[q_prev]).reshape(-1)).reshape(-1, 1),
+    }
     u = abducted_dq(model, values, dq)
     a2, _, _ = infer_actions(model, prep.joint, state, target, action, seed=seed + 1, noise={dq: u})
     return {"real": prep.realizer.outcomes(rows, a2), "noise": u}

@@ -413,7 +413,10 @@ def infer_actions(
         seed=seed,
         noise=None
         if not noise
-        else {k: torch.as_tensor(np.asarray(v, np.float32).reshape(n, -1)).repeat(starts, 1) for k, v in noise.items()},
+        else {
+            k: torch.as_tensor(np.asarray(v, np.float32).reshape(n, -1)).repeat(starts, 1)
+            for k, v in noise.items()
+        },
     )
     best = res.final_loss.numpy().reshape(starts, n).argmin(0) * n + np.arange(n)
     return (

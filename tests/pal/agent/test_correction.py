@@ -46,7 +46,9 @@ def test_a_bias_falls_as_the_closed_form_and_below_one_percent_in_ten_steps(gain
         free = float(model.predict(values, noise=eps)["x"][0, 0])
         a = target - free
         new = x + a + bias
-        corr.update(abduct(model, {"a": np.array([a]), "x_prev": np.array([x]), "x": np.array([new])}, ("x",)))
+        corr.update(
+            abduct(model, {"a": np.array([a]), "x_prev": np.array([x]), "x": np.array([new])}, ("x",))
+        )
         x = new
         offsets.append(x - target)
     closed = [bias * (1 - gain) ** n for n in range(10)]
@@ -56,7 +58,9 @@ def test_a_bias_falls_as_the_closed_form_and_below_one_percent_in_ten_steps(gain
 
 def test_planning_replays_the_given_residuals_and_switches_off():
     model, x, uhat = _linear_model(), 0.1, 4.0
-    options = ActionOptions(scale=0.01, sampling=SamplingConfig(population=64, elites=8, iterations=3, refine_steps=50))
+    options = ActionOptions(
+        scale=0.01, sampling=SamplingConfig(population=64, elites=8, iterations=3, refine_steps=50)
+    )
     state, targets = {"x_prev": [[x]]}, {"x": [[0.5]]}
     a_plain = float(infer_action(model, state, targets, options=options, seed=0).actions["a"][0, 0])
     a_corr = float(

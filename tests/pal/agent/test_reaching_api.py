@@ -40,7 +40,10 @@ def reacher():
             lambda: EnvSpec(("a",), Sensor(obs=(0,)), effector_goal=Sensor(obs=(1, 2))),
             "effector_goal .* the spec has no effector",
         ),
-        (lambda: EnvSpec(("a", "b"), Sensor(obs=(0, 1)), velocities=Sensor(obs=(2,))), "velocities has dim 1"),
+        (
+            lambda: EnvSpec(("a", "b"), Sensor(obs=(0, 1)), velocities=Sensor(obs=(2,))),
+            "velocities has dim 1",
+        ),
     ],
 )
 def test_bad_transforms_and_roles_are_refused_at_construction(make, match):
@@ -55,7 +58,9 @@ def test_transforms_invert_in_closed_form():
         np.testing.assert_allclose(t.apply(t.inverse(q), None), q, atol=1e-12)
     obs = np.array([0.0, 0.0, 0.0, 0.0, 0.1, -0.2])
     rel = absolute_from_relative(to=(4, 5))
-    np.testing.assert_allclose(rel.inverse(rel.apply(np.array([0.05, 0.07]), obs), obs), [0.05, 0.07], atol=1e-12)
+    np.testing.assert_allclose(
+        rel.inverse(rel.apply(np.array([0.05, 0.07]), obs), obs), [0.05, 0.07], atol=1e-12
+    )
 
 
 def test_reacher_reads_angles_fingertip_and_goal_without_a_wrapper(reacher):
@@ -73,7 +78,9 @@ def test_cosines_read_as_angles_and_wrong_servo_setting_fail_naming_the_value(re
     cosines = replace(reacher_spec(), angles=Sensor(obs=(0, 1)), velocities=None)
     with pytest.raises(ValueError, match="the spec reads .* for joint 'joint0', but MuJoCo's qpos is"):
         Agent(reacher, cosines)
-    with pytest.raises(ValueError, match=r"servo=True, but actuator 'actuator 0 \(on joint joint0\)' is a motor"):
+    with pytest.raises(
+        ValueError, match=r"servo=True, but actuator 'actuator 0 \(on joint joint0\)' is a motor"
+    ):
         Agent(reacher, reacher_spec(), AgentConfig(servo=True))
     pairs = replace(reacher_spec(), angles=Sensor(obs=(0, 1, 2, 3), transform=angle_from_cos_sin("pairs")))
     with pytest.raises(ValueError, match=r"angles: cos\^2 \+ sin\^2 of pair 0 is"):
