@@ -71,11 +71,17 @@ def abduct(
     return out
 
 
-def realized(before: Mapping[str, np.ndarray], action: np.ndarray, new: Percept) -> dict[str, np.ndarray]:
-    """The arm values of one executed transition: the roots before, ``act``, and ``dq, q, v, dee, ee``."""
+def realized(
+    before: Mapping[str, np.ndarray], action: np.ndarray, new: Percept, periodic: bool = False
+) -> dict[str, np.ndarray]:
+    """The arm values of one executed transition: the roots before, ``act``, and ``dq, q, v, dee, ee``.
+
+    With ``periodic`` (angles from cos/sin) ``dq`` is wrapped into [-pi, pi).
+    """
     out = {k: np.asarray(v, dtype=np.float64) for k, v in before.items()}
     out["act"] = np.asarray(action, dtype=np.float64)
-    out["q"], out["dq"] = new.q, new.q - out["q_prev"]
+    dq = new.q - out["q_prev"]
+    out["q"], out["dq"] = new.q, ((dq + np.pi) % (2 * np.pi) - np.pi) if periodic else dq
     if new.v is not None:
         out["v"] = new.v
     if new.effector is not None and "ee_prev" in out:
@@ -118,12 +124,17 @@ class Correction:
         return dict(self.estimate)
 
     def observe(
-        self, model: WorldModel, before: Mapping[str, np.ndarray], action: np.ndarray, new: Percept
+        self,
+        model: WorldModel,
+        before: Mapping[str, np.ndarray],
+        action: np.ndarray,
+        new: Percept,
+        periodic: bool = False,
     ) -> None:
         """Abduct the sites of one executed transition (``before``: the graph's roots then) and update."""
         if not self.config.enabled:
             return
-        values = realized(before, action, new)
+        values = realized(before, action, new, periodic)
         sites = tuple(s for s in self.config.sites if s in model.graph and s in values)
         self.update(abduct(model, values, sites))
 

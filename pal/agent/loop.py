@@ -371,7 +371,8 @@ class Agent:
         self.previous = est_prev
         self.percept = new
         if self.fitted:
-            self.correction.observe(self.model, belief(self.spec, prev, est_prev, before), a, new)
+            roots = belief(self.spec, prev, est_prev, before)
+            self.correction.observe(self.model, roots, a, new, self.spec.periodic)
         self._visit()
         self.history.append(
             **transition(

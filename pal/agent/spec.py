@@ -273,6 +273,12 @@ class EnvSpec:
             )
 
     @property
+    def periodic(self) -> bool:
+        """True when the angles come from cos/sin (in (-pi, pi]): a step's ``dq`` is wrapped into [-pi, pi)."""
+        t = self.angles.transform
+        return t is not None and t.kind == "angle_from_cos_sin"
+
+    @property
     def goal_names(self) -> tuple[str, ...]:
         """Names a goal may be given for: the objects, and the effector when the spec has one."""
         return self.object_names + ((self.effector_name,) if self.effector is not None else ())

@@ -140,6 +140,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     times = np.concatenate([r["time"] for r in runs])
     metrics = {arm: _summary(d) for arm, d in dist.items()}
     metrics["mpc_step_cpu_s"] = float(np.mean(times))
+    metrics["finals_cm"] = {arm: (100.0 * d).tolist() for arm, d in dist.items()}
     metrics["episodes"] = len(dist["plain"])
     solvable = Precondition(
         bool(metrics["ik"]["median_cm"] < 0.5), "the IK + PD baseline reaches its goals (median < 0.5 cm)"

@@ -19,6 +19,7 @@ from pal.agent import (
 )
 from pal.agent.body_checks import actuator_kinds
 from pal.agent.config import MODEL_SCHEDULE
+from pal.agent.learn import wrap_angle
 from pal.baselines.reacher_ik import ReacherIK, inverse_kinematics
 
 
@@ -72,6 +73,10 @@ def test_reacher_reads_angles_fingertip_and_goal_without_a_wrapper(reacher):
     np.testing.assert_allclose(p.effector, reacher.unwrapped.get_body_com("fingertip")[:2], atol=1e-9)
     np.testing.assert_allclose(p.goals["fingertip"], reacher.unwrapped.get_body_com("target")[:2], atol=1e-9)
     assert agent.servo is False  # read from the MJCF: two motors
+    assert agent.spec.periodic  # angles from cos/sin: a step across +-pi is wrapped
+    np.testing.assert_allclose(
+        wrap_angle(np.array([3.1 - (-3.1), -6.2, 0.5])), [6.2 - 2 * np.pi, -6.2 + 2 * np.pi, 0.5]
+    )
 
 
 def test_cosines_read_as_angles_and_wrong_servo_setting_fail_naming_the_value(reacher):
