@@ -88,7 +88,6 @@ def infer_action(
     options: ActionOptions | None = None,
     seed: int = 0,
     progress_bar: bool = False,
-    noise: Mapping[str, Any] | None = None,
 ) -> ActionResult:
     """Find actions whose predicted consequences match the targets (Alg. 4.2).
 
@@ -105,7 +104,8 @@ def infer_action(
 
     Args:
         model: the world model (fixed), or a program made from one (e.g.
-            ``ReplayNoise(abducted)(model)`` to plan with abducted residuals, or
+            ``ReplayNoise(abducted, default="expected")(model)`` to plan with abducted residuals,
+            also through the torch twin with a horizon: ``(N, dim)`` held or ``(N, H, dim)``; or
             ``do(model, ...)``); handlers entered with ``with`` act too.
         state: name -> ``(N, dim)`` current state estimate s(t) (e.g. ``q_prev``), and
             any actions that are held fixed (within their bounds); None if the graph has
@@ -119,8 +119,6 @@ def infer_action(
         options: :class:`ActionOptions` (preference, lr, init, sampling, horizon, risk).
         seed: seeds ``init="random"`` and the sampling stage (local generator).
         progress_bar: show a tqdm bar over the Adam steps.
-        noise: name -> ``(N, dim)`` (every step) or ``(N, H, dim)`` standardised residuals u
-            of non-roots, ``x = f(pa) + sigma(pa) u`` in the torch twin (others 0).
 
     Returns:
         :class:`ActionResult`. After each Adam step the actions are clipped to their
@@ -138,7 +136,8 @@ def infer_action(
     """
     program = as_program(model)
     check_active_handlers(program.graph)
-    plain = not program.handlers and no_handler_active()
+    noise = _replayed(program)
+    plain = (not program.handlers or noise is not None) and no_handler_active()
     opts, risk_kind = _checked_options(options)
     steps = check_int("num_steps", num_steps, minimum=1)
     seed = check_seed("seed", seed)
@@ -147,7 +146,6 @@ def infer_action(
     generator = torch.Generator().manual_seed(seed)
     opts = _search_options(program.world, query, opts, risk_kind, plain)
     thesis = opts.sampling is None and opts.horizon == 1 and risk_kind[0] is None
-    given = _check_noise(program.world, noise, query.n, opts.horizon, plain and not thesis)
     if thesis:
         return _through_program(program, query, opts.init, steps, opts.lr, generator, progress_bar)
     _check_planning(program.world.graph, query, opts.horizon, risk_kind)
@@ -155,7 +153,22 @@ def infer_action(
         return _sampled_program(
             program, query, opts.init, opts.sampling, steps, opts.lr, generator, progress_bar
         )
+    given = _check_noise(program.world, noise, query.n, opts.horizon)
     return _through_twin(program.world, query, opts, risk_kind, steps, generator, progress_bar, given)
+
+
+def _replayed(program: Program) -> dict[str, Tensor] | None:
+    """The residuals of a program whose only handler is ``ReplayNoise(u, default="expected")``, else None.
+
+    The torch twin replays them (``x = f(pa) + sigma(pa) u``, 0 elsewhere), so such a program plans
+    with a horizon or a risk too: e.g. residuals abducted from executed steps, carried forward.
+    """
+    if len(program.handlers) != 1:
+        return None
+    handler = program.handlers[0]
+    if not isinstance(handler, ReplayNoise) or handler.default != "expected":
+        return None
+    return dict(handler.noise)
 
 
 def _search_options(
@@ -174,14 +187,9 @@ def _search_options(
 
 
 def _check_noise(
-    model: WorldModel, noise: Mapping[str, Any] | None, n: int, horizon: int, twin: bool
+    model: WorldModel, noise: Mapping[str, Any] | None, n: int, horizon: int
 ) -> dict[str, Tensor]:
-    """The replayed residuals of :func:`infer_action`, checked: non-root names, ``(N, dim)`` or ``(N, H, dim)``."""
-    if noise and not twin:
-        raise ValueError(
-            "noise= replays residuals in the torch twin of a plain model: give sampling, a horizon or a "
-            "risk, and no handlers (or wrap the model in ReplayNoise for the thesis protocol)"
-        )
+    """The replayed residuals of a ``ReplayNoise`` program, checked: non-roots, ``(N, dim)`` or ``(N, H, dim)``."""
     out: dict[str, Tensor] = {}
     graph = model.graph
     for name, raw in dict(noise or {}).items():
@@ -190,7 +198,9 @@ def _check_noise(
         eps = torch.as_tensor(raw, dtype=model.dtype)
         shapes = [(n, graph[name].dim)] + ([(n, horizon, graph[name].dim)] if horizon > 1 else [])
         if tuple(eps.shape) not in shapes:
-            raise ValueError(f"noise[{name!r}] has shape {tuple(eps.shape)}, expected one of {shapes}")
+            raise ValueError(
+                f"ReplayNoise: noise[{name!r}] has shape {tuple(eps.shape)}, expected one of {shapes}"
+            )
         if not torch.isfinite(eps).all():
             raise ValueError(f"noise[{name!r}] is not finite")
         out[name] = eps

@@ -37,7 +37,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from inference import infer_action
+from inference import ReplayNoise, infer_action
 from models import WorldModel
 from pal.agent.config import PlanConfig
 
@@ -200,13 +200,12 @@ def plan(
     if init is not None:
         a = torch.as_tensor(np.asarray(init, dtype=np.float64), dtype=dtype)
         start = {"act": a[None] if h > 1 else a[:1]}
-    given = None
-    if noise:
-        given = {
-            k: torch.as_tensor(np.asarray(v, dtype=np.float64)[None], dtype=dtype) for k, v in noise.items()
-        }
+    program = model
+    if noise:  # the correction: residuals replayed on every rollout step (the torch twin of ReplayNoise)
+        eps = {k: torch.as_tensor(np.asarray(v, np.float64)[None], dtype=dtype) for k, v in noise.items()}
+        program = ReplayNoise(eps, default="expected")(model)
     result = infer_action(
-        model,
+        program,
         state,
         {site(o, effector): t for o, t in tgt.items()} if disagreement else None,
         num_steps=max(options.sampling.refine_steps, 1),
@@ -214,7 +213,6 @@ def plan(
             options, log_preference=preference(tgt, config, "ee" in model.graph, effector), init=start
         ),
         seed=seed,
-        noise=given,
     )
     acts = result.actions["act"][0].numpy().astype(np.float64).reshape(h, -1)
     final = {

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from inference import ActionOptions, CuriositySampler, FitResult, FitSchedule, fit, infer_action
+from inference import ActionOptions, CuriositySampler, FitResult, FitSchedule, ReplayNoise, fit, infer_action
 from models import WorldModel
 from models.presets import ALL_VARIANTS, GRAPH_VARIANTS, joint_chain_graph
 from models.variables import Role
@@ -403,20 +403,21 @@ def infer_actions(
         init = "midpoint"
     else:
         init = {act: np.repeat(np.linspace(low, high, starts + 2)[1:-1], n)[:, None].astype(np.float32)}
+    program = model
+    if noise:  # abducted residuals replayed in the prediction (ReplayNoise, through the torch twin)
+        eps = {
+            k: torch.as_tensor(np.asarray(v, np.float32).reshape(n, -1)).repeat(starts, 1)
+            for k, v in noise.items()
+        }
+        program = ReplayNoise(eps, default="expected")(model)
     res = infer_action(
-        model,
+        program,
         {k: v.repeat(starts, 1) for k, v in given.items()},
         {q: tg.repeat(starts, 1)},
         actions=[act],
         num_steps=action.num_steps,
         options=replace(action.options, init=init),
         seed=seed,
-        noise=None
-        if not noise
-        else {
-            k: torch.as_tensor(np.asarray(v, np.float32).reshape(n, -1)).repeat(starts, 1)
-            for k, v in noise.items()
-        },
     )
     best = res.final_loss.numpy().reshape(starts, n).argmin(0) * n + np.arange(n)
     return (

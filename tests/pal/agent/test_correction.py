@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from inference import ActionOptions, SamplingConfig, infer_action
+from inference import ActionOptions, ReplayNoise, SamplingConfig, infer_action
 from models import CausalGraph, LinearMechanism, Variable, WorldModel
 from pal.agent import CorrectionConfig
 from pal.agent.correction import Correction, abduct
@@ -63,13 +63,10 @@ def test_planning_replays_the_given_residuals_and_switches_off():
     )
     state, targets = {"x_prev": [[x]]}, {"x": [[0.5]]}
     a_plain = float(infer_action(model, state, targets, options=options, seed=0).actions["a"][0, 0])
-    a_corr = float(
-        infer_action(model, state, targets, options=options, seed=0, noise={"x": [[uhat]]}).actions["a"][0, 0]
-    )
+    replayed = ReplayNoise({"x": torch.tensor([[uhat]], dtype=model.dtype)}, default="expected")(model)
+    a_corr = float(infer_action(replayed, state, targets, options=options, seed=0).actions["a"][0, 0])
     assert abs(a_plain - 0.4) < 2e-3
     assert abs(a_corr - (0.4 - SIGMA * uhat)) < 2e-3
-    with pytest.raises(ValueError, match=r"noise\['x'\] has shape \(2,\)"):
-        infer_action(model, state, targets, options=options, noise={"x": [1.0, 2.0]})
     off = Correction(CorrectionConfig(enabled=False, sites=("x",)))
     off.observe(model, {"x_prev": np.array([0.0])}, np.array([0.0]), None)
     assert off.noise(model) is None
