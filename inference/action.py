@@ -104,7 +104,8 @@ def infer_action(
 
     Args:
         model: the world model (fixed), or a program made from one (e.g.
-            ``ReplayNoise(abducted)(model)`` to plan with abducted residuals, or
+            ``ReplayNoise(abducted, default="expected")(model)`` to plan with abducted residuals,
+            also through the torch twin with a horizon: ``(N, dim)`` held or ``(N, H, dim)``; or
             ``do(model, ...)``); handlers entered with ``with`` act too.
         state: name -> ``(N, dim)`` current state estimate s(t) (e.g. ``q_prev``), and
             any actions that are held fixed (within their bounds); None if the graph has
@@ -135,14 +136,46 @@ def infer_action(
     """
     program = as_program(model)
     check_active_handlers(program.graph)
-    plain = not program.handlers and no_handler_active()
+    noise = _replayed(program)
+    plain = (not program.handlers or noise is not None) and no_handler_active()
     opts, risk_kind = _checked_options(options)
     steps = check_int("num_steps", num_steps, minimum=1)
     seed = check_seed("seed", seed)
     progress_bar = check_bool("progress_bar", progress_bar)
     query = _query(program.world, state, targets, actions, opts)
     generator = torch.Generator().manual_seed(seed)
-    if opts.sampling is None and _discrete_downstream(program.world, query.actions):
+    opts = _search_options(program.world, query, opts, risk_kind, plain)
+    thesis = opts.sampling is None and opts.horizon == 1 and risk_kind[0] is None
+    if thesis:
+        return _through_program(program, query, opts.init, steps, opts.lr, generator, progress_bar)
+    _check_planning(program.world.graph, query, opts.horizon, risk_kind)
+    if not plain:
+        return _sampled_program(
+            program, query, opts.init, opts.sampling, steps, opts.lr, generator, progress_bar
+        )
+    given = _check_noise(program.world, noise, query.n, opts.horizon)
+    return _through_twin(program.world, query, opts, risk_kind, steps, generator, progress_bar, given)
+
+
+def _replayed(program: Program) -> dict[str, Tensor] | None:
+    """The residuals of a program whose only handler is ``ReplayNoise(u, default="expected")``, else None.
+
+    The torch twin replays them (``x = f(pa) + sigma(pa) u``, 0 elsewhere), so such a program plans
+    with a horizon or a risk too: e.g. residuals abducted from executed steps, carried forward.
+    """
+    if len(program.handlers) != 1:
+        return None
+    handler = program.handlers[0]
+    if not isinstance(handler, ReplayNoise) or handler.default != "expected":
+        return None
+    return dict(handler.noise)
+
+
+def _search_options(
+    model: WorldModel, query: _Query, opts: ActionOptions, risk_kind: tuple[str | None, float], plain: bool
+) -> ActionOptions:
+    """A sampling stage when a discrete site lies downstream of the actions; a horizon or risk needs a plain model."""
+    if opts.sampling is None and _discrete_downstream(model, query.actions):
         opts = dataclasses.replace(opts, sampling=SamplingConfig())
     if not plain and (opts.horizon > 1 or risk_kind[0] is not None):
         raise ValueError(
@@ -150,14 +183,28 @@ def infer_action(
             "itself (fixed values in state) instead of a program with handlers, and enter no handler with "
             "``with`` around the call"
         )
-    if opts.sampling is None and opts.horizon == 1 and risk_kind[0] is None:
-        return _through_program(program, query, opts.init, steps, opts.lr, generator, progress_bar)
-    _check_planning(program.world.graph, query, opts.horizon, risk_kind)
-    if not plain:
-        return _sampled_program(
-            program, query, opts.init, opts.sampling, steps, opts.lr, generator, progress_bar
-        )
-    return _through_twin(program.world, query, opts, risk_kind, steps, generator, progress_bar)
+    return opts
+
+
+def _check_noise(
+    model: WorldModel, noise: Mapping[str, Any] | None, n: int, horizon: int
+) -> dict[str, Tensor]:
+    """The replayed residuals of a ``ReplayNoise`` program, checked: non-roots, ``(N, dim)`` or ``(N, H, dim)``."""
+    out: dict[str, Tensor] = {}
+    graph = model.graph
+    for name, raw in dict(noise or {}).items():
+        if not isinstance(name, str) or name not in graph or graph.is_root(name):
+            raise ValueError(f"noise names {name!r}, not a non-root site; non-roots: {list(graph.non_roots)}")
+        eps = torch.as_tensor(raw, dtype=model.dtype)
+        shapes = [(n, graph[name].dim)] + ([(n, horizon, graph[name].dim)] if horizon > 1 else [])
+        if tuple(eps.shape) not in shapes:
+            raise ValueError(
+                f"ReplayNoise: noise[{name!r}] has shape {tuple(eps.shape)}, expected one of {shapes}"
+            )
+        if not torch.isfinite(eps).all():
+            raise ValueError(f"noise[{name!r}] is not finite")
+        out[name] = eps
+    return out
 
 
 @dataclass(frozen=True)
@@ -270,6 +317,7 @@ def _through_twin(
     steps: int,
     generator: torch.Generator,
     progress_bar: bool,
+    noise: Mapping[str, Tensor] | None = None,
 ) -> ActionResult:
     """Sampling stage and Adam through the torch twins (predict, rollout) of a plain model."""
     actions, horizon, n = query.actions, opts.horizon, query.n
@@ -277,7 +325,7 @@ def _through_twin(
         model,
         query.given,
         actions,
-        {},
+        dict(noise or {}),
         query.log_preference,
         n,
         horizon,

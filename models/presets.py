@@ -13,7 +13,13 @@ on the joint angle, so the displacement has the previous angle as a real parent.
 
 because a body that is still moving at t-1 keeps moving: without it the state has no
 velocity, and the command and the angle alone cannot tell where the joint goes.
-``rollout`` carries it forward (``lag_of = dq.j``, Alg. 4.1).
+``rollout`` carries it forward (``lag_of = dq.j``, Alg. 4.1). On a torque-driven joint that
+displacement is only a proxy of the velocity at the step's start. The ``"velocity"`` variant
+makes the state Markov with the simulator's joint velocity (MuJoCo's ``qvel``):
+
+    act.j, q_prev.j, v_prev.j -> dq.j,     act.j, q_prev.j, v_prev.j -> v.j,
+
+``v_prev.j`` an observed lag-1 root (``lag_of = v.j``), so ``rollout`` carries ``v`` forward.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ from models.graph import CausalGraph
 from models.variables import Role, Variable
 
 __all__ = [
+    "ALL_VARIANTS",
     "FINGER_ACTION_RANGE",
     "FINGER_Q_RANGE",
     "GRAPH_VARIANTS",
@@ -37,7 +44,10 @@ __all__ = [
     "random_graph",
 ]
 
+#: The variants fitted by default (they need only joint angles).
 GRAPH_VARIANTS = ("thesis", "state", "dynamics")
+#: Every variant: the defaults and ``"velocity"`` (needs the joint velocity columns).
+ALL_VARIANTS = (*GRAPH_VARIANTS, "velocity")
 
 #: Action range X_a of the left finger motor (thesis §5.2.1): ctrl range of the motor.
 FINGER_ACTION_RANGE = (-1.0, 0.33)
@@ -58,11 +68,13 @@ def joint_chain_graph(
             (and ``dq_prev.<j>`` in the ``"dynamics"`` variant).
         action_ranges: joint -> (low, high) motor command range.
         variant: ``"thesis"`` (Fig. 5.5), ``"state"`` (adds ``q_prev.j -> dq.j``) or
-            ``"dynamics"`` (``state`` plus the observed lag-1 root ``dq_prev.j -> dq.j``).
+            ``"dynamics"`` (``state`` plus the observed lag-1 root ``dq_prev.j -> dq.j``) or
+            ``"velocity"`` (``state`` plus ``v_prev.j -> dq.j`` and the site ``v.j`` of
+            ``act.j, q_prev.j, v_prev.j``; rad/s).
         q_ranges: optional joint -> (low, high) angle range, rad, stored as bounds of q and q_prev.
     """
-    if not isinstance(variant, str) or variant not in GRAPH_VARIANTS:
-        raise ValueError(f"graph variant {variant!r} unknown; expected one of {GRAPH_VARIANTS}")
+    if not isinstance(variant, str) or variant not in ALL_VARIANTS:
+        raise ValueError(f"graph variant {variant!r} unknown; expected one of {ALL_VARIANTS}")
     joints = check_names("joints", joints, allow_empty=False)
     action_ranges = check_mapping("action_ranges", action_ranges)
     missing = [j for j in joints if j not in action_ranges]
@@ -97,8 +109,10 @@ def joint_chain_graph(
             ),
         ]
         edges += [(f"act.{j}", f"dq.{j}"), (f"dq.{j}", f"q.{j}"), (f"q_prev.{j}", f"q.{j}")]
-        if variant in ("state", "dynamics"):
+        if variant in ("state", "dynamics", "velocity"):
             edges.append((f"q_prev.{j}", f"dq.{j}"))
+        if variant == "velocity":
+            _velocity(j, variables, edges)
         if variant == "dynamics":
             variables.append(
                 Variable(
@@ -112,6 +126,23 @@ def joint_chain_graph(
             )
             edges.append((f"dq_prev.{j}", f"dq.{j}"))
     return CausalGraph(variables, edges)
+
+
+def _velocity(j: str, variables: list[Variable], edges: list[tuple[str, str]]) -> None:
+    """Add the ``"velocity"`` variant's ``v_prev.j -> dq.j`` and ``act.j, q_prev.j, v_prev.j -> v.j``."""
+    variables += [
+        Variable(
+            f"v_prev.{j}",
+            Role.OBSERVED,
+            unit="rad/s",
+            lag=1,
+            lag_of=f"v.{j}",
+            description="joint velocity at the step's start",
+        ),
+        Variable(f"v.{j}", Role.LATENT, unit="rad/s", description="joint velocity at the step's end"),
+    ]
+    edges.append((f"v_prev.{j}", f"dq.{j}"))
+    edges += [(p, f"v.{j}") for p in (f"act.{j}", f"q_prev.{j}", f"v_prev.{j}")]
 
 
 def finger_graph(variant: str = "thesis", joint: str = "finger") -> CausalGraph:

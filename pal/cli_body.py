@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any, NoReturn
 
 __all__ = [
@@ -79,6 +80,8 @@ def body_fields(entry: Any, args: argparse.Namespace) -> dict[str, Any]:
         given["joint"] = given["joint"][0]
     if "action_range" in given:
         given["action_range"] = action_ranges(given["action_range"])
+    if "mjcf" in given:  # stored in the run's config as an absolute, resolved path
+        given["mjcf"] = str(Path(given["mjcf"]).expanduser().resolve())
     dataset = getattr(args, "dataset", None)
     if not given and dataset is None:
         return {}

@@ -1,6 +1,10 @@
 """The agent: the composition root of the perception-action loop (thesis §4.1, §6.3), over any Gymnasium env.
 
 - :mod:`pal.agent.spec`: :class:`EnvSpec`, which observation entries or perceived objects are what;
+  :mod:`pal.agent.transforms`: sensor transforms (angles from cos/sin, absolute from relative);
+  :mod:`pal.agent.body_checks`: the spec against a MuJoCo env's own model (actuator kinds, qpos, qvel);
+- :mod:`pal.agent.goals`: what the goal mode reaches for (objects or the effector);
+- :mod:`pal.agent.correction`: online correction of the rollouts from abducted residuals;
 - :mod:`pal.agent.graph`: the world model built from the spec (a generalised pushing graph);
 - :mod:`pal.agent.senses`: perceive, o(t) -> percept (Π optional); :mod:`pal.agent.perception`: Π's front end;
 - :mod:`pal.agent.estimate`: the belief through the measurement sites;
@@ -19,6 +23,7 @@ world model and inference together.
 from pal.agent.config import (
     AgentConfig,
     BabbleConfig,
+    CorrectionConfig,
     CuriosityConfig,
     EstimateConfig,
     LearnConfig,
@@ -30,13 +35,15 @@ from pal.agent.learn import fit_model
 from pal.agent.loop import MODES, Agent, Decision
 from pal.agent.plan import Plan, plan
 from pal.agent.senses import Percept
-from pal.agent.spec import EnvSpec, ObjectSpec, Sensor, check_env, pusher_spec, pushing_spec
+from pal.agent.spec import EnvSpec, ObjectSpec, Sensor, check_env, pusher_spec, pushing_spec, reacher_spec
+from pal.agent.transforms import Transform, absolute_from_relative, angle_from_cos_sin, index_map
 
 __all__ = [
     "MODES",
     "Agent",
     "AgentConfig",
     "BabbleConfig",
+    "CorrectionConfig",
     "CuriosityConfig",
     "Decision",
     "EnvSpec",
@@ -48,14 +55,19 @@ __all__ = [
     "Plan",
     "PlanConfig",
     "Sensor",
+    "Transform",
+    "absolute_from_relative",
+    "angle_from_cos_sin",
     "blanket",
     "build_graph",
     "build_model",
     "check_env",
     "discover_parents",
     "fit_model",
+    "index_map",
     "plan",
     "pusher_spec",
     "pushing_spec",
+    "reacher_spec",
     "restrict",
 ]

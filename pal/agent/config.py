@@ -30,6 +30,7 @@ __all__ = [
     "PREFERENCES",
     "AgentConfig",
     "BabbleConfig",
+    "CorrectionConfig",
     "CuriosityConfig",
     "EstimateConfig",
     "LearnConfig",
@@ -400,15 +401,48 @@ class BabbleConfig:
 
 
 @dataclass(frozen=True)
+class CorrectionConfig:
+    """Online correction from abducted residuals (:mod:`pal.agent.correction`).
+
+    Attributes:
+        enabled: carry the filtered residuals of the executed steps forward in the planner's rollouts.
+        window: k >= 1, the last k executed transitions whose residuals are averaged.
+        gain: g in (0, 1], the filter's step towards that average per step.
+        sites: the corrected continuous sites (those the graph has).
+    """
+
+    enabled: bool = False
+    window: int = 3
+    gain: float = 0.5
+    sites: tuple[str, ...] = ("dq", "v", "dee")
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.enabled, bool):
+            raise ValueError(f"correction.enabled is {self.enabled!r}; expected True or False")
+        if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 1:
+            raise ValueError(
+                f"correction.window is {self.window!r}; the residuals of the last k executed steps are averaged: "
+                "give an int k >= 1"
+            )
+        check_float("correction.gain", self.gain, 0.0, 1.0, open_low=True)
+        if not self.sites or not all(isinstance(x, str) and x for x in self.sites):
+            raise ValueError(f"correction.sites is {self.sites!r}; give site names, e.g. ('dq', 'v', 'dee')")
+        object.__setattr__(self, "sites", tuple(self.sites))
+
+
+@dataclass(frozen=True)
 class AgentConfig:
     """Settings of the loop (the seed is an argument of :class:`pal.agent.Agent`, not a setting).
 
     Attributes:
         perception: configuration of Π (perceived objects only).
         top_surface: perceived positions are the centres of the objects' top surfaces.
-        model, estimate, plan, curiosity, learn, babble: the parts' settings.
+        model, estimate, plan, curiosity, learn, babble, correction: the parts' settings.
         reset_every: steps per episode before the environment is reset (None: never).
-        servo: actions are joint position targets (babbling moves around the joint angles).
+        servo: actions are joint position targets (babbling moves around the joint angles);
+            None (the default): read from the MJCF's actuators when the environment is a MuJoCo
+            env (:func:`pal.agent.body_checks.resolve_servo`; True otherwise); an explicit value
+            that contradicts an actuator is an error.
     """
 
     perception: PipelineConfig = PipelineConfig(relations=None)
@@ -419,9 +453,12 @@ class AgentConfig:
     curiosity: CuriosityConfig = CuriosityConfig()
     learn: LearnConfig = LearnConfig()
     babble: BabbleConfig = BabbleConfig()
+    correction: CorrectionConfig = CorrectionConfig()
     reset_every: int | None = 40
-    servo: bool = True
+    servo: bool | None = None
 
     def __post_init__(self) -> None:
         if self.reset_every is not None:
             check_int("reset_every", self.reset_every)
+        if self.servo is not None and not isinstance(self.servo, bool):
+            raise ValueError(f"servo is {self.servo!r}; expected True, False or None (read from the MJCF)")

@@ -41,6 +41,11 @@ log = logging.getLogger(__name__)
 MIN_HELD_OUT_CONTACTS = 10
 
 
+def wrap_angle(x: np.ndarray) -> np.ndarray:
+    """``x`` wrapped into [-pi, pi), rad (the step of an angle read from cos/sin)."""
+    return (np.asarray(x) + np.pi) % (2 * np.pi) - np.pi
+
+
 def site_data(
     history: History,
     spec: EnvSpec,
@@ -61,6 +66,8 @@ def site_data(
         ok &= np.isfinite(history.array("vel_prev")[idx]).all((1, 2))
     arm, objects = history.columns(source, idx[ok], contact=rule, floor=floor)
     out = dict(arm)
+    if spec.periodic:
+        out["dq"] = wrap_angle(out["dq"])
     for o, cols in objects.items():
         out.update({k: v for k, v in cols.items() if k not in out})
         if o in spec.perceived:
@@ -98,6 +105,9 @@ def fit_model(
     """
     rule, floor = contact_rule(spec, config)
     arm, objects = history.columns(source, rows, contact=rule, floor=floor)
+    if spec.periodic:  # angles from cos/sin: a step across +-pi is a small dq, not 2 pi
+        for cols in (arm, *objects.values()):
+            cols["dq"] = wrap_angle(cols["dq"])
     known = lambda cols: {k: v for k, v in cols.items() if k in model.graph}  # noqa: E731
     arm, objects = known(arm), {o: known(c) for o, c in objects.items()}
     learned = [s for s in learned_sites(spec, config.displacement) if s in model.graph]

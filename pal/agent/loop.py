@@ -34,10 +34,13 @@ import torch
 from tqdm import tqdm
 
 from models import WorldModel
+from pal.agent.body_checks import check_joint_sensors, resolve_servo
 from pal.agent.config import AgentConfig
+from pal.agent.correction import Correction
 from pal.agent.curiosity import GridCuriosity
 from pal.agent.estimate import Estimator, belief
 from pal.agent.explore import contact_search, diagnose, push_counts
+from pal.agent.goals import check_reachable, check_targets, current
 from pal.agent.graph import build_graph, build_model, discover_parents
 from pal.agent.history import History
 from pal.agent.influence import explore
@@ -99,12 +102,14 @@ class Agent:
         seed: master seed (actions, targets, inference, episode resets, the model's weights and fits).
         model: a fitted world model over the spec's graph to start from (default: a fresh one,
             fitted by :meth:`refit`).
-        goal: optional user goal, object -> target position, m (``"goal"`` mode; default the
-            goals the spec observes).
+        goal: optional user goal, object (or the effector's name) -> target position, m
+            (``"goal"`` mode; default the goals the spec observes).
 
     Raises:
         ValueError: the environment does not match the spec (:func:`pal.agent.spec.check_env`),
-            objects of different dims, an info entry the spec reads is missing, or a perceived
+            ``config.servo`` contradicts an actuator of the MJCF, sensed angles or velocities
+            that are not MuJoCo's (:mod:`pal.agent.body_checks`), a transform whose first
+            observation does not fit (cos^2 + sin^2 != 1), objects of different dims, an info entry the spec reads is missing, or a perceived
             object that Π does not see in the first frame.
     """
 
@@ -123,6 +128,7 @@ class Agent:
         self.env, self.spec, self.config = env, spec, config or AgentConfig()
         self.seed = check_int("seed", seed, minimum=0)
         self.low, self.high = check_env(spec, env)
+        self.servo = resolve_servo(env, self.config.servo)
         dims = {o.dim for o in spec.objects}
         if len(dims) > 1:
             raise ValueError(f"objects have different dims {sorted(dims)}; the history holds one dim for all")
@@ -150,6 +156,7 @@ class Agent:
         c = cfg.curiosity
         self.curiosity = {o: GridCuriosity((x0, y0), (x1, y1), c.bins, c.locality) for o in spec.object_names}
         self.goal = {} if goal is None else self._check_targets(goal)
+        self.correction = Correction(self.config.correction)
         self.episode, self.steps, self.episode_steps, self.clock = -1, 0, 0, 0.0
         self.percept: Percept | None = None
         self.estimate: dict[str, np.ndarray | None] = {}
@@ -167,7 +174,9 @@ class Agent:
         """Reset once and read the percept: missing info entries and unseen objects fail here."""
         seed = int(np.random.SeedSequence([self.seed, 4]).generate_state(1)[0])
         obs, info = self.env.reset(seed=seed)
+        self.senses.check_first(obs)
         percept = self.senses.read(obs, info, 0.0)
+        check_joint_sensors(self.spec, self.env, percept.q, percept.v)
         unseen = [o for o in self.spec.perceived if percept.measurements[o] is None]
         if unseen:
             n = 0 if percept.perception is None else len(percept.perception.observations())
@@ -178,19 +187,7 @@ class Agent:
         self.senses.reset()
 
     def _check_targets(self, targets: Mapping[str, Any]) -> dict[str, np.ndarray]:
-        out = {}
-        for name, value in targets.items():
-            if name not in self.spec.object_names:
-                raise ValueError(
-                    f"target names unknown object {name!r}; objects are {list(self.spec.object_names)}"
-                )
-            v = np.asarray(value, dtype=np.float64)
-            if v.shape != (self.spec.object(name).dim,) or not np.all(np.isfinite(v)):
-                raise ValueError(
-                    f"target of {name!r} is {value!r}; expected a finite ({self.spec.object(name).dim},) in metres"
-                )
-            out[name] = v
-        return out
+        return check_targets(self.spec, targets)
 
     # ------------------------------------------------------------------ perceive, estimate
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> Percept:
@@ -206,6 +203,7 @@ class Agent:
         self.percept = self.senses.read(obs, info, self.clock)
         self.estimate = self.estimator.initial(self.percept)
         self.previous = {}
+        self.correction.reset()
         self._visit()
         return self.percept
 
@@ -225,22 +223,36 @@ class Agent:
         return int(self.rng.integers(2**31))
 
     def plan(self, targets: Mapping[str, Any], mode: str = "goal") -> Plan:
-        """Plan towards ``targets`` (object -> (d,) m) from the belief, warm-started (:func:`pal.agent.plan.plan`)."""
+        """Plan towards ``targets`` (object or effector -> (d,) m) from the belief, warm-started (:func:`pal.agent.plan.plan`).
+
+        With ``config.correction.window`` the rollouts carry the filtered residuals abducted from
+        the last executed transitions (:mod:`pal.agent.correction`).
+        """
         if self.percept is None:
             raise ValueError("call reset() before plan()")
         targets = self._check_targets(targets)
-        missing = [o for o in targets if self.estimate.get(o) is None]
+        missing = [o for o in targets if current(self.spec, self.percept, self.estimate, o) is None]
         if missing:
             raise ValueError(f"no state estimate for {missing}; they have not been perceived in this episode")
         cfg = self.config.plan
         init = None
         if cfg.warm_start and self._sequence is not None:
             init = np.concatenate([self._sequence[1:], self._sequence[-1:]])
-        elif self.config.servo and len(self.low) == len(
-            self.percept.q
-        ):  # start the search from holding still
+        elif self.servo and len(self.low) == len(self.percept.q):  # start the search from holding still
             init = np.tile(np.clip(self.percept.q, self.low, self.high), (cfg.action.horizon, 1))
-        p = plan(self.model, self.belief(), targets, cfg, seed=self._seed(), init=init, mode=mode)
+        effector = self.spec.effector_name if self.spec.effector is not None else None
+        noise = self.correction.noise(self.model)
+        p = plan(
+            self.model,
+            self.belief(),
+            targets,
+            cfg,
+            seed=self._seed(),
+            init=init,
+            mode=mode,
+            effector=effector,
+            noise=noise,
+        )
         self._sequence = p.sequence
         return p
 
@@ -248,7 +260,7 @@ class Agent:
         """A babbling action (A,): uniform in the bounds, or for servos a move around the joint angles."""
         b = self.config.babble
         if (
-            self.config.servo
+            self.servo
             and self.percept is not None
             and self.rng.random() < b.local
             and len(self.low) == len(self.percept.q)
@@ -258,7 +270,7 @@ class Agent:
         return self.rng.uniform(self.low, self.high)
 
     def _hold(self) -> np.ndarray:
-        return self.percept.q.copy() if self.config.servo else np.zeros(len(self.low))
+        return self.percept.q.copy() if self.servo else np.zeros(len(self.low))
 
     def decide(self, mode: str) -> Decision:
         """Choose a(t): ``"babble"`` (random), ``"curious"`` or ``"goal"`` (the goal, or the observed goals)."""
@@ -266,6 +278,8 @@ class Agent:
             raise ValueError(f"mode {mode!r} unknown; expected one of {MODES}")
         if self.percept is None:
             raise ValueError("call reset() before decide()")
+        if mode == "goal":
+            check_reachable(self.spec, self.goal)
         if mode == "babble" or not self.fitted:
             return Decision("babble", self.random_action())
         known = [o for o in self.spec.object_names if self.estimate.get(o) is not None]
@@ -315,15 +329,21 @@ class Agent:
 
     def _goal(self, known: list[str]) -> Decision:
         goal = self.goal or dict(self.percept.goals)
-        goal = {o: t for o, t in goal.items() if o in known}
+        now_at = {o: current(self.spec, self.percept, self.estimate, o) for o in goal}
+        goal = {
+            o: t
+            for o, t in goal.items()
+            if o in known or (o not in self.spec.object_names and now_at[o] is not None)
+        }
         if not goal:
+            log.debug("goal mode: no goal's object is known yet; holding")
             return Decision("hold", self._hold())
-        now = sum(float(np.linalg.norm(self.estimate[o] - t)) for o, t in goal.items())
+        now = sum(float(np.linalg.norm(now_at[o] - t)) for o, t in goal.items())
         cfg = self.config.plan
-        if self.config.servo and now <= cfg.goal_tolerance:
+        if self.servo and now <= cfg.goal_tolerance:
             return Decision("hold", self._hold(), goal)
         p = self.plan(goal)
-        if self.config.servo and p.objective > now - cfg.min_progress:
+        if self.servo and p.objective > now - cfg.min_progress:
             self._sequence = None
             return Decision("hold", self._hold(), p.targets, p.predicted, p.objective)
         return _decision(p)
@@ -350,6 +370,9 @@ class Agent:
         )
         self.previous = est_prev
         self.percept = new
+        if self.fitted:
+            roots = belief(self.spec, prev, est_prev, before)
+            self.correction.observe(self.model, roots, a, new, self.spec.periodic)
         self._visit()
         self.history.append(
             **transition(
@@ -380,6 +403,7 @@ class Agent:
         self.graph = self.model.graph
         self.fitted = True
         self.estimator.forget()
+        self.correction.reset()
         log.info("refit on %d transitions: %s", len(self.history), out["rows"])
         return out
 
@@ -398,6 +422,8 @@ class Agent:
         in the curious mode, else ``config.learn.refit_every``; 0 disables). Episodes restart every ``reset_every`` steps and when the environment ends one.
         """
         check_int("steps", steps, minimum=0)
+        if mode == "goal":
+            check_reachable(self.spec, self.goal)
         default = self.config.curiosity.refit_every if mode == "curious" else self.config.learn.refit_every
         every = default if refit_every is None else refit_every
         decisions = []

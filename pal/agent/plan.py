@@ -37,11 +37,11 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from inference import infer_action
+from inference import ReplayNoise, infer_action
 from models import WorldModel
 from pal.agent.config import PlanConfig
 
-__all__ = ["Plan", "behind", "distance", "one_step", "plan", "preference"]
+__all__ = ["Plan", "behind", "distance", "one_step", "plan", "preference", "site"]
 
 
 @dataclass(frozen=True)
@@ -90,15 +90,29 @@ def behind(pos: Tensor, target: Tensor, offset: float) -> Tensor:
     return pos[..., :2] + offset * away / torch.sqrt(away.pow(2).sum(-1, keepdim=True) + 1e-12)
 
 
+def site(name: str, effector: str | None) -> str:
+    """The site a target of ``name`` is scored on: ``ee`` for the effector, else ``pos.<name>``."""
+    return "ee" if name == effector else f"pos.{name}"
+
+
 def preference(
-    targets: Mapping[str, Tensor], config: PlanConfig, effector: bool
+    targets: Mapping[str, Tensor], config: PlanConfig, effector: bool, reach: str | None = None
 ) -> Callable[[Mapping[str, Tensor]], Tensor]:
-    """The log-preference of the module docstring: ``values (..., N, dim) -> (..., N)``."""
+    """The log-preference of the module docstring: ``values (..., N, dim) -> (..., N)``.
+
+    A target named ``reach`` (the effector's name) is scored on the effector's first d components:
+    ``w_g c(ee[:d] - target)``.
+    """
     scale, kind = config.action.scale, config.preference
 
     def log_p(values: Mapping[str, Tensor]) -> Tensor:
         total: Tensor | float = 0.0
         for o, t in targets.items():
+            if o == reach:
+                total = total + config.goal_weight * distance(
+                    values["ee"][..., : t.shape[-1]] - t, kind, scale
+                )
+                continue
             pos = values[f"pos.{o}"]
             total = total + config.goal_weight * distance(pos - t, kind, scale)
             if effector and config.effector_weight:
@@ -118,9 +132,15 @@ def preference(
 
 
 def one_step(
-    model: WorldModel, belief: Mapping[str, np.ndarray], action: np.ndarray, objects: tuple[str, ...]
+    model: WorldModel,
+    belief: Mapping[str, np.ndarray],
+    action: np.ndarray,
+    objects: tuple[str, ...],
+    effector: str | None = None,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, np.ndarray]]:
     """The model's prediction of each object's displacement under ``action`` from ``belief``.
+
+    An entry named ``effector`` gets the effector's displacement ``dee``.
 
     Returns:
         ``(mean, sd, members)``: object -> (d,) mean and predictive sd (total, m), and
@@ -132,9 +152,10 @@ def one_step(
     mean = model.predict(values)
     sd = model.predict_scale(values)
     members = model.predict(values, members=True)
-    m = {o: mean[f"dpos.{o}"][0].numpy().astype(np.float64) for o in objects}
-    s = {o: sd[f"dpos.{o}"][0].numpy().astype(np.float64) for o in objects}
-    k = {o: members[f"dpos.{o}"][:, 0].numpy().astype(np.float64) for o in objects}
+    d = {o: "dee" if o == effector else f"dpos.{o}" for o in objects}
+    m = {o: mean[d[o]][0].numpy().astype(np.float64) for o in objects}
+    s = {o: sd[d[o]][0].numpy().astype(np.float64) for o in objects}
+    k = {o: members[d[o]][:, 0].numpy().astype(np.float64) for o in objects}
     return m, s, k
 
 
@@ -147,6 +168,8 @@ def plan(
     seed: int,
     init: np.ndarray | None = None,
     mode: str = "goal",
+    effector: str | None = None,
+    noise: Mapping[str, np.ndarray] | None = None,
 ) -> Plan:
     """Plan towards ``targets`` from ``belief`` (module docstring).
 
@@ -158,6 +181,8 @@ def plan(
         seed: seeds the sampling stage.
         init: optional (H, A) start of the search (a warm start), within the action bounds.
         mode: recorded in the plan.
+        effector: the effector's name: a target of that name is for ``ee`` (its first d components).
+        noise: site -> (dim,) residual replayed on every rollout step (:mod:`pal.agent.correction`).
 
     Raises:
         ValueError: a target or belief entry that is missing or of the wrong shape (see
@@ -175,21 +200,32 @@ def plan(
     if init is not None:
         a = torch.as_tensor(np.asarray(init, dtype=np.float64), dtype=dtype)
         start = {"act": a[None] if h > 1 else a[:1]}
+    program = model
+    if noise:  # the correction: residuals replayed on every rollout step (the torch twin of ReplayNoise)
+        eps = {k: torch.as_tensor(np.asarray(v, np.float64)[None], dtype=dtype) for k, v in noise.items()}
+        program = ReplayNoise(eps, default="expected")(model)
     result = infer_action(
-        model,
+        program,
         state,
-        {f"pos.{o}": t for o, t in tgt.items()} if disagreement else None,
+        {site(o, effector): t for o, t in tgt.items()} if disagreement else None,
         num_steps=max(options.sampling.refine_steps, 1),
-        options=replace(options, log_preference=preference(tgt, config, "ee" in model.graph), init=start),
+        options=replace(
+            options, log_preference=preference(tgt, config, "ee" in model.graph, effector), init=start
+        ),
         seed=seed,
     )
     acts = result.actions["act"][0].numpy().astype(np.float64).reshape(h, -1)
-    final = {o: result.predicted[f"pos.{o}"][0].reshape(-1, tgt[o].shape[-1])[-1].numpy() for o in tgt}
+    final = {
+        o: result.predicted[site(o, effector)][0]
+        .reshape(-1, result.predicted[site(o, effector)].shape[-1])[-1]
+        .numpy()[: tgt[o].shape[-1]]
+        for o in tgt
+    }
     predicted = {o: v.astype(np.float64) for o, v in final.items()}
     objective = float(
         sum(np.linalg.norm(predicted[o] - np.asarray(targets[o], dtype=np.float64)) for o in tgt)
     )
-    mean, sd, _ = one_step(model, belief, acts[0], tuple(tgt))
+    mean, sd, _ = one_step(model, belief, acts[0], tuple(tgt), effector)
     return Plan(
         acts[0].copy(),
         acts,

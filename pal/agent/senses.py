@@ -37,7 +37,7 @@ class Percept:
         touch: (O,) contact sensed with each object (zeros without touch sensing).
         measurements: object -> :class:`Measurement` (a sensed object has ``std`` 0 and source
             ``"sensed"``) or None (not seen).
-        goals: object -> (d,) goal position, m, for the objects whose goal is observed.
+        goals: object (or the effector's name) -> (d,) goal position, m, for those whose goal is observed.
         time: s on the agent's clock.
         frame: the self-filtered frame Π saw (perceived objects only).
         perception: Π's state (perceived objects only).
@@ -79,6 +79,16 @@ class Senses:
         self.pipeline = Pipeline(perception or PipelineConfig(relations=None)) if spec.perceived else None
         self.slots = ObjectSlots(spec.perceived, use_top=top_surface) if spec.perceived else None
 
+    def check_first(self, observation: Any) -> None:
+        """Check the transforms on the first observation (cos^2 + sin^2 = 1 ...).
+
+        Raises:
+            ValueError: a transform whose entries do not fit, naming the role.
+        """
+        obs = np.asarray(observation, dtype=np.float64).reshape(-1)
+        for role, sensor in self.spec.sensors().items():
+            sensor.check_first(obs, role)
+
     def reset(self) -> None:
         """A new episode: Π and the slot bindings start afresh."""
         if self.pipeline is not None:
@@ -118,6 +128,8 @@ class Senses:
                 measurements[o.name] = Measurement(p, np.zeros(o.dim), -1, "sensed")
             if o.goal is not None:
                 goals[o.name] = read(o.goal, f"goal of {o.name!r}")
+        if spec.effector_goal is not None:
+            goals[spec.effector_name] = read(spec.effector_goal, "effector goal")
         frame = state = pose = None
         if self.pipeline is not None:
             frame, state, pose, seen = self._perceive(info, time, reference)

@@ -27,9 +27,19 @@ from typing import Any
 import gymnasium
 import numpy as np
 
+from pal.agent.transforms import Transform, absolute_from_relative, angle_from_cos_sin
 from pal.checks import check_int
 
-__all__ = ["PUSHER_JOINTS", "EnvSpec", "ObjectSpec", "Sensor", "check_env", "pusher_spec", "pushing_spec"]
+__all__ = [
+    "PUSHER_JOINTS",
+    "EnvSpec",
+    "ObjectSpec",
+    "Sensor",
+    "check_env",
+    "pusher_spec",
+    "pushing_spec",
+    "reacher_spec",
+]
 
 #: Joint names of Gymnasium's Pusher-v5 arm (observation entries 0-6 and 7-13).
 PUSHER_JOINTS = (
@@ -50,12 +60,16 @@ class Sensor:
     Attributes:
         obs: observation indices (in order), or empty.
         info: an ``info`` key whose value is a ``(dim,)`` array, or None.
-        dim: the quantity's size; for ``obs`` it is ``len(obs)`` (0 means that).
+        dim: the quantity's size; for ``obs`` it is ``len(obs)``, or the transform's output size
+            (0 means that).
+        transform: optional :class:`pal.agent.transforms.Transform` of the observation entries
+            (angles from cos/sin, absolute from relative, an index map).
     """
 
     obs: tuple[int, ...] = ()
     info: str | None = None
     dim: int = 0
+    transform: Transform | None = None
 
     def __post_init__(self) -> None:
         obs = tuple(self.obs)
@@ -68,10 +82,17 @@ class Sensor:
         if len(set(obs)) != len(obs):
             raise ValueError(f"observation indices {list(obs)} repeat an entry")
         object.__setattr__(self, "obs", tuple(int(i) for i in obs))
+        if self.transform is not None and not isinstance(self.transform, Transform):
+            raise ValueError(f"transform must be a Transform (pal.agent.transforms), got {self.transform!r}")
+        if self.transform is not None and not obs:
+            raise ValueError(f"a transform applies to observation entries; info[{self.info!r}] has none")
         if obs:
-            if self.dim not in (0, len(obs)):
-                raise ValueError(f"Sensor dim {self.dim} disagrees with its {len(obs)} observation indices")
-            object.__setattr__(self, "dim", len(obs))
+            size = len(obs) if self.transform is None else self.transform.out_dim(len(obs))
+            if self.dim not in (0, size):
+                raise ValueError(
+                    f"Sensor dim {self.dim} disagrees with its {len(obs)} observation indices (giving {size})"
+                )
+            object.__setattr__(self, "dim", size)
         else:
             check_int(f"dim of info[{self.info!r}]", self.dim)
 
@@ -82,7 +103,9 @@ class Sensor:
             ValueError: the info key is missing, or its value has another shape or is not finite.
         """
         if self.obs:
-            return np.asarray(observation, dtype=np.float64)[list(self.obs)]
+            obs = np.asarray(observation, dtype=np.float64)
+            raw = obs[list(self.obs)]
+            return raw if self.transform is None else self.transform.apply(raw, obs)
         if self.info not in info:
             raise ValueError(
                 f"{what} is read from info[{self.info!r}], but the environment's info has {sorted(info)}"
@@ -91,6 +114,17 @@ class Sensor:
         if value.shape != (self.dim,) or not np.all(np.isfinite(value)):
             raise ValueError(f"{what}: info[{self.info!r}] is {value!r}; expected a finite ({self.dim},)")
         return value
+
+    @property
+    def reads(self) -> tuple[int, ...]:
+        """Every observation index read: the entries and a transform's reference."""
+        return self.obs + (() if self.transform is None else self.transform.to)
+
+    def check_first(self, observation: np.ndarray, what: str) -> None:
+        """Check the raw entries of the first observation against the transform (cos^2 + sin^2 = 1)."""
+        if self.transform is not None:
+            raw = np.asarray(observation, dtype=np.float64)[list(self.obs)]
+            self.transform.check_values(raw, what)
 
 
 @dataclass(frozen=True)
@@ -142,6 +176,9 @@ class EnvSpec:
         angles: sensor of the joint angles (J,), rad.
         velocities: optional sensor of the joint velocities (J,), rad/s.
         effector: optional sensor of the end effector position (E,), m.
+        effector_goal: optional sensor of the effector's goal (d <= E: its first d components),
+            m; the goal mode then brings the effector there (a reaching task).
+        effector_name: the effector's name in goals and targets (``Agent(goal={name: ...})``).
         objects: the modelled objects.
         touch: optional ``info`` sensor of the contact with each object (O,), in [0, 1].
         actions: action names; default ``joints`` (one per joint).
@@ -166,6 +203,8 @@ class EnvSpec:
     observation_dim: int | None = None
     camera: str | None = None
     object_momentum: bool = False
+    effector_goal: Sensor | None = None
+    effector_name: str = "effector"
 
     def __post_init__(self) -> None:
         joints = tuple(self.joints)
@@ -177,6 +216,7 @@ class EnvSpec:
         names = [o.name for o in self.objects]
         if len(set(names)) != len(names):
             raise ValueError(f"object names {names} repeat")
+        self._check_effector_goal(names)
         if self.angles.dim != len(joints):
             raise ValueError(f"angles has dim {self.angles.dim}, expected {len(joints)} (one per joint)")
         if self.velocities is not None and self.velocities.dim != len(joints):
@@ -214,12 +254,49 @@ class EnvSpec:
         if self.observation_dim is not None:
             check_int("observation_dim", self.observation_dim)
 
+    def _check_effector_goal(self, names: list[str]) -> None:
+        if not isinstance(self.effector_name, str) or not self.effector_name or "." in self.effector_name:
+            raise ValueError(f"effector_name {self.effector_name!r} must be a non-empty string without dots")
+        if self.effector_name in names:
+            raise ValueError(
+                f"effector_name {self.effector_name!r} is also an object's name; goals would be ambiguous"
+            )
+        if self.effector_goal is None:
+            return
+        if self.effector is None:
+            raise ValueError(
+                f"effector_goal {self.effector_goal} is given but the spec has no effector; give its sensor (effector=...)"
+            )
+        if self.effector_goal.dim > self.effector.dim:
+            raise ValueError(
+                f"effector_goal has dim {self.effector_goal.dim}, more than the effector's {self.effector.dim}"
+            )
+
+    @property
+    def periodic(self) -> bool:
+        """True when the angles come from cos/sin (in (-pi, pi]): a step's ``dq`` is wrapped into [-pi, pi)."""
+        t = self.angles.transform
+        return t is not None and t.kind == "angle_from_cos_sin"
+
+    @property
+    def goal_names(self) -> tuple[str, ...]:
+        """Names a goal may be given for: the objects, and the effector when the spec has one."""
+        return self.object_names + ((self.effector_name,) if self.effector is not None else ())
+
+    def goal_dim(self, name: str) -> int:
+        """Size of a goal of ``name`` (an object's dim; the effector goal's, else the effector's)."""
+        if self.effector is not None and name == self.effector_name:
+            return self.effector.dim if self.effector_goal is None else self.effector_goal.dim
+        return self.object(name).dim
+
     def sensors(self) -> dict[str, Sensor]:
         """Role -> sensor of every sensed quantity (``"goal.<o>"``, ``"pos.<o>"`` for objects)."""
         out = {"angles": self.angles}
         for role in ("velocities", "effector", "touch"):
             if getattr(self, role) is not None:
                 out[role] = getattr(self, role)
+        if self.effector_goal is not None:
+            out[f"goal.{self.effector_name}"] = self.effector_goal
         for o in self.objects:
             if o.position is not None:
                 out[f"pos.{o.name}"] = o.position
@@ -301,7 +378,7 @@ def check_env(spec: EnvSpec, env: gymnasium.Env) -> tuple[np.ndarray, np.ndarray
             f"the observation space has shape {obs_space.shape}, but the spec is written for ({spec.observation_dim},)"
         )
     for role, sensor in spec.sensors().items():
-        out = [i for i in sensor.obs if i >= size]
+        out = [i for i in sensor.reads if i >= size]
         if out:
             raise ValueError(
                 f"the spec reads observation index {out[0]} for {role!r}, but the observation has {size} entries"
@@ -359,4 +436,24 @@ def pusher_spec() -> EnvSpec:
         objects=(ObjectSpec("object", Sensor(obs=(17, 18, 19)), goal=Sensor(obs=(20, 21, 22))),),
         observation_dim=23,
         object_momentum=True,
+    )
+
+
+def reacher_spec() -> EnvSpec:
+    """Gymnasium's ``Reacher-v5``: two torque-driven joints, the fingertip and its goal, no wrapper.
+
+    Observation (10,): ``cos q`` 0-1, ``sin q`` 2-3, the target's x, y 4-5, ``qvel`` 6-7, the
+    fingertip minus the target (x, y) 8-9. The angles come from the cos/sin entries
+    (:func:`pal.agent.transforms.angle_from_cos_sin`), the fingertip from its position relative
+    to the target (:func:`pal.agent.transforms.absolute_from_relative`), and the target is the
+    effector's goal. Actions: two torques in [-1, 1] (motor actuators, gear 200).
+    """
+    return EnvSpec(
+        joints=("joint0", "joint1"),
+        angles=Sensor(obs=(0, 1, 2, 3), transform=angle_from_cos_sin()),
+        velocities=Sensor(obs=(6, 7)),
+        effector=Sensor(obs=(8, 9), transform=absolute_from_relative(to=(4, 5))),
+        effector_goal=Sensor(obs=(4, 5)),
+        effector_name="fingertip",
+        observation_dim=10,
     )

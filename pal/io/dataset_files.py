@@ -95,10 +95,17 @@ class DatasetFileError(FileFormatError):
     """A dataset file is missing, truncated, corrupted, foreign, or inconsistent with the manifest."""
 
 
-def column_names(joints: Sequence[str], actuated: Sequence[str] | None = None) -> list[str]:
-    """Column names per joint, in order: ``act.j`` (if j is actuated), ``q_prev.j``, ``dq_prev.j``, ``dq.j``, ``q.j``."""
+def column_names(
+    joints: Sequence[str], actuated: Sequence[str] | None = None, velocities: bool = False
+) -> list[str]:
+    """Column names per joint.
+
+    In order: ``act.j`` (if j is actuated), ``q_prev.j``, ``dq_prev.j``, ``dq.j``, ``q.j``, and with
+    ``velocities`` ``v_prev.j``, ``v.j`` (the joint velocity before and after the step, rad/s).
+    """
     actuated = set(joints if actuated is None else actuated)
-    return [f"{k}.{j}" for j in joints for k in _KINDS if k != "act" or j in actuated]
+    kinds = _KINDS + (("v_prev", "v") if velocities else ())
+    return [f"{k}.{j}" for j in joints for k in kinds if k != "act" or j in actuated]
 
 
 def chunk_name(index: int) -> str:

@@ -40,12 +40,13 @@ from pal.sim.bodies import check_name, load_model
 from pal.sim.env import STATE_SPEC, BabblingEnv
 from pal.sim.policies import POLICIES, make_policy
 from pal.sim.ranges import babbling_ranges, effective_ranges
+from pal.sim.transitions import TransitionBlock
 
 __all__ = [
     "BACKENDS",
     "BabbleConfig",
     "BabblingSource",
-    "TransitionBlock",
+    "TransitionBlock",  # re-exported from pal.sim.transitions
     "babble",
     "check_config",
     "collect",
@@ -128,28 +129,6 @@ class BabbleConfig:
                 raise ValueError(f"{key} must be a tuple of names, got the string {value!r}")
 
 
-@dataclass(frozen=True)
-class TransitionBlock:
-    """Consecutive transitions (n rows, J joints, U actuators, S state entries).
-
-    Attributes:
-        ctrl: (n, U) float32 applied commands.
-        q_prev, q: (n, J) float64 joint positions before and after each step, rad.
-        dq_prev: (n, J) float64 displacement of the step before, q(t-1) - q(t-2), rad
-            (0 at the first step of an episode).
-        states: (n, S) float64 simulator states before each step.
-        step, episode: (n,) int64 global step and episode indices.
-    """
-
-    ctrl: np.ndarray
-    q_prev: np.ndarray
-    q: np.ndarray
-    dq_prev: np.ndarray
-    states: np.ndarray
-    step: np.ndarray
-    episode: np.ndarray
-
-
 class BabblingSource:
     """Generates babbling transitions from an environment and a policy.
 
@@ -219,6 +198,8 @@ class BabblingSource:
         applied = np.clip(acts.astype(np.float64), env.ctrl_low, env.ctrl_high)
         q_prev = np.empty((n, len(qidx)))
         q = np.empty((n, len(qidx)))
+        vidx = env.qvel_indices
+        v_prev, v = np.empty((n, len(vidx))), np.empty((n, len(vidx)))
         states = np.empty((n, env.state_size))
         steps = np.arange(self.step_index, self.step_index + n, dtype=np.int64)
         episode = steps // self.reset_every
@@ -233,17 +214,21 @@ class BabblingSource:
                 return True
 
             states, after = rollout_steps(env, applied, reset)
-            q_prev[:] = states[:, 1 + qidx]  # time, qpos, ... in both signatures
+            q_prev[:] = states[:, 1 + qidx]  # time, qpos, qvel ... in both signatures
             q[:] = after[:, 1 + qidx]
+            v_prev[:] = states[:, 1 + m.nq + vidx]
+            v[:] = after[:, 1 + m.nq + vidx]
         else:
             for i in range(n):
                 if (k + i) % every == 0:
                     env.reset(seed=episode_seed(self.seed, (k + i) // every))
                 mujoco.mj_getState(m, d, states[i], STATE_SPEC)
                 q_prev[i] = qpos[qidx]
+                v_prev[i] = d.qvel[vidx]
                 ctrl[aidx] = applied[i]
                 mujoco.mj_step(m, d, fs)
                 q[i] = qpos[qidx]
+                v[i] = d.qvel[vidx]
         dq = q - q_prev
         dq_prev = np.empty_like(dq)
         dq_prev[0] = self._last_dq
@@ -252,7 +237,9 @@ class BabblingSource:
         if n:
             self._last_dq = dq[-1].copy()
         self.step_index += n
-        return TransitionBlock(applied.astype(np.float32), q_prev, q, dq_prev, states, steps, episode)
+        return TransitionBlock(
+            applied.astype(np.float32), q_prev, q, dq_prev, states, steps, episode, v_prev, v
+        )
 
     # ------------------------------------------------------------------ resuming
     def resume_state(self) -> dict[str, Any]:
@@ -284,6 +271,9 @@ class BabblingSource:
             out[f"dq_prev.{j}"] = block.dq_prev[:, c : c + 1].astype(np.float32)
             out[f"dq.{j}"] = (block.q[:, c : c + 1] - block.q_prev[:, c : c + 1]).astype(np.float32)
             out[f"q.{j}"] = block.q[:, c : c + 1].astype(np.float32)
+            if block.v is not None:
+                out[f"v_prev.{j}"] = block.v_prev[:, c : c + 1].astype(np.float32)
+                out[f"v.{j}"] = block.v[:, c : c + 1].astype(np.float32)
         return out
 
     def metadata(self, config: BabbleConfig) -> dict[str, Any]:
@@ -312,7 +302,7 @@ class BabblingSource:
             },
             "effective_range_probe": self.probe,
             "joint_ranges": {k: (list(v) if v else None) for k, v in env.joint_ranges.items()},
-            "columns": column_names(env.joint_names, list(env.joint_actuators)),
+            "columns": column_names(env.joint_names, list(env.joint_actuators), velocities=True),
             "state_spec": STATE_SPEC,
             "state_size": env.state_size,
             "policy": self.policy.config(),

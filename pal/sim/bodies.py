@@ -137,7 +137,8 @@ def load_model(source: str | os.PathLike[str], *, name: str | None = None) -> Lo
     if name is None:
         own = model_name(model)
         name = check_name(f"the model name of {str(path)!r} (override it with --name)", own or path.stem)
-    return LoadedModel(model=model, name=name, path=path, sha256=hashlib.sha256(blob).hexdigest())
+    # the absolute, resolved path: dataset metadata and reports name the file wherever they are read
+    return LoadedModel(model=model, name=name, path=path.resolve(), sha256=hashlib.sha256(blob).hexdigest())
 
 
 def load_body(name: str) -> mujoco.MjModel:

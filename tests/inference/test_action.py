@@ -344,7 +344,7 @@ def test_horizon_final_step_needs_several_steps():
     torch.testing.assert_close(one.predicted["q"], torch.tensor([[0.5], [-0.5]]))
 
 
-def test_horizon_inits_and_no_noise_keyword():
+def test_horizon_inits_and_replayed_noise_through_the_twin():
     model = _integrator()
     q0 = torch.zeros(2, 1)
     target = torch.ones(2, 1)
@@ -364,8 +364,15 @@ def test_horizon_inits_and_no_noise_keyword():
         options=ActionOptions(horizon=4, init={"a": torch.full((2, 1), 0.5)}),
     )
     torch.testing.assert_close(held.predicted["q"][:, -1], target, atol=1e-3, rtol=0)
-    with pytest.raises(TypeError, match="noise"):
-        infer_action(model, {"q_prev": q0}, {"q": target}, options=ActionOptions(horizon=4), noise={"q": q0})
+    # a sole ReplayNoise(u, default="expected") plans through the twin too; zeros are the expected residuals
+    zero = infer_action(
+        ReplayNoise({"q": q0}, default="expected")(model), {"q_prev": q0}, {"q": target}, options=ActionOptions(horizon=4)
+    )
+    plain = infer_action(model, {"q_prev": q0}, {"q": target}, options=ActionOptions(horizon=4))
+    torch.testing.assert_close(zero.actions["a"], plain.actions["a"])
+    bad = ReplayNoise({"q": torch.zeros(3, 1)}, default="expected")(model)
+    with pytest.raises(ValueError, match=r"noise\['q'\] has shape \(3, 1\)"):
+        infer_action(bad, {"q_prev": q0}, {"q": target}, options=ActionOptions(horizon=4))
 
 
 # ---------------------------------------------------------------- randomness

@@ -46,3 +46,40 @@ def test_rollout_feeds_each_displacement_into_the_next_step():
         assert traj["dq.finger"][0, t, 0].item() == pytest.approx(dq, abs=1e-6)
         q, dq_prev = q + dq, dq
         assert traj["q.finger"][0, t, 0].item() == pytest.approx(q, abs=1e-6)
+
+
+def test_the_velocity_variant_carries_the_joint_velocity_forward():
+    """q_prev, v_prev, act -> dq, v; rollout feeds v into v_prev (a Markov state on torque-driven joints)."""
+    g = finger_graph("velocity")
+    assert g["v_prev.finger"].lag_of == "v.finger" and g["v_prev.finger"].unit == "rad/s"
+    assert (
+        set(g.parents("dq.finger"))
+        == set(g.parents("v.finger"))
+        == {"act.finger", "q_prev.finger", "v_prev.finger"}
+    )
+    dt = 0.05
+    lin = lambda w: LinearMechanism.from_coefficients([w])  # noqa: E731
+    pa = list(g.parents("dq.finger"))
+    coef = {"act.finger": 2.0, "q_prev.finger": 0.0, "v_prev.finger": 0.9}
+    model = WorldModel(
+        g,
+        {
+            "v.finger": lin([coef[p] for p in pa]),
+            "dq.finger": lin([dt * coef[p] for p in pa]),
+            "q.finger": lin(
+                [1.0 if p in ("dq.finger", "q_prev.finger") else 0.0 for p in g.parents("q.finger")]
+            ),
+        },
+    )
+    traj = model.rollout(
+        {"q_prev.finger": torch.tensor([[0.0]]), "v_prev.finger": torch.tensor([[1.0]])},
+        {"act.finger": torch.tensor([[[0.3], [-0.5]]])},
+    )
+    v, q = 1.0, 0.0
+    for t, a in enumerate((0.3, -0.5)):
+        v = 2.0 * a + 0.9 * v
+        q = q + dt * v
+        assert traj["v.finger"][0, t, 0].item() == pytest.approx(v, abs=1e-6)
+        assert traj["q.finger"][0, t, 0].item() == pytest.approx(q, abs=1e-6)
+    with pytest.raises(ValueError, match="graph variant 'speed' unknown"):
+        finger_graph("speed")

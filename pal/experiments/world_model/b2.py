@@ -12,6 +12,13 @@ Phi(q(t-1), a) (Eq. 5.7, what the thesis reported), and **realized**, by restori
 recorded simulator state before the transition, executing a for one step (the other
 actuators keep their recorded commands) and measuring the angle reached.
 
+With ``two_step`` each inferred action is followed by the two-step protocol
+(:mod:`pal.experiments.world_model.b2_two_step`: act, abduct the step's noise, act again from
+the same state), reported beside the one-shot protocol as ``error[graph]["two_step"]``. When the
+data record the joint velocity, ``velocity_proxy_r2`` is the R^2 of the previous step's
+displacement ``dq_prev`` as a linear predictor of the velocity at the step's start (MuJoCo's
+``qvel``) on the test rows.
+
 Metrics: ``error: {graph: {random: {mae_model, mae_real}, inferred: {mae_model, mae_real,
 within_005_real, within_010_real}}}``, ``model_internal: {graph: {within_005_model,
 within_010_model, objective_first, objective_last}}`` and ``info``.
@@ -19,7 +26,7 @@ within_010_model, objective_first, objective_last}}`` and ``info``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -27,6 +34,7 @@ import numpy as np
 from inference import ActionOptions, SamplingConfig
 from pal.checks import check_int
 from pal.experiments.world_model.b1 import QUICK_PROTOCOL, TINY_PROTOCOL
+from pal.experiments.world_model.b2_two_step import two_step
 from pal.experiments.world_model.calibration import (
     calibration,
     calibration_table,
@@ -68,6 +76,14 @@ TARGET_WITHIN = 0.9
 #: Realized targets of the dynamics graph (with the sampling stage before Alg. 4.2).
 TARGET_MAE_DYNAMICS = 0.03
 TARGET_WITHIN_DYNAMICS = 0.95
+#: Realized share within 0.05 rad of the two-step protocol.
+TARGET_WITHIN_TWO_STEP = 0.97
+#: Per graph: (realized MAE, share within 0.05 rad) targets of the one-shot protocol.
+GRAPH_TARGETS = {
+    "state": (TARGET_MAE, TARGET_WITHIN),
+    "dynamics": (TARGET_MAE_DYNAMICS, TARGET_WITHIN_DYNAMICS),
+    "velocity": (TARGET_MAE_DYNAMICS, TARGET_WITHIN_DYNAMICS),
+}
 #: The action inference of B2: a CEM sampling stage (the midpoint of X_a in its first
 #: population, so the thesis protocol is the special case sampling = None), then Alg. 4.2.
 SAMPLED = ActionConfig(
@@ -84,15 +100,23 @@ class Config:
         protocol: data, graphs and fitting schedule (shared with B1 and B3).
         targets: number of test targets.
         action: Alg. 4.2 settings.
+        two_step: also run the two-step protocol (act, abduct, act again); needs ``action.options.sampling``.
     """
 
     seed: int = 0
     protocol: ProtocolConfig = ProtocolConfig()
     targets: int = 128
     action: ActionConfig = SAMPLED
+    two_step: bool = False
 
     def __post_init__(self) -> None:
         check_int("targets", self.targets)
+        if not isinstance(self.two_step, bool):
+            raise ValueError(f"two_step is {self.two_step!r}; expected True or False")
+        if self.two_step and self.action.options.sampling is None:
+            raise ValueError(
+                "two_step replays the abducted noise in the torch twin; give action.options.sampling"
+            )
 
 
 def tables(error: dict[str, Any], internal: dict[str, Any]) -> list[Table]:
@@ -124,13 +148,22 @@ def tables(error: dict[str, Any], internal: dict[str, Any]) -> list[Table]:
 
 
 def targets(error: dict[str, Any]) -> list[Target]:
-    """Realized MAE and share within 0.05 rad: state graph <= 0.05 / >= 90 %, dynamics graph <= 0.03 / >= 95 %."""
+    """Realized MAE and share within 0.05 rad of the fitted graphs (:data:`GRAPH_TARGETS`); two-step >= 97 %."""
     out = []
-    for graph, mae, within in (
-        ("state", TARGET_MAE, TARGET_WITHIN),
-        ("dynamics", TARGET_MAE_DYNAMICS, TARGET_WITHIN_DYNAMICS),
-    ):
-        inferred = error.get(graph, {}).get("inferred", {})
+    for graph, (mae, within) in GRAPH_TARGETS.items():
+        if graph not in error:  # not fitted in this run: no target
+            continue
+        inferred = error[graph]["inferred"]
+        if "two_step" in error[graph]:
+            out.append(
+                Target(
+                    f"realized_within_005_two_step.{graph}",
+                    error[graph]["two_step"]["within_005_real"],
+                    TARGET_WITHIN_TWO_STEP,
+                    ">=",
+                    f"share of targets reached within 0.05 rad, realized, two-step protocol, {graph} graph",
+                )
+            )
         out += [
             Target(
                 f"realized_mae.{graph}",
@@ -155,8 +188,9 @@ def targets(error: dict[str, Any]) -> list[Target]:
     config=Config,
     quick=Config(protocol=QUICK_PROTOCOL, targets=32),
     tiny=Config(
-        protocol=TINY_PROTOCOL,
+        protocol=replace(TINY_PROTOCOL, graphs=("thesis", "state", "dynamics", "velocity")),
         targets=4,
+        two_step=True,
         action=ActionConfig(
             num_steps=20, options=ActionOptions(sampling=SamplingConfig(population=16, elites=4))
         ),
@@ -171,7 +205,13 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     what = "the realized transitions of the inferred actions"
     return Report(
         title="B2: action inference (thesis §5.2.3, Fig. 5.6)",
-        metrics={"error": error, "model_internal": internal, "calibration": cal, "info": info},
+        metrics={
+            "error": error,
+            "model_internal": internal,
+            "calibration": cal,
+            "info": info,
+            "velocity_proxy_r2": velocity_proxy_r2(prep.test_columns, prep.joint.joint),
+        },
         tables=[*tables(error, internal), calibration_table(cal, what)],
         targets=[*targets(error), *coverage_targets(cal, what)],
         notes=[
@@ -220,6 +260,10 @@ def evaluate(
             q: real,
         }
         err_model, err_real = abs_errors(predicted, target), abs_errors(real, target)
+        if config.two_step:
+            second = two_step(prep, model, rows, target, state, (actions, real), config.action, config.seed)
+            err_two = abs_errors(second["real"], target)
+            points[f"{graph}.two_step"] = second["real"]
         metrics[graph] = {
             "random": {
                 "mae_model": float(abs_errors(random_model, target).mean()),
@@ -232,6 +276,11 @@ def evaluate(
                 "within_010_real": float((err_real <= 0.10).mean()),
             },
         }
+        if config.two_step:
+            metrics[graph]["two_step"] = {
+                "mae_real": float(err_two.mean()),
+                "within_005_real": float((err_two <= 0.05).mean()),
+            }
         extra[graph] = {
             "within_005_model": float((err_model <= 0.05).mean()),
             "within_010_model": float((err_model <= 0.10).mean()),
@@ -241,6 +290,17 @@ def evaluate(
         points |= {f"{graph}.model": predicted, f"{graph}.real": real, f"{graph}.random_model": random_model}
     points["realized"] = realized
     return metrics, extra, points
+
+
+def velocity_proxy_r2(columns: dict[str, np.ndarray], joint: str) -> float | None:
+    """R^2 of ``dq_prev`` as a linear predictor of ``v_prev`` (the squared correlation), or None without velocities."""
+    v = columns.get(f"v_prev.{joint}")
+    if v is None:
+        return None
+    x, y = (np.asarray(c, np.float64).reshape(-1) for c in (columns[f"dq_prev.{joint}"], v))
+    if x.std() == 0 or y.std() == 0:
+        return None
+    return float(np.corrcoef(x, y)[0, 1] ** 2)
 
 
 def _figure(points: dict[str, np.ndarray], graphs: list[str]) -> Figure:

@@ -152,6 +152,7 @@ def cache_path(config: DataConfig, seed: int) -> Path:
         "probe_steps": bcfg.probe_steps if bcfg.effective_range else None,
         "reset_every": bcfg.reset_every,
         "chunk_size": bcfg.chunk_size,
+        "columns": "v_prev, v",  # datasets record the joint velocities
     }
     digest = hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:12]
     root = Path(config.cache_dir) if config.cache_dir else default_cache_dir()
@@ -283,18 +284,23 @@ class JointData:
         """The joint's columns, name -> ``(N, 1)`` float32.
 
         They are ``act.J`` (the command), ``q_prev.J``, ``dq_prev.J`` (the previous step's
-        displacement), ``dq.J`` and ``q.J`` (rad).
+        displacement), ``dq.J`` and ``q.J`` (rad), and when recorded ``v_prev.J`` and ``v.J``
+        (MuJoCo's joint velocity before and after the step, rad/s).
         """
         act, q_prev, dq, q = self.names
         dq_prev = f"dq_prev.{self.joint}"
         cols = dataset.columns
-        return {
+        out = {
             act: dataset.ctrl[:, self.actuator_index : self.actuator_index + 1].astype(np.float32),
             q_prev: cols[q_prev].copy(),
             dq_prev: cols[dq_prev].copy(),
             dq: cols[dq].copy(),
             q: cols[q].copy(),
         }
+        for name in (f"v_prev.{self.joint}", f"v.{self.joint}"):
+            if name in cols:
+                out[name] = cols[name].copy()
+        return out
 
     def q_range(self, dataset: TransitionDataset) -> tuple[float, float]:
         """Observed range X_q of the post-action angle q.J in ``dataset``, rad."""

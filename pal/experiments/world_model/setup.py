@@ -21,9 +21,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from inference import ActionOptions, CuriositySampler, FitResult, FitSchedule, fit, infer_action
+from inference import ActionOptions, CuriositySampler, FitResult, FitSchedule, ReplayNoise, fit, infer_action
 from models import WorldModel
-from models.presets import GRAPH_VARIANTS, joint_chain_graph
+from models.presets import ALL_VARIANTS, GRAPH_VARIANTS, joint_chain_graph
 from models.variables import Role
 from pal.checks import check_choice, check_float, check_int
 from pal.experiments.world_model.data import DataConfig, JointData, Realizer, babble_or_load
@@ -158,7 +158,8 @@ class ProtocolConfig:
 
     Attributes:
         data: the babbling dataset.
-        graphs: graph variants to fit, from ``("thesis", "state", "dynamics")``.
+        graphs: graph variants to fit, from ``("thesis", "state", "dynamics", "velocity")``
+            (default the first three; ``"velocity"`` needs the recorded joint velocities).
         split: training share of the random split.
         fit: the fitting schedule.
     """
@@ -170,10 +171,10 @@ class ProtocolConfig:
 
     def __post_init__(self) -> None:
         graphs = (self.graphs,) if isinstance(self.graphs, str) else tuple(self.graphs)
-        unknown = [g for g in graphs if g not in GRAPH_VARIANTS]
+        unknown = [g for g in graphs if g not in ALL_VARIANTS]
         if unknown or not graphs or len(set(graphs)) != len(graphs):
             raise ValueError(
-                f"graphs {list(graphs)!r} invalid; expected distinct names from {list(GRAPH_VARIANTS)}"
+                f"graphs {list(graphs)!r} invalid; expected distinct names from {list(ALL_VARIANTS)}"
             )
         object.__setattr__(self, "graphs", graphs)
         check_float("split", self.split, 0.0, 1.0, open_low=True, open_high=True)
@@ -359,6 +360,7 @@ def infer_actions(
     action: ActionConfig,
     rng: np.random.Generator | None = None,
     seed: int = 0,
+    noise: Mapping[str, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, tuple[float, ...]]:
     """Alg. 4.2 for each (state, target) pair: the action whose predicted q.J is the target.
 
@@ -380,6 +382,8 @@ def infer_actions(
         action: the inference settings.
         rng: draw the starts uniformly from X_a with this generator.
         seed: seeds the sampling stage.
+        noise: optional site -> ``(n,)`` or ``(n, 1)`` standardised residuals replayed in the
+            prediction (abducted ones: the two-step protocol of B2); needs ``options.sampling``.
 
     Returns:
         ``(actions (n,), predicted q (n,), mean loss per Adam step)``; the loss curve is
@@ -399,8 +403,15 @@ def infer_actions(
         init = "midpoint"
     else:
         init = {act: np.repeat(np.linspace(low, high, starts + 2)[1:-1], n)[:, None].astype(np.float32)}
+    program = model
+    if noise:  # abducted residuals replayed in the prediction (ReplayNoise, through the torch twin)
+        eps = {
+            k: torch.as_tensor(np.asarray(v, np.float32).reshape(n, -1)).repeat(starts, 1)
+            for k, v in noise.items()
+        }
+        program = ReplayNoise(eps, default="expected")(model)
     res = infer_action(
-        model,
+        program,
         {k: v.repeat(starts, 1) for k, v in given.items()},
         {q: tg.repeat(starts, 1)},
         actions=[act],

@@ -166,12 +166,12 @@ def test_perceived_objects_that_perception_never_sees_fail_at_construction():
     with pytest.raises(
         ValueError, match=r"objects \['box', 'ball', 'boat', 'cup', 'can'\] named by the spec are not seen"
     ):
-        Agent(env, spec, TINY)
+        Agent(env, spec, replace(TINY, servo=None))  # position servos, read from the MJCF
     with pytest.raises(ValueError, match="need info entries"):
         Agent(
             PushingEnv(camera_size=(160, 120)),
             EnvSpec(**{**spec.__dict__, "objects": spec.objects[:2]}),
-            TINY,
+            replace(TINY, servo=None),
         )
     env.close()
 

@@ -57,8 +57,17 @@ def test_round_trip_matches_the_in_memory_run(written):
     loaded = TransitionDataset.load(root)
     assert_same_rows(loaded, ds)
     assert_same_rows(loaded, collect(SMALL))
-    assert loaded.column_names == ["act.finger", "q_prev.finger", "dq_prev.finger", "dq.finger", "q.finger"]
-    assert loaded.column_names == column_names(["finger"])
+    names = [
+        "act.finger",
+        "q_prev.finger",
+        "dq_prev.finger",
+        "dq.finger",
+        "q.finger",
+        "v_prev.finger",
+        "v.finger",
+    ]
+    assert loaded.column_names == names
+    assert loaded.column_names == column_names(["finger"], velocities=True)
     for name, col in loaded.columns.items():
         assert col.shape == (250, 1) and col.dtype == np.float32, name
     assert loaded.states.shape == (250, 4) and loaded.states.dtype == np.float64
@@ -108,7 +117,7 @@ def test_stored_state_replays_the_stored_transition_exactly(written):
 def test_to_dict_and_split(written):
     _, ds = written
     cols = ds.to_dict()
-    assert set(cols) == set(column_names(["finger"])) and cols["q.finger"].shape == (250, 1)
+    assert set(cols) == set(column_names(["finger"], velocities=True)) and cols["q.finger"].shape == (250, 1)
     cols["q.finger"][:] = 0  # a copy
     assert ds.columns["q.finger"].any()
     train, test = ds.split(0.8, seed=0)

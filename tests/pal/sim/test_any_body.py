@@ -435,3 +435,12 @@ def test_dot_and_plots_quote_every_printable_name():
     fig.canvas.draw()
     # drawn as written: a pair of "$" would otherwise be typeset as matplotlib mathtext
     assert {t.get_text() for t in fig.axes[0].texts} >= {"q.\\$cost\\$", 'act.say "hi"'}
+
+
+def test_a_relative_mjcf_is_recorded_as_an_absolute_resolved_path(tmp_path, monkeypatch):
+    src = resources.files("pal.sim") / "assets" / "finger.xml"
+    (tmp_path / "finger.xml").write_bytes(src.read_bytes())
+    monkeypatch.chdir(tmp_path)
+    loaded = load_model("./finger.xml")
+    assert loaded.path == (tmp_path / "finger.xml").resolve() and loaded.path.is_absolute()
+    assert len(loaded.sha256) == 64

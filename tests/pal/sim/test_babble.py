@@ -59,11 +59,23 @@ def test_source_is_deterministic_and_block_size_invariant():
     np.testing.assert_array_equal(a.states, b.states)
     c = collect(BabbleConfig(**{**cfg.__dict__, "seed": 4}))
     assert not np.array_equal(a.ctrl, c.ctrl)
-    assert len(a.column_names) == 40 and a.states.shape == (40, 25)
+    assert len(a.column_names) == 56 and a.states.shape == (40, 25)  # 8 joints x 7 columns
     # every reset_every steps the body starts again from qpos0 at time 0
     resets = a.step % 15 == 0
     assert (a.states[resets, 0] == 0).all() and (a.states[~resets, 0] > 0).all()
     assert episode_seed(3, 1) != episode_seed(3, 2)
+
+
+def test_recorded_velocities_are_mujocos_and_chain_within_episodes():
+    cfg = BabbleConfig(body="finger", steps=30, seed=1, reset_every=10, chunk_size=30)
+    loop, batched = collect(cfg), collect(cfg, backend="rollout")
+    v_prev, v = loop.columns["v_prev.finger"][:, 0], loop.columns["v.finger"][:, 0]
+    np.testing.assert_array_equal(v, batched.columns["v.finger"][:, 0])
+    nq = 1  # the finger's one joint: the state is time, qpos, qvel, ...
+    np.testing.assert_allclose(v_prev, loop.states[:, 1 + nq], rtol=1e-6)
+    within = loop.step[1:] % 10 != 0
+    np.testing.assert_array_equal(v_prev[1:][within], v[:-1][within])
+    assert np.abs(v).max() > 0.1  # the finger moves
 
 
 def test_source_yields_single_transitions():
