@@ -134,6 +134,8 @@ class SegmentationConfig:
         grounded_size: smallest visible surface kept for a piece standing on the support, m².
         ground_height: a piece stands on the support when at least 3 of its pixels lie lower
             than this above it, metres.
+        grounded_pixels: ... and ``grounded_size`` applies only to a piece of at least this
+            many pixels (at 640 columns): fewer, a far piece is too coarse to describe or track.
         min_extent: smallest 3-D extent kept (largest side of the points' box), metres.
         min_area: pieces below this many pixels are specks, dropped before anything else.
         range_fraction: pieces whose median depth exceeds this fraction of ``max_depth`` are
@@ -171,6 +173,7 @@ class SegmentationConfig:
     min_size: float = 0.0025
     grounded_size: float = 0.001
     ground_height: float = 0.02
+    grounded_pixels: int = 400
     min_extent: float = 0.03
     min_area: int = 20
     range_fraction: float = 0.9
@@ -207,6 +210,7 @@ class SegmentationConfig:
         check_int("crease_pixels", self.crease_pixels)
         check_int("plane_iterations", self.plane_iterations)
         check_int("min_area", self.min_area)
+        check_int("grounded_pixels", self.grounded_pixels, minimum=0)
         check_float("range_fraction", self.range_fraction, 0.0, 1.0, open_low=True)
         if self.plane_stride is not None:
             check_int("plane_stride", self.plane_stride)
@@ -327,7 +331,11 @@ class GeometricSegmenter:
             labels = np.where(fg & (labels == 0), grown, labels)
         sizes = metric_areas(labels, n, depth, fx, fy)
         low = fg & (height < cfg.ground_height)
-        smallest = np.where(np.bincount(labels[low], minlength=n) >= 3, cfg.grounded_size, cfg.min_size)
+        pixels = np.bincount(labels.ravel(), minlength=n)
+        grounded = (np.bincount(labels[low], minlength=n) >= 3) & (
+            pixels >= cfg.grounded_pixels * (frame.width / 640.0) ** 2
+        )
+        smallest = np.where(grounded, cfg.grounded_size, cfg.min_size)
         if not keep_small and not (sizes[1:] >= smallest[1:]).all():
             labels = merge_small(labels, sizes >= smallest, smooth_pairs(depth, jump))
             sizes = metric_areas(labels, n, depth, fx, fy)
