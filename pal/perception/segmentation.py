@@ -173,7 +173,7 @@ class SegmentationConfig:
     min_size: float = 0.0025
     grounded_size: float = 0.001
     ground_height: float = 0.02
-    grounded_pixels: int = 400
+    grounded_pixels: int = 700
     min_extent: float = 0.03
     min_area: int = 20
     range_fraction: float = 0.9
