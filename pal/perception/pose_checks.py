@@ -25,7 +25,8 @@ values of the failed checks:
   was out of sight may have been moved) must stay where the camera's motion predicts it, within
   ``static_translation`` and ``static_rotation_deg`` plus 3 sigma, unless the prediction is
   refuted by the data (it explains fewer than ``static_support`` of the fit's inliers); when
-  the prediction is nearly as good, the estimator refines it instead.
+  the prediction is nearly as good, the estimator refines it instead, and a refinement that
+  drifts out of those bounds fails the check (the data pin the pose too loosely to correct it).
 """
 
 from __future__ import annotations
@@ -163,14 +164,20 @@ class Limits:
     max_angular_speed: float
 
 
+def _near(prior: np.ndarray, fit: RgbdFit, chk: PoseChecks) -> bool:
+    """Whether ``fit`` lies within the static bounds (plus 3 sigma of the fit) of the prediction ``prior``."""
+    rot_std, t_std = sigmas(fit.covariance)
+    dist, turn = motion_between(prior, fit.matrix())
+    return dist <= chk.static_translation + 3 * t_std and turn <= chk.static_rotation_deg + 3 * rot_std
+
+
 def _static(
     ev: Evidence, fit: RgbdFit, prior: np.ndarray, chk: PoseChecks, notes: list[str]
 ) -> tuple[RgbdFit, str | None, bool]:
     """The ``static`` check: (the fit or the refined prediction, a failure or None, moved)."""
-    rot_std, t_std = sigmas(fit.covariance)
-    dist, turn = motion_between(prior, fit.matrix())
-    if dist <= chk.static_translation + 3 * t_std and turn <= chk.static_rotation_deg + 3 * rot_std:
+    if _near(prior, fit, chk):
         return fit, None, False
+    dist, turn = motion_between(prior, fit.matrix())
     support = int((reprojection_errors(prior, ev.obj, ev.img, ev.frame.K) < ev.px).sum())
     if support < chk.static_support * fit.num_inliers:
         notes.append(f"moved: the static prediction explains {support} of {fit.num_inliers} inliers")
@@ -186,7 +193,7 @@ def _static(
         depth_sigma=ev.sigma_z,
         depth_tolerance=ev.tol_z,
     )
-    if refined is not None and refined.num_inliers >= support:
+    if refined is not None and refined.num_inliers >= support and _near(prior, refined, chk):
         notes.append(
             f"the static prediction explains {support} of the fit's {fit.num_inliers} inliers: refined it"
         )

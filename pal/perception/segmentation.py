@@ -30,8 +30,8 @@ Two segmenters share the interface ``segmenter(frame) -> list[Candidate]``:
      step stays apart); enclosed holes of invalid depth are **filled**, and pieces are kept
      when their visible surface is at least ``min_size`` m² (``grounded_size`` for a piece
      that **stands on the support**: some of its pixels lie within ``ground_height`` of it,
-     e.g. a tuna can or scissors) and ``min_extent`` m across (**metric size**, not pixels;
-     ``min_area`` pixels only drops specks).
+     e.g. a tuna can or scissors, and it covers ``grounded_pixels``) and ``min_extent`` m
+     across (**metric size**; ``min_area`` pixels only drops specks).
 
   With ``track_plane`` the previous frame's planes are kept, refined by least squares, while
   they explain the sampled points as well as when chosen (searched again when the view changes).
@@ -125,7 +125,8 @@ class SegmentationConfig:
         colour_reach: a colour edge curve touches a crease within this many pixels (at 640
             columns), 0: no colour edge curves.
         colour_range: only creases nearer than this back colour edge curves, metres (farther,
-            a crease is measured over several centimetres and is too coarse).
+            a crease is measured over several centimetres and is too coarse; on a real desk at
+            1-1.5 m such curves cut the objects into pieces that change from frame to frame).
         normal_window: depth smoothing before the normals, grid pixels at 640 columns.
         normal_step: normals and creases from points this many pixels apart (at 640 columns).
         crease_pixels: creases are found on every s-th pixel, at most this many of the foreground.
@@ -134,6 +135,8 @@ class SegmentationConfig:
         grounded_size: smallest visible surface kept for a piece standing on the support, m².
         ground_height: a piece stands on the support when at least 3 of its pixels lie lower
             than this above it, metres.
+        grounded_pixels: ... and ``grounded_size`` applies only to a piece of at least this
+            many pixels (at 640 columns): fewer, a far piece is too coarse to describe or track.
         min_extent: smallest 3-D extent kept (largest side of the points' box), metres.
         min_area: pieces below this many pixels are specks, dropped before anything else.
         range_fraction: pieces whose median depth exceeds this fraction of ``max_depth`` are
@@ -163,7 +166,7 @@ class SegmentationConfig:
     crease_tau: float = 0.3
     crease_sigmas: float = 4.0
     colour_reach: float = 3.0
-    colour_range: float = 1.5
+    colour_range: float = 1.0
     normal_window: int = 5
     normal_step: int = 3
     crease_pixels: int = 80_000
@@ -171,6 +174,7 @@ class SegmentationConfig:
     min_size: float = 0.0025
     grounded_size: float = 0.001
     ground_height: float = 0.02
+    grounded_pixels: int = 700
     min_extent: float = 0.03
     min_area: int = 20
     range_fraction: float = 0.9
@@ -187,18 +191,8 @@ class SegmentationConfig:
         if self.max_height <= self.min_height:
             raise ValueError(f"max_height {self.max_height} must exceed min_height {self.min_height}")
         for name in (
-            "plane_sigmas",
-            "height_sigmas",
-            "jump_sigmas",
-            "jump_footprints",
-            "min_size",
-            "min_extent",
-            "crease_sigmas",
-            "colour_reach",
-            "colour_range",
-            "cut_width",
-            "grounded_size",
-            "ground_height",
+            *("plane_sigmas", "height_sigmas", "jump_sigmas", "jump_footprints", "min_size", "min_extent"),
+            *("crease_sigmas", "colour_reach", "colour_range", "cut_width", "grounded_size", "ground_height"),
         ):
             check_float(name, getattr(self, name), 0.0)
         check_float("crease_tau", self.crease_tau, 0.0, 2.0, open_high=True)
@@ -207,6 +201,7 @@ class SegmentationConfig:
         check_int("crease_pixels", self.crease_pixels)
         check_int("plane_iterations", self.plane_iterations)
         check_int("min_area", self.min_area)
+        check_int("grounded_pixels", self.grounded_pixels, minimum=0)
         check_float("range_fraction", self.range_fraction, 0.0, 1.0, open_low=True)
         if self.plane_stride is not None:
             check_int("plane_stride", self.plane_stride)
@@ -327,7 +322,9 @@ class GeometricSegmenter:
             labels = np.where(fg & (labels == 0), grown, labels)
         sizes = metric_areas(labels, n, depth, fx, fy)
         low = fg & (height < cfg.ground_height)
-        smallest = np.where(np.bincount(labels[low], minlength=n) >= 3, cfg.grounded_size, cfg.min_size)
+        pixels = np.bincount(labels.ravel(), minlength=n) * (640.0 / frame.width) ** 2
+        grounded = (np.bincount(labels[low], minlength=n) >= 3) & (pixels >= cfg.grounded_pixels)
+        smallest = np.where(grounded, cfg.grounded_size, cfg.min_size)
         if not keep_small and not (sizes[1:] >= smallest[1:]).all():
             labels = merge_small(labels, sizes >= smallest, smooth_pairs(depth, jump))
             sizes = metric_areas(labels, n, depth, fx, fy)

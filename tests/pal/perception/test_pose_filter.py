@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from pal.perception.noise import DepthNoise
 from pal.perception.pnp import RgbdFit
-from pal.perception.pose_checks import PoseChecks, _spread
+from pal.perception.pose_checks import PoseChecks, _near, _spread
 from pal.perception.pose_filter import PoseFilter, filter_static
 
 
@@ -114,3 +114,17 @@ def test_a_small_mask_with_enough_depth_backed_features_defines_the_canonical_fr
     assert refused.source == "lost" and "mask area" in refused.diagnostics.reason
     too_small = _first_pose(int(area * 2.5), 16)[1]  # under half the gallery's min_area
     assert too_small.source == "lost"
+
+
+def test_a_fit_is_near_the_static_prediction_only_within_its_bounds_plus_3_sigma():
+    chk = PoseChecks(static_rotation_deg=3.0, static_translation=0.02)
+    prior = np.eye(4)
+    prior[2, 3] = 1.0
+    std = np.radians(1.0) / np.sqrt(3.0)  # 1 deg of rotation std over three axes
+    cov = np.diag([std**2] * 3 + [1e-6] * 3)
+    R = Rotation.from_rotvec(np.radians([0.0, 5.5, 0.0])).as_matrix()
+    turned = RgbdFit(R=R, t=np.array([0.0, 0.0, 1.0]), inliers=np.ones(8, bool), rmse=0.5, covariance=cov)
+    assert _near(prior, turned, chk)  # 5.5 deg <= 3 + 3 x 1 deg
+    R = Rotation.from_rotvec(np.radians([0.0, 11.0, 0.0])).as_matrix()
+    far = RgbdFit(R=R, t=np.array([0.0, 0.0, 1.0]), inliers=np.ones(8, bool), rmse=0.5, covariance=cov)
+    assert not _near(prior, far, chk)  # e.g. a refinement that drifted from the prediction

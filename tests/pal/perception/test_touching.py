@@ -108,6 +108,9 @@ def test_a_flat_object_on_the_support_is_kept(cam):
     got = GeometricSegmenter(SegmentationConfig(), rng=0)(f)
     assert len(got) == 1 and iou(got[0].mask, OracleSegmenter()(f)[0].mask) >= 0.6
     assert got[0].size < SegmentationConfig().min_size  # kept by the smaller size on the support
+    # ... only when it covers enough pixels to be described (here about 10 times fewer than asked)
+    coarse = SegmentationConfig(grounded_pixels=10 * got[0].mask.area * (640 // f.width) ** 2)
+    assert GeometricSegmenter(coarse, rng=0)(f) == []
     # the same piece floating 10 cm above the table is a fragment, not an object
     high = cam.render([Box((0.08, 0.03, 0.015), on_table(cam, 0.0, -0.05, 0.1075, 0.4), label=1, seed=4)])
     assert GeometricSegmenter(SegmentationConfig(), rng=0)(high) == []
@@ -120,3 +123,5 @@ def test_new_segmentation_settings_are_checked():
         SegmentationConfig(cut_width=-1.0)
     with pytest.raises(ValueError, match="normal_step"):
         SegmentationConfig(normal_step=0)
+    with pytest.raises(ValueError, match="grounded_pixels"):
+        SegmentationConfig(grounded_pixels=-1)
