@@ -71,8 +71,17 @@ PLAN = PlanConfig(
     effector_weight=0.5,
     action_weight=0.1,
 )
+#: The agent's model of Pusher-v5. ``position_sigma`` 0.1 mm: the object is state-based (no
+#: perception noise) and rests exactly (|dpos| = 0 in every untouched step), while a push moves it
+#: at most about 3.4 mm per step, so the moved label of its contact switch (``> 3 position_sigma``,
+#: :func:`pal.agent.graph.contact_rule`) fires at 0.3 mm; at the 1 mm default it would need 3 mm and
+#: hardly ever fire, leaving the gated on branch without rows.
 MODEL = ModelConfig(
-    members=5, hidden=(64, 64), arm_hidden=(128, 128), schedule=replace(MODEL_SCHEDULE, epochs=200)
+    members=5,
+    hidden=(64, 64),
+    arm_hidden=(128, 128),
+    position_sigma=1e-4,
+    schedule=replace(MODEL_SCHEDULE, epochs=200),
 )
 #: 60 episodes of 100 steps, the first random, scored at 1.5k, 3k and 6k steps (15k: ``--set
 #: aggregation.rounds=150 --set 'aggregation.checkpoints=[1500,3000,6000,15000]'``; to shrink, set the

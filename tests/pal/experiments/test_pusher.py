@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from pal.agent import PlanConfig
+from pal.agent import PlanConfig, pusher_spec
 from pal.agent.aggregate import AggregationConfig, run_rounds
+from pal.agent.graph import contact_rule
 from pal.baselines.pets import BaselineConfig, CEMPlanner, ProbabilisticEnsemble
 from pal.baselines.pets_aggregate import PetsLearner
 from pal.experiments.closed_loop import pusher
@@ -135,3 +136,9 @@ def test_a_ratio_counts_only_when_pal_moved_the_object_in_90_percent_and_the_bas
     assert t.evaluated and t.verdict == "met" and t.value == pytest.approx(0.1 / 0.2)
     # one seed of 10 goals is not the 3 x 20 the distance targets are stated for
     assert both["pal_median_final"].verdict == "not evaluated"
+
+
+def test_the_pusher_model_labels_a_push_of_a_few_millimetres_as_contact():
+    rule, floor = contact_rule(pusher_spec(), pusher.MODEL)
+    # a push moves Pusher-v5's object at most ~3.4 mm per step: the floor must sit well below it
+    assert rule == "moved" and floor == pytest.approx(3e-4, abs=1e-12)
