@@ -14,7 +14,10 @@ Per seed (``seed``, ``seed + 1``, ...), state-based (the spec :func:`pal.agent.p
    (:mod:`pal.experiments.closed_loop.pusher_runs`), episode seeds and environment steps;
 2. **checkpoints**: when a learner's environment steps reach each of ``aggregation.checkpoints``,
    its current model runs ``eval_goals`` evaluation episodes (seeded resets that differ from the
-   training ones, no data added); random torques run the same goals once.
+   training ones, no data added); random torques and the planner's ceiling run the same goals
+   once. The ceiling (``simulator``, :mod:`pal.baselines.simulator_mpc`) is the learners'
+   planner with the same settings and cost, predicting with the true simulator from the exact
+   state: a learner's gap to it is its model's, its own gap to the goal the planner's.
 
 Scores (:mod:`pal.experiments.closed_loop.pusher_metrics`) per checkpoint and controller: the
 object-goal distance at the end of an episode in the table plane (x-y, m; Gymnasium's 3-D

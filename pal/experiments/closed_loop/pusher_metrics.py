@@ -7,7 +7,9 @@ For each checkpoint c and controller k, over the evaluation episodes of all seed
     reach    = median over episodes of min_t |tip(t) - object(t)|   predicted = mean planning-time prediction of d_final
 
 ``seed_sd`` is the sd over seeds of the per-seed means (the learning curve's band). Random
-torques do not learn: their goals run once and stand at every checkpoint.
+torques and the simulator-model planner (the planner's ceiling: the learners' planner settings
+and cost with the true simulator as its model, :mod:`pal.baselines.simulator_mpc`) do not learn:
+their goals run once and stand at every checkpoint.
 """
 
 from __future__ import annotations
@@ -22,7 +24,9 @@ from pal.lab.report import Precondition, Report, Table, Target
 
 __all__ = ["CONTROLLERS", "FULL_STEPS", "block", "summarise", "targets"]
 
-CONTROLLERS = ("pal", "baseline", "random")
+CONTROLLERS = ("pal", "baseline", "simulator", "random")
+#: The controllers that do not learn: their episodes run once per seed.
+FIXED = ("simulator", "random")
 #: Median final distance the agent should reach at :data:`FULL_STEPS` steps, m; its share within 5 cm there.
 TARGET_DISTANCE = 0.1
 TARGET_SUCCESS = 0.4
@@ -69,6 +73,10 @@ def block(per_seed: list[list[Episode]], success: float) -> dict[str, Any]:
     }
 
 
+def _metres(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3f} m"
+
+
 def _blocks(config: Any, per_seed: dict[int, dict[str, Any]]) -> dict[str, dict[str, Any]]:
     """The scores per checkpoint (str) and controller (:func:`block`)."""
     out: dict[str, dict[str, Any]] = {}
@@ -77,7 +85,8 @@ def _blocks(config: Any, per_seed: dict[int, dict[str, Any]]) -> dict[str, dict[
             c: block([r[c]["at"][point]["episodes"] for r in per_seed.values()], config.success)
             for c in ("pal", "baseline")
         }
-        row["random"] = block([r["random"] for r in per_seed.values()], config.success)
+        for c in FIXED:
+            row[c] = block([r[c] for r in per_seed.values()], config.success)
         for c in ("pal", "baseline"):
             row[c]["env_steps"] = [r[c]["at"][point]["counts"]["env_steps"] for r in per_seed.values()]
         out[str(point)] = row
@@ -198,7 +207,8 @@ def _tables(config: Any, at: dict[str, dict[str, Any]], training: dict[str, Any]
             ],
             rows,
             caption="The baseline is a PETS-style ensemble with CEM written for this comparison, not the authors' code. "
-            "Random torques do not learn: the same episodes stand at every checkpoint.",
+            "simulator: the same planner and cost with the true simulator as its model (the planner's ceiling). "
+            "It and random torques do not learn: the same episodes stand at every checkpoint.",
         ),
         Table(
             "What aggregation spent, per learner and seed",
@@ -210,7 +220,7 @@ def _tables(config: Any, at: dict[str, dict[str, Any]], training: dict[str, Any]
 
 def _first_goals(run: dict[str, Any], point: int, n: int = 3) -> dict[str, list[Episode]]:
     """The first ``n`` evaluation episodes of one seed per controller at checkpoint ``point``."""
-    return {c: (run[c] if c == "random" else run[c]["at"][point]["episodes"])[:n] for c in CONTROLLERS}
+    return {c: (run[c] if c in FIXED else run[c]["at"][point]["episodes"])[:n] for c in CONTROLLERS}
 
 
 def summarise(config: Any, per_seed: dict[int, dict[str, Any]]) -> Report:
@@ -239,6 +249,9 @@ def summarise(config: Any, per_seed: dict[int, dict[str, Any]]) -> Report:
             f"goals per checkpoint ({', '.join(map(str, points))} steps).",
             "Both planners use the same sampling settings (population, elites, iterations, horizon, momentum, "
             "initial spread, warm start) and the same step cost.",
+            f"The same planner on the true simulator (no model error) ends at a median "
+            f"{_metres(at[last]['simulator']['final_planar']['median'])}: what a perfect model reaches with "
+            "these planner settings, cost and episode length.",
         ],
         figures={
             "learning_curve": curve_figure(points, at),

@@ -14,8 +14,13 @@ if TYPE_CHECKING:
 
 __all__ = ["curve_figure", "paths_figure", "prediction_figure"]
 
-_COLOURS = {"pal": "C0", "baseline": "C1", "random": "C3"}
-_LABELS = {"pal": "pal", "baseline": "PETS-style baseline", "random": "random torques"}
+_COLOURS = {"pal": "C0", "baseline": "C1", "simulator": "C2", "random": "C3"}
+_LABELS = {
+    "pal": "pal",
+    "baseline": "PETS-style baseline",
+    "simulator": "planner on the true simulator",
+    "random": "random torques",
+}
 
 
 def curve_figure(steps: Sequence[int], at: Mapping[str, Mapping[str, Any]]) -> Figure:
@@ -40,7 +45,7 @@ def curve_figure(steps: Sequence[int], at: Mapping[str, Mapping[str, Any]]) -> F
             color=_COLOURS[name],
             marker="o",
             ms=4,
-            ls="--" if name == "random" else "-",
+            ls="--" if name in ("random", "simulator") else "-",
             label=_LABELS[name],
         )
         ax.fill_between(x, mean - sd, mean + sd, color=_COLOURS[name], alpha=0.2)

@@ -25,6 +25,7 @@ from pal.experiments.closed_loop.pusher_runs import (
     agent_rollout,
     pets_record,
     random_episode,
+    simulator_episode,
     step_cost,
 )
 
@@ -108,13 +109,16 @@ def one_seed(config: Any, seed: int) -> dict[str, Any]:
         seed: this run's seed (episode seeds, weights, samples).
 
     Returns:
-        ``{"pal": run, "baseline": run, "random": [Episode per goal]}``, each run
+        ``{"pal": run, "baseline": run, "simulator": [Episode per goal], "random": [Episode per goal]}``,
+        each run
         ``{"counts", "training": [Episode per round], "steps": [env steps after each round],
         "at": {checkpoint: {"counts", "episodes": [Episode per goal]}}}``.
     """
     goals = [_seed(seed, 91, g) for g in range(config.eval_goals)]
     out = {"pal": _pal(config, seed, goals), "baseline": _baseline(config, seed, goals)}
     env = gymnasium.make(ENV_ID)
-    out["random"] = [random_episode(env, s, config.aggregation.episode_steps) for s in goals]
+    steps = config.aggregation.episode_steps
+    out["simulator"] = [simulator_episode(env, config.plan, s, steps) for s in goals]
+    out["random"] = [random_episode(env, s, steps) for s in goals]
     env.close()
     return out

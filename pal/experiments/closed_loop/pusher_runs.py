@@ -31,6 +31,7 @@ from pal.agent.aggregate import Rollout
 from pal.agent.config import PlanConfig
 from pal.agent.plan import behind, distance
 from pal.baselines.pets_aggregate import PetsEpisode
+from pal.baselines.simulator_mpc import SimulatorMPC, pusher_observation
 
 __all__ = [
     "ENV_ID",
@@ -41,6 +42,7 @@ __all__ = [
     "distances",
     "pets_record",
     "random_episode",
+    "simulator_episode",
     "step_cost",
 ]
 
@@ -186,3 +188,28 @@ def random_episode(env: gymnasium.Env, seed: int, steps: int) -> Episode:
         if terminated or truncated:
             break
     return _record(np.stack(path), None, [], [])
+
+
+def simulator_episode(env: gymnasium.Env, config: PlanConfig, seed: int, steps: int) -> Episode:
+    """MPC with the true simulator as the model (:class:`pal.baselines.simulator_mpc.SimulatorMPC`).
+
+    The same planner settings and step cost as the learners, from ``env.reset(seed=seed)``: the
+    planner's ceiling on this task.
+    """
+    obs, _ = env.reset(seed=seed)
+    planner = SimulatorMPC(
+        env, config, step_cost(config), pusher_observation, ("tips_arm", "object", "goal"), seed=seed
+    )
+    path, cpu, wall, pred = [np.asarray(obs, dtype=np.float64)], [], [], None
+    for t in range(steps):
+        c0, w0 = time.process_time(), time.perf_counter()
+        action, final = planner.act()
+        cpu.append(time.process_time() - c0)
+        wall.append(time.perf_counter() - w0)
+        if t == max(steps - config.action.horizon, 0):
+            pred = float(np.linalg.norm((final[_OBJ] - final[_GOAL])[:2]))
+        obs, _, terminated, truncated, _ = env.step(action.astype(np.float32))
+        path.append(np.asarray(obs, dtype=np.float64))
+        if terminated or truncated:
+            break
+    return _record(np.stack(path), pred, cpu, wall)
