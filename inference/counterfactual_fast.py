@@ -31,6 +31,7 @@ from inference.abduction import _abduct, _abduct_plain, _torch_abduction
 from inference.program import Program
 from inference.state import StateResult
 from models.discrete import gumbel_max, gumbel_posterior
+from models.folded import loc_scale
 from models.world import WorldModel, check_action_bounds
 
 
@@ -137,7 +138,7 @@ def _natural(
     if name in model.discrete:
         replayed = gumbel_max(_chunked(mech.logits, pa)[0], noise[name])
     else:
-        loc, scale = _chunked(mech.loc_scale, pa)
+        loc, scale = _chunked(loc_scale(mech, pa.shape[0] * pa.shape[1]), pa)
         replayed = loc + scale * noise[name]
     if every:
         return replayed

@@ -12,6 +12,7 @@ import torch
 from inference import counterfactual
 from inference.handlers import MeasurementScale
 from models import BernoulliMechanism, CausalGraph, LinearMechanism, WorldModel
+from models.folded import FOLD_ROWS
 
 
 def _treated():
@@ -113,12 +114,14 @@ def _mixed_scenarios(model, n):
     ]
 
 
-def test_batched_scenarios_equal_the_scenarios_one_by_one():
+@pytest.mark.parametrize("n", [30, 600])  # 5 x 600 rows: the replay evaluates folded MLP layers
+def test_batched_scenarios_equal_the_scenarios_one_by_one(n):
     model = _mlp_scm()
-    rows = _rows(model, 30, seed=1)
-    scenarios = _mixed_scenarios(model, 30)
+    rows = _rows(model, n, seed=1)
+    scenarios = _mixed_scenarios(model, n)
+    assert (len(scenarios) * n >= FOLD_ROWS) == (n == 600)
     batch = counterfactual(model, rows, scenarios)
-    assert batch.exact and batch.samples[model.graph.roots[0]].shape == (1, len(scenarios), 30, 1)
+    assert batch.exact and batch.samples[model.graph.roots[0]].shape == (1, len(scenarios), n, 1)
     for k, sc in enumerate(scenarios):
         single = counterfactual(model, rows, sc)
         for name, value in single.samples.items():
