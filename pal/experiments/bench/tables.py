@@ -221,7 +221,8 @@ def _dowhy_seconds(config: Config) -> dict[str, float] | None:
 
     A first call on the same table is timed apart (``first_call_seconds``: imports, caches,
     compilation); ``seconds`` and ``cpu_seconds`` are the wall and process CPU time of a second
-    call, which is what a user fitting a second table pays.
+    call, which is what a user fitting a second table pays. DoWhy's model selection may run in
+    worker processes, whose CPU time ``cpu_seconds`` does not count: compare wall times.
     """
     if importlib.util.find_spec("dowhy") is None:
         return None
@@ -340,7 +341,7 @@ def _tables(m: dict[str, Any], dowhy: dict[str, float] | None) -> list[Table]:
             + (
                 "n/a (not installed or not asked for)."
                 if dowhy is None
-                else f"{dowhy['seconds']:.2f} s wall, {dowhy['cpu_seconds']:.2f} s CPU (second call; "
+                else f"{dowhy['seconds']:.2f} s wall, {dowhy['cpu_seconds']:.2f} s CPU in this process (second call; "
                 f"the first took {dowhy['first_call_seconds']:.2f} s)."
             ),
         ),
