@@ -45,7 +45,8 @@ class Config:
     Attributes:
         seed: seeds the subsamples and the methods.
         path: CSV file of the table (empty: simulated stand-in, targets not evaluated).
-        truth: CSV file of the reference graph's ``(cause, effect)`` rows (needed with ``path``).
+        truth: CSV file of the reference graph's ``(cause, effect)`` rows (given with ``path``;
+            checked when the entry runs, so that ``--set`` may give them one at a time).
         rows: rows per subsample (at most the table's).
         subsamples: seeded subsamples scored.
         peers: run PC and GRaSP when causal-learn is importable.
@@ -61,10 +62,6 @@ class Config:
     def __post_init__(self) -> None:
         check_int("rows", self.rows, minimum=20)
         check_int("subsamples", self.subsamples, minimum=1)
-        if bool(self.path) != bool(self.truth):
-            raise ValueError(
-                f"give both path and truth or neither, got path={self.path!r}, truth={self.truth!r}"
-            )
 
 
 def variable_name(label: str) -> str:
@@ -156,6 +153,10 @@ def _mean(rows: list[dict[str, Any]], key: str) -> float | None:
 )
 def run(config: Config, progress_bar: bool = False) -> Report:
     """SHD and time of discover on a real table against PC, GRaSP and the empty graph."""
+    if bool(config.path) != bool(config.truth):
+        raise ValueError(
+            f"give both path and truth or neither, got path={config.path!r}, truth={config.truth!r}"
+        )
     real = bool(config.path)
     if real:
         table, edges = load(config.path, config.truth)

@@ -43,7 +43,7 @@ def test_bad_files_name_the_problem(tmp_path):
     with pytest.raises(ValueError, match=r"truth names \['raf'\] are not columns"):
         load(path, str(other))
     with pytest.raises(ValueError, match="give both path and truth"):
-        Config(path=path)
+        run(Config(path=path))
     with pytest.raises(ValueError, match="rows=500 is more than the table's 300 rows"):
         run(Config(path=path, truth=truth, rows=500, subsamples=1, peers=False))
 
