@@ -21,6 +21,7 @@ from inference.program import Program, as_program, read_sites, same_graph
 from inference.quadrature import GridOptions, check_grid
 from inference.state import GUIDES, StateResult, infer_state
 from models.checks import check_int, check_mapping, check_seed, describe
+from models.folded import loc_scale
 from models.world import WorldModel, as_values
 
 __all__ = ["abduct"]
@@ -102,7 +103,7 @@ def _abduct_plain(
             if graph.is_root(name):
                 loc, scale = model.root_priors.get(name)
             else:
-                loc, scale = model.mechanism(name).loc_scale(model._parents(name, values))
+                loc, scale = loc_scale(model.mechanism(name), x.shape[0])(model._parents(name, values))
             loc, scale = loc.expand_as(x), scale.expand_as(x)
             safe = torch.where(scale > 0, scale, torch.ones_like(scale))
             noise[name] = torch.where(scale > 0, (x - loc) / safe, torch.zeros_like(loc))

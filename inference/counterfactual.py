@@ -40,10 +40,11 @@ components per unit, else the mean-field guide).
 
 Abduction runs once; the K scenarios (and S posterior draws) are then one batch of
 ``K * S * N`` units, so the cost is linear in K and S. A plain :class:`models.WorldModel` with
-no handler active takes the fast path: only the descendants of the intervened sites are
-recomputed, with the torch twin :meth:`models.WorldModel.predict`. Each scenario still
-evaluates those descendants' mechanisms on its own N rows, so the time of K scenarios grows
-by that replay per scenario over the shared validation and abduction.
+no handler active takes the fast path (:mod:`inference.counterfactual_fast`): the scenarios are
+stacked on a batch axis, each recomputes only the descendants of its own interventions, and
+the sites it does not reach keep their factual values without being copied per scenario.
+Each scenario still evaluates its descendants' mechanisms on its own N rows, so the time of K
+scenarios grows by that replay per scenario over the shared checks and abduction.
 """
 
 from __future__ import annotations

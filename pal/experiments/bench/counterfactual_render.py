@@ -18,12 +18,56 @@ from pal.lab.timing import ratio
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["growth", "scenario_figure", "table"]
+__all__ = ["compute_bound", "growth", "marginal", "scenario_figure", "scenario_summary", "table"]
 
 
 def growth(scenarios_ms: Mapping[str, float], first: str) -> dict[str, float | None]:
     """K -> time of K scenarios / time of ``first`` scenarios."""
     return {k: ratio(v, scenarios_ms.get(first)) for k, v in scenarios_ms.items()}
+
+
+def marginal(scenarios_ms: Mapping[str, float], first: str) -> dict[str, float | None]:
+    """K -> ms per scenario added to ``first``: ``(t_K - t_first) / (K - first)`` (K > first)."""
+    t0 = scenarios_ms.get(first)
+    return {
+        k: None if t0 is None else (v - t0) / (int(k) - int(first))
+        for k, v in scenarios_ms.items()
+        if int(k) > int(first)
+    }
+
+
+def compute_bound(abducted: int, replayed: int, scenarios: Sequence[int]) -> dict[str, float]:
+    """K -> the growth of the mechanism evaluations alone, ``(A + K R) / (A + first R)``.
+
+    ``A`` mechanisms are evaluated once (abduction of every non-root site) and ``R`` (the
+    descendants of the intervened site) once per scenario. A call whose time were all in
+    those evaluations would grow by this ratio; fixed costs (checks, Python per site) make a
+    measured growth smaller, so a growth below it comes from fixed cost, not from sharing.
+    """
+    first = scenarios[0]
+    return {str(k): (abducted + k * replayed) / (abducted + first * replayed) for k in scenarios}
+
+
+def scenario_summary(libs: Mapping[str, Any], first: str) -> dict[str, Any]:
+    """Per library: wall and CPU growth, CPU ms per added scenario; pal's CPU growth over ChiRho's per K."""
+    out: dict[str, Any] = {}
+    for name, f in libs.items():
+        out[name] = (
+            None
+            if f is None
+            else {
+                "wall": growth(f.scenarios_ms, first),
+                "cpu": growth(f.scenarios_cpu_ms, first),
+                "cpu_ms_per_added_scenario": marginal(f.scenarios_cpu_ms, first),
+            }
+        )
+    pal, chirho = out.get("pal"), out.get("chirho")
+    out["pal_over_chirho_cpu"] = (
+        None
+        if pal is None or chirho is None
+        else {k: ratio(v, chirho["cpu"].get(k)) for k, v in pal["cpu"].items() if k != first}
+    )
+    return out
 
 
 def table(
@@ -75,6 +119,15 @@ def table(
                     *(ratio(values[0], v) for v in values[1:]),
                 ]
             )
+    for k in (str(k) for k in scenarios[1:]):
+        values = [None if f is None else marginal(f.scenarios_cpu_ms, first).get(k) for f in libs.values()]
+        rows.append(
+            [
+                f"CPU ms per scenario added, {first} -> {k}",
+                *values,
+                *(ratio(values[0], v) for v in values[1:]),
+            ]
+        )
     return Table(
         "Counterfactual queries: pal against its peers on the same SCMs",
         ["figure", *libs, *(f"pal/{n}" for n in peers)],

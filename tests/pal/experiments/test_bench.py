@@ -42,7 +42,16 @@ def test_counterfactual_quick():
     config = registry.get("bench", "counterfactual").quick
     rep = bench_counterfactual.run(config)
     m = rep.metrics
-    assert {"pal", "chirho", "dowhy", "ratios", "agreement", "scenario_growth", "intervened"} == set(m)
+    assert {
+        "pal",
+        "chirho",
+        "dowhy",
+        "ratios",
+        "agreement",
+        "scenario_growth",
+        "compute_growth_bound",
+        "intervened",
+    } == set(m)
     ks = {"1", "2", "8", "32"}
     _check_figures(m["pal"], ks)
     assert set(m["pal"]["scenarios_cpu_ms"]) == ks and all(
@@ -54,6 +63,14 @@ def test_counterfactual_quick():
         m["pal"]["scenarios_cpu_ms"]["8"] / m["pal"]["scenarios_cpu_ms"]["1"]
     )
     assert rep.target("scenarios_8_vs_1").value == pytest.approx(growth["cpu"]["8"])
+    added = (m["pal"]["scenarios_cpu_ms"]["8"] - m["pal"]["scenarios_cpu_ms"]["1"]) / 7
+    assert growth["cpu_ms_per_added_scenario"]["8"] == pytest.approx(added)
+    assert m["compute_growth_bound"]["1"] == 1.0 and 1.0 < m["compute_growth_bound"]["8"] < 8.0
+    vs_chirho = m["scenario_growth"]["pal_over_chirho_cpu"]
+    assert (vs_chirho is None) == (not available("chirho"))
+    if vs_chirho is not None:
+        assert set(vs_chirho) == {"2", "8", "32"}
+        assert vs_chirho["8"] == pytest.approx(rep.target("scenarios_8_vs_1_vs_chirho").value)
     for peer in ("chirho", "dowhy"):
         if not available(peer):
             assert m[peer] is None and m["ratios"][peer] is None and m["scenario_growth"][peer] is None
@@ -65,8 +82,8 @@ def test_counterfactual_quick():
     chirho = rep.target("scenarios_8_vs_1_vs_chirho")
     assert chirho.threshold == 1.0 and (chirho.value is None) == (not available("chirho"))
     table = rep.tables[0]
-    # 3 unit figures, 4 scenario times, 3 growths each by wall and CPU time
-    assert table.columns[:4] == ("figure", "pal", "chirho", "dowhy") and len(table.rows) == 3 + 4 + 6
+    # 3 unit figures, 4 scenario times, 3 growths each by wall and CPU time, 3 costs per added scenario
+    assert table.columns[:4] == ("figure", "pal", "chirho", "dowhy") and len(table.rows) == 3 + 4 + 6 + 3
     per_unit = {f"{f}_vs_{n}" for f in ("chain_unit_ms", "mlp50_unit_ms") for n in ("chirho", "dowhy")}
     growth_targets = {"scenarios_8_vs_1", "scenarios_8_vs_1_vs_chirho"}
     assert {t.name for t in rep.targets} == {"chain_unit_ms", "units_per_s"} | growth_targets | per_unit
