@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -48,6 +48,7 @@ from pal.perception.masks import Mask
 from pal.perception.memory import AdmissionConfig, Gallery, ObjectRecord
 from pal.perception.plane import Plane
 from pal.perception.pose import PoseConfig, PoseEstimator, position_std
+from pal.perception.pose_predicted import predicted_pose
 from pal.perception.regions import metric_area
 from pal.perception.relations import RelationConfig, SceneRelations, scene_relations
 from pal.perception.scene import scene_descriptor
@@ -268,8 +269,13 @@ class Pipeline:
             return self.estimator.extractor.for_mask(frame_features, gray, mask)
 
         if cfg.estimate_pose:
-            feats = feats_of()
-            pose, decision = self.estimator.estimate(rec, frame, gray, obs.mask, feats, world)
+            W = np.eye(4) if world is None else world
+            known = camera is not None and camera.known
+            pose, decision = predicted_pose(rec, frame, obs.mask, W, cfg.pose, known), None
+            feats: Features | Callable[[], Features] = feats_of
+            if pose is None:
+                feats = feats_of()
+                pose, decision = self.estimator.estimate(rec, frame, gray, obs.mask, feats, world)
             c1 = time.perf_counter()
             if decision is None:
                 decision = rec.gallery.consider(

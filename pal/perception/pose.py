@@ -138,7 +138,7 @@ class PoseEstimator:
         if (
             pose.is_valid
             and pose.camera_from_object is not None
-            and d.solver in ("kabsch", "pnp", "icp")
+            and d.solver in ("kabsch", "pnp", "icp", "egomotion")
             and d.inliers >= self.config.anchor_min_inliers
         ):
             return np.linalg.inv(pose.camera_from_object)
