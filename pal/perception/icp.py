@@ -81,6 +81,9 @@ class IcpConfig:
             may match too, in or out of the mask, where their depth agrees: a segment that lost
             part of the object (a hole, a split) leaves that part's depth where the model
             expects it (0: inside the live mask only).
+        early_condition: the fit stops at its start when the condition number of its depth
+            terms there exceeds this many times ``max_condition`` (it would be refused for
+            geometry; scored where it started); None: always step.
         max_rotation_std_deg: largest rotation standard deviation of an accepted fit, deg ...
         max_translation_std: ... and translation standard deviation, metres (stricter than the
             feature fits' conditioning check: a dense fit is accepted only when it is precise).
@@ -101,6 +104,7 @@ class IcpConfig:
     grow_px: int = 15
     max_rotation_std_deg: float = 1.5
     max_translation_std: float = 0.01
+    early_condition: float | None = 2.0
 
     def __post_init__(self) -> None:
         check_int("max_points", self.max_points, minimum=20)
@@ -119,6 +123,8 @@ class IcpConfig:
         check_int("grow_px", self.grow_px, minimum=0)
         check_float("max_rotation_std_deg", self.max_rotation_std_deg, 0.0, open_low=True)
         check_float("max_translation_std", self.max_translation_std, 0.0, open_low=True)
+        if self.early_condition is not None:
+            check_float("early_condition", self.early_condition, 1.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -245,6 +251,9 @@ def _gauss_newton(
             return None
         rs = r[near] / sig[near]
         J = _depth_jacobian(m, near, sig)
+        if k == 0 and cfg.early_condition is not None:
+            if _condition(J.T @ J, m.X[near], t) > cfg.early_condition * cfg.max_condition:
+                return R, t, 0  # a slide this surface cannot pin: the fit would fail the geometry check
         if photo is not None:
             rp, Jp = photo(m.idx[near], m.y[near], m.X[near])
             rs, J = np.concatenate([rs, rp]), np.concatenate([J, Jp])
@@ -454,6 +463,7 @@ def geometric_condition(
         photometric_sigma=None,
         normal_px=cfg.normal_px,
         grow_px=0,
+        early_condition=None,
     )
     fit = icp_fit(pts, np.eye(4), frame, mask, noise, own, step=step) if len(pts) else None
     return float("inf") if fit is None else fit.condition

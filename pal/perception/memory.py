@@ -172,7 +172,8 @@ class AdmissionDecision:
     Attributes:
         admitted: whether the view became a snapshot.
         reason: ``"admitted"``, ``"canonical"``, ``"area"``, ``"sharpness"``, ``"rank"``,
-            ``"mse"`` or ``"features"``.
+            ``"mse"`` or ``"features"``; ``"predicted"`` when Π did not consider the view (its
+            pose was the egomotion prediction, :mod:`pal.perception.pose_predicted`).
         snapshot: the new snapshot's index when admitted.
         evicted: index of the evicted snapshot, if any.
     """

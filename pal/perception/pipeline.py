@@ -45,7 +45,7 @@ from pal.perception.filters import OneEuroConfig, OneEuroFilter
 from pal.perception.frames import RGBDFrame
 from pal.perception.kinematic import KinematicConfig, KinematicDescriptor, trajectory_descriptor
 from pal.perception.masks import Mask
-from pal.perception.memory import AdmissionConfig, Gallery, ObjectRecord
+from pal.perception.memory import AdmissionConfig, AdmissionDecision, Gallery, ObjectRecord
 from pal.perception.plane import Plane
 from pal.perception.pose import PoseConfig, PoseEstimator, position_std
 from pal.perception.pose_predicted import predicted_pose
@@ -276,6 +276,8 @@ class Pipeline:
             if pose is None:
                 feats = feats_of()
                 pose, decision = self.estimator.estimate(rec, frame, gray, obs.mask, feats, world)
+            else:  # the view is where the gallery last saw it: no new snapshot to consider
+                decision = AdmissionDecision(False, "predicted")
             c1 = time.perf_counter()
             if decision is None:
                 decision = rec.gallery.consider(

@@ -46,7 +46,16 @@ from pal.perception.pnp import RgbdFit, refine_pose, reprojection_errors
 if TYPE_CHECKING:
     from pal.perception.memory import ObjectRecord
 
-__all__ = ["Evidence", "Limits", "PoseChecks", "check_fit", "motion_between", "rotation_deg", "sigmas", "static_bounds"]
+__all__ = [
+    "Evidence",
+    "Limits",
+    "PoseChecks",
+    "check_fit",
+    "motion_between",
+    "rotation_deg",
+    "sigmas",
+    "static_bounds",
+]
 
 
 @dataclass(frozen=True)
@@ -173,10 +182,12 @@ def _near(prior: np.ndarray, fit: RgbdFit, chk: PoseChecks) -> bool:
 
 
 def static_bounds(chk: PoseChecks, covariance: np.ndarray | None) -> tuple[float, float]:
-    """How far (m, deg) a static object's fit may lie from its prediction: the static bounds
-    plus 3 sigma of the fit, the 3 sigma capped at the bounds themselves (so a loose fit,
-    accepted against a prediction that is itself an accepted fit, is never more than twice
-    the bounds off)."""
+    """How far (metres, degrees) a static object's fit may lie from its prediction.
+
+    The static bounds plus 3 sigma of the fit, the 3 sigma capped at the bounds themselves: a
+    loose fit, accepted against a prediction that is itself an accepted fit, is never more
+    than twice the bounds off.
+    """
     rot_std, t_std = sigmas(covariance)
     return (
         chk.static_translation + min(3 * t_std, chk.static_translation),

@@ -27,7 +27,7 @@ class PredictionCheck:
             the dense fit's grey-level noise.
     """
 
-    refit_every: int = 4
+    refit_every: int = 6
     min_agreement: float = 0.7
     max_rmse_sigma: float = 2.5
     max_photometric_sigma: float = 1.5
