@@ -58,7 +58,6 @@ __all__ = [
     "pose_matrices",
 ]
 
-
 def find_folder_layout(path: Path) -> tuple[str, list[tuple[str, Path, Path]]] | None:
     """The built-in layout of ``path`` and its ``(stem, colour file, depth file)`` frames, or None.
 

@@ -205,9 +205,7 @@ class TUMSequence(FrameSequence):
             )
         return RGBDFrame(rgb=rgb, depth=depth, K=self.K, timestamp=float(self.timestamps[index]))
 
-    def groundtruth(
-        self, max_difference: float = 0.02, max_gap: float = 0.1
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def groundtruth(self, max_difference: float = 0.02, max_gap: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
         """Camera poses from ``groundtruth.txt`` at the frame timestamps, interpolated.
 
         A frame has a pose when a ground-truth sample lies within ``max_difference`` s of it.
