@@ -171,8 +171,16 @@ def synchrony(
     cfg = config or RelationConfig()
     if len(history_a[0]) < 3 or len(history_b[0]) < 3:
         return None  # fewer than 3 common timestamps
-    ta, pa = _distinct(history_a)
-    tb, pb = _distinct(history_b)
+    return _synchrony(_distinct(history_a), _distinct(history_b), now, cfg)
+
+
+def _synchrony(
+    a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], now: float, cfg: RelationConfig
+) -> float | None:
+    """:func:`synchrony` of two histories already made distinct (:func:`_distinct`)."""
+    (ta, pa), (tb, pb) = a, b
+    if ta.size < 3 or tb.size < 3:
+        return None
     common, ia, ib = np.intersect1d(ta, tb, assume_unique=True, return_indices=True)
     recent = common >= now - cfg.sync_window_s
     common, ia, ib = common[recent], ia[recent], ib[recent]
@@ -376,6 +384,7 @@ def scene_relations(
         )
         selected |= {(shown[a], shown[b]) for a, b in _neighbour_pairs(boxes, cfg.neighbours)}
     empty = (np.zeros(0), np.zeros((0, 3)))
+    distinct = {i: _distinct(h) for i, h in histories.items() if len(h[0]) >= 3}
     hulls = {i: mask_hull(masks[i]) for i in {i for pair in selected for i in pair} if i in masks}
     pairs = []
     for a, b in sorted(selected):
@@ -389,7 +398,7 @@ def scene_relations(
         if ga is not None and gb is not None:
             far = box_gap(ga, gb)  # surfaces far apart cannot touch: their footprints' gap will do
             gap = far if far > cfg.grounding.touch_gap + 0.05 else surface_gap(ga, gb)
-        sync = synchrony(histories.get(a, empty), histories.get(b, empty), frame.timestamp, cfg)
+        sync = _synchrony(distinct.get(a, empty), distinct.get(b, empty), frame.timestamp, cfg)
         for x, y in ((a, b), (b, a)):
             sx, sy = spatial.get(x), spatial.get(y)
             disp = dist = direc = None
