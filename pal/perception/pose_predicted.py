@@ -1,7 +1,7 @@
 """A static object's pose from the camera's egomotion, checked against the live depth and grey levels.
 
-For an object presumed static (not moving, estimated within ``checks.static_horizon_s``, its
-previous pose estimated), the camera's measured motion predicts its pose::
+For an object presumed static (not moving, estimated within ``checks.static_horizon_s``) and a
+camera whose motion was measured, that motion predicts its pose::
 
     camera_from_object(t) = inverse(world_from_camera(t)) · world_from_object(t_last)
 
@@ -52,8 +52,7 @@ def _eligible(record: ObjectRecord, t: float, config: PoseConfig, camera_known: 
         return False
     if t - record.world_pose[0] > config.checks.static_horizon_s:
         return False
-    poses = record.trajectory.poses
-    return bool(poses) and poses[-1].is_valid and record.predicted_run < check.refit_every - 1
+    return record.predicted_run < check.refit_every - 1
 
 
 def predicted_pose(
