@@ -49,7 +49,6 @@ from pal.perception.grounding import (
     object_geometry,
     on_support,
     support_frame,
-    surface_gap,
 )
 from pal.perception.masks import Mask
 from pal.perception.plane import Plane
@@ -387,6 +386,7 @@ def scene_relations(
     distinct = {i: _distinct(h) for i, h in histories.items() if len(h[0]) >= 3}
     hulls = {i: mask_hull(masks[i]) for i in {i for pair in selected for i in pair} if i in masks}
     pairs = []
+    trees: dict[int, cKDTree] = {}
     for a, b in sorted(selected):
         label, container = (
             topology(frame, masks[a], masks[b], cfg.topology, (a, b), (hulls[a], hulls[b]))
@@ -397,7 +397,12 @@ def scene_relations(
         gap = None
         if ga is not None and gb is not None:
             far = box_gap(ga, gb)  # surfaces far apart cannot touch: their footprints' gap will do
-            gap = far if far > cfg.grounding.touch_gap + 0.05 else surface_gap(ga, gb)
+            if far > cfg.grounding.touch_gap + 0.05:
+                gap = far
+            else:  # each object's surface tree built once per frame
+                if a not in trees:
+                    trees[a] = cKDTree(ga.surface)
+                gap = float(trees[a].query(gb.surface, k=1)[0].min())  # surface_gap(ga, gb)
         sync = _synchrony(distinct.get(a, empty), distinct.get(b, empty), frame.timestamp, cfg)
         for x, y in ((a, b), (b, a)):
             sx, sy = spatial.get(x), spatial.get(y)
