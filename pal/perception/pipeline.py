@@ -4,8 +4,9 @@ Per frame: checks (time order, some valid depth) -> segmentation Σ (geometric o
 the frame's features, once -> the camera's own motion from the static background
 (:mod:`pal.perception.egomotion`) -> association to memory with masks predicted under that
 motion, appearance and the fragment rule (stable ids) -> for each associated object: spatial
-descriptor, pose (optional; world-frame gates and consistency with the camera's motion) and
-EEMS admission -> missing objects get a ``lost`` (or flagged ``propagated``) pose sample ->
+descriptor, pose (optional; a static object's egomotion prediction when the live data confirm
+it, :mod:`pal.perception.pose_predicted`, else a fit with world-frame gates and consistency with
+the camera's motion) and EEMS admission (skipped for a confirmed prediction) -> missing objects get a ``lost`` (or flagged ``propagated``) pose sample ->
 relational layer (grounded predicates in the support-plane frame, salience order) -> scene
 descriptor (Table 5.6). Each stage's time is in :attr:`PerceptionState.timings`; the state's types
 are in :mod:`pal.perception.state`.

@@ -339,6 +339,24 @@ def _neighbour_pairs(points: np.ndarray, k: int) -> set[tuple[int, int]]:
     return out
 
 
+def _gap(
+    a: int,
+    ga: ObjectGeometry | None,
+    gb: ObjectGeometry | None,
+    cfg: RelationConfig,
+    trees: dict[int, cKDTree],
+) -> float | None:
+    """The surface gap of a pair, metres (None without geometry); ``a``'s k-d tree is kept in ``trees``."""
+    if ga is None or gb is None:
+        return None
+    far = box_gap(ga, gb)  # surfaces far apart cannot touch: their footprints' gap will do
+    if far > cfg.grounding.touch_gap + 0.05:
+        return far
+    if a not in trees:
+        trees[a] = cKDTree(ga.surface)
+    return float(trees[a].query(gb.surface, k=1)[0].min())  # grounding.surface_gap(ga, gb)
+
+
 def scene_relations(
     frame: RGBDFrame,
     spatial: Mapping[int, SpatialDescriptor | None],
@@ -393,16 +411,7 @@ def scene_relations(
             if a in masks and b in masks
             else (None, None)
         )
-        ga, gb = geometry.get(a), geometry.get(b)
-        gap = None
-        if ga is not None and gb is not None:
-            far = box_gap(ga, gb)  # surfaces far apart cannot touch: their footprints' gap will do
-            if far > cfg.grounding.touch_gap + 0.05:
-                gap = far
-            else:  # each object's surface tree built once per frame
-                if a not in trees:
-                    trees[a] = cKDTree(ga.surface)
-                gap = float(trees[a].query(gb.surface, k=1)[0].min())  # surface_gap(ga, gb)
+        gap = _gap(a, geometry.get(a), geometry.get(b), cfg, trees)
         sync = _synchrony(distinct.get(a, empty), distinct.get(b, empty), frame.timestamp, cfg)
         for x, y in ((a, b), (b, a)):
             sx, sy = spatial.get(x), spatial.get(y)
