@@ -19,7 +19,14 @@ import numpy as np
 from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask
 
-__all__ = ["APPEARANCE_BINS", "appearance", "appearance_distance", "predict_mask", "surface_sample"]
+__all__ = [
+    "APPEARANCE_BINS",
+    "appearance",
+    "appearance_distance",
+    "appearance_distances",
+    "predict_mask",
+    "surface_sample",
+]
 
 #: Hue and saturation bins of :func:`appearance`.
 APPEARANCE_BINS = (12, 4)
@@ -90,3 +97,17 @@ def appearance(hsv: np.ndarray, mask: Mask) -> np.ndarray:
 def appearance_distance(a: np.ndarray, b: np.ndarray) -> float:
     """Bhattacharyya distance of two :func:`appearance` histograms, in [0, 1] (0: identical)."""
     return float(cv2.compareHist(a, b, cv2.HISTCMP_BHATTACHARYYA))
+
+
+def appearance_distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """:func:`appearance_distance` of every pair of rows: (n, m) from (n, B) and (m, B) histograms.
+
+    OpenCV's Bhattacharyya distance, ``sqrt(1 - sum(sqrt(h_a h_b)) / sqrt(sum(h_a) sum(h_b)))``,
+    in one matrix product.
+    """
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    if a.ndim != 2 or b.ndim != 2 or a.shape[1] != b.shape[1]:
+        raise ValueError(f"histograms of shapes {a.shape} and {b.shape}; expected (n, B) and (m, B)")
+    norm = np.sqrt(np.outer(a.sum(axis=1), b.sum(axis=1)))
+    sim = (np.sqrt(a) @ np.sqrt(b).T) / np.where(norm > 0, norm, np.inf)
+    return np.sqrt(np.clip(1.0 - sim, 0.0, None))

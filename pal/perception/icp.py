@@ -52,7 +52,7 @@ from pal.perception.icp_terms import LiveSurface, Match, Photometric, associate,
 from pal.perception.masks import Mask
 from pal.perception.noise import DepthNoise
 
-__all__ = ["IcpConfig", "IcpFit", "geometric_condition", "icp_fit", "surface_points"]
+__all__ = ["IcpConfig", "IcpFit", "geometric_condition", "icp_fit", "icp_score", "surface_points"]
 
 
 @dataclass(frozen=True)
@@ -81,6 +81,9 @@ class IcpConfig:
             may match too, in or out of the mask, where their depth agrees: a segment that lost
             part of the object (a hole, a split) leaves that part's depth where the model
             expects it (0: inside the live mask only).
+        early_condition: the fit stops at its start when the condition number of its depth
+            terms there exceeds this many times ``max_condition`` (it would be refused for
+            geometry; scored where it started); None: always step.
         max_rotation_std_deg: largest rotation standard deviation of an accepted fit, deg ...
         max_translation_std: ... and translation standard deviation, metres (stricter than the
             feature fits' conditioning check: a dense fit is accepted only when it is precise).
@@ -101,6 +104,7 @@ class IcpConfig:
     grow_px: int = 15
     max_rotation_std_deg: float = 1.5
     max_translation_std: float = 0.01
+    early_condition: float | None = 2.0
 
     def __post_init__(self) -> None:
         check_int("max_points", self.max_points, minimum=20)
@@ -119,6 +123,8 @@ class IcpConfig:
         check_int("grow_px", self.grow_px, minimum=0)
         check_float("max_rotation_std_deg", self.max_rotation_std_deg, 0.0, open_low=True)
         check_float("max_translation_std", self.max_translation_std, 0.0, open_low=True)
+        if self.early_condition is not None:
+            check_float("early_condition", self.early_condition, 1.0)
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,6 +144,8 @@ class IcpFit:
         condition: condition number of the depth terms' normal equations (module docstring);
             inf when singular.
         photometric: photometric residuals used (0: depth only).
+        photometric_sigma: their robust spread (1.4826 median absolute residual) in units of
+            the grey-level noise ``photometric_sigma`` (0 without them).
         covariance: (6, 6) over (rotation vector rad, translation m), or None when singular.
         iterations: steps taken.
     """
@@ -153,6 +161,7 @@ class IcpFit:
     covariance: np.ndarray | None
     iterations: int
     photometric: int = 0
+    photometric_sigma: float = 0.0
 
     @property
     def agreement(self) -> float:
@@ -242,6 +251,9 @@ def _gauss_newton(
             return None
         rs = r[near] / sig[near]
         J = _depth_jacobian(m, near, sig)
+        if k == 0 and cfg.early_condition is not None:
+            if _condition(J.T @ J, m.X[near], t) > cfg.early_condition * cfg.max_condition:
+                return R, t, 0  # a slide this surface cannot pin: the fit would fail the geometry check
         if photo is not None:
             rp, Jp = photo(m.idx[near], m.y[near], m.X[near])
             rs, J = np.concatenate([rs, rp]), np.concatenate([J, Jp])
@@ -336,13 +348,57 @@ def _final_fit(
     rs = rn / sig[near]
     J = _depth_jacobian(m, near, sig)
     H_depth = J.T @ J
-    n_photo = 0
+    n_photo, spread = 0, 0.0
     if photo is not None:
         rp, Jp = photo(m.idx[near], m.y[near], m.X[near])
         rs, J, n_photo = np.concatenate([rs, rp]), np.concatenate([J, Jp]), len(rp)
+        spread = 1.4826 * float(np.median(np.abs(rp))) if len(rp) else 0.0
     cov = _covariance(rs, J, cfg.correlation_px, step)
     condition = _condition(H_depth, m.X[near], t)
-    return IcpFit(T, agree, len(m.idx), agree, free, rmse, rmse_sigma, condition, cov, steps, n_photo)
+    return IcpFit(T, agree, len(m.idx), agree, free, rmse, rmse_sigma, condition, cov, steps, n_photo, spread)
+
+
+def _checked(model: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    model, T = np.asarray(model, dtype=np.float64), np.asarray(T, dtype=np.float64)
+    if model.ndim != 2 or model.shape[1] != 3:
+        raise ValueError(f"model has shape {model.shape}, expected (M, 3) object-frame points")
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(f"T0 has shape {T.shape} or non-finite entries, expected a finite (4, 4) pose")
+    return model, T
+
+
+def _terms(
+    frame: RGBDFrame, mask: Mask, cfg: IcpConfig, model: np.ndarray, model_gray: np.ndarray | None
+) -> tuple[LiveSurface, Photometric | None]:
+    grow = round(cfg.grow_px * frame.width / 640)
+    live = LiveSurface(frame, mask, 0.05, cfg.normal_px, grow)
+    if model_gray is None or cfg.photometric_sigma is None:
+        return live, None
+    model_gray = np.asarray(model_gray, dtype=np.float64)
+    if model_gray.shape != (len(model),):
+        raise ValueError(f"model_gray has shape {model_gray.shape}, expected ({len(model)},)")
+    return live, Photometric(frame, mask, model_gray, grow, cfg.blur_sigma, cfg.photometric_sigma)
+
+
+def icp_score(
+    model: np.ndarray,
+    T: np.ndarray,
+    frame: RGBDFrame,
+    mask: Mask,
+    noise: DepthNoise | None = None,
+    config: IcpConfig | None = None,
+    model_gray: np.ndarray | None = None,
+    step: int = 1,
+) -> IcpFit | None:
+    """The fit of :func:`icp_fit` scored at ``T`` itself, without a step (a prediction checked).
+
+    Agreement, free space, residuals, covariance and condition of the correspondences at ``T``
+    (arguments as :func:`icp_fit`); None when fewer than 6 model points find one.
+    """
+    cfg = config or IcpConfig()
+    model, T = _checked(model, T)
+    live, photo = _terms(frame, mask, cfg, model, model_gray)
+    return _final_fit(model, (T[:3, :3], T[:3, 3], 0), frame, live, noise or DepthNoise(), cfg, photo, step)
 
 
 def icp_fit(
@@ -376,22 +432,10 @@ def icp_fit(
     """
     cfg = config or IcpConfig()
     noise = noise or DepthNoise()
-    model = np.asarray(model, dtype=np.float64)
-    T0 = np.asarray(T0, dtype=np.float64)
-    if model.ndim != 2 or model.shape[1] != 3:
-        raise ValueError(f"model has shape {model.shape}, expected (M, 3) object-frame points")
-    if T0.shape != (4, 4) or not np.all(np.isfinite(T0)):
-        raise ValueError(f"T0 has shape {T0.shape} or non-finite entries, expected a finite (4, 4) pose")
+    model, T0 = _checked(model, T0)
     if len(model) < cfg.min_points:
         return None
-    grow = round(cfg.grow_px * frame.width / 640)
-    live = LiveSurface(frame, mask, 0.05, cfg.normal_px, grow)
-    photo = None
-    if model_gray is not None and cfg.photometric_sigma is not None:
-        model_gray = np.asarray(model_gray, dtype=np.float64)
-        if model_gray.shape != (len(model),):
-            raise ValueError(f"model_gray has shape {model_gray.shape}, expected ({len(model)},)")
-        photo = Photometric(frame, mask, model_gray, grow, cfg.blur_sigma, cfg.photometric_sigma)
+    live, photo = _terms(frame, mask, cfg, model, model_gray)
     pose = _gauss_newton(model, T0[:3, :3].copy(), T0[:3, 3].copy(), live, noise, cfg, photo)
     if pose is None:
         return None
@@ -419,6 +463,7 @@ def geometric_condition(
         photometric_sigma=None,
         normal_px=cfg.normal_px,
         grow_px=0,
+        early_condition=None,
     )
     fit = icp_fit(pts, np.eye(4), frame, mask, noise, own, step=step) if len(pts) else None
     return float("inf") if fit is None else fit.condition

@@ -40,14 +40,11 @@ def bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise cross product of (N, 3) arrays (cheaper than ``np.cross`` for small N)."""
-    return np.stack(
-        [
-            a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1],
-            a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-            a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0],
-        ],
-        axis=1,
-    )
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
 
 
 class LiveSurface:
@@ -79,14 +76,11 @@ class LiveSurface:
         u, v = u[ok], v[ok]
         z = self.z
         zc, zr, zl, zd, zu = z[v, u], z[v, u + b], z[v, u - b], z[v + b, u], z[v - b, u]
-        x0, y0, K = self.x0, self.y0, self.K
-
-        def lift(uu: np.ndarray, vv: np.ndarray, zz: np.ndarray) -> np.ndarray:
-            return backproject(uu + x0, vv + y0, zz, K)
-
-        P = lift(u, v, zc)
-        dx = lift(u + b, v, zr) - lift(u - b, v, zl)
-        dy = lift(u, v + b, zd) - lift(u, v - b, zu)
+        # the centre and its four neighbours lifted at once: (5, N, 3)
+        uu = np.stack([u, u + b, u - b, u, u]) + self.x0
+        vv = np.stack([v, v, v, v + b, v - b]) + self.y0
+        L = backproject(uu, vv, np.stack([zc, zr, zl, zd, zu]), self.K)
+        P, dx, dy = L[0], L[1] - L[2], L[3] - L[4]
         n = cross(dx, dy)
         norm = np.linalg.norm(n, axis=1)
         good = (

@@ -172,7 +172,8 @@ class AdmissionDecision:
     Attributes:
         admitted: whether the view became a snapshot.
         reason: ``"admitted"``, ``"canonical"``, ``"area"``, ``"sharpness"``, ``"rank"``,
-            ``"mse"`` or ``"features"``.
+            ``"mse"`` or ``"features"``; ``"predicted"`` when Π did not consider the view (its
+            pose was the egomotion prediction, :mod:`pal.perception.pose_predicted`).
         snapshot: the new snapshot's index when admitted.
         evicted: index of the evicted snapshot, if any.
     """
@@ -335,6 +336,7 @@ class ObjectRecord:
         moving: the object has moved in the world (it is no longer presumed static).
         first_frame: index of the frame in which the object was born.
         speed: world speed of the pose origin between its last two estimated poses, m/s.
+        predicted_run: poses in a row taken from the camera's egomotion (:mod:`pal.perception.pose_predicted`).
     """
 
     obj_id: int
@@ -353,6 +355,7 @@ class ObjectRecord:
     moving: bool = False
     first_frame: int = 0
     speed: float = 0.0
+    predicted_run: int = 0
 
 
 def _padded_bbox(frame: RGBDFrame, mask: Mask, margin: int) -> tuple[int, int, int, int]:

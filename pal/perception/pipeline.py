@@ -4,8 +4,9 @@ Per frame: checks (time order, some valid depth) -> segmentation Σ (geometric o
 the frame's features, once -> the camera's own motion from the static background
 (:mod:`pal.perception.egomotion`) -> association to memory with masks predicted under that
 motion, appearance and the fragment rule (stable ids) -> for each associated object: spatial
-descriptor, pose (optional; world-frame gates and consistency with the camera's motion) and
-EEMS admission -> missing objects get a ``lost`` (or flagged ``propagated``) pose sample ->
+descriptor, pose (optional; a static object's egomotion prediction when the live data confirm
+it, :mod:`pal.perception.pose_predicted`, else a fit with world-frame gates and consistency with
+the camera's motion) and EEMS admission (skipped for a confirmed prediction) -> missing objects get a ``lost`` (or flagged ``propagated``) pose sample ->
 relational layer (grounded predicates in the support-plane frame, salience order) -> scene
 descriptor (Table 5.6). Each stage's time is in :attr:`PerceptionState.timings`; the state's types
 are in :mod:`pal.perception.state`.
@@ -31,7 +32,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -45,9 +46,10 @@ from pal.perception.filters import OneEuroConfig, OneEuroFilter
 from pal.perception.frames import RGBDFrame
 from pal.perception.kinematic import KinematicConfig, KinematicDescriptor, trajectory_descriptor
 from pal.perception.masks import Mask
-from pal.perception.memory import AdmissionConfig, Gallery, ObjectRecord
+from pal.perception.memory import AdmissionConfig, AdmissionDecision, Gallery, ObjectRecord
 from pal.perception.plane import Plane
 from pal.perception.pose import PoseConfig, PoseEstimator, position_std
+from pal.perception.pose_predicted import predicted_pose
 from pal.perception.regions import metric_area
 from pal.perception.relations import RelationConfig, SceneRelations, scene_relations
 from pal.perception.scene import scene_descriptor
@@ -268,8 +270,15 @@ class Pipeline:
             return self.estimator.extractor.for_mask(frame_features, gray, mask)
 
         if cfg.estimate_pose:
-            feats = feats_of()
-            pose, decision = self.estimator.estimate(rec, frame, gray, obs.mask, feats, world)
+            W = np.eye(4) if world is None else world
+            known = camera is not None and camera.known
+            pose, decision = predicted_pose(rec, frame, obs.mask, W, cfg.pose, known), None
+            feats: Features | Callable[[], Features] = feats_of
+            if pose is None:
+                feats = feats_of()
+                pose, decision = self.estimator.estimate(rec, frame, gray, obs.mask, feats, world)
+            else:  # the view is where the gallery last saw it: no new snapshot to consider
+                decision = AdmissionDecision(False, "predicted")
             c1 = time.perf_counter()
             if decision is None:
                 decision = rec.gallery.consider(

@@ -52,6 +52,10 @@ unobservable slide), its covariance is precise (``icp.max_rotation_std_deg``,
 ``icp.max_translation_std``), and it passes the speed and static checks
 (:mod:`pal.perception.pose_dense`); otherwise it is ``rejected`` with the failed checks.
 
+**Prediction.** Π first offers a static object's egomotion prediction to
+:func:`pal.perception.pose_predicted.predicted_pose`; when the live data confirm it, it is the
+pose and this estimator is not called.
+
 **Failures** without a fit are ``lost`` with a reason, or, if ``propagate_s > 0`` and the last
 two estimated poses are recent, ``propagated`` by constant velocity — flagged and never counted
 as valid. Errors are raised, never swallowed.
@@ -138,7 +142,7 @@ class PoseEstimator:
         if (
             pose.is_valid
             and pose.camera_from_object is not None
-            and d.solver in ("kabsch", "pnp", "icp")
+            and d.solver in ("kabsch", "pnp", "icp", "egomotion")
             and d.inliers >= self.config.anchor_min_inliers
         ):
             return np.linalg.inv(pose.camera_from_object)

@@ -23,7 +23,8 @@ values of the failed checks:
 - ``static``: an object *presumed static* (it has not moved more than ``moving_threshold`` in
   the world since its first pose, and had an estimated pose within ``static_horizon_s``: what
   was out of sight may have been moved) must stay where the camera's motion predicts it, within
-  ``static_translation`` and ``static_rotation_deg`` plus 3 sigma, unless the prediction is
+  ``static_translation`` and ``static_rotation_deg`` plus 3 sigma (at most the bounds again),
+  unless the prediction is
   refuted by the data (it explains fewer than ``static_support`` of the fit's inliers); when
   the prediction is nearly as good, the estimator refines it instead, and a refinement that
   drifts out of those bounds fails the check (the data pin the pose too loosely to correct it).
@@ -45,7 +46,16 @@ from pal.perception.pnp import RgbdFit, refine_pose, reprojection_errors
 if TYPE_CHECKING:
     from pal.perception.memory import ObjectRecord
 
-__all__ = ["Evidence", "Limits", "PoseChecks", "check_fit", "motion_between", "rotation_deg", "sigmas"]
+__all__ = [
+    "Evidence",
+    "Limits",
+    "PoseChecks",
+    "check_fit",
+    "motion_between",
+    "rotation_deg",
+    "sigmas",
+    "static_bounds",
+]
 
 
 @dataclass(frozen=True)
@@ -165,10 +175,24 @@ class Limits:
 
 
 def _near(prior: np.ndarray, fit: RgbdFit, chk: PoseChecks) -> bool:
-    """Whether ``fit`` lies within the static bounds (plus 3 sigma of the fit) of the prediction ``prior``."""
-    rot_std, t_std = sigmas(fit.covariance)
+    """Whether ``fit`` lies within the static bounds of the prediction ``prior`` (:func:`static_bounds`)."""
     dist, turn = motion_between(prior, fit.matrix())
-    return dist <= chk.static_translation + 3 * t_std and turn <= chk.static_rotation_deg + 3 * rot_std
+    bound_m, bound_deg = static_bounds(chk, fit.covariance)
+    return dist <= bound_m and turn <= bound_deg
+
+
+def static_bounds(chk: PoseChecks, covariance: np.ndarray | None) -> tuple[float, float]:
+    """How far (metres, degrees) a static object's fit may lie from its prediction.
+
+    The static bounds plus 3 sigma of the fit, the 3 sigma capped at the bounds themselves: a
+    loose fit, accepted against a prediction that is itself an accepted fit, is never more
+    than twice the bounds off.
+    """
+    rot_std, t_std = sigmas(covariance)
+    return (
+        chk.static_translation + min(3 * t_std, chk.static_translation),
+        chk.static_rotation_deg + min(3 * rot_std, chk.static_rotation_deg),
+    )
 
 
 def _static(

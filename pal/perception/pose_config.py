@@ -5,13 +5,38 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from pal.checks import check_float, check_int
 from pal.perception.features import FeatureConfig
 from pal.perception.icp import IcpConfig
 from pal.perception.noise import DepthNoise
 from pal.perception.pose_checks import PoseChecks
 from pal.perception.pose_filter import PoseFilter
 
-__all__ = ["PoseConfig"]
+__all__ = ["PoseConfig", "PredictionCheck"]
+
+
+@dataclass(frozen=True)
+class PredictionCheck:
+    """Bounds on which an egomotion prediction is taken as the pose (:mod:`pal.perception.pose_predicted`).
+
+    Attributes:
+        refit_every: at most ``refit_every - 1`` predicted poses in a row; then a fit.
+        min_agreement: fewest agreeing model points per visible one (the dense fit's or more).
+        max_rmse_sigma: largest RMS point-to-plane residual, in sigma_z (the dense fit's or less).
+        max_photometric_sigma: largest robust spread of the grey-level residuals, in units of
+            the dense fit's grey-level noise.
+    """
+
+    refit_every: int = 6
+    min_agreement: float = 0.7
+    max_rmse_sigma: float = 2.5
+    max_photometric_sigma: float = 1.5
+
+    def __post_init__(self) -> None:
+        check_int("refit_every", self.refit_every, minimum=1)
+        check_float("min_agreement", self.min_agreement, 0.0, 1.0)
+        check_float("max_rmse_sigma", self.max_rmse_sigma, 0.0, open_low=True)
+        check_float("max_photometric_sigma", self.max_photometric_sigma, 0.0, open_low=True)
 
 
 @dataclass(frozen=True)
@@ -49,6 +74,8 @@ class PoseConfig:
             egomotion prediction and must pass the static check against it.
         filter: the temporal filter of a static object's accepted pose with the camera's
             egomotion as prior (:mod:`pal.perception.pose_filter`); None: off.
+        prediction: when a static object's egomotion prediction is taken as its pose without
+            a fit (:mod:`pal.perception.pose_predicted`; needs ``icp``); None: always fit.
     """
 
     features: FeatureConfig = field(default_factory=FeatureConfig)
@@ -73,6 +100,7 @@ class PoseConfig:
     icp: IcpConfig | None = field(default_factory=IcpConfig)
     dense_horizon_s: float = 1.0
     filter: PoseFilter | None = field(default_factory=PoseFilter)
+    prediction: PredictionCheck | None = field(default_factory=PredictionCheck)
 
     def __post_init__(self) -> None:
         if not self.dense_horizon_s >= self.checks.static_horizon_s:

@@ -14,7 +14,8 @@ trusted. A dense fit is ``estimated`` only if it passes all of:
   ``icp.max_rotation_std_deg`` and ``icp.max_translation_std``;
 - ``speed``: the motion since the last estimate **in the world frame** within the speed limits;
 - ``static``: an object presumed static stays where the camera's motion puts it (within
-  ``checks.static_translation`` and ``checks.static_rotation_deg`` plus 3 sigma).
+  ``checks.static_translation`` and ``checks.static_rotation_deg`` plus 3 sigma, at most twice
+  those: :func:`pal.perception.pose_checks.static_bounds`).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ import cv2
 import numpy as np
 
 from pal.perception.icp import IcpConfig, IcpFit, surface_points
-from pal.perception.pose_checks import motion_between, sigmas
+from pal.perception.pose_checks import motion_between, sigmas, static_bounds
 
 if TYPE_CHECKING:
     from pal.perception.memory import ObjectRecord, Snapshot
@@ -105,7 +106,8 @@ def dense_checks(
     recent = record.world_pose is not None and t - record.world_pose[0] <= cfg.dense_horizon_s
     if not record.moving and recent:
         dist, turn = motion_between(prior, fit.T)
-        if dist > chk.static_translation + 3 * t_std or turn > chk.static_rotation_deg + 3 * rot_std:
+        bound_m, bound_deg = static_bounds(chk, fit.covariance)
+        if dist > bound_m or turn > bound_deg:
             failed.append(
                 f"static: {dist:.3f} m and {turn:.1f} deg from where the camera's motion puts a static object"
             )

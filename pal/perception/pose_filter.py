@@ -43,7 +43,7 @@ class PoseFilter:
         gate_sigmas: ... or further than this many of the measurement's standard deviations.
     """
 
-    rotation_gain: float = 0.1
+    rotation_gain: float = 0.02
     translation_gain: float = 0.3
     gate_deg: float = 5.0
     gate_m: float = 0.03

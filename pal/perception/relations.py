@@ -49,7 +49,6 @@ from pal.perception.grounding import (
     object_geometry,
     on_support,
     support_frame,
-    surface_gap,
 )
 from pal.perception.masks import Mask
 from pal.perception.plane import Plane
@@ -171,8 +170,16 @@ def synchrony(
     cfg = config or RelationConfig()
     if len(history_a[0]) < 3 or len(history_b[0]) < 3:
         return None  # fewer than 3 common timestamps
-    ta, pa = _distinct(history_a)
-    tb, pb = _distinct(history_b)
+    return _synchrony(_distinct(history_a), _distinct(history_b), now, cfg)
+
+
+def _synchrony(
+    a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], now: float, cfg: RelationConfig
+) -> float | None:
+    """:func:`synchrony` of two histories already made distinct (:func:`_distinct`)."""
+    (ta, pa), (tb, pb) = a, b
+    if ta.size < 3 or tb.size < 3:
+        return None
     common, ia, ib = np.intersect1d(ta, tb, assume_unique=True, return_indices=True)
     recent = common >= now - cfg.sync_window_s
     common, ia, ib = common[recent], ia[recent], ib[recent]
@@ -332,6 +339,24 @@ def _neighbour_pairs(points: np.ndarray, k: int) -> set[tuple[int, int]]:
     return out
 
 
+def _gap(
+    a: int,
+    ga: ObjectGeometry | None,
+    gb: ObjectGeometry | None,
+    cfg: RelationConfig,
+    trees: dict[int, cKDTree],
+) -> float | None:
+    """The surface gap of a pair, metres (None without geometry); ``a``'s k-d tree is kept in ``trees``."""
+    if ga is None or gb is None:
+        return None
+    far = box_gap(ga, gb)  # surfaces far apart cannot touch: their footprints' gap will do
+    if far > cfg.grounding.touch_gap + 0.05:
+        return far
+    if a not in trees:
+        trees[a] = cKDTree(ga.surface)
+    return float(trees[a].query(gb.surface, k=1)[0].min())  # grounding.surface_gap(ga, gb)
+
+
 def scene_relations(
     frame: RGBDFrame,
     spatial: Mapping[int, SpatialDescriptor | None],
@@ -376,20 +401,18 @@ def scene_relations(
         )
         selected |= {(shown[a], shown[b]) for a, b in _neighbour_pairs(boxes, cfg.neighbours)}
     empty = (np.zeros(0), np.zeros((0, 3)))
+    distinct = {i: _distinct(h) for i, h in histories.items() if len(h[0]) >= 3}
     hulls = {i: mask_hull(masks[i]) for i in {i for pair in selected for i in pair} if i in masks}
     pairs = []
+    trees: dict[int, cKDTree] = {}
     for a, b in sorted(selected):
         label, container = (
             topology(frame, masks[a], masks[b], cfg.topology, (a, b), (hulls[a], hulls[b]))
             if a in masks and b in masks
             else (None, None)
         )
-        ga, gb = geometry.get(a), geometry.get(b)
-        gap = None
-        if ga is not None and gb is not None:
-            far = box_gap(ga, gb)  # surfaces far apart cannot touch: their footprints' gap will do
-            gap = far if far > cfg.grounding.touch_gap + 0.05 else surface_gap(ga, gb)
-        sync = synchrony(histories.get(a, empty), histories.get(b, empty), frame.timestamp, cfg)
+        gap = _gap(a, geometry.get(a), geometry.get(b), cfg, trees)
+        sync = _synchrony(distinct.get(a, empty), distinct.get(b, empty), frame.timestamp, cfg)
         for x, y in ((a, b), (b, a)):
             sx, sy = spatial.get(x), spatial.get(y)
             disp = dist = direc = None

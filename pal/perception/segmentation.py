@@ -330,8 +330,8 @@ class GeometricSegmenter:
             sizes = metric_areas(labels, n, depth, fx, fy)
         pieces = []
         for j, sl in enumerate(ndimage.find_objects(labels), start=1):
-            if sl is None:
-                continue
+            if sl is None or (not keep_small and sizes[j] < smallest[j]):
+                continue  # (a piece below its size rule is never a candidate)
             crop = fill_invalid_holes(labels[sl] == j, invalid[sl])
             pieces.append((sl[1].start, sl[0].start, crop, float(sizes[j]), float(smallest[j])))
         return pieces

@@ -48,7 +48,12 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from pal.perception.association import appearance, appearance_distance, predict_mask, surface_sample
+from pal.perception.association import (
+    appearance,
+    appearance_distances,
+    predict_mask,
+    surface_sample,
+)
 from pal.perception.frames import RGBDFrame
 from pal.perception.masks import Mask, intersection_area
 from pal.perception.regions import metric_area
@@ -261,24 +266,31 @@ class Tracker:
         info = self._cand_info
         assert info is not None
         masks = [candidates[i].mask for i in cands]
+        preds, owner = [], []
+        for c, tid in enumerate(tracks):
+            for pred in self._predicted(self.tracks[tid], t):
+                preds.append(pred)
+                owner.append(c)
+        a, b = overlap_matrices(masks, preds)
         iou = np.zeros((len(cands), len(tracks)))
         iom = np.zeros_like(iou)
+        for k, c in enumerate(owner):  # per track, the better of its predictions
+            better = a[:, k] > iou[:, c]
+            iou[better, c], iom[better, c] = a[better, k], b[better, k]
+        size = np.array([info[i][0] for i in cands], dtype=np.float64)[:, None]
+        track_size = np.array([self.tracks[tid].size for tid in tracks], dtype=np.float64)[None, :]
         cost_app = np.zeros_like(iou)
-        similar = np.zeros(iou.shape, dtype=bool)
-        for c, tid in enumerate(tracks):
-            tr = self.tracks[tid]
-            for pred in self._predicted(tr, t):
-                a, b = overlap_matrices(masks, [pred])
-                better = a[:, 0] > iou[:, c]
-                iou[better, c], iom[better, c] = a[better, 0], b[better, 0]
-            for r, i in enumerate(cands):
-                size, hist = info[i]
-                if tr.appearance is not None:
-                    cost_app[r, c] = appearance_distance(hist, tr.appearance)
-                if tr.size > 0 and size < cfg.min_size_ratio * tr.size:
-                    iou[r, c] = iom[r, c] = 0.0  # the fragment rule
-                if tr.size > 0 and size > 0:
-                    similar[r, c] = abs(np.log(size / tr.size)) <= np.log(1.5)
+        seen = [c for c, tid in enumerate(tracks) if self.tracks[tid].appearance is not None]
+        if seen:
+            cost_app[:, seen] = appearance_distances(
+                np.stack([info[i][1] for i in cands]),
+                np.stack([self.tracks[tracks[c]].appearance for c in seen]),  # type: ignore[misc]
+            )
+        fragment = (track_size > 0) & (size < cfg.min_size_ratio * track_size)
+        iou[fragment] = iom[fragment] = 0.0  # the fragment rule
+        both = (track_size > 0) & (size > 0)
+        ratio = np.where(both, size / np.where(track_size > 0, track_size, 1.0), 1.0)
+        similar = both & (np.abs(np.log(np.where(ratio > 0, ratio, 1.0))) <= np.log(1.5))
         looks = similar & (cost_app <= cfg.max_appearance / 2)  # same size and look: a weaker overlap will do
         geometric = (
             (iou >= cfg.tau_predicted) | (iom >= cfg.tau_iom) | (looks & (iou >= cfg.tau_predicted / 2))

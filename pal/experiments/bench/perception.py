@@ -59,6 +59,7 @@ from pal.experiments.perception.real_frames import RealConfig, evaluate_real
 from pal.experiments.perception.sequence import (
     sequence_metrics,
     sequence_results,
+    sequence_stage_table,
     sequence_table,
     sequence_targets,
 )
@@ -420,7 +421,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     return Report(
         title="Perception throughput (frames/s of Pi on real and simulated frames) and quality on the real ones",
         metrics=m,
-        tables=[*_tables(config, m, quality, fps, real_cpu), sequence_table(seq)],
+        tables=[*_tables(config, m, quality, fps, real_cpu), sequence_table(seq), sequence_stage_table(seq)],
         targets=[
             *[
                 Target(

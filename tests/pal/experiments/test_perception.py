@@ -315,6 +315,12 @@ def test_bench_perception_tiny(tiny_run):
     assert throughput.rows[0][3] == 1.0 and throughput.rows[2][2] == m["fps_with_pose"]
     pairs = rep.tables[2]
     assert [r[0] for r in pairs.rows] == ["tum_desk", "kinect_room"] and pairs.rows[0][1] == "1-2"
+    stages = rep.tables[-1]
+    assert stages.title.startswith("Static sequence: median milliseconds") and list(stages.columns) == [
+        "stage",
+        "stride 3",
+    ]
+    assert {r[0] for r in stages.rows} >= {"pose", "segmentation"} and stages.rows[-1][1] > 0
 
 
 @pytest.mark.render

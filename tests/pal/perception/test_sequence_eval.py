@@ -63,3 +63,14 @@ def test_a_stride_longer_than_the_run_is_refused(stride1):
     seq, _ = stride1
     with pytest.raises(ValueError, match="stride 5 over 4 frames"):
         evaluate_sequence(seq, 5, SequenceConfig())
+
+
+def test_static_objects_take_the_checked_egomotion_prediction(stride1):
+    """Most poses after the first frames are the camera's motion confirmed by depth and grey levels."""
+    from pal.experiments.perception.sequence import sequence_stage_table
+
+    _, r = stride1
+    assert r["pose_solvers"].get("egomotion", 0) >= 0.5 * r["with_pose"] and r["wrong_estimated"] == 0
+    table = sequence_stage_table({1: r})
+    rows = {row[0]: row[1] for row in table.rows}
+    assert rows["pose"] > 0 and rows["all (CPU time of the process)"] == pytest.approx(1000.0 / r["fps_cpu"])

@@ -1,0 +1,120 @@
+"""A static object's pose from the camera's egomotion, checked against the live depth and grey levels.
+
+For an object presumed static (not moving, estimated within ``checks.static_horizon_s``) and a
+camera whose motion was measured, that motion predicts its pose::
+
+    camera_from_object(t) = inverse(world_from_camera(t)) · world_from_object(t_last)
+
+:func:`predicted_pose` scores that prediction, without a step, with the terms of the dense fit
+(:func:`pal.perception.icp.icp_score`: the surface and grey levels of the snapshot closest in
+view, projected where the prediction puts them). The prediction is taken as this frame's
+``estimated`` pose (solver ``egomotion``) — and the feature fit and the dense fit are skipped —
+only when the data would have seen a deviation and sees none:
+
+- the checks of the dense fit (:func:`pal.perception.pose_dense.dense_checks`: enough agreeing
+  points, few in free space, residual at the sensor's noise, a surface that pins all six
+  degrees of freedom, a precise covariance);
+- agreement and residual bounds of its own (``min_agreement``, ``max_rmse_sigma``);
+- a grey-level residual at the image noise (``max_photometric_sigma``: the robust spread of the
+  photometric residuals, in units of the dense fit's ``photometric_sigma``): texture shows the
+  slides that depth cannot.
+
+Every ``refit_every``-th frame in a row the object is fitted again by features (and the dense
+fallback), so a drift of the camera's motion cannot go on unmeasured. The pose carries the
+covariance of the check's terms at the prediction; its world-frame pose does not move.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from pal.perception.icp import icp_score
+from pal.perception.pose_dense import dense_checks, snapshot_surface
+from pal.perception.pose_matching import choose_snapshots
+from pal.perception.trajectory import Pose, PoseDiagnostics
+
+if TYPE_CHECKING:
+    from pal.perception.frames import RGBDFrame
+    from pal.perception.masks import Mask
+    from pal.perception.memory import ObjectRecord
+    from pal.perception.pose_config import PoseConfig
+
+__all__ = ["predicted_pose"]
+
+
+def _eligible(record: ObjectRecord, t: float, config: PoseConfig, camera_known: bool) -> bool:
+    check = config.prediction
+    if check is None or config.icp is None or not camera_known or record.moving:
+        return False
+    if record.world_pose is None or record.gallery.canonical is None:
+        return False
+    if t - record.world_pose[0] > config.checks.static_horizon_s:
+        return False
+    return record.predicted_run < check.refit_every - 1
+
+
+def predicted_pose(
+    record: ObjectRecord,
+    frame: RGBDFrame,
+    mask: Mask,
+    world_from_camera: np.ndarray,
+    config: PoseConfig,
+    camera_known: bool,
+) -> Pose | None:
+    """The checked egomotion prediction of ``record``'s pose in ``frame``, or None (module docstring).
+
+    Args:
+        record: the object's record; on success its world pose is re-stamped at the frame's
+            time (same pose) and its run of predicted poses counted.
+        frame: the live frame.
+        mask: the object's live mask.
+        world_from_camera: (4, 4) the live camera's pose in the world, metres.
+        config: the pose estimator's parameters (``config.prediction`` and ``config.icp`` set).
+        camera_known: the camera's motion into this frame was measured.
+
+    Returns:
+        An ``estimated`` pose with solver ``egomotion``, or None: not eligible or not confirmed
+        (then the caller fits the pose; the run of predicted poses restarts).
+    """
+    t = frame.timestamp
+    if not _eligible(record, t, config, camera_known):
+        record.predicted_run = 0
+        return None
+    check, icp = config.prediction, config.icp
+    assert check is not None and icp is not None and record.world_pose is not None
+    W = np.asarray(world_from_camera, dtype=np.float64)
+    if W.shape != (4, 4):
+        raise ValueError(f"world_from_camera has shape {W.shape}; expected (4, 4)")
+    prior = np.linalg.inv(W) @ record.world_pose[1]
+    snaps = choose_snapshots(record, 1, prior)
+    if not snaps or snaps[0].anchor is None:
+        record.predicted_run = 0
+        return None
+    model, values, step = snapshot_surface(snaps[0], icp, (config.min_depth, config.max_depth))
+    fit = icp_score(model, prior, frame, mask, config.noise, icp, values, step) if len(model) else None
+    if (
+        fit is None
+        or dense_checks(fit, record, prior, W, t, config)
+        or fit.agreement < check.min_agreement
+        or fit.rmse_sigma > check.max_rmse_sigma
+        or (fit.photometric > 0 and fit.photometric_sigma > check.max_photometric_sigma)
+    ):
+        record.predicted_run = 0
+        return None
+    record.predicted_run += 1
+    record.world_pose = (t, record.world_pose[1])
+    record.speed = 0.0
+    diag = PoseDiagnostics(
+        0,
+        fit.visible,
+        fit.points,
+        fit.rmse,
+        "egomotion",
+        f"egomotion prediction confirmed by depth and grey levels ({fit.agreement:.0%} agree)",
+        snaps[0].index,
+        1,
+        fit.agreement,
+    )
+    return Pose(t, "estimated", prior.copy(), diag, fit.covariance)
