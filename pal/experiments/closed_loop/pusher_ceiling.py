@@ -46,7 +46,7 @@ class Config:
         goals: episodes per setting. steps: steps per episode (Pusher-v5 truncates at 100).
         plan: the planner and cost (the ``pusher`` experiment's); population and behind
             weight are replaced by the grid's.
-        populations: population sizes P. behind_weights: shaping weights w_b (0: PETS's cost).
+        populations: population sizes P. behind_weights: shaping weights w_b (0: no shaping).
         success: an episode succeeds when it ends within this x-y distance, m.
         threads: torch threads (one core: 1).
     """

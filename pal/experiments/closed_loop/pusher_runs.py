@@ -13,7 +13,7 @@ the fingertip (3-D, m) and ``a`` the torques:
 
 (the agent's :func:`pal.agent.plan.preference` with ``scale=1``, ``target_at="every"``; the
 form of ``c`` and the weights from :class:`pal.agent.PlanConfig`: PETS's L1 cost with 1.25,
-0.5, 0 and 0.1 by default).
+0.5 and 0, and 0.01 on the torques in the ``pusher`` experiment, a tenth of PETS's 0.1).
 """
 
 from __future__ import annotations
