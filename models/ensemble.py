@@ -182,7 +182,7 @@ class EnsembleMechanism(Mechanism):
         calibrated one by one, so their mixture counts each member's own error twice, in its
         scale and in the members' spread, and over-covers. With ``paired`` parents, member k's
         component is centred on the member mean at ``parents[k]`` (K member passes over all K
-        parents). Arguments as :meth:`member_loc_scale`.
+        parents, unless these are all equal). Arguments as :meth:`member_loc_scale`.
         """
         locs, scales = self.member_loc_scale(parents, paired)
         c = self.log_scale_offset.exp().to(locs.dtype)
