@@ -3,8 +3,10 @@
 :func:`predictive_interval` samples the program forward from the given values: every site that
 is not given is drawn from its mechanism, residual and all (a latent switch from its
 probabilities, a latent continuous ancestor from ``loc + scale * eps``), and each draw runs
-through one ensemble member, the members in equal shares (:meth:`models.WorldModel.predict`
-with ``members=True``). The draws of the asked site give, per row, the equal-tailed interval at
+through one component of each ensemble's calibrated mixture, the members in equal shares
+(:meth:`models.WorldModel.predict` with ``members=True``; component k is member k shrunk toward
+the member mean by the site's recalibration factor, so the draws have the site's calibrated
+variance, :meth:`models.ensemble.EnsembleMechanism.mixture_members`). The draws of the asked site give, per row, the equal-tailed interval at
 ``level``, the mean and the sd: the total predictive spread, aleatoric, epistemic and that of
 the unobserved ancestors. ``predict_scale`` by contrast gives the site's own scale at its
 parents' expected values.

@@ -13,7 +13,10 @@ log-density, ``do``, abduction ``u = (x - loc(pa)) / scale(pa)`` and replay
 ``x' = loc(pa') + scale(pa') * u`` are exact for that Normal, with no member index to
 infer. The members themselves are exposed by :meth:`EnsembleMechanism.member_loc_scale`
 and by ``WorldModel.predict(..., members=True)`` (member k of a site fed by member k of
-its parents, as PETS propagates particles). With K = 1 the site is the member's own.
+its parents, as PETS propagates particles). Draws with residuals (``noise`` not
+``"expected"``) come from the components of the calibrated mixture,
+``loc + c (m_k - loc) + c s_k eps`` (:meth:`EnsembleMechanism.mixture_members`), whose
+mixture has the site's variance. With K = 1 the site is the member's own.
 
 :func:`inference.fit` trains each member on its own bootstrap of the training rows.
 """
@@ -169,6 +172,29 @@ class EnsembleMechanism(Mechanism):
         else:
             pairs = [m.loc_scale(parents) for m in self.members]
         return torch.stack([p[0] for p in pairs]), torch.stack([p[1] for p in pairs])
+
+    def mixture_members(self, parents: Tensor, paired: bool = False) -> tuple[Tensor, Tensor]:
+        """The components of the site's calibrated mixture, ``(K, ..., out_dim)`` each.
+
+        Component k is ``(loc + c (m_k - loc), c s_k)``, ``loc`` the member mean and ``c`` the
+        site's recalibration factor, so the equally weighted mixture has the site's mean and
+        variance, ``c^2 (mean_k s_k^2 + mean_k (m_k - loc)^2)``. The raw members (c = 1) are
+        calibrated one by one, so their mixture counts each member's own error twice, in its
+        scale and in the members' spread, and over-covers. With ``paired`` parents, member k's
+        component is centred on the member mean at ``parents[k]`` (K member passes over all K
+        parents, unless these are all equal). Arguments as :meth:`member_loc_scale`.
+        """
+        locs, scales = self.member_loc_scale(parents, paired)
+        c = self.log_scale_offset.exp().to(locs.dtype)
+        if self.size == 1 or bool((c == 1).all()):
+            return locs, scales
+        parents = self.check_input(parents)
+        if paired and not bool((parents == parents[:1]).all()):
+            flat = parents.reshape(-1, self.in_dim)
+            center = self.member_loc_scale(flat)[0].mean(0).reshape(locs.shape)
+        else:
+            center = locs.mean(0, keepdim=True)
+        return center + c * (locs - center), c * scales
 
     def forward(self, parents: Tensor) -> Tensor:
         """The site's loc, the member mean: ``(..., in_dim) -> (..., out_dim)``."""

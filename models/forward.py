@@ -8,7 +8,10 @@ twin of running the Pyro program under ``Intervene`` (given values) and ``Replay
 With ``members=True`` every value carries a leading member axis K: member k of a site reads
 member k of its parents (an ensemble's member k, see :mod:`models.ensemble`), and sites
 without an ensemble apply their one mechanism to each member's parents. The residuals
-``eps_i`` are shared by the members, so members differ only by their mechanisms.
+``eps_i`` are shared by the members, so members differ only by their mechanisms. With
+residuals, an ensemble's member k is the k-th component of its calibrated mixture,
+``loc + c (m_k - loc) + c s_k eps`` (:meth:`models.ensemble.EnsembleMechanism.mixture_members`),
+so the members' draws have the site's calibrated variance.
 A discrete site is ``x_i = argmax_k (l_ik(pa_i) + g_ik)`` (Gumbel-max, :mod:`models.discrete`):
 its residual is ``(N, K)`` standard Gumbel noise, expected residuals (g = 0) give the mode,
 and ``"sampled"`` draws the Gumbels.
@@ -42,6 +45,7 @@ from models.checks import (
     describe,
 )
 from models.discrete import gumbel, gumbel_max
+from models.ensemble import EnsembleMechanism
 from models.gated import switch_p_on
 from models.values import as_values, check_action_bounds
 from models.variables import Role
@@ -238,11 +242,13 @@ class ForwardQueries:
             if p_on is not None:  # (K, N, 1): member k's pi
                 out[name] = mech.member_mixture_loc(pa, p_on, paired=True)  # type: ignore[attr-defined]
                 continue
-            if mech.size > 1:  # an ensemble, or a gated site whose on branch is one
+            eps = self._noise(name, noise, torch.Size((*pa.shape[1:-1], mech.out_dim)), generator)
+            if eps is not None and isinstance(mech, EnsembleMechanism) and mech.size > 1:
+                loc, scale = mech.mixture_members(pa, paired=True)  # draws: the calibrated mixture
+            elif mech.size > 1:  # an ensemble, or a gated site whose on branch is one
                 loc, scale = mech.member_loc_scale(pa, paired=True)
             else:
                 loc, scale = mech.loc_scale(pa)
-            eps = self._noise(name, noise, loc.shape[1:], generator)
             out[name] = loc if eps is None else loc + scale * eps
         return out
 

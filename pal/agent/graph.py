@@ -414,8 +414,10 @@ def discover_parents(
     """Learn the parent sets of the learned sites with :func:`inference.discover`.
 
     The fixed relations are known; the candidates of each learned site are the variables that
-    may cause it in time: tier 1 the actions and the state before the step, tier 2 the arm's
-    sites, tier 3 each object's relations, tier 4 the object sites.
+    may cause it in time: tier 1 the actions and the state before the step, tier 2 the joints'
+    motion ``dq, v``, tier 3 what follows from the new angles ``dee, q, ee`` (so the joints'
+    dynamics never take the effector's motion or the new angles as parents), tier 4 each
+    object's relations, tier 5 the object sites.
 
     Args:
         spec: the environment's spec.
@@ -431,9 +433,11 @@ def discover_parents(
     names = [n for n in graph.names if not n.startswith("meas.")]
     fixed = _fixed_parents(spec)
     roots = [n for n in names if graph[n].role is not Role.LATENT]
-    arm = [n for n in ("dq", "v", "dee", "q", "ee") if n in names]
+    motion = [n for n in ("dq", "v") if n in names]  # the joints' dynamics over the step
+    kinematics = [n for n in ("dee", "q", "ee") if n in names]  # what follows from the new joint angles
     rel = [n for n in names if n.startswith(("rel_prev.", "rel."))]
-    tiers = [roots, arm, rel, [n for n in names if n not in roots + arm + rel]]
+    done = roots + motion + kinematics + rel
+    tiers = [roots, motion, kinematics, rel, [n for n in names if n not in done]]
     required = [(p, c) for c, ps in fixed.items() if c in names for p in ps]
     forbidden = [(p, c) for c in fixed if c in names for p in names if p not in fixed[c] and p != c]
     result = discover(

@@ -1,6 +1,7 @@
 """The agent over any Gymnasium env: specs and their bad inputs, the graph from a spec, Pusher-v5, curiosity's gate."""
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import gymnasium
 import numpy as np
@@ -21,6 +22,7 @@ from pal.agent import (
     build_graph,
     build_model,
     check_env,
+    discover_parents,
     plan,
     pusher_spec,
 )
@@ -191,6 +193,24 @@ def test_the_graph_from_the_pusher_spec_and_its_fixed_relations():
     torch.testing.assert_close(out["rel.object"], out["ee"] - roots["pos_prev.object"])
     torch.testing.assert_close(out["pos.object"], roots["pos_prev.object"] + out["dpos.object"])
     assert model.predict(roots, members=True)["dpos.object"].shape == (3, 4, 3)
+
+
+def test_discovery_never_offers_the_new_angles_or_the_effector_to_the_joints_dynamics(monkeypatch):
+    spec = pusher_spec()
+    graph = build_graph(spec, (-2 * np.ones(7), 2 * np.ones(7)), displacement="smooth")
+    seen = {}
+
+    def fake_discover(variables, data, *, tiers, **kwargs):
+        seen["tiers"] = tiers
+        return SimpleNamespace(graph=graph)
+
+    monkeypatch.setattr("pal.agent.graph.discover", fake_discover)
+    parents = discover_parents(spec, graph, {n: np.zeros((1, graph[n].dim)) for n in graph.names})
+    tier = {n: i for i, names in enumerate(seen["tiers"]) for n in names}
+    assert tier["act"] == tier["q_prev"] == tier["v_prev"] == 0
+    assert tier["dq"] == tier["v"] == 1  # only the roots and each other can cause the joints' motion
+    assert min(tier["dee"], tier["q"], tier["ee"]) == 2 and tier["dpos.object"] > 2
+    assert parents["dq"] == ("act", "q_prev", "v_prev")
 
 
 def test_the_agent_learns_and_plans_on_pusher_from_observations_alone(pusher):
