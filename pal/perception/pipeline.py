@@ -50,10 +50,11 @@ from pal.perception.memory import AdmissionConfig, AdmissionDecision, Gallery, O
 from pal.perception.plane import Plane
 from pal.perception.pose import PoseConfig, PoseEstimator, position_std
 from pal.perception.pose_predicted import predicted_pose
+from pal.perception.propagation import PropagationConfig, carried_plane, propagate_masks
 from pal.perception.regions import metric_area
 from pal.perception.relations import RelationConfig, SceneRelations, scene_relations
 from pal.perception.scene import scene_descriptor
-from pal.perception.segmentation import GeometricSegmenter, OracleSegmenter, SegmentationConfig
+from pal.perception.segmentation import Candidate, GeometricSegmenter, OracleSegmenter, SegmentationConfig
 from pal.perception.spatial import SpatialDescriptor, spatial_descriptor
 from pal.perception.state import ObjectState, PerceptionState
 from pal.perception.tracking import Observation, Tracker, TrackerConfig
@@ -73,6 +74,9 @@ class PipelineConfig:
     Attributes:
         segmenter: ``"geometric"`` (default) or ``"oracle"`` (reads ``frame.labels``).
         segmentation: geometric segmenter parameters.
+        propagation: between full segmentations, carry the previous masks by the camera's
+            motion and refine them (:mod:`pal.perception.propagation`; geometric segmenter
+            only), or None to segment every frame.
         oracle_background_ids: label ids the oracle ignores (0 and e.g. the table).
         tracker: association parameters.
         camera_motion: camera-motion estimation, or None for a camera known to be static
@@ -93,6 +97,7 @@ class PipelineConfig:
 
     segmenter: Literal["geometric", "oracle"] = "geometric"
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
+    propagation: PropagationConfig | None = None
     oracle_background_ids: tuple[int, ...] = (0,)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     camera_motion: EgoMotionConfig | None = field(default_factory=EgoMotionConfig)
@@ -149,6 +154,8 @@ class Pipeline:
         self.frame_count = 0
         self._filters: dict[int, tuple[str, OneEuroFilter]] = {}
         self._last_time: float | None = None
+        self._carry: tuple[np.ndarray, list[Candidate], dict[int, Mask]] | None = None
+        self._since_full = 0
 
     def run(self, frames: Iterable[RGBDFrame], progress_bar: bool = False) -> list[PerceptionState]:
         """Process a recorded sequence (any iterable of frames) offline; returns every state."""
@@ -180,7 +187,8 @@ class Pipeline:
         cfg = self.config
         timings: dict[str, float] = {}
         clock = time.perf_counter()
-        candidates = self.segmenter(frame)
+        carry = self._due_carry()
+        candidates = carry[1] if carry is not None else self.segmenter(frame)
         timings["segmentation"], clock = time.perf_counter() - clock, time.perf_counter()
         gray = frame.gray()
         frame_features = None
@@ -193,7 +201,18 @@ class Pipeline:
                 frame, frame_features, self._weights(frame, frame_features, candidates)
             )
         timings["camera_motion"], clock = time.perf_counter() - clock, time.perf_counter()
-        observations = self.tracker.update(candidates, t, frame=frame, motion=camera)
+        if carry is not None:
+            candidates, carried = self._propagate(frame, carry, camera), True
+            if candidates is None:
+                candidates, carried = self.segmenter(frame), False
+            timings["segmentation"] += time.perf_counter() - clock
+            clock = time.perf_counter()
+        observations = self.tracker.update(
+            candidates, t, frame=frame, motion=camera, known_ids=carry is not None and carried
+        )
+        self._since_full = self._since_full + 1 if carry is not None and carried else 0
+        if self.config.propagation is not None:
+            self._carry = (frame.depth, candidates, {o.track_id: o.mask for o in observations})
         timings["tracking"], clock = time.perf_counter() - clock, time.perf_counter()
         states: dict[int, ObjectState] = {}
         t_pose = t_mem = 0.0
@@ -224,6 +243,27 @@ class Pipeline:
                     f"internal error: object {o.obj_id} has a non-finite position {o.position} / std {o.position_std}"
                 )
         return PerceptionState(t, self.frame_count - 1, objects, scene, relations, timings, camera, support)
+
+    def _due_carry(self) -> tuple[np.ndarray, list[Candidate], dict[int, Mask]] | None:
+        """The previous frame's (depth, candidates, masks by id) when this frame propagates them, else None."""
+        prop = self.config.propagation
+        if prop is None or self._carry is None or not isinstance(self.segmenter, GeometricSegmenter):
+            return None
+        return self._carry if self._since_full + 1 < prop.every else None
+
+    def _propagate(
+        self, frame: RGBDFrame, carry: tuple[np.ndarray, list[Candidate], dict[int, Mask]], camera: CameraMotion | None
+    ) -> list[Candidate] | None:
+        """The previous masks carried by the camera's motion (None: motion unknown or no mask, segment instead)."""
+        assert self.config.propagation is not None and isinstance(self.segmenter, GeometricSegmenter)
+        if camera is None or not camera.known or not carry[2] or carry[0].shape != frame.shape:
+            return None
+        T = camera.current_from_previous
+        plane = carried_plane(self.segmenter.last_plane, T)
+        self.segmenter.last_plane = plane
+        return propagate_masks(
+            carry[2], carry[0], frame, T, plane, self.config.propagation, self.config.segmentation
+        )
 
     def _check_frame(self, frame: RGBDFrame) -> None:
         """Refuse a frame that is not an RGBDFrame, is out of time order or has no depth (:meth:`__call__`)."""
