@@ -154,6 +154,7 @@ class Pipeline:
         self.frame_count = 0
         self._filters: dict[int, tuple[str, OneEuroFilter]] = {}
         self._last_time: float | None = None
+        self._previous_time: float | None = None
         self._carry: tuple[np.ndarray, list[Candidate], dict[int, Mask]] | None = None
         self._since_full = 0
 
@@ -187,7 +188,7 @@ class Pipeline:
         cfg = self.config
         timings: dict[str, float] = {}
         clock = time.perf_counter()
-        carry = self._due_carry()
+        carry = self._due_carry(t)
         candidates = carry[1] if carry is not None else self.segmenter(frame)
         timings["segmentation"], clock = time.perf_counter() - clock, time.perf_counter()
         gray = frame.gray()
@@ -244,12 +245,13 @@ class Pipeline:
                 )
         return PerceptionState(t, self.frame_count - 1, objects, scene, relations, timings, camera, support)
 
-    def _due_carry(self) -> tuple[np.ndarray, list[Candidate], dict[int, Mask]] | None:
-        """The previous frame's (depth, candidates, masks by id) when this frame propagates them, else None."""
+    def _due_carry(self, t: float) -> tuple[np.ndarray, list[Candidate], dict[int, Mask]] | None:
+        """The previous frame's (depth, candidates, masks by id) when this frame at ``t`` s propagates them, else None."""
         prop = self.config.propagation
         if prop is None or self._carry is None or not isinstance(self.segmenter, GeometricSegmenter):
             return None
-        return self._carry if self._since_full + 1 < prop.every else None
+        recent = self._previous_time is not None and t - self._previous_time <= prop.max_interval_s
+        return self._carry if recent and self._since_full + 1 < prop.every else None
 
     def _propagate(
         self, frame: RGBDFrame, carry: tuple[np.ndarray, list[Candidate], dict[int, Mask]], camera: CameraMotion | None
@@ -261,9 +263,16 @@ class Pipeline:
         T = camera.current_from_previous
         plane = carried_plane(self.segmenter.last_plane, T)
         self.segmenter.last_plane = plane
-        return propagate_masks(
-            carry[2], carry[0], frame, T, plane, self.config.propagation, self.config.segmentation
-        )
+        seg, fx, fy = self.segmenter, float(frame.K[0, 0]), float(frame.K[1, 1])
+
+        def keep(tid: int, m: Mask) -> float | None:  # the segmentation's rules, at most the track's size
+            x0, y0, x1, y1 = m.bbox
+            size = metric_area(frame.depth[y0:y1, x0:x1], m.crop, fx, fy)
+            tr = self.tracker.tracks.get(tid)
+            smallest = min(seg.config.min_size, tr.size if tr is not None and tr.size > 0 else np.inf)
+            return size if seg.large_enough(frame, x0, y0, m.crop, size, smallest) else None
+
+        return propagate_masks(carry[2], carry[0], frame, T, plane, self.config.propagation, seg.config, keep)
 
     def _check_frame(self, frame: RGBDFrame) -> None:
         """Refuse a frame that is not an RGBDFrame, is out of time order or has no depth (:meth:`__call__`)."""
@@ -276,7 +285,7 @@ class Pipeline:
                 "must come in non-decreasing time order (equal timestamps are allowed)"
             )
         frame.require_depth()
-        self._last_time = t
+        self._previous_time, self._last_time = self._last_time, t
 
     def _observe(
         self,

@@ -11,29 +11,33 @@ gets its mask from the previous one instead of from a new segmentation:
    belongs to the object when its live depth ``z`` lies within the predicted depths around it
    (``[min z' - j, max z' + j]`` over a ``2 border + 3`` window, ``j`` the segmentation's depth
    discontinuity threshold at ``z``) and above the support plane like the segmentation's
-   foreground; a warped pixel without live depth stays. The border thus follows the live depth
+   foreground (a pixel new to the mask); a warped pixel without live depth stays, and holes
+   without depth enclosed by the mask are filled, as the segmentation fills them. The border thus follows the live depth
    edges, and cannot run off onto the support or a surface behind;
 3. **occlusion**: objects are drawn far to near (median predicted depth) into one label image,
-   so a pixel belongs to one object only; masks below ``min_area`` pixels are dropped (the
-   object left the view or was covered).
+   so a pixel belongs to one object only; masks below ``min_area`` pixels, or failing the
+   segmentation's size rules, are dropped (the object left the view or was covered).
 
 A full segmentation runs on the first frame, every ``every``-th frame after it, and whenever
-the camera's motion is unknown (lost, or no camera motion estimated): new objects appear
+the camera's motion is unknown (lost, or no camera motion estimated) or the frame comes more
+than ``max_interval_s`` after the previous one: new objects appear
 there, at most ``every - 1`` frames late. The support plane is carried by the same motion:
 ``n' = R n``, ``d' = d - n' . t``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from pal.checks import check_int
+from pal.checks import check_float, check_int
 from pal.perception.frames import RGBDFrame
 from pal.perception.masks import Mask
 from pal.perception.plane import Plane, plane_height
+from pal.perception.regions import fill_invalid_holes
 from pal.perception.segmentation import Candidate, SegmentationConfig
 
 __all__ = ["PropagationConfig", "carried_plane", "propagate_masks", "warp_mask"]
@@ -48,15 +52,19 @@ class PropagationConfig:
         border: pixels (at 640 columns) a propagated mask may grow or shrink at its border per frame.
         step: warp grid step, pixels (at 640 columns).
         min_area: a propagated mask below this many pixels (at 640 columns) is dropped.
+        max_interval_s: propagate only to a frame at most this many seconds after the previous
+            one (farther apart, the warp and a ``border``-pixel refinement fall behind the motion).
     """
 
     every: int = 3
     border: int = 2
     step: int = 2
     min_area: int = 150
+    max_interval_s: float = 0.05
 
     def __post_init__(self) -> None:
         check_int("every", self.every)
+        check_float("max_interval_s", self.max_interval_s, 0.0)
         check_int("border", self.border, minimum=0)
         check_int("step", self.step)
         check_int("min_area", self.min_area)
@@ -144,16 +152,17 @@ def _refine(
     j = _jump(z, float(frame.K[0, 0]), seg)
     reach = cv2.dilate(warped.view(np.uint8), np.ones((2 * r + 1, 2 * r + 1), np.uint8)).view(bool)
     ok = (z > 0) & (z >= lo - j) & (z <= hi + j)
-    if plane is not None:
+    if plane is not None:  # a new pixel must also be foreground
         K = frame.K.copy()
         K[0, 2] -= gx0
         K[1, 2] -= gy0
         height = plane_height(z, K, plane)
         sigma = seg.noise.sigma(z)
-        ok &= (height > np.maximum(np.float32(seg.min_height), np.float32(seg.height_sigmas) * sigma)) & (
+        fg = (height > np.maximum(np.float32(seg.min_height), np.float32(seg.height_sigmas) * sigma)) & (
             height < seg.max_height
         )
-    return gx0, gy0, reach & (ok | (warped & (z <= 0)))
+        ok &= warped | fg
+    return gx0, gy0, fill_invalid_holes(reach & (ok | (warped & (z <= 0))), z <= 0)
 
 
 def propagate_masks(
@@ -164,6 +173,7 @@ def propagate_masks(
     plane: Plane | None,
     config: PropagationConfig,
     segmentation: SegmentationConfig,
+    keep: Callable[[int, Mask], float | None] | None = None,
 ) -> list[Candidate]:
     """This frame's candidates from the previous frame's masks (module docstring).
 
@@ -175,6 +185,8 @@ def propagate_masks(
         plane: this frame's support plane (camera frame), or None.
         config: propagation parameters.
         segmentation: the depth-discontinuity and foreground thresholds.
+        keep: ``keep(id, mask)``: the mask's metric size, m², or None to drop it (the
+            segmentation's size rules); None keeps every mask of ``min_area`` pixels.
 
     Returns:
         candidates labelled with their object's id, in increasing id order (the masks that
@@ -202,6 +214,10 @@ def propagate_masks(
     for _, tid, x0, y0, crop in sorted(refined, key=lambda item: item[1]):
         h, w = crop.shape
         own = labels[y0 : y0 + h, x0 : x0 + w] == tid
-        if int(np.count_nonzero(own)) >= min_area:
-            out.append(Candidate(Mask.from_crop(own, x0, y0, frame.shape), tid))
+        if int(np.count_nonzero(own)) < min_area:
+            continue
+        mask = Mask.from_crop(own, x0, y0, frame.shape)
+        size = 0.0 if keep is None else keep(tid, mask)
+        if size is not None:
+            out.append(Candidate(mask, tid, size))
     return out
