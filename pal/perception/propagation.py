@@ -5,8 +5,8 @@ gets its mask from the previous one instead of from a new segmentation:
 
 1. **warp**: the mask's pixels with depth, on a ``step``-pixel grid, are lifted to 3-D with the
    previous depth, moved by the camera's motion ``T = current_from_previous`` and projected,
-   ``u' = pi(K (R z K^-1 [u, v, 1] + t))``; each lands as a ``step + 1``-pixel square, so the
-   warped mask covers its object again, and carries its predicted depth ``z'``;
+   ``u' = pi(K (R z K^-1 [u, v, 1] + t))``; each lands as a square of side ``2 (step // 2) + 1``
+   pixels, so the warped mask covers its object again, and carries its predicted depth ``z'``;
 2. **refine**: inside the warped mask grown by ``border`` pixels (at 640 columns), a pixel
    belongs to the object when its live depth ``z`` lies within the predicted depths around it
    (``[min z' - j, max z' + j]`` over a ``2 border + 3`` window, ``j`` the segmentation's depth
@@ -116,14 +116,14 @@ def warp_mask(
     if not inside.any():
         return None
     ui, vi, zi = ui[inside], vi[inside], cam[2, inside].astype(np.float32)
-    r = max(1, (step + 1) // 2)
+    r = step // 2
     bx0, by0 = max(int(ui.min()) - r, 0), max(int(vi.min()) - r, 0)
     bx1, by1 = min(int(ui.max()) + r + 1, w), min(int(vi.max()) + r + 1, h)
     crop = np.zeros((by1 - by0, bx1 - bx0), np.float32)
     order = np.argsort(-zi)  # far first: the nearest point wins a pixel
     crop[vi[order] - by0, ui[order] - bx0] = zi[order]
     far = np.where(crop > 0, crop, np.float32(np.inf))
-    near = cv2.erode(far, np.ones((2 * r + 1, 2 * r + 1), np.uint8))  # splat: nearest depth around
+    near = far if r == 0 else cv2.erode(far, np.ones((2 * r + 1, 2 * r + 1), np.uint8))  # splat: nearest depth
     return bx0, by0, np.where(np.isfinite(near), near, 0.0).astype(np.float32)
 
 
@@ -195,7 +195,7 @@ def propagate_masks(
     if previous_depth.shape != frame.shape:
         raise ValueError(f"previous depth has shape {previous_depth.shape}, expected the frame's {frame.shape}")
     scale = frame.width / 640.0
-    step, r = max(1, round(config.step * scale)), max(1, round(config.border * scale))
+    step, r = max(1, round(config.step * scale)), round(config.border * scale)
     refined = []
     for tid, mask in masks.items():
         warped = warp_mask(mask, previous_depth, frame.K, T, step)
