@@ -265,9 +265,11 @@ class Pipeline:
         self.segmenter.last_plane = plane
         seg, fx, fy = self.segmenter, float(frame.K[0, 0]), float(frame.K[1, 1])
 
-        def keep(tid: int, m: Mask) -> float | None:  # the segmentation's rules, at most the track's size
+        def keep(tid: int, m: Mask) -> float | None:  # a shrunk mask: the segmentation's rules, at most the track's size
             x0, y0, x1, y1 = m.bbox
             size = metric_area(frame.depth[y0:y1, x0:x1], m.crop, fx, fy)
+            if m.area >= 0.8 * carry[2][tid].area:
+                return size
             tr = self.tracker.tracks.get(tid)
             smallest = min(seg.config.min_size, tr.size if tr is not None and tr.size > 0 else np.inf)
             return size if seg.large_enough(frame, x0, y0, m.crop, size, smallest) else None

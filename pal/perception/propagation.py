@@ -120,8 +120,7 @@ def warp_mask(
     bx0, by0 = max(int(ui.min()) - r, 0), max(int(vi.min()) - r, 0)
     bx1, by1 = min(int(ui.max()) + r + 1, w), min(int(vi.max()) + r + 1, h)
     crop = np.zeros((by1 - by0, bx1 - bx0), np.float32)
-    order = np.argsort(-zi)  # far first: the nearest point wins a pixel
-    crop[vi[order] - by0, ui[order] - bx0] = zi[order]
+    crop[vi - by0, ui - bx0] = zi  # one object's own points: any of them may take a pixel
     far = np.where(crop > 0, crop, np.float32(np.inf))
     near = far if r == 0 else cv2.erode(far, np.ones((2 * r + 1, 2 * r + 1), np.uint8))  # splat: nearest depth
     return bx0, by0, np.where(np.isfinite(near), near, 0.0).astype(np.float32)
