@@ -97,7 +97,7 @@ class PipelineConfig:
 
     segmenter: Literal["geometric", "oracle"] = "geometric"
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
-    propagation: PropagationConfig | None = None
+    propagation: PropagationConfig | None = field(default_factory=PropagationConfig)
     oracle_background_ids: tuple[int, ...] = (0,)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     camera_motion: EgoMotionConfig | None = field(default_factory=EgoMotionConfig)

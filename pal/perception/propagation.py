@@ -57,7 +57,7 @@ class PropagationConfig:
     """
 
     every: int = 3
-    border: int = 2
+    border: int = 1
     step: int = 2
     min_area: int = 150
     max_interval_s: float = 0.05

@@ -70,8 +70,8 @@ def test_propagated_mask_lands_on_the_object_after_a_known_motion(shrink: int):
     prev = truth0
     if shrink:  # a mask short of its object by `shrink` pixels: the refinement grows it back
         prev = cv2.erode(truth0.view(np.uint8), np.ones((2 * shrink + 1,) * 2, np.uint8)).view(bool)
-    out = propagate_masks(
-        {7: Mask.from_full(prev)}, f0.depth, f1, T, support(T), PropagationConfig(), SegmentationConfig()
+    out = propagate_masks(  # border 2 at 640 columns: 1 pixel here
+        {7: Mask.from_full(prev)}, f0.depth, f1, T, support(T), PropagationConfig(border=2), SegmentationConfig()
     )
     assert [c.label for c in out] == [7]
     got = out[0].mask.full()
