@@ -261,6 +261,8 @@ class Pipeline:
         if camera is None or not camera.known or not carry[2] or carry[0].shape != frame.shape:
             return None
         T = camera.current_from_previous
+        if not self.config.propagation.small(T):
+            return None
         plane = carried_plane(self.segmenter.last_plane, T)
         self.segmenter.last_plane = plane
         seg, fx, fy = self.segmenter, float(frame.K[0, 0]), float(frame.K[1, 1])

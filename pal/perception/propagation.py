@@ -19,8 +19,9 @@ gets its mask from the previous one instead of from a new segmentation:
    segmentation's size rules, are dropped (the object left the view or was covered).
 
 A full segmentation runs on the first frame, every ``every``-th frame after it, and whenever
-the camera's motion is unknown (lost, or no camera motion estimated) or the frame comes more
-than ``max_interval_s`` after the previous one: new objects appear
+the camera's motion is unknown (lost, or no camera motion estimated), larger than
+``max_rotation_deg`` or ``max_translation_m``, or the frame comes more than ``max_interval_s``
+after the previous one: new objects appear
 there, at most ``every - 1`` frames late. The support plane is carried by the same motion:
 ``n' = R n``, ``d' = d - n' . t``.
 """
@@ -54,6 +55,8 @@ class PropagationConfig:
         min_area: a propagated mask below this many pixels (at 640 columns) is dropped.
         max_interval_s: propagate only to a frame at most this many seconds after the previous
             one (farther apart, the warp and a ``border``-pixel refinement fall behind the motion).
+        max_rotation_deg, max_translation_m: ... and only when the camera turned and moved at
+            most this much since the previous frame (larger motions uncover and hide too much).
     """
 
     every: int = 3
@@ -61,10 +64,21 @@ class PropagationConfig:
     step: int = 2
     min_area: int = 150
     max_interval_s: float = 0.05
+    max_rotation_deg: float = 2.0
+    max_translation_m: float = 0.05
 
     def __post_init__(self) -> None:
         check_int("every", self.every)
-        check_float("max_interval_s", self.max_interval_s, 0.0)
+        for name in ("max_interval_s", "max_rotation_deg", "max_translation_m"):
+            check_float(name, getattr(self, name), 0.0)
+
+    def small(self, T: np.ndarray) -> bool:
+        """The camera motion ``T`` (4, 4) is within ``max_rotation_deg`` and ``max_translation_m``."""
+        cos = np.clip((np.trace(T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+        return bool(
+            np.degrees(np.arccos(cos)) <= self.max_rotation_deg
+            and np.linalg.norm(T[:3, 3]) <= self.max_translation_m
+        )
         check_int("border", self.border, minimum=0)
         check_int("step", self.step)
         check_int("min_area", self.min_area)

@@ -99,6 +99,7 @@ def test_bad_propagation_settings_are_refused():
         PropagationConfig(every=0)
     with pytest.raises(ValueError, match="max_interval_s"):
         PropagationConfig(max_interval_s=-1.0)
+    assert PropagationConfig().small(motion()) and not PropagationConfig().small(np.diag([1.0, -1.0, -1.0, 1.0]))
     f0 = scene(np.eye(4))
     with pytest.raises(ValueError, match="previous depth"):
         propagate_masks({}, f0.depth[:10], f0, np.eye(4), None, PropagationConfig(), SegmentationConfig())
