@@ -1,6 +1,8 @@
 """The perceptual pipeline Π (Eq. 4.5): RGB-D frame -> ŝ_vis(t), live or over a recorded sequence.
 
-Per frame: checks (time order, some valid depth) -> segmentation Σ (geometric or oracle) ->
+Per frame: checks (time order, some valid depth) -> segmentation Σ (geometric or oracle; with
+``propagation``, only every few frames: in between, the previous masks are carried by the
+camera's motion and refined, :mod:`pal.perception.propagation`, and keep their ids) ->
 the frame's features, once -> the camera's own motion from the static background
 (:mod:`pal.perception.egomotion`) -> association to memory with masks predicted under that
 motion, appearance and the fragment rule (stable ids) -> for each associated object: spatial
