@@ -1,6 +1,8 @@
 """The perceptual pipeline Π (Eq. 4.5): RGB-D frame -> ŝ_vis(t), live or over a recorded sequence.
 
-Per frame: checks (time order, some valid depth) -> segmentation Σ (geometric or oracle) ->
+Per frame: checks (time order, some valid depth) -> segmentation Σ (geometric or oracle; with
+``propagation``, only every few frames: in between, the previous masks are carried by the
+camera's motion and refined, :mod:`pal.perception.propagation`, and keep their ids) ->
 the frame's features, once -> the camera's own motion from the static background
 (:mod:`pal.perception.egomotion`) -> association to memory with masks predicted under that
 motion, appearance and the fragment rule (stable ids) -> for each associated object: spatial
@@ -50,10 +52,11 @@ from pal.perception.memory import AdmissionConfig, AdmissionDecision, Gallery, O
 from pal.perception.plane import Plane
 from pal.perception.pose import PoseConfig, PoseEstimator, position_std
 from pal.perception.pose_predicted import predicted_pose
+from pal.perception.propagation import PropagationConfig, carried_plane, propagate_masks
 from pal.perception.regions import metric_area
 from pal.perception.relations import RelationConfig, SceneRelations, scene_relations
 from pal.perception.scene import scene_descriptor
-from pal.perception.segmentation import GeometricSegmenter, OracleSegmenter, SegmentationConfig
+from pal.perception.segmentation import Candidate, GeometricSegmenter, OracleSegmenter, SegmentationConfig
 from pal.perception.spatial import SpatialDescriptor, spatial_descriptor
 from pal.perception.state import ObjectState, PerceptionState
 from pal.perception.tracking import Observation, Tracker, TrackerConfig
@@ -73,6 +76,9 @@ class PipelineConfig:
     Attributes:
         segmenter: ``"geometric"`` (default) or ``"oracle"`` (reads ``frame.labels``).
         segmentation: geometric segmenter parameters.
+        propagation: between full segmentations, carry the previous masks by the camera's
+            motion and refine them (:mod:`pal.perception.propagation`; geometric segmenter
+            only), or None to segment every frame.
         oracle_background_ids: label ids the oracle ignores (0 and e.g. the table).
         tracker: association parameters.
         camera_motion: camera-motion estimation, or None for a camera known to be static
@@ -93,6 +99,7 @@ class PipelineConfig:
 
     segmenter: Literal["geometric", "oracle"] = "geometric"
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
+    propagation: PropagationConfig | None = field(default_factory=PropagationConfig)
     oracle_background_ids: tuple[int, ...] = (0,)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     camera_motion: EgoMotionConfig | None = field(default_factory=EgoMotionConfig)
@@ -149,6 +156,9 @@ class Pipeline:
         self.frame_count = 0
         self._filters: dict[int, tuple[str, OneEuroFilter]] = {}
         self._last_time: float | None = None
+        self._previous_time: float | None = None
+        self._carry: tuple[np.ndarray, list[Candidate], dict[int, Mask]] | None = None
+        self._since_full = 0
 
     def run(self, frames: Iterable[RGBDFrame], progress_bar: bool = False) -> list[PerceptionState]:
         """Process a recorded sequence (any iterable of frames) offline; returns every state."""
@@ -180,7 +190,8 @@ class Pipeline:
         cfg = self.config
         timings: dict[str, float] = {}
         clock = time.perf_counter()
-        candidates = self.segmenter(frame)
+        carry = self._due_carry(t)
+        candidates = carry[1] if carry is not None else self.segmenter(frame)
         timings["segmentation"], clock = time.perf_counter() - clock, time.perf_counter()
         gray = frame.gray()
         frame_features = None
@@ -193,7 +204,18 @@ class Pipeline:
                 frame, frame_features, self._weights(frame, frame_features, candidates)
             )
         timings["camera_motion"], clock = time.perf_counter() - clock, time.perf_counter()
-        observations = self.tracker.update(candidates, t, frame=frame, motion=camera)
+        if carry is not None:
+            candidates, carried = self._propagate(frame, carry, camera), True
+            if candidates is None:
+                candidates, carried = self.segmenter(frame), False
+            timings["segmentation"] += time.perf_counter() - clock
+            clock = time.perf_counter()
+        observations = self.tracker.update(
+            candidates, t, frame=frame, motion=camera, known_ids=carry is not None and carried
+        )
+        self._since_full = self._since_full + 1 if carry is not None and carried else 0
+        if self.config.propagation is not None:
+            self._carry = (frame.depth, candidates, {o.track_id: o.mask for o in observations})
         timings["tracking"], clock = time.perf_counter() - clock, time.perf_counter()
         states: dict[int, ObjectState] = {}
         t_pose = t_mem = 0.0
@@ -225,6 +247,39 @@ class Pipeline:
                 )
         return PerceptionState(t, self.frame_count - 1, objects, scene, relations, timings, camera, support)
 
+    def _due_carry(self, t: float) -> tuple[np.ndarray, list[Candidate], dict[int, Mask]] | None:
+        """The previous frame's (depth, candidates, masks by id) when this frame at ``t`` s propagates them, else None."""
+        prop = self.config.propagation
+        if prop is None or self._carry is None or not isinstance(self.segmenter, GeometricSegmenter):
+            return None
+        recent = self._previous_time is not None and t - self._previous_time <= prop.max_interval_s
+        return self._carry if recent and self._since_full + 1 < prop.every else None
+
+    def _propagate(
+        self, frame: RGBDFrame, carry: tuple[np.ndarray, list[Candidate], dict[int, Mask]], camera: CameraMotion | None
+    ) -> list[Candidate] | None:
+        """The previous masks carried by the camera's motion (None: motion unknown or no mask, segment instead)."""
+        assert self.config.propagation is not None and isinstance(self.segmenter, GeometricSegmenter)
+        if camera is None or not camera.known or not carry[2] or carry[0].shape != frame.shape:
+            return None
+        T = camera.current_from_previous
+        if not self.config.propagation.small(T):
+            return None
+        plane = carried_plane(self.segmenter.last_plane, T)
+        self.segmenter.last_plane = plane
+        seg, fx, fy = self.segmenter, float(frame.K[0, 0]), float(frame.K[1, 1])
+
+        def keep(tid: int, m: Mask) -> float | None:  # a shrunk mask: the segmentation's rules, at most the track's size
+            x0, y0, x1, y1 = m.bbox
+            size = metric_area(frame.depth[y0:y1, x0:x1], m.crop, fx, fy)
+            if m.area >= 0.8 * carry[2][tid].area:
+                return size
+            tr = self.tracker.tracks.get(tid)
+            smallest = min(seg.config.min_size, tr.size if tr is not None and tr.size > 0 else np.inf)
+            return size if seg.large_enough(frame, x0, y0, m.crop, size, smallest) else None
+
+        return propagate_masks(carry[2], carry[0], frame, T, plane, self.config.propagation, seg.config, keep)
+
     def _check_frame(self, frame: RGBDFrame) -> None:
         """Refuse a frame that is not an RGBDFrame, is out of time order or has no depth (:meth:`__call__`)."""
         if not isinstance(frame, RGBDFrame):
@@ -236,7 +291,7 @@ class Pipeline:
                 "must come in non-decreasing time order (equal timestamps are allowed)"
             )
         frame.require_depth()
-        self._last_time = t
+        self._previous_time, self._last_time = self._last_time, t
 
     def _observe(
         self,

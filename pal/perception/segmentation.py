@@ -406,9 +406,10 @@ class GeometricSegmenter:
 
         return jump
 
-    def _large_enough(
+    def large_enough(
         self, frame: RGBDFrame, x0: int, y0: int, crop: np.ndarray, size: float, smallest: float
     ) -> bool:
+        """A piece is kept: ``size`` m² >= ``smallest``, median depth in range, ``min_extent`` across."""
         cfg = self.config
         if int(np.count_nonzero(crop)) < cfg.min_area or size < smallest:
             return False
@@ -438,7 +439,7 @@ class GeometricSegmenter:
         """Candidates of ``frame`` in raster order of their first pixel, labelled 1, 2, ... in that order."""
         kept = []
         for x0, y0, crop, size, smallest in self._pieces(frame, False):
-            if not self._large_enough(frame, x0, y0, crop, size, smallest):
+            if not self.large_enough(frame, x0, y0, crop, size, smallest):
                 continue
             first = int(np.argmax(crop[0]))  # the top row of a tight crop is never empty
             area = int(np.count_nonzero(crop))

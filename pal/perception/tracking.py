@@ -341,6 +341,7 @@ class Tracker:
         *,
         frame: RGBDFrame | None = None,
         motion: CameraMotion | None = None,
+        known_ids: bool = False,
     ) -> list[Observation]:
         """Associate this frame's candidates; returns one observation per candidate, in input order.
 
@@ -350,6 +351,8 @@ class Tracker:
             frame: the frame; with it, masks are predicted from the tracks' surface samples and
                 appearance and size take part (module docstring).
             motion: the camera's motion to this frame (None: the camera is static).
+            known_ids: the candidates' labels are live track ids (masks propagated from the
+                previous frame): each joins its track; unknown labels go through association.
 
         Raises:
             ValueError: ``timestamp`` is earlier than the previous update's.
@@ -378,8 +381,8 @@ class Tracker:
         self._last_time = t
         result: dict[int, Observation] = {}
         free = list(range(len(candidates)))
-        if self.config.trust_labels:
-            by_label = {tr.label: tid for tid, tr in self.tracks.items()}
+        if self.config.trust_labels or known_ids:
+            by_label = {(tid if known_ids else tr.label): tid for tid, tr in self.tracks.items()}
             for i in list(free):
                 tid = by_label.pop(candidates[i].label, None)
                 if tid is not None:
