@@ -122,7 +122,9 @@ def _at(moved: dict[str, list[float]]) -> dict:
 
 
 def test_a_ratio_counts_only_when_pal_moved_the_object_in_90_percent_and_the_baseline_at_all():
-    config = replace(pusher.TINY, aggregation=AggregationConfig(rounds=60, checkpoints=(6000,)))
+    config = replace(
+        pusher.TINY, runs=3, eval_goals=20, aggregation=AggregationConfig(rounds=60, checkpoints=(6000,))
+    )
     still = {t.name: t for t in targets(config, _at({"pal": [0.0] * 10, "baseline": [0.0] * 10}))}
     ratio = still["pal_over_baseline_at_6000"]
     assert ratio.value == 1.0 and ratio.verdict == "not evaluated" and ratio.met is False
@@ -134,8 +136,13 @@ def test_a_ratio_counts_only_when_pal_moved_the_object_in_90_percent_and_the_bas
     }
     t = both["pal_over_baseline_at_6000"]
     assert t.evaluated and t.verdict == "met" and t.value == pytest.approx(0.1 / 0.2)
-    # one seed of 10 goals is not the 3 x 20 the distance targets are stated for
-    assert both["pal_median_final"].verdict == "not evaluated"
+    assert both["pal_median_final"].evaluated  # 6000 steps, 3 seeds x 20 goals: the full protocol
+    # one seed of 5 goals is too small a sample for the ratio, however much moved
+    small = replace(config, runs=1, eval_goals=5)
+    few = {t.name: t for t in targets(small, _at({"pal": [0.1] * 9 + [0.0], "baseline": [0.0] * 9 + [0.02]}))}
+    assert few["pal_over_baseline_at_6000"].verdict == "not evaluated"
+    assert "this run: 1 x 5" in few["pal_over_baseline_at_6000"].precondition.reason
+    assert few["pal_median_final"].verdict == "not evaluated"
 
 
 def test_the_pusher_model_labels_a_push_of_a_few_millimetres_as_contact():
