@@ -104,13 +104,16 @@ class Agent:
             fitted by :meth:`refit`).
         goal: optional user goal, object (or the effector's name) -> target position, m
             (``"goal"`` mode; default the goals the spec observes).
+        mode: optional default mode of :meth:`run` (one of ``MODES``); ``"goal"`` is checked here,
+            so a goal mode with nothing to reach fails at construction, not at the first step.
 
     Raises:
         ValueError: the environment does not match the spec (:func:`pal.agent.spec.check_env`),
             ``config.servo`` contradicts an actuator of the MJCF, sensed angles or velocities
             that are not MuJoCo's (:mod:`pal.agent.body_checks`), a transform whose first
             observation does not fit (cos^2 + sin^2 != 1), objects of different dims, an info entry the spec reads is missing, or a perceived
-            object that Π does not see in the first frame.
+            object that Π does not see in the first frame, an unknown ``mode``, or ``mode="goal"``
+            with no goal given and none observed (:func:`pal.agent.goals.check_reachable`).
     """
 
     def __init__(
@@ -122,9 +125,13 @@ class Agent:
         seed: int = 0,
         model: WorldModel | None = None,
         goal: Mapping[str, Any] | None = None,
+        mode: str | None = None,
     ) -> None:
         if not isinstance(spec, EnvSpec):
             raise ValueError(f"spec must be an EnvSpec, got {type(spec).__name__}")
+        if mode is not None and mode not in MODES:
+            raise ValueError(f"mode {mode!r} unknown; expected one of {MODES} or None")
+        self.mode = mode
         self.env, self.spec, self.config = env, spec, config or AgentConfig()
         self.seed = check_int("seed", seed, minimum=0)
         self.low, self.high = check_env(spec, env)
@@ -156,6 +163,8 @@ class Agent:
         c = cfg.curiosity
         self.curiosity = {o: GridCuriosity((x0, y0), (x1, y1), c.bins, c.locality) for o in spec.object_names}
         self.goal = {} if goal is None else self._check_targets(goal)
+        if mode == "goal":
+            check_reachable(spec, self.goal)
         self.correction = Correction(self.config.correction)
         self.episode, self.steps, self.episode_steps, self.clock = -1, 0, 0, 0.0
         self.percept: Percept | None = None
@@ -410,18 +419,21 @@ class Agent:
     def run(
         self,
         steps: int,
-        mode: str = "curious",
+        mode: str | None = None,
         *,
         refit_every: int | None = None,
         callback: Callable[[Agent, Decision, Percept], None] | None = None,
         progress_bar: bool = False,
     ) -> list[Decision]:
-        """Run ``steps`` loop steps in ``mode`` and return their decisions.
+        """Run ``steps`` loop steps in ``mode`` (default the constructor's ``mode``, else ``"curious"``) and return their decisions.
 
         A fitted model is refitted every ``refit_every`` steps (default ``config.curiosity.refit_every``
         in the curious mode, else ``config.learn.refit_every``; 0 disables). Episodes restart every ``reset_every`` steps and when the environment ends one.
         """
         check_int("steps", steps, minimum=0)
+        mode = (self.mode or "curious") if mode is None else mode
+        if mode not in MODES:
+            raise ValueError(f"mode {mode!r} unknown; expected one of {MODES}")
         if mode == "goal":
             check_reachable(self.spec, self.goal)
         default = self.config.curiosity.refit_every if mode == "curious" else self.config.learn.refit_every

@@ -107,6 +107,13 @@ def test_effector_goals_plan_and_a_goal_mode_without_goals_raises(reacher):
     idle.reset()
     with pytest.raises(ValueError, match="the goal mode has nothing to reach"):
         idle.decide("goal")
+    with pytest.raises(ValueError, match="the goal mode has nothing to reach"):
+        Agent(reacher, bare, tiny, seed=0, mode="goal")
+    with pytest.raises(ValueError, match="mode 'reach' unknown"):
+        Agent(reacher, bare, tiny, seed=0, mode="reach")
+    with pytest.raises(ValueError, match="mode 'reach' unknown"):
+        idle.run(1, "reach")
+    assert len(Agent(reacher, bare, tiny, seed=0, mode="babble").run(3)) == 3
     with pytest.raises(ValueError, match="the effector is 'fingertip'"):
         Agent(reacher, bare, tiny, goal={"tip": [0.1, 0.0]})
     agent = Agent(reacher, bare, tiny, seed=0, goal={"fingertip": [0.1, 0.1]})
