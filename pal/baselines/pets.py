@@ -172,8 +172,13 @@ class CEMPlanner:
         """Forget the warm start (a new episode)."""
         self._mean = None
 
-    def _costs(self, obs: Tensor, seqs: Tensor) -> tuple[Tensor, Tensor]:
-        """Mean over members of the summed cost ``(P,)`` and the members' mean final observation ``(P, D)``."""
+    def costs(self, obs: Tensor, seqs: Tensor) -> tuple[Tensor, Tensor]:
+        """Mean over members of the summed cost ``(P,)`` and the members' mean final observation ``(P, D)``.
+
+        Args:
+            obs: ``(1, D)`` the observation now.
+            seqs: ``(P, H, A)`` candidate action sequences.
+        """
         k = self.model.config.members
         p, h, _ = seqs.shape
         o = obs.expand(k, p, obs.shape[-1])
@@ -193,13 +198,13 @@ class CEMPlanner:
             start = shift_plan(self._mean)[None]
 
         def objective(a: Tensor) -> Tensor:  # (R, 1, H, A) -> (R, 1)
-            return self._costs(o, a[:, 0])[0][:, None]
+            return self.costs(o, a[:, 0])[0][:, None]
 
         found = cross_entropy_search(
             objective, start, self.low, self.high, self.config.action.sampling, self.generator
         )
         best = found.elites[0, 0]
         with torch.no_grad():
-            _, final = self._costs(o, best[None])
+            _, final = self.costs(o, best[None])
         self._mean = best
         return best[0].numpy().astype(np.float64), final[0].numpy().astype(np.float64)

@@ -93,6 +93,17 @@ class SimulatorMPC:
         """Forget the warm start (a new episode)."""
         self._mean = None
 
+    @property
+    def plan(self) -> Tensor:
+        """The sequence chosen at the last :meth:`act`, ``(H, A)``.
+
+        Raises:
+            ValueError: :meth:`act` has not run since the last :meth:`reset`.
+        """
+        if self._mean is None:
+            raise ValueError("no plan yet: call act() first")
+        return self._mean
+
     def state(self) -> np.ndarray:
         """The environment's full physics state now, ``(nstate,)``."""
         out = np.empty(mujoco.mj_stateSize(self.sim.model, _FULL))

@@ -19,6 +19,11 @@ Per seed (``seed``, ``seed + 1``, ...), state-based (the spec :func:`pal.agent.p
    planner with the same settings and cost, predicting with the true simulator from the exact
    state: a learner's gap to it is its model's, its own gap to the goal the planner's.
 
+3. **ranking**: at each checkpoint, how each learner's model orders candidate plans by cost
+   at states of the ceiling's episodes, against the true order (Spearman correlation and the
+   regret of its pick, :mod:`pal.experiments.closed_loop.pusher_ranking`): a model error that
+   counts for planning, measurable before the learner moves anything.
+
 Scores (:mod:`pal.experiments.closed_loop.pusher_metrics`) per checkpoint and controller: the
 object-goal distance at the end of an episode in the table plane (x-y, m; Gymnasium's 3-D
 ``reward_dist`` is also given: its goal marker sits 4.8 cm lower than the object's centre),
@@ -44,6 +49,7 @@ from pal.baselines.pets import BaselineConfig
 from pal.checks import check_float, check_int
 from pal.experiments.closed_loop.pusher_metrics import CONTROLLERS, summarise
 from pal.experiments.closed_loop.pusher_protocol import one_seed
+from pal.experiments.closed_loop.pusher_ranking import RankingConfig
 from pal.lab.registry import register
 from pal.lab.report import Report
 from pal.lab.timing import torch_threads
@@ -106,7 +112,9 @@ class Config:
         eval_goals: evaluation episodes per seed and checkpoint.
         success: an episode succeeds when it ends within this x-y distance, m.
         model: the agent's world model and fit. plan: both planners' settings and step cost.
-        baseline: the PETS-style model and its fit (every refit). threads: torch threads per
+        baseline: the PETS-style model and its fit (every refit).
+        ranking: the probes of the models' rankings of candidate plans
+            (:mod:`pal.experiments.closed_loop.pusher_ranking`). threads: torch threads per
             process (one core: 1). workers: seeds run in this many processes at once.
     """
 
@@ -118,6 +126,7 @@ class Config:
     model: ModelConfig = MODEL
     plan: PlanConfig = PLAN
     baseline: BaselineConfig = BaselineConfig(epochs=20)
+    ranking: RankingConfig = RankingConfig()
     threads: int = 1
     workers: int = 1
 
@@ -125,10 +134,11 @@ class Config:
         check_int("seed", self.seed, minimum=0)
         for name in ("runs", "eval_goals", "threads", "workers"):
             check_int(name, getattr(self, name))
-        if not isinstance(self.aggregation, AggregationConfig):
-            raise ValueError(
-                f"aggregation must be an AggregationConfig, got {type(self.aggregation).__name__}"
-            )
+        for name, kind in (("aggregation", AggregationConfig), ("ranking", RankingConfig)):
+            if not isinstance(getattr(self, name), kind):
+                raise ValueError(
+                    f"{name} must be a {kind.__name__}, got {type(getattr(self, name)).__name__}"
+                )
         check_int("aggregation.episode_steps", self.aggregation.episode_steps, maximum=100)
         check_float("success", self.success, 0.0, open_low=True)
 
@@ -150,6 +160,7 @@ QUICK = Config(
         ),
     ),
     baseline=BaselineConfig(epochs=10),
+    ranking=RankingConfig(goals=1, steps=20, every=10, candidates=16),
 )
 TINY = Config(
     runs=1,
@@ -165,6 +176,7 @@ TINY = Config(
         ),
     ),
     baseline=BaselineConfig(members=2, hidden=(8,), epochs=2),
+    ranking=RankingConfig(goals=1, steps=2, every=2, candidates=4),
 )
 
 

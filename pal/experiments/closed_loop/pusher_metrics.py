@@ -89,7 +89,18 @@ def _blocks(config: Any, per_seed: dict[int, dict[str, Any]]) -> dict[str, dict[
             row[c] = block([r[c] for r in per_seed.values()], config.success)
         for c in ("pal", "baseline"):
             row[c]["env_steps"] = [r[c]["at"][point]["counts"]["env_steps"] for r in per_seed.values()]
+            row[c]["ranking"] = _ranking([r[c]["at"][point].get("ranking") for r in per_seed.values()])
         out[str(point)] = row
+    return out
+
+
+def _ranking(per_seed: list[dict[str, Any] | None]) -> dict[str, float | int | None]:
+    """The mean over seeds of each ranking score (:func:`pusher_ranking.score`), None where no seed has one."""
+    found = [r for r in per_seed if r]
+    out: dict[str, float | int | None] = {"probes": sum(int(r["probes"]) for r in found)}
+    for key in ("rho", "rho_obj", "regret"):
+        v = [r[key] for r in found if r[key] is not None]
+        out[key] = float(np.mean(v)) if v else None
     return out
 
 
@@ -192,6 +203,11 @@ def _tables(config: Any, at: dict[str, dict[str, Any]], training: dict[str, Any]
                 ]
             )
     counts = [[c, i, *r.values()] for c in ("pal", "baseline") for i, r in enumerate(training[c]["counts"])]
+    ranking = [
+        [int(point), c, *(row[c]["ranking"][k] for k in ("rho", "rho_obj", "regret", "probes"))]
+        for point, row in at.items()
+        for c in ("pal", "baseline")
+    ]
     return [
         Table(
             "Learning curve: final object-goal distance (x-y) over seeds x goals at each checkpoint",
@@ -211,6 +227,22 @@ def _tables(config: Any, at: dict[str, dict[str, Any]], training: dict[str, Any]
             caption="The baseline is a PETS-style ensemble with CEM written for this comparison, not the authors' code. "
             "simulator: the same planner and cost with the true simulator as its model (the planner's ceiling). "
             "It and random torques do not learn: the same episodes stand at every checkpoint.",
+        ),
+        Table(
+            "How each learner's model ranks candidate plans at states of the ceiling's episodes (mean over seeds)",
+            [
+                "env steps",
+                "learner",
+                "Spearman, summed cost",
+                "Spearman, final object-goal",
+                "regret",
+                "probes",
+            ],
+            ranking,
+            caption="Spearman correlation of the model's predicted and the true summed step cost (and final "
+            "object-goal distance) over candidates around the ceiling's plan; regret 0: the model's pick is the "
+            "best candidate, 1: a median one (pal.experiments.closed_loop.pusher_ranking). n/a: no probes, or a "
+            "model that predicts the same final object position for every candidate.",
         ),
         Table(
             "What aggregation spent, per learner and seed",

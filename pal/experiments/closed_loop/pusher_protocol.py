@@ -17,6 +17,7 @@ import numpy as np
 from pal.agent import Agent, AgentConfig, pusher_spec
 from pal.agent.aggregate import AgentLearner, Counts, run_rounds
 from pal.baselines.pets_aggregate import PetsLearner
+from pal.experiments.closed_loop.pusher_ranking import Probe, pal_predictor, pets_predictor, probes, score
 from pal.experiments.closed_loop.pusher_runs import (
     ENV_ID,
     MOVED,
@@ -52,7 +53,7 @@ def _log_point(name: str, seed: int, point: int, counts: Counts, episodes: list[
     )
 
 
-def _pal(config: Any, seed: int, goals: list[int]) -> dict[str, Any]:
+def _pal(config: Any, seed: int, goals: list[int], found: list[Probe] | None = None) -> dict[str, Any]:
     """The agent's rounds and its checkpoint evaluations."""
     cfg = AgentConfig(model=config.model, plan=config.plan, reset_every=None, servo=False)
     steps, h = config.aggregation.episode_steps, config.plan.action.horizon
@@ -63,7 +64,12 @@ def _pal(config: Any, seed: int, goals: list[int]) -> dict[str, Any]:
         judge = Agent(eval_env, pusher_spec(), cfg, seed=_seed(seed, 92, point), model=agent.model)
         episodes = [agent_episode(judge, s, steps, h) for s in goals]
         _log_point("pal", seed, point, counts, episodes)
-        return {"counts": counts.to_dict(), "episodes": episodes}
+        ranking = (
+            score(found, pal_predictor(agent.model, config.plan), config.plan)
+            if found and agent.fitted
+            else None
+        )
+        return {"counts": counts.to_dict(), "episodes": episodes, "ranking": ranking}
 
     result = run_rounds(
         AgentLearner(agent, agent_rollout(h)), config.aggregation, seed=seed, at_checkpoint=evaluate
@@ -78,7 +84,7 @@ def _pal(config: Any, seed: int, goals: list[int]) -> dict[str, Any]:
     }
 
 
-def _baseline(config: Any, seed: int, goals: list[int]) -> dict[str, Any]:
+def _baseline(config: Any, seed: int, goals: list[int], found: list[Probe] | None = None) -> dict[str, Any]:
     """The PETS-style baseline's rounds and its checkpoint evaluations."""
     steps, h = config.aggregation.episode_steps, config.plan.action.horizon
     env, eval_env = gymnasium.make(ENV_ID), gymnasium.make(ENV_ID)
@@ -87,7 +93,8 @@ def _baseline(config: Any, seed: int, goals: list[int]) -> dict[str, Any]:
     def evaluate(point: int, counts: Counts) -> dict[str, Any]:
         episodes = [pets_record(learner.run(eval_env, s, steps, False, record=False), h) for s in goals]
         _log_point("baseline", seed, point, counts, episodes)
-        return {"counts": counts.to_dict(), "episodes": episodes}
+        ranking = score(found, pets_predictor(learner), config.plan) if found and learner.fitted else None
+        return {"counts": counts.to_dict(), "episodes": episodes, "ranking": ranking}
 
     result = run_rounds(learner, config.aggregation, seed=seed, at_checkpoint=evaluate)
     training = [pets_record(e, h) for e in result.episodes]
@@ -112,11 +119,15 @@ def one_seed(config: Any, seed: int) -> dict[str, Any]:
         ``{"pal": run, "baseline": run, "simulator": [Episode per goal], "random": [Episode per goal]}``,
         each run
         ``{"counts", "training": [Episode per round], "steps": [env steps after each round],
-        "at": {checkpoint: {"counts", "episodes": [Episode per goal]}}}``.
+        "at": {checkpoint: {"counts", "episodes": [Episode per goal], "ranking": scores or None}}}``
+        (``ranking``: :func:`pusher_ranking.score` on the seed's probes, None without probes or
+        before a first fit).
     """
     goals = [_seed(seed, 91, g) for g in range(config.eval_goals)]
-    out = {"pal": _pal(config, seed, goals), "baseline": _baseline(config, seed, goals)}
     env = gymnasium.make(ENV_ID)
+    seeds = [_seed(seed, 93, g) for g in range(config.ranking.goals)]
+    found = probes(env, config.plan, config.ranking, seeds)
+    out = {"pal": _pal(config, seed, goals, found), "baseline": _baseline(config, seed, goals, found)}
     steps = config.aggregation.episode_steps
     out["simulator"] = [simulator_episode(env, config.plan, s, steps) for s in goals]
     out["random"] = [random_episode(env, s, steps) for s in goals]

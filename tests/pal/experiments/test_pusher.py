@@ -35,6 +35,8 @@ def test_pusher_reports_checkpoint_rows_for_three_controllers_and_does_not_evalu
         for c in ("pal", "baseline"):
             assert row[c]["env_steps"] == [point]
             assert row[c]["predicted_final"]["mean"] is not None
+            ranking = row[c]["ranking"]  # one probe of the ceiling's episode, 4 candidates
+            assert ranking["probes"] == 1 and -1.0 <= ranking["rho"] <= 1.0 and ranking["regret"] >= 0.0
     for c in ("pal", "baseline"):
         counts = m["training"][c]["counts"][0]
         assert counts == {
@@ -52,6 +54,8 @@ def test_pusher_reports_checkpoint_rows_for_three_controllers_and_does_not_evalu
         and verdicts["pal_step_cpu_seconds"] == "not evaluated"
     )
     assert all(v != "met" for v in verdicts.values())
+    assert rep.tables[1].title.startswith("How each learner's model ranks candidate plans")
+    assert len(rep.tables[1].rows) == 2 * len(agg.checkpoints)
     assert rep.figures["learning_curve"].axes[0].get_xlabel() == "environment steps"
     # one goal: tip and object of each controller, their starts, and the goal
     assert len(rep.figures["paths"].axes[0].get_lines()) == 3 * len(pusher.CONTROLLERS) + 1
