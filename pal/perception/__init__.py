@@ -27,6 +27,7 @@ from pal.perception.concepts import Categorization, ConceptualSpace, Domain, Ent
 from pal.perception.egomotion import CameraMotion, EgoMotion, EgoMotionConfig
 from pal.perception.filters import OneEuroConfig, OneEuroFilter, one_euro
 from pal.perception.folders import FolderSequence
+from pal.perception.fragments import FragmentMerger, MergeConfig
 from pal.perception.frames import RGBDFrame, backproject, check_intrinsics, crop_intrinsics, project
 from pal.perception.grounding import PREDICATES, GroundingConfig
 from pal.perception.icp import IcpConfig
@@ -44,6 +45,7 @@ from pal.perception.normalise import NotFittedError, RobustNormaliser
 from pal.perception.pipeline import ObjectState, PerceptionState, Pipeline, PipelineConfig
 from pal.perception.pose import PoseConfig, PoseEstimator
 from pal.perception.pose_checks import PoseChecks
+from pal.perception.reid import ReidConfig
 from pal.perception.relations import TOPOLOGY, PairRelation, RelationConfig, SceneRelations, scene_relations
 from pal.perception.samples import SAMPLES, open_sample
 from pal.perception.scene import OBJECT_KEYS, SCENE_KEYS, scene_descriptor
@@ -86,6 +88,7 @@ __all__ = [
     "EgoMotionConfig",
     "Entity",
     "FolderSequence",
+    "FragmentMerger",
     "FrameSequence",
     "Gallery",
     "GeometricSegmenter",
@@ -94,6 +97,7 @@ __all__ = [
     "KinematicConfig",
     "KinematicDescriptor",
     "Mask",
+    "MergeConfig",
     "NotFittedError",
     "ObjectRecord",
     "ObjectState",
@@ -112,6 +116,7 @@ __all__ = [
     "PoseEstimator",
     "RGBDFrame",
     "RecordedSequence",
+    "ReidConfig",
     "RelationConfig",
     "RobustNormaliser",
     "SceneRelations",

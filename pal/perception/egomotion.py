@@ -40,6 +40,7 @@ the tracker predicts masks with it, the pose estimator checks object poses again
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -49,10 +50,11 @@ import numpy as np
 from pal.checks import check_float, check_int
 from pal.perception.features import Features, guided_matches
 from pal.perception.frames import RGBDFrame, backproject
+from pal.perception.masks import Mask
 from pal.perception.plane import Plane
 from pal.perception.pnp import RgbdFit, pnp_ransac, refine_pose, reprojection_errors
 
-__all__ = ["CameraMotion", "EgoMotion", "EgoMotionConfig"]
+__all__ = ["CameraMotion", "EgoMotion", "EgoMotionConfig", "feature_weights"]
 
 MotionSource = Literal["first", "estimated", "static", "lost"]
 
@@ -425,3 +427,35 @@ def _plane_agrees(
     d = previous.offset - float(n @ T[:3, 3])
     angle = float(np.degrees(np.arccos(np.clip(n @ current.normal, -1.0, 1.0))))
     return angle <= deg and abs(d - current.offset) <= metres
+
+
+def feature_weights(
+    frame: RGBDFrame,
+    keypoints: np.ndarray,
+    objects: Sequence[Mask],
+    moving: Sequence[Mask],
+    object_weight: float,
+) -> np.ndarray:
+    """Camera-motion weight of each feature: (N,) float64 from (N, 2) keypoints, pixels.
+
+    1 on the background, ``object_weight`` on ``objects`` (this frame's candidates), 0 on
+    ``moving`` (where moving tracks were last seen). Masks are grown by 8 pixels (at 640
+    columns): a corner on an object's silhouette moves with the object, not with the background.
+    """
+    w = np.ones(len(keypoints))
+    if len(keypoints) == 0:
+        return w
+    on = np.zeros(frame.shape, dtype=np.uint8)
+    for m in objects:
+        x0, y0, x1, y1 = m.bbox
+        on[y0:y1, x0:x1] |= m.crop.view(np.uint8)
+    for m in moving:
+        x0, y0, x1, y1 = m.bbox
+        on[y0:y1, x0:x1][m.crop] = 2
+    r = max(1, round(8 * frame.width / 640))
+    on = cv2.dilate(on, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
+    kp = np.rint(keypoints).astype(np.int64)
+    cls = on[np.clip(kp[:, 1], 0, frame.height - 1), np.clip(kp[:, 0], 0, frame.width - 1)]
+    w[cls == 1] = object_weight
+    w[cls == 2] = 0.0
+    return w

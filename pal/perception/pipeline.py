@@ -5,7 +5,10 @@ Per frame: checks (time order, some valid depth) -> segmentation Σ (geometric o
 camera's motion and refined, :mod:`pal.perception.propagation`, and keep their ids) ->
 the frame's features, once -> the camera's own motion from the static background
 (:mod:`pal.perception.egomotion`) -> association to memory with masks predicted under that
-motion, appearance and the fragment rule (stable ids) -> for each associated object: spatial
+motion, appearance and the fragment rule (stable ids; an object lost for a moment takes its id
+back by predicted 3-D position and gallery appearance, :mod:`pal.perception.reid`) -> with
+``merge``, pieces that moved rigidly together reported as one object
+(:mod:`pal.perception.fragments`) -> for each associated object: spatial
 descriptor, pose (optional; a static object's egomotion prediction when the live data confirm
 it, :mod:`pal.perception.pose_predicted`, else a fit with world-frame gates and consistency with
 the camera's motion) and EEMS admission (skipped for a confirmed prediction) -> missing objects get a ``lost`` (or flagged ``propagated``) pose sample ->
@@ -38,13 +41,13 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Literal
 
-import cv2
 import numpy as np
 
 from pal.frames import TimestampOrderError
-from pal.perception.egomotion import CameraMotion, EgoMotion, EgoMotionConfig
+from pal.perception.egomotion import CameraMotion, EgoMotion, EgoMotionConfig, feature_weights
 from pal.perception.features import Features
 from pal.perception.filters import OneEuroConfig, OneEuroFilter
+from pal.perception.fragments import FragmentMerger, MergeConfig
 from pal.perception.frames import RGBDFrame
 from pal.perception.kinematic import KinematicConfig, KinematicDescriptor, trajectory_descriptor
 from pal.perception.masks import Mask
@@ -54,6 +57,7 @@ from pal.perception.pose import PoseConfig, PoseEstimator, position_std
 from pal.perception.pose_predicted import predicted_pose
 from pal.perception.propagation import PropagationConfig, carried_plane, propagate_masks
 from pal.perception.regions import metric_area
+from pal.perception.reid import gallery_histograms
 from pal.perception.relations import RelationConfig, SceneRelations, scene_relations
 from pal.perception.scene import scene_descriptor
 from pal.perception.segmentation import Candidate, GeometricSegmenter, OracleSegmenter, SegmentationConfig
@@ -94,6 +98,8 @@ class PipelineConfig:
             origin is a point fixed on the object, the centroid is that of the visible surface.
         smoothing: a 1€ filter on reported positions (reset when their source changes), or None.
         forget_after_s: drop records dead for longer than this, s (None: keep all).
+        merge: merge fragments that move rigidly together (:mod:`pal.perception.fragments`;
+            needs ``estimate_pose``), or None (default) to keep them apart.
         seed: seeds every random choice (plane, camera-motion and pose RANSAC).
     """
 
@@ -111,6 +117,7 @@ class PipelineConfig:
     position_source: PositionSource = "pose_then_centroid"
     smoothing: OneEuroConfig | None = None
     forget_after_s: float | None = None
+    merge: MergeConfig | None = None
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -146,6 +153,7 @@ class Pipeline:
         else:
             self.segmenter = OracleSegmenter(cfg.oracle_background_ids, min_area=cfg.segmentation.min_area)
         self.tracker = Tracker(cfg.tracker)
+        self.merger = None if cfg.merge is None else FragmentMerger(cfg.merge)
         self.estimator = PoseEstimator(cfg.pose, np.random.default_rng(pose_seed))
         self.egomotion = (
             None
@@ -210,12 +218,13 @@ class Pipeline:
                 candidates, carried = self.segmenter(frame), False
             timings["segmentation"] += time.perf_counter() - clock
             clock = time.perf_counter()
-        observations = self.tracker.update(
-            candidates, t, frame=frame, motion=camera, known_ids=carry is not None and carried
-        )
+        known = carry is not None and carried
+        observations = self.tracker.update(candidates, t, frame=frame, motion=camera, known_ids=known, gallery=self._views)
         self._since_full = self._since_full + 1 if carry is not None and carried else 0
         if self.config.propagation is not None:
             self._carry = (frame.depth, candidates, {o.track_id: o.mask for o in observations})
+        if self.merger is not None:
+            observations = self.merger.apply(observations)
         timings["tracking"], clock = time.perf_counter() - clock, time.perf_counter()
         states: dict[int, ObjectState] = {}
         t_pose = t_mem = 0.0
@@ -229,6 +238,11 @@ class Pipeline:
         clock = time.perf_counter()
         self._add_missing(states, t)
         self._forget(t)
+        W = np.eye(4) if camera is None else camera.world_from_camera
+        merges = () if self.merger is None else tuple(self.merger.update(self.frame_count, states, W))
+        for kept, merged in merges:
+            self.records.pop(merged, None)
+            logger.info("object %d merged into %d: they move rigidly together", merged, kept)
         support = getattr(self.segmenter, "last_plane", None)
         relations = None if cfg.relations is None else self._relations(frame, states, support)
         timings["relations"], clock = time.perf_counter() - clock, time.perf_counter()
@@ -245,7 +259,7 @@ class Pipeline:
                 raise RuntimeError(
                     f"internal error: object {o.obj_id} has a non-finite position {o.position} / std {o.position_std}"
                 )
-        return PerceptionState(t, self.frame_count - 1, objects, scene, relations, timings, camera, support)
+        return PerceptionState(t, self.frame_count - 1, objects, scene, relations, timings, camera, support, merges)
 
     def _due_carry(self, t: float) -> tuple[np.ndarray, list[Candidate], dict[int, Mask]] | None:
         """The previous frame's (depth, candidates, masks by id) when this frame at ``t`` s propagates them, else None."""
@@ -353,21 +367,14 @@ class Pipeline:
         spent_pose, spent_mem = c1 - c0, time.perf_counter() - c1
         rec.last_decision = decision
         position, std, source = self._position(obs.track_id, frame, pose, spatial)
-        state = ObjectState(
-            obs.track_id,
-            True,
-            obs.status,
-            obs.label,
-            obs.mask,
-            spatial,
-            pose,
-            position,
-            std,
-            source,
-            len(rec.gallery),
-            decision,
-        )
+        rest = (position, std, source, len(rec.gallery), decision)
+        state = ObjectState(obs.track_id, True, obs.status, obs.label, obs.mask, spatial, pose, *rest)
         return state, spent_pose, spent_mem
+
+    def _views(self, tid: int) -> list[np.ndarray]:
+        """Hue-saturation histograms of the views in object ``tid``'s gallery (re-identification)."""
+        snaps = self.records[tid].gallery.snapshots if tid in self.records else []
+        return gallery_histograms([s.rgb for s in snaps], [s.mask for s in snaps])
 
     def _record(self, obs: Observation, t: float) -> ObjectRecord:
         """The record of an observed track (a new one at its birth), updated with the observation."""
@@ -385,7 +392,7 @@ class Pipeline:
     def _add_missing(self, states: dict[int, ObjectState], t: float) -> None:
         """Add the tracked objects not associated in this frame, with a ``lost`` or ``propagated`` pose."""
         for tid in sorted(self.tracker.tracks):
-            if tid in states:
+            if tid in states or (self.merger is not None and tid in self.merger.aliases):
                 continue
             rec = self.records[tid]
             pose = None
@@ -423,37 +430,22 @@ class Pipeline:
         )
 
     def _weights(self, frame: RGBDFrame, features: Features, candidates: list) -> np.ndarray:
-        """Camera-motion weight of each frame feature.
+        """Camera-motion weight of each frame feature (:func:`pal.perception.egomotion.feature_weights`).
 
-        1 on the background, ``object_weight`` on objects, 0 where a moving track was last seen
-        (its pose moved in the world, or faster than 5 cm/s between its last two estimates; without
-        a pose, its surface moved 3 cm in the world).
-        Masks are grown by 8 pixels (at 640 columns): a corner on an object's silhouette moves
-        with the object, not with the background.
+        0 where a moving track was last seen: its pose moved in the world, or faster than 5 cm/s
+        between its last two estimates; without a pose, its surface moved 3 cm in the world.
         """
         assert self.config.camera_motion is not None
-        w = np.ones(len(features))
-        if len(features) == 0:
-            return w
-        on = np.zeros(frame.shape, dtype=np.uint8)
-        for c in candidates:
-            x0, y0, x1, y1 = c.mask.bbox
-            on[y0:y1, x0:x1] |= c.mask.crop.view(np.uint8)
+        moving = []
         for tid, tr in self.tracker.tracks.items():
             rec = self.records.get(tid)
             posed = rec is not None and rec.world_pose is not None
             if (posed and (rec.moving or rec.speed > 0.05)) or (not posed and tr.moving):  # type: ignore[union-attr]
-                x0, y0, x1, y1 = tr.mask.bbox
-                on[y0:y1, x0:x1][tr.mask.crop] = 2
-        r = max(1, round(8 * frame.width / 640))
-        on = cv2.dilate(on, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
-        kp = np.rint(features.keypoints).astype(np.int64)
-        u = np.clip(kp[:, 0], 0, frame.width - 1)
-        v = np.clip(kp[:, 1], 0, frame.height - 1)
-        cls = on[v, u]
-        w[cls == 1] = self.config.camera_motion.object_weight
-        w[cls == 2] = 0.0
-        return w
+                moving.append(tr.mask)
+        masks = [c.mask for c in candidates]
+        return feature_weights(
+            frame, features.keypoints, masks, moving, self.config.camera_motion.object_weight
+        )
 
     def _salience(self, tid: int, frame: RGBDFrame) -> float:
         """Metric size (m²) x stability (fraction of frames seen since born) x trackedness (2 with a pose)."""

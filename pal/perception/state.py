@@ -69,6 +69,8 @@ class PerceptionState:
         camera: the camera's motion since the previous frame (None when the camera is
             configured static).
         support: the support plane of this frame (None with the oracle segmenter or without one).
+        merges: fragments merged in this frame, ``(kept id, merged id)``
+            (:mod:`pal.perception.fragments`; reported under the kept id from the next frame).
     """
 
     timestamp: float
@@ -79,6 +81,7 @@ class PerceptionState:
     timings: dict[str, float]
     camera: CameraMotion | None = None
     support: Plane | None = None
+    merges: tuple[tuple[int, int], ...] = ()
 
     def object(self, obj_id: int) -> ObjectState:
         """The state of object ``obj_id``; KeyError if it is not in this frame's state."""

@@ -32,6 +32,9 @@ stages:
 1. candidates against tracks seen in the previous update;
 2. re-identification: the remaining candidates against tracks missing for at most
    ``reid_window_s`` seconds (the proof of concept's 2.0 s rule);
+2b. with ``reid`` (frame given), the remaining candidates against the tracks missing for at most
+   ``reid.max_gap_s`` by predicted 3-D position and memory-gallery appearance
+   (:mod:`pal.perception.reid`);
 3. every remaining candidate is born as a new track with a fresh id (ids are never reused).
 
 A track missing for longer than ``reid_window_s`` dies: it is no longer associated, and its id
@@ -40,8 +43,8 @@ is listed in :attr:`Tracker.dead`.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal
 
 import cv2
@@ -57,6 +60,7 @@ from pal.perception.association import (
 from pal.perception.frames import RGBDFrame
 from pal.perception.masks import Mask, intersection_area
 from pal.perception.regions import metric_area
+from pal.perception.reid import ReidConfig, match_lost, world_medians
 from pal.perception.segmentation import Candidate
 
 if TYPE_CHECKING:
@@ -86,6 +90,8 @@ class TrackerConfig:
         sample_step: pixel step of the surface sample a track keeps; None: ``max(2, W // 160)``.
         moving_threshold: a track whose surface's median moves this far in the world from where
             it was first seen is *moving* (its features do not count for the camera's motion), m.
+        reid: re-identification of lost tracks by predicted 3-D position and gallery
+            appearance (:mod:`pal.perception.reid`), or None for the overlap stage alone.
     """
 
     tau_iou: float = 0.5
@@ -99,6 +105,7 @@ class TrackerConfig:
     min_size_ratio: float = 0.25
     sample_step: int | None = None
     moving_threshold: float = 0.03
+    reid: ReidConfig | None = field(default_factory=ReidConfig)
 
     def __post_init__(self) -> None:
         for name in ("tau_iou", "tau_iom", "tau_predicted", "max_appearance"):
@@ -151,6 +158,7 @@ class Track:
         origin: (3,) world position of the surface sample's median when first seen, or None.
         centre: (3,) its latest world position, or None.
         speed: world speed of that median between the last two observations, m/s.
+        world_velocity: (3,) its world velocity between the last two observations, m/s.
         moving: the track's surface has moved more than ``moving_threshold`` in the world.
     """
 
@@ -168,6 +176,7 @@ class Track:
     origin: np.ndarray | None = None
     centre: np.ndarray | None = None
     speed: float = 0.0
+    world_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
     moving: bool = False
 
     def predicted(self, t: float, horizon: float) -> Mask | None:
@@ -342,6 +351,7 @@ class Tracker:
         frame: RGBDFrame | None = None,
         motion: CameraMotion | None = None,
         known_ids: bool = False,
+        gallery: Callable[[int], list[np.ndarray]] | None = None,
     ) -> list[Observation]:
         """Associate this frame's candidates; returns one observation per candidate, in input order.
 
@@ -353,11 +363,13 @@ class Tracker:
             motion: the camera's motion to this frame (None: the camera is static).
             known_ids: the candidates' labels are live track ids (masks propagated from the
                 previous frame): each joins its track; unknown labels go through association.
+            gallery: a track id -> the hue-saturation histograms of its memory gallery's views
+                (:func:`pal.perception.reid.gallery_histograms`; empty list: none yet).
 
         Raises:
             ValueError: ``timestamp`` is earlier than the previous update's.
         """
-        self._frame, self._motion = frame, motion
+        self._frame, self._motion, self._candidates = frame, motion, candidates
         self._predictions: dict[tuple[int, float], list[Mask]] = {}
         self._cand_info: list[tuple[float, np.ndarray]] | None = None
         if frame is not None:
@@ -397,6 +409,10 @@ class Tracker:
                 self._update_track(tid, candidates, i, t)
                 result[i] = Observation(tid, candidates[i].mask, candidates[i].label, status, a, b)  # type: ignore[arg-type]
                 free.remove(i)
+        for i, tid in self._reidentify(free, missing, result, t, gallery):
+            self._update_track(tid, candidates, i, t)
+            result[i] = Observation(tid, candidates[i].mask, candidates[i].label, "reidentified")
+            free.remove(i)
         for i in free:
             tid = self._next_id
             self._next_id += 1
@@ -419,7 +435,8 @@ class Tracker:
             here = W[:3, :3] @ np.median(tr.points, axis=0) + W[:3, 3]
             dt = self._last_time - self._seen_before if self._seen_before is not None else 0.0
             if tr.centre is not None and dt > 0:
-                tr.speed = float(np.linalg.norm(here - tr.centre)) / dt
+                tr.world_velocity = (here - tr.centre) / dt
+                tr.speed = float(np.linalg.norm(tr.world_velocity))
             tr.centre = here
             if tr.origin is None:
                 tr.origin = here
@@ -440,3 +457,40 @@ class Tracker:
             tr.velocity = ((u1 - u0) / (t - tr.last_seen), (v1 - v0) / (t - tr.last_seen))
         tr.mask, tr.label, tr.last_seen, tr.hits = cand.mask, cand.label, t, tr.hits + 1
         self._remember(tr, i)
+
+    def _reidentify(
+        self,
+        free: list[int],
+        missing: list[int],
+        result: dict[int, Observation],
+        t: float,
+        gallery: Callable[[int], list[np.ndarray]] | None,
+    ) -> list[tuple[int, int]]:
+        """(candidate, track) pairs of the position-and-gallery stage (:mod:`pal.perception.reid`)."""
+        cfg, frame, info = self.config.reid, self._frame, self._cand_info
+        if cfg is None or frame is None or info is None or not free:
+            return []
+        taken = {o.track_id for o in result.values()}
+        trs = [
+            tr
+            for tid in missing
+            if tid not in taken
+            and (tr := self.tracks[tid]).centre is not None
+            and tr.appearance is not None
+            and t - tr.last_seen <= cfg.max_gap_s
+        ]
+        if not trs:
+            return []
+        W = np.eye(4) if self._motion is None else self._motion.world_from_camera
+        gaps = np.array([t - tr.last_seen for tr in trs])
+        ahead = np.minimum(gaps, cfg.max_gap_s)[:, None]
+        predicted = np.stack([tr.centre for tr in trs]) + ahead * np.stack([tr.world_velocity for tr in trs])
+        views = [(gallery(tr.track_id) if gallery is not None else []) or [tr.appearance] for tr in trs]
+        masks = [self._candidates[i].mask for i in free]
+        cand = (
+            world_medians(frame, masks, W, self._step(frame)),
+            [info[i][1] for i in free],
+            [info[i][0] for i in free],
+        )
+        matches = match_lost(*cand, predicted, views, np.array([tr.size for tr in trs]), gaps, cfg)  # type: ignore[arg-type]
+        return [(free[r], trs[c].track_id) for r, c, _, _ in matches]
