@@ -31,7 +31,7 @@ from pal.agent import Agent, AgentConfig, ModelConfig, pusher_spec
 from pal.agent.config import MODEL_SCHEDULE
 from pal.checks import check_float, check_int
 from pal.experiments.closed_loop.pusher import MODEL
-from pal.experiments.closed_loop.pusher_runs import ENV_ID
+from pal.experiments.closed_loop.pusher_runs import ENV_ID, roots
 from pal.lab.registry import register
 from pal.lab.report import Precondition, Report, Table, Target
 
@@ -104,25 +104,16 @@ def _held_out(env: gymnasium.Env, config: Config) -> list[tuple[np.ndarray, np.n
 
 def _starts(episodes: list[tuple[np.ndarray, np.ndarray]], config: Config) -> dict[str, np.ndarray]:
     """The lag-1 roots at each start (N, d), the torques (N, H, 7), and the true angles and tip (N, H, d)."""
-    rows: dict[str, list[np.ndarray]] = {
-        k: [] for k in ("q_prev", "v_prev", "ee_prev", "pos_prev.object", "vel_prev.object", "act", "q", "ee")
-    }
     h = config.horizon
+    parts: dict[str, list[np.ndarray]] = {}
     for obs, torques in episodes:
-        for s in range(1, _STEPS - h + 1, config.stride):
-            o = obs[s]
-            for key, value in (
-                ("q_prev", o[:7]),
-                ("v_prev", o[7:14]),
-                ("ee_prev", o[14:17]),
-                ("pos_prev.object", o[17:20]),
-                ("vel_prev.object", o[17:20] - obs[s - 1, 17:20]),
-                ("act", torques[s : s + h]),
-                ("q", obs[s + 1 : s + h + 1, :7]),
-                ("ee", obs[s + 1 : s + h + 1, 14:17]),
-            ):
-                rows[key].append(value)
-    return {k: np.stack(v) for k, v in rows.items()}
+        s = np.arange(1, _STEPS - h + 1, config.stride)
+        window = s[:, None] + np.arange(h)  # (n, H): the steps each start rolls over
+        found = roots(obs[s - 1], obs[s])
+        found |= {"act": torques[window], "q": obs[window + 1, :7], "ee": obs[window + 1, 14:17]}
+        for key, value in found.items():
+            parts.setdefault(key, []).append(value)
+    return {k: np.concatenate(v) for k, v in parts.items()}
 
 
 def _fit(env: gymnasium.Env, config: Config) -> tuple[Agent, float]:

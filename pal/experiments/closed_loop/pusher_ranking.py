@@ -32,13 +32,13 @@ from inference.planning import colored_noise
 from pal.agent.config import PlanConfig
 from pal.baselines.simulator_mpc import SimulatorMPC, pusher_observation
 from pal.checks import check_float, check_int
-from pal.experiments.closed_loop.pusher_runs import step_cost
+from pal.experiments.closed_loop.pusher_runs import roots, step_cost
 
 __all__ = ["Probe", "RankingConfig", "pal_predictor", "pets_predictor", "probes", "score"]
 
 #: ``(previous obs (D,), obs (D,), actions (N, H, A)) -> (summed cost (N,), final obs (N, D))``.
 Predictor = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
-_Q, _V, _TIP, _OBJ, _GOAL = slice(0, 7), slice(7, 14), slice(14, 17), slice(17, 20), slice(20, 23)
+_OBJ, _GOAL = slice(17, 20), slice(20, 23)
 
 
 @dataclass(frozen=True)
@@ -150,17 +150,11 @@ def pal_predictor(model: object, plan: PlanConfig) -> Predictor:
 
     def predict(previous: np.ndarray, obs: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         n, h, _ = actions.shape
-        roots = {
-            "q_prev": obs[_Q],
-            "v_prev": obs[_V],
-            "ee_prev": obs[_TIP],
-            "pos_prev.object": obs[_OBJ],
-            "vel_prev.object": obs[_OBJ] - previous[_OBJ],
-        }
+        state = roots(previous, obs)
         dtype = model.dtype  # type: ignore[attr-defined]
         graph = model.graph  # type: ignore[attr-defined]
         lagged = [r for r in graph.roots if graph[r].lag == 1]
-        init = {r: torch.as_tensor(np.tile(roots[r], (n, 1)), dtype=dtype) for r in lagged}
+        init = {r: torch.as_tensor(np.tile(state[r], (n, 1)), dtype=dtype) for r in lagged}
         act = torch.as_tensor(actions, dtype=dtype)
         out = model.rollout(init, {"act": act}, members=True)  # type: ignore[attr-defined]
         k = out["ee"].shape[0]

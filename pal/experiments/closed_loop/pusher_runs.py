@@ -42,6 +42,7 @@ __all__ = [
     "distances",
     "pets_record",
     "random_episode",
+    "roots",
     "simulator_episode",
     "step_cost",
 ]
@@ -132,6 +133,20 @@ def _observation(percept: Any) -> np.ndarray:
     """The Pusher observation layout (23,) rebuilt from the agent's percept."""
     p = percept
     return np.concatenate([p.q, p.v, p.effector, p.measurements["object"].position, p.goals["object"]])
+
+
+def roots(previous: np.ndarray, obs: np.ndarray) -> dict[str, np.ndarray]:
+    """The agent's lag-1 roots (:func:`pal.agent.pusher_spec`'s graph) from Pusher-v5 observations (..., 23).
+
+    ``vel_prev.object`` is the object's last displacement, ``obs - previous``.
+    """
+    return {
+        "q_prev": obs[..., :7],
+        "v_prev": obs[..., 7:14],
+        "ee_prev": obs[..., _TIP],
+        "pos_prev.object": obs[..., _OBJ],
+        "vel_prev.object": obs[..., _OBJ] - previous[..., _OBJ],
+    }
 
 
 def agent_episode(agent: Agent, seed: int, steps: int, horizon: int, random: bool = False) -> Episode:
