@@ -59,8 +59,9 @@ class AggregationConfig:
         rounds: episodes R, each followed by a refit (after the last random round, for random ones).
         episode_steps: environment steps per episode (an episode the environment ends early is shorter).
         random_rounds: leading episodes of random actions (1: PETS; more: the babbling-heavy protocol).
-        checkpoints: environment-step counts, strictly increasing and within the budget
-            ``rounds * episode_steps``, at which ``at_checkpoint`` is called.
+        checkpoints: environment-step counts, strictly increasing, from the first fit
+            (``max(random_rounds, 1) * episode_steps``) to the budget ``rounds * episode_steps``,
+            at which ``at_checkpoint`` is called.
     """
 
     rounds: int = 60
@@ -82,6 +83,13 @@ class AggregationConfig:
             raise ValueError(
                 f"checkpoint {points[-1]} is beyond the step budget {self.budget} "
                 f"(rounds {self.rounds} x episode_steps {self.episode_steps}); raise rounds or drop it"
+            )
+        first = max(self.random_rounds, 1) * self.episode_steps
+        if points and points[0] < first:
+            raise ValueError(
+                f"checkpoint {points[0]} comes before the first fit at {first} steps (after {self.random_rounds} "
+                f"random rounds of {self.episode_steps} steps), so it would score the model fitted there; "
+                f"start the checkpoints at {first} or lower random_rounds"
             )
         object.__setattr__(self, "checkpoints", points)
 

@@ -4,8 +4,8 @@ A planner that looks H steps ahead needs the model's H-step predictions, not its
 The agent (:func:`pal.agent.pusher_spec`, the ``pusher`` experiment's world model) babbles
 ``train_episodes`` episodes of uniform random torques and fits once. Held-out episodes, each
 from its own seeded reset, apply colored-noise torques like the planner's samples (exponent
-``beta``, sd ``scale`` in torque units, clipped to the bounds). From every ``stride``-th step s
-of a held-out episode the model rolls the recorded torques forward ``horizon`` steps with no
+``beta``, sd ``torque_sd`` in torque units, clipped to the bounds). From every ``stride``-th step s
+of a held-out episode the model rolls the recorded torques forward ``rollout_steps`` steps with no
 feedback (:meth:`models.WorldModel.rollout`, the mean over members), and is scored at the
 checkpoints k of ``steps``:
 
@@ -48,18 +48,18 @@ class Config:
         seed: the agent's seed; training episodes reset with ``seed`` and held-out ones with ``seed + 1``.
         train_episodes: random-torque episodes of 100 steps the model is fitted on.
         test_episodes: held-out colored-noise episodes of 100 steps.
-        horizon: open-loop steps per start. stride: steps between starts. steps: the checkpoints k.
-        scale: sd of the held-out torques. beta: their colour exponent.
+        rollout_steps: open-loop steps per start. stride: steps between starts. steps: the checkpoints k.
+        torque_sd: sd of the held-out torques. beta: their colour exponent.
         model: the agent's world model and fit.
     """
 
     seed: int = 0
     train_episodes: int = 30
     test_episodes: int = 10
-    horizon: int = 25
+    rollout_steps: int = 25
     stride: int = 5
     steps: tuple[int, ...] = (1, 5, 10, 25)
-    scale: float = 0.5
+    torque_sd: float = 0.5
     beta: float = 2.0
     model: ModelConfig = MODEL
 
@@ -67,10 +67,12 @@ class Config:
         check_int("seed", self.seed, minimum=0)
         for name in ("train_episodes", "test_episodes", "stride"):
             check_int(name, getattr(self, name))
-        check_int("horizon", self.horizon, maximum=_STEPS - 1)
-        if not self.steps or any(not 1 <= k <= self.horizon for k in self.steps):
-            raise ValueError(f"steps {self.steps!r}: expected checkpoints in [1, horizon={self.horizon}]")
-        check_float("scale", self.scale, 0.0, open_low=True)
+        check_int("rollout_steps", self.rollout_steps, maximum=_STEPS - 1)
+        if not self.steps or any(not 1 <= k <= self.rollout_steps for k in self.steps):
+            raise ValueError(
+                f"steps {self.steps!r}: expected checkpoints in [1, rollout_steps={self.rollout_steps}]"
+            )
+        check_float("torque_sd", self.torque_sd, 0.0, open_low=True)
         check_float("beta", self.beta, 0.0)
 
 
@@ -78,7 +80,7 @@ QUICK = Config(train_episodes=5, test_episodes=3)
 TINY = Config(
     train_episodes=1,
     test_episodes=1,
-    horizon=3,
+    rollout_steps=3,
     stride=40,
     steps=(1, 3),
     model=ModelConfig(members=2, hidden=(8,), schedule=replace(MODEL_SCHEDULE, epochs=2, patience=None)),
@@ -93,7 +95,7 @@ def _held_out(env: gymnasium.Env, config: Config) -> list[tuple[np.ndarray, np.n
     for e in range(config.test_episodes):
         obs, _ = env.reset(seed=int(np.random.SeedSequence([config.seed + 1, e]).generate_state(1)[0]))
         noise = colored_noise((7, _STEPS), config.beta, generator, torch.float64).numpy().T
-        torques = np.clip(config.scale * noise, low, high)
+        torques = np.clip(config.torque_sd * noise, low, high)
         path = [obs]
         for a in torques:
             obs, *_ = env.step(a.astype(np.float32))
@@ -104,7 +106,7 @@ def _held_out(env: gymnasium.Env, config: Config) -> list[tuple[np.ndarray, np.n
 
 def _starts(episodes: list[tuple[np.ndarray, np.ndarray]], config: Config) -> dict[str, np.ndarray]:
     """The lag-1 roots at each start (N, d), the torques (N, H, 7), and the true angles and tip (N, H, d)."""
-    h = config.horizon
+    h = config.rollout_steps
     parts: dict[str, list[np.ndarray]] = {}
     for obs, torques in episodes:
         s = np.arange(1, _STEPS - h + 1, config.stride)
@@ -190,7 +192,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         notes=[
             f"Fitted on {config.train_episodes} random-torque episodes of {_STEPS} steps ({fit_cpu:.1f} s CPU); "
             f"{len(joint)} starts on {config.test_episodes} held-out episodes of colored-noise torques "
-            f"(beta {config.beta}, sd {config.scale}); {near_limit:.0%} of their states are within 0.02 rad "
+            f"(beta {config.beta}, sd {config.torque_sd}); {near_limit:.0%} of their states are within 0.02 rad "
             "of a joint limit of the MJCF."
         ],
     )

@@ -144,6 +144,10 @@ def test_aggregate_runs_the_agent_in_goal_mode():
         ({"checkpoints": (3000, 1500)}, r"checkpoints \[3000, 1500\] are not strictly increasing"),
         ({"checkpoints": (1500, 1500)}, "not strictly increasing"),
         ({"checkpoints": (0,)}, "checkpoints must be"),
+        (
+            {"rounds": 11, "episode_steps": 100, "random_rounds": 10, "checkpoints": (100, 1000)},
+            "checkpoint 100 comes before the first fit at 1000 steps",
+        ),
         ({"rounds": 2, "random_rounds": 3}, "random_rounds must be"),
         ({"episode_steps": 0}, "episode_steps must be"),
     ],

@@ -12,7 +12,7 @@ from pal.experiments.closed_loop import pusher_drift
 def test_pusher_drift_scores_each_checkpoint_against_the_tip_staying_put(tiny_run):
     rep = tiny_run("experiment", "pusher-drift").report
     m, tiny = rep.metrics, pusher_drift.TINY
-    assert m["starts"] == tiny.test_episodes * len(range(1, 100 - tiny.horizon + 1, tiny.stride))
+    assert m["starts"] == tiny.test_episodes * len(range(1, 100 - tiny.rollout_steps + 1, tiny.stride))
     assert [r[0] for r in rep.tables[0].rows] == list(tiny.steps)
     for k in tiny.steps:
         row = m["steps"][str(k)]
@@ -29,8 +29,8 @@ def test_pusher_drift_scores_each_checkpoint_against_the_tip_staying_put(tiny_ru
     [
         ({"steps": (1, 30)}, "steps"),
         ({"steps": ()}, "steps"),
-        ({"horizon": 100}, "horizon"),
-        ({"scale": 0.0}, "scale"),
+        ({"rollout_steps": 100}, "rollout_steps"),
+        ({"torque_sd": 0.0}, "torque_sd"),
         ({"train_episodes": 0}, "train_episodes"),
     ],
 )
