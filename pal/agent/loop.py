@@ -92,6 +92,13 @@ def _decision(p: Plan, mode: str | None = None, score: float | None = None) -> D
     )
 
 
+def _check_mode(mode: str) -> str:
+    """``mode`` if it is one of :data:`MODES`, else a ValueError naming it."""
+    if mode not in MODES:
+        raise ValueError(f"mode {mode!r} unknown; expected one of {MODES}")
+    return mode
+
+
 class Agent:
     """The perception-action loop (module docstring).
 
@@ -129,9 +136,7 @@ class Agent:
     ) -> None:
         if not isinstance(spec, EnvSpec):
             raise ValueError(f"spec must be an EnvSpec, got {type(spec).__name__}")
-        if mode is not None and mode not in MODES:
-            raise ValueError(f"mode {mode!r} unknown; expected one of {MODES} or None")
-        self.mode = mode
+        self.mode = None if mode is None else _check_mode(mode)
         self.env, self.spec, self.config = env, spec, config or AgentConfig()
         self.seed = check_int("seed", seed, minimum=0)
         self.low, self.high = check_env(spec, env)
@@ -283,8 +288,7 @@ class Agent:
 
     def decide(self, mode: str) -> Decision:
         """Choose a(t): ``"babble"`` (random), ``"curious"`` or ``"goal"`` (the goal, or the observed goals)."""
-        if mode not in MODES:
-            raise ValueError(f"mode {mode!r} unknown; expected one of {MODES}")
+        _check_mode(mode)
         if self.percept is None:
             raise ValueError("call reset() before decide()")
         if mode == "goal":
@@ -432,8 +436,7 @@ class Agent:
         """
         check_int("steps", steps, minimum=0)
         mode = (self.mode or "curious") if mode is None else mode
-        if mode not in MODES:
-            raise ValueError(f"mode {mode!r} unknown; expected one of {MODES}")
+        _check_mode(mode)
         if mode == "goal":
             check_reachable(self.spec, self.goal)
         default = self.config.curiosity.refit_every if mode == "curious" else self.config.learn.refit_every
