@@ -50,7 +50,7 @@ from inference.fit_crossfit import cross_fit
 from inference.fit_loop import Run, restore_best, train
 from inference.fit_rows import derived_seed, member_rows, site_rows
 from inference.fit_rows import members as _members
-from inference.fit_sigma import _RULE_TEXT, _set_sigmas
+from inference.fit_sigma import _RULE_TEXT, _set_sigmas, reset_recalibration
 from inference.fit_types import FIT_KWARGS, LOSSES, CalibrationOptions, FitResult, FitSchedule, _schedule
 from models.checks import check_bool, check_choice, check_names, check_seed
 from models.discrete import DiscreteMechanism
@@ -246,6 +246,7 @@ def _prepare(
         in_loc, in_scale = _standardiser(inputs[v][norm_idx])
         out_loc, out_scale = _standardiser(outputs[v][norm_idx])
         mech.set_normalization(in_loc, in_scale, out_loc, out_scale)
+        reset_recalibration(mech)
     discrete = {v for v in targets if losses[v] == "cross_entropy"}
     mechs = {v: model.mechanism(v) for v in targets}
     return Run(targets, mechs, losses, discrete, inputs, outputs, train_idx, val_idx, rows, boot_gen)

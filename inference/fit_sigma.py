@@ -34,6 +34,7 @@ from inference.fit_rows import site_rows, trained
 from inference.fit_types import CalibrationOptions
 from models.discrete import DiscreteMechanism
 from models.ensemble import EnsembleMechanism
+from models.heteroscedastic import HeteroscedasticMechanism
 from models.mechanisms import Mechanism
 
 __all__: list[str] = []
@@ -58,6 +59,19 @@ _RULE_TEXT = {
     "recalibrated conformal out-of-fold": f"its scale (the head's, or the ensemble's) {_CONFORMAL} {_OOF}",
     "none": "nothing: the site is discrete",
 }
+
+
+def reset_recalibration(mech: Mechanism) -> None:
+    """Zero the recalibration offsets of what fit trains (the site and its members) before a fit.
+
+    The offset enters training through the scale, so a warm fit that kept the previous
+    fit's offset would learn around it and recalibrate on top of it; on a component whose
+    residuals are all 0 the offsets then fall without bound (a scale of 0 after a few refits).
+    """
+    site = trained(mech)
+    for m in {id(m): m for m in [site, *_members(mech)]}.values():
+        if isinstance(m, (HeteroscedasticMechanism, EnsembleMechanism)):
+            m.reset_recalibration()
 
 
 def scale_factor(z: Tensor, options: CalibrationOptions) -> Tensor:

@@ -9,6 +9,7 @@ from models.gated import GatedMechanism
 from models.graph import CausalGraph
 from models.heteroscedastic import HeteroscedasticMechanism
 from models.io import ModelFileError, load, save
+from models.kinematics import JointLimitMechanism, KinematicChain, KinematicMechanism
 from models.mechanisms import FunctionMechanism, LinearMechanism, Mechanism, MLPMechanism
 from models.presets import chain_graph, finger_graph, joint_chain_graph, pushing_graph, random_graph
 from models.tables import Table, as_table
@@ -24,6 +25,9 @@ __all__ = [
     "FunctionMechanism",
     "GatedMechanism",
     "HeteroscedasticMechanism",
+    "JointLimitMechanism",
+    "KinematicChain",
+    "KinematicMechanism",
     "LinearMechanism",
     "MLPMechanism",
     "Mechanism",

@@ -237,6 +237,11 @@ class EnsembleMechanism(Mechanism):
             raise ValueError("an ensemble of 1 member has the member's scale; recalibrate members[0]")
         shift_log_scale(self.log_scale_offset, factor)
 
+    def reset_recalibration(self) -> None:
+        """Set the site's recalibration factor back to 1 (the members keep theirs)."""
+        with torch.no_grad():
+            self.log_scale_offset.zero_()
+
     def penalty(self) -> Tensor:
         """The sum of the members' penalties."""
         return torch.stack([m.penalty() for m in self.members]).sum()

@@ -14,17 +14,23 @@ stays above ``lo`` and below ``lo + softplus(hi - lo)`` (``hi`` plus at most
 ``log(1 + exp(lo - hi))``, 1.2e-4 for the default bounds). The bounds are per component, start at :data:`LOG_SCALE_BOUNDS` = (-8, 1), i.e.
 ``sigma`` between 3.4e-4 and 2.7 training sd, and are learned by default: :meth:`penalty`
 adds ``BOUND_PENALTY * sum(hi - lo)`` to the training loss (PETS uses 0.01), which pulls the
-bounds in to where the data needs them. The clamp keeps the scale away from 0 and inf, so the
-NLL stays finite.
+bounds in to where the data needs them. Learned bounds only move inward: the clamp reads
+``max(lo, lo_0)`` and ``min(hi, hi_0)`` of the initial ``(lo_0, hi_0)`` (:meth:`scale_bounds`), so
+a component whose residuals are all 0 cannot drag ``lo`` to -inf over repeated warm fits. The
+clamp keeps the scale away from 0 and inf, so the NLL stays finite.
 
 A head trained while its loc is still improving over-estimates the scale (the residuals it
 saw were larger than the final ones), so :func:`inference.fit` recalibrates it on the
 validation rows: ``s <- s + log c``, ``c^2 = mean(z^2)`` per component (:meth:`recalibrate`,
-stored in the state as ``log_scale_offset``).
+stored in the state as ``log_scale_offset``). Each fit starts from offset 0
+(:meth:`reset_recalibration`), so the factor is that of the fit's own training and offsets do
+not pile up across warm refits; the offset stays within ``+-`` :data:`OFFSET_LIMIT`.
 """
 
 from __future__ import annotations
 
+import logging
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -42,9 +48,12 @@ from models.checks import (
 )
 from models.mechanisms import ACTIVATIONS, Mechanism, Seed, _linear, _vector, as_generator
 
+log = logging.getLogger(__name__)
+
 __all__ = [
     "BOUND_PENALTY",
     "LOG_SCALE_BOUNDS",
+    "OFFSET_LIMIT",
     "HeteroscedasticMechanism",
     "check_log_scale_bounds",
     "shift_log_scale",
@@ -53,6 +62,8 @@ __all__ = [
 
 #: Initial soft bounds (lo, hi) of the log-scale s = log(sigma / out_scale).
 LOG_SCALE_BOUNDS = (-8.0, 1.0)
+#: Largest ``|log c|`` of a recalibration offset (a factor of at most 1e4 either way).
+OFFSET_LIMIT = math.log(1e4)
 #: Weight of the bound penalty ``sum(hi - lo)`` in the training loss (PETS: 0.01).
 BOUND_PENALTY = 0.01
 
@@ -75,7 +86,15 @@ def shift_log_scale(offset: Tensor, factor: Any) -> None:
             f"recalibration factor must be {offset.numel()} finite values > 0, got {factor.tolist()}"
         )
     with torch.no_grad():
-        offset.add_(factor.log())
+        shifted = offset + factor.log()
+        clipped = shifted.abs() > OFFSET_LIMIT
+        if bool(clipped.any()):
+            log.warning(
+                "recalibration offsets %s exceed +-%.2f (a factor of 1e4) and are cut to it",
+                shifted[clipped].tolist(),
+                OFFSET_LIMIT,
+            )
+        offset.copy_(shifted.clamp(-OFFSET_LIMIT, OFFSET_LIMIT))
 
 
 def check_log_scale_bounds(value: Any, name: str = "log_scale_bounds") -> tuple[float, float]:
@@ -181,8 +200,18 @@ class HeteroscedasticMechanism(Mechanism):
         """Standardised ``(m, s)`` (s clamped, plus the recalibration offset), each ``(..., out_dim)``."""
         parents = self.check_input(parents)
         h = self.trunk((parents - self.in_loc) / self.in_scale)
-        s = soft_clamp(self.log_scale_head(h), self.log_scale_min, self.log_scale_max)
+        s = soft_clamp(self.log_scale_head(h), *self.scale_bounds())
         return self.loc_head(h), s + self.log_scale_offset
+
+    def scale_bounds(self) -> tuple[Tensor, Tensor]:
+        """The soft clamp's ``(lo, hi)``, each ``(out_dim,)``: the learned bounds kept inside the initial ones."""
+        low, high = self.log_scale_bounds
+        return self.log_scale_min.clamp_min(low), self.log_scale_max.clamp_max(high)
+
+    def reset_recalibration(self) -> None:
+        """Set the recalibration offset back to 0 (a factor of 1); :func:`inference.fit` does it first."""
+        with torch.no_grad():
+            self.log_scale_offset.zero_()
 
     def recalibrate(self, factor: Any) -> None:
         """Multiply the predicted scale by ``factor`` ``(out_dim,)`` > 0 (variance scaling).

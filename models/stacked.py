@@ -82,8 +82,8 @@ class StackedMembers:
                 stacks = [_layers(m.trunk) for m in members]
                 heads = [torch.cat([m.loc_head.weight, m.log_scale_head.weight]).T for m in members]
                 head_bias = [torch.cat([m.loc_head.bias, m.log_scale_head.bias]) for m in members]
-                self.low = _stack([m.log_scale_min for m in members])
-                self.high = _stack([m.log_scale_max for m in members])
+                self.low = _stack([m.scale_bounds()[0] for m in members])
+                self.high = _stack([m.scale_bounds()[1] for m in members])
                 self.offset = _stack([m.log_scale_offset for m in members])
             else:
                 stacks = [_layers(m.net)[:-1] for m in members]

@@ -108,6 +108,10 @@ class ModelConfig:
             between 0.25 % and 2.7 training sd; the joints are sensed without noise and their
             fitted log-scales reach s = -5.6 (``dee``) on the same run, so a floor at -4 would
             widen them.
+        kinematics: ``"learned"`` (``q_prev, dq -> dee`` an MLP like the other arm sites) or
+            ``"mjcf"``: the effector's forward kinematics read from the MuJoCo env's own model
+            up to ``EnvSpec.effector_body``, a fixed :class:`models.KinematicMechanism`
+            (:mod:`pal.agent.kinematics`).
     """
 
     kind: str = "hetero"
@@ -121,9 +125,11 @@ class ModelConfig:
     displacement: str = "gated"
     log_scale_bounds: tuple[float, float] = LOG_SCALE_BOUNDS
     arm_log_scale_bounds: tuple[float, float] = ARM_LOG_SCALE_BOUNDS
+    kinematics: str = "learned"
 
     def __post_init__(self) -> None:
         check_choice("kind", self.kind, ("hetero", "mlp"))
+        check_choice("kinematics", self.kinematics, ("learned", "mjcf"))
         check_choice("structure", self.structure, ("preset", "discover"))
         check_choice("displacement", self.displacement, DISPLACEMENTS)
         check_int("members", self.members)

@@ -110,7 +110,11 @@ def fit_model(
             cols["dq"] = wrap_angle(cols["dq"])
     known = lambda cols: {k: v for k, v in cols.items() if k in model.graph}  # noqa: E731
     arm, objects = known(arm), {o: known(c) for o, c in objects.items()}
-    learned = [s for s in learned_sites(spec, config.displacement) if s in model.graph]
+    learned = [
+        s
+        for s in learned_sites(spec, config.displacement)
+        if s in model.graph and model.mechanism(s).trainable
+    ]
     base = config.schedule
 
     def schedule(n: int, contacts: int | None = None) -> dict[str, Any]:
@@ -190,9 +194,8 @@ class Learner:
             )
         levels = self.monitor.update(model, fresh)
         out["residual_levels"] = levels
-        flagged = [
-            v for v in self.monitor.flagged() if v in learned_sites(self.spec, self.model_config.displacement)
-        ]
+        learned = learned_sites(self.spec, self.model_config.displacement)
+        flagged = [v for v in self.monitor.flagged() if v in learned and model.mechanism(v).trainable]
         out["flagged"] = flagged
         # inference.revise scores candidates with one sigma per site: homoscedastic, single, continuous ones
         flagged = [v for v in flagged if _revisable(model.mechanism(v))]

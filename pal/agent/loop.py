@@ -33,7 +33,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from models import WorldModel
+from models import KinematicMechanism, WorldModel
 from pal.agent.body_checks import check_joint_sensors, resolve_servo
 from pal.agent.config import AgentConfig
 from pal.agent.correction import Correction
@@ -41,9 +41,10 @@ from pal.agent.curiosity import GridCuriosity
 from pal.agent.estimate import Estimator, belief
 from pal.agent.explore import contact_search, diagnose, push_counts
 from pal.agent.goals import check_reachable, check_targets, current
-from pal.agent.graph import build_graph, build_model, discover_parents
+from pal.agent.graph import FIXED_SIGMA, build_graph, build_model, discover_parents
 from pal.agent.history import History
 from pal.agent.influence import explore
+from pal.agent.kinematics import check_effector, known_mechanisms
 from pal.agent.learn import Learner, site_data
 from pal.agent.plan import Plan, one_step, plan
 from pal.agent.record import transition
@@ -182,7 +183,12 @@ class Agent:
         self._probe()
 
     def _new_model(self, graph: Any) -> WorldModel:
-        return build_model(self.spec, graph, self.config.model, seed=self.seed)
+        known = (
+            known_mechanisms(self.env, self.spec, FIXED_SIGMA)
+            if self.config.model.kinematics == "mjcf"
+            else {}
+        )
+        return build_model(self.spec, graph, self.config.model, mechanisms=known, seed=self.seed)
 
     def _probe(self) -> None:
         """Reset once and read the percept: missing info entries and unseen objects fail here."""
@@ -191,6 +197,9 @@ class Agent:
         self.senses.check_first(obs)
         percept = self.senses.read(obs, info, 0.0)
         check_joint_sensors(self.spec, self.env, percept.q, percept.v)
+        dee = self.model.mechanism("dee") if "dee" in self.model.graph else None
+        if isinstance(dee, KinematicMechanism) and percept.effector is not None:
+            check_effector(dee, percept.q, percept.effector, str(self.spec.effector_body))
         unseen = [o for o in self.spec.perceived if percept.measurements[o] is None]
         if unseen:
             n = 0 if percept.perception is None else len(percept.perception.observations())

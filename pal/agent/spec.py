@@ -41,15 +41,15 @@ __all__ = [
     "reacher_spec",
 ]
 
-#: Joint names of Gymnasium's Pusher-v5 arm (observation entries 0-6 and 7-13).
+#: Joint names of Gymnasium's Pusher-v5 arm (observation entries 0-6 and 7-13), the MJCF's own.
 PUSHER_JOINTS = (
-    "shoulder_pan",
-    "shoulder_lift",
-    "upper_arm_roll",
-    "elbow_flex",
-    "forearm_roll",
-    "wrist_flex",
-    "wrist_roll",
+    "r_shoulder_pan_joint",
+    "r_shoulder_lift_joint",
+    "r_upper_arm_roll_joint",
+    "r_elbow_flex_joint",
+    "r_forearm_roll_joint",
+    "r_wrist_flex_joint",
+    "r_wrist_roll_joint",
 )
 
 
@@ -179,6 +179,8 @@ class EnvSpec:
         effector_goal: optional sensor of the effector's goal (d <= E: its first d components),
             m; the goal mode then brings the effector there (a reaching task).
         effector_name: the effector's name in goals and targets (``Agent(goal={name: ...})``).
+        effector_body: the MJCF body whose frame origin the effector sensor reads, for the
+            known kinematics of ``ModelConfig.kinematics = "mjcf"`` (:mod:`pal.agent.kinematics`).
         objects: the modelled objects.
         touch: optional ``info`` sensor of the contact with each object (O,), in [0, 1].
         actions: action names; default ``joints`` (one per joint).
@@ -205,6 +207,7 @@ class EnvSpec:
     object_momentum: bool = False
     effector_goal: Sensor | None = None
     effector_name: str = "effector"
+    effector_body: str | None = None
 
     def __post_init__(self) -> None:
         joints = tuple(self.joints)
@@ -260,6 +263,12 @@ class EnvSpec:
         if self.effector_name in names:
             raise ValueError(
                 f"effector_name {self.effector_name!r} is also an object's name; goals would be ambiguous"
+            )
+        if self.effector_body is not None and (
+            not isinstance(self.effector_body, str) or not self.effector_body
+        ):
+            raise ValueError(
+                f"effector_body must be a non-empty MJCF body name or None, got {self.effector_body!r}"
             )
         if self.effector_goal is None:
             return
@@ -433,6 +442,7 @@ def pusher_spec() -> EnvSpec:
         angles=Sensor(obs=tuple(range(7))),
         velocities=Sensor(obs=tuple(range(7, 14))),
         effector=Sensor(obs=(14, 15, 16)),
+        effector_body="tips_arm",
         objects=(ObjectSpec("object", Sensor(obs=(17, 18, 19)), goal=Sensor(obs=(20, 21, 22))),),
         observation_dim=23,
         object_momentum=True,
@@ -455,5 +465,6 @@ def reacher_spec() -> EnvSpec:
         effector=Sensor(obs=(8, 9), transform=absolute_from_relative(to=(4, 5))),
         effector_goal=Sensor(obs=(4, 5)),
         effector_name="fingertip",
+        effector_body="fingertip",
         observation_dim=10,
     )

@@ -149,3 +149,24 @@ def test_the_scale_factors_of_the_two_rules():
     few = scale_factor(z[:5], CalibrationOptions("conformal", level=0.9))  # k = 6 > 5: the largest |z|
     assert few.tolist() == pytest.approx([5 / 1.6448536, 10 / 1.6448536], rel=1e-6)
     assert math.isfinite(float(few.sum()))
+
+
+def test_warm_refits_on_a_branch_whose_residuals_are_all_zero_keep_its_scale_positive_and_bounded():
+    # On rows whose value never changes (an object's height on a table): before each fit
+    # started from offset 0, every warm refit cut the scale by up to 1e6, until it was 0.
+    data = contact_data(600, 4)
+    data["dpos"] = torch.zeros_like(data["dpos"])
+    model = gated_model(4)
+    schedule = SCHEDULE
+    offsets = []
+    for r in range(6):
+        fit(model, data, schedule=schedule, seed=r)
+        on = model.mechanism("dpos").on
+        offsets.append(float(on.log_scale_offset[0]))
+        low, high = (b.detach() for b in on.scale_bounds())
+        assert float(low[0]) >= -8.0 and float(high[0]) <= 1.0
+    assert max(abs(o) for o in offsets) < 5.0, offsets
+    values = {"rel": TEST["rel"], "contact": TEST["contact"]}
+    with torch.no_grad():
+        sd = model.predict_scale(values)["dpos"]
+    assert bool(torch.isfinite(sd).all()) and float(sd.min()) > 0.0

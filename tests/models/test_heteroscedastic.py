@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 
 from models import CausalGraph, HeteroscedasticMechanism, LinearMechanism, Variable, WorldModel, finger_graph
-from models.heteroscedastic import LOG_SCALE_BOUNDS, soft_clamp
+from models.heteroscedastic import LOG_SCALE_BOUNDS, OFFSET_LIMIT, soft_clamp
 from models.mechanisms import make_mechanism
 
 
@@ -156,3 +156,23 @@ def test_a_homoscedastic_mechanism_reports_its_sigma_as_the_scale():
     _, scale = mech.loc_scale(torch.zeros(4, 1))
     assert scale.shape == (4, 1) and torch.all(scale == 0.25)
     assert not mech.heteroscedastic and math.isclose(float(mech.sigma.detach()), 0.25, rel_tol=1e-6)
+
+
+def test_learned_bounds_only_move_inward_and_offsets_stay_within_their_limit(caplog):
+    mech = HeteroscedasticMechanism(2, 2, hidden=(4,), log_scale_bounds=(-3.0, 0.5), seed=0)
+    with torch.no_grad():  # as if training had dragged the bounds outward
+        mech.log_scale_min.copy_(torch.tensor([-40.0, -1.0]))
+        mech.log_scale_max.copy_(torch.tensor([9.0, 0.2]))
+    low, high = mech.scale_bounds()
+    torch.testing.assert_close(low, torch.tensor([-3.0, -1.0]))
+    torch.testing.assert_close(high, torch.tensor([0.5, 0.2]))
+    s = mech.log_scale(torch.randn(200, 2, generator=torch.Generator().manual_seed(1)) * 50).detach()
+    assert float(s[:, 0].min()) >= -3.0 and float(s[:, 1].min()) >= -1.0
+    with caplog.at_level("WARNING", logger="models.heteroscedastic"):
+        for _ in range(5):  # factors of 1e-6, as held-out residuals that are all 0 give
+            mech.recalibrate([1e-6, 1.0])
+    assert float(mech.log_scale_offset[0]) == pytest.approx(-OFFSET_LIMIT)
+    assert float(mech.log_scale_offset[1]) == 0.0
+    assert "exceed" in caplog.text
+    mech.reset_recalibration()
+    assert float(mech.log_scale_offset.abs().max()) == 0.0

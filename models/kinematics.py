@@ -1,0 +1,292 @@
+"""A known law of the body: forward kinematics of a chain of hinge joints, as a fixed mechanism.
+
+A serial chain of J hinges from a fixed base to an end point. Frame k is reached from frame
+k - 1 by a fixed transform ``(R_k, t_k)`` (the bodies between two hinges, composed), then a turn
+by the angle ``q_k - ref_k`` about the unit axis ``a_k`` through the point ``p_k`` (both in frame
+k's coordinates). With ``T(R, t) x = R x + t`` and Rodrigues' ``Rot(a, theta) = I + sin(theta) K +
+(1 - cos(theta)) K^2`` (``K`` the cross-product matrix of ``a``)::
+
+    F_0 = I,    F_k = F_{k-1} T(R_k, t_k) T(I, p_k) T(Rot(a_k, q_k - ref_k), 0) T(I, -p_k)
+    x(q) = F_J e                                  (the end point e in the last frame)
+
+This is how MuJoCo places bodies (``mj_kinematics``: a body's frame from its parent's and its
+``pos``/``quat``, then each of its hinges in order about ``xanchor``, ``xaxis``), so a chain read
+from an MJCF reproduces its bodies' ``xpos`` (``pal.agent.kinematics``).
+
+:class:`KinematicMechanism` is the effector's motion over a step, from the joint angles before
+it and their change, with the angles held inside the joints' limits (MuJoCo's limit constraint
+stops a joint there, a learned joint model may not)::
+
+    dee = x(clip(q_prev + dq)) - x(clip(q_prev)) + sigma * eps        (first ``out_dim`` coordinates)
+
+It is fixed: :func:`inference.fit` leaves it as given. It serialises with its chain.
+:class:`JointLimitMechanism` holds the joint angles themselves at the limits,
+``q = clip(q_prev + dq) + sigma * eps``, so that a learned ``dq`` that overshoots a limit in a
+rollout does not carry the next step's parents out of the range the joints can reach.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from models.checks import as_float_tensor, check_float, check_int
+from models.mechanisms import Mechanism, Seed
+
+__all__ = ["JointLimitMechanism", "KinematicChain", "KinematicMechanism"]
+
+
+def _array(value: Any, shape: tuple[int, ...], name: str) -> Tensor:
+    """A finite float64 tensor of exactly ``shape``; the error names the value and the shape."""
+    tensor = as_float_tensor(value, name, torch.float64)
+    if tuple(tensor.shape) != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {tuple(tensor.shape)}")
+    if not bool(torch.isfinite(tensor).all()):
+        raise ValueError(f"{name} must be finite, got {tensor.tolist()}")
+    return tensor
+
+
+def _rodrigues(axis: Tensor, angle: Tensor) -> Tensor:
+    """Rotations ``(..., 3, 3)`` by ``angle`` ``(...)`` about the unit ``axis`` ``(3,)``."""
+    k = axis.new_zeros(3, 3)
+    k[0, 1], k[0, 2], k[1, 2] = -axis[2], axis[1], -axis[0]
+    k = k - k.T
+    s, c = angle.sin()[..., None, None], angle.cos()[..., None, None]
+    return torch.eye(3, dtype=axis.dtype) + s * k + (1 - c) * (k @ k)
+
+
+class KinematicChain(torch.nn.Module):
+    """Forward kinematics ``x(q)`` of J hinges (module docstring).
+
+    Args:
+        rotations: ``(J, 3, 3)`` the fixed rotations R_k. translations: ``(J, 3)`` t_k.
+        anchors: ``(J, 3)`` p_k. axes: ``(J, 3)`` a_k (normalised here). refs: ``(J,)`` ref_k, rad.
+        end: ``(3,)`` the end point e in the last hinge's frame.
+        limits: ``(J, 2)`` each joint's ``(low, high)``, rad (``-inf``/``inf`` for none).
+
+    Shapes: :meth:`forward` ``(..., J) -> (..., 3)``.
+
+    Raises:
+        ValueError: shapes that disagree, non-finite values, a zero axis, low > high.
+    """
+
+    def __init__(
+        self,
+        rotations: Any,
+        translations: Any,
+        anchors: Any,
+        axes: Any,
+        refs: Any,
+        end: Any,
+        limits: Any,
+    ) -> None:
+        super().__init__()
+        refs = as_float_tensor(refs, "refs", torch.float64)
+        if refs.ndim != 1 or len(refs) < 1 or not bool(torch.isfinite(refs).all()):
+            raise ValueError(f"refs must be a vector of J >= 1 finite angles, got {refs.tolist()}")
+        j = len(refs)
+        axes = _array(axes, (j, 3), "axes")
+        norms = axes.norm(dim=1, keepdim=True)
+        if not bool((norms > 1e-9).all()):
+            raise ValueError(f"axes must be nonzero, got {axes.tolist()}")
+        limits = as_float_tensor(limits, "limits", torch.float64)
+        if (
+            tuple(limits.shape) != (j, 2)
+            or bool(torch.isnan(limits).any())
+            or bool((limits[:, 0] > limits[:, 1]).any())
+        ):
+            raise ValueError(
+                f"limits must be ({j}, 2) pairs (low, high) with low <= high, got {limits.tolist()}"
+            )
+        self.register_buffer("rotations", _array(rotations, (j, 3, 3), "rotations"))
+        self.register_buffer("translations", _array(translations, (j, 3), "translations"))
+        self.register_buffer("anchors", _array(anchors, (j, 3), "anchors"))
+        self.register_buffer("axes", axes / norms)
+        self.register_buffer("refs", refs)
+        self.register_buffer("end", _array(end, (3,), "end"))
+        self.register_buffer("limits", limits)
+
+    @property
+    def joints(self) -> int:
+        """J, the number of hinges."""
+        return len(self.refs)
+
+    def clip(self, q: Tensor) -> Tensor:
+        """``q`` ``(..., J)`` held inside the joints' limits."""
+        low, high = self.limits.to(q.dtype).unbind(1)
+        return torch.maximum(torch.minimum(q, high), low)
+
+    def forward(self, q: Tensor) -> Tensor:
+        """The end point ``x(q)``: ``(..., J) -> (..., 3)`` (world coordinates, the base's units)."""
+        if q.shape[-1] != self.joints:
+            raise ValueError(f"joint angles have last dim {q.shape[-1]}, expected {self.joints}")
+        dtype = q.dtype
+        rot = torch.eye(3, dtype=dtype).expand(*q.shape[:-1], 3, 3)
+        pos = q.new_zeros(*q.shape[:-1], 3)
+        for k in range(self.joints):
+            pos = pos + rot @ self.translations[k].to(dtype)
+            rot = rot @ self.rotations[k].to(dtype)
+            anchor = pos + rot @ self.anchors[k].to(dtype)
+            rot = rot @ _rodrigues(self.axes[k].to(dtype), q[..., k] - self.refs[k].to(dtype))
+            pos = anchor - rot @ self.anchors[k].to(dtype)
+        return pos + rot @ self.end.to(dtype)
+
+    def config(self) -> dict[str, Any]:
+        """JSON-compatible constructor arguments (limits as ``None`` for infinite)."""
+        limits = [[None if abs(v) == float("inf") else v for v in row] for row in self.limits.tolist()]
+        return {
+            "rotations": self.rotations.tolist(),
+            "translations": self.translations.tolist(),
+            "anchors": self.anchors.tolist(),
+            "axes": self.axes.tolist(),
+            "refs": self.refs.tolist(),
+            "end": self.end.tolist(),
+            "limits": limits,
+        }
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any]) -> KinematicChain:
+        """Inverse of :meth:`config`."""
+        limits = [
+            [float("-inf") if row[0] is None else row[0], float("inf") if row[1] is None else row[1]]
+            for row in config["limits"]
+        ]
+        return cls(**{**config, "limits": limits})
+
+
+class KinematicMechanism(Mechanism):
+    """``dee = x(clip(q_prev + dq)) - x(clip(q_prev))``, the first ``out_dim`` coordinates (module docstring).
+
+    Args:
+        chain: the :class:`KinematicChain` (or its :meth:`KinematicChain.config`).
+        columns: for each hinge of the chain, its column in the body's joint vector q.
+        joints: n, the length of q (the chain may use some of the joints only).
+        out_dim: effector coordinates kept (1-3). sigma: the fixed residual sd, in the
+            effector's units.
+
+    Shapes: parents ``(..., 2 n)`` = ``[q_prev, dq]`` -> ``(..., out_dim)``.
+
+    Raises:
+        ValueError: columns that are not J distinct indices below ``joints``, ``out_dim``
+            outside 1-3, an ``in_dim`` other than 2 n, sigma <= 0.
+    """
+
+    kind = "kinematic"
+    serialisable = True
+    config_keys = frozenset({"chain", "columns", "joints", "out_dim", "sigma", "in_dim"})
+
+    def __init__(
+        self,
+        chain: Any,
+        columns: Sequence[int],
+        joints: int,
+        out_dim: int = 3,
+        sigma: float = 1e-4,
+        in_dim: int | None = None,
+    ) -> None:
+        if isinstance(chain, Mapping):
+            chain = KinematicChain.from_config(chain)
+        if not isinstance(chain, KinematicChain):
+            raise ValueError(f"chain must be a KinematicChain or its config, got {type(chain).__name__}")
+        joints = check_int("joints", joints, minimum=1)
+        cols = [check_int("columns[]", c, minimum=0) for c in columns]
+        if len(cols) != chain.joints or len(set(cols)) != len(cols) or max(cols) >= joints:
+            raise ValueError(
+                f"columns must be {chain.joints} distinct joint indices below {joints}, got {list(columns)}"
+            )
+        out_dim = check_int("out_dim", out_dim, minimum=1)
+        if out_dim > 3:
+            raise ValueError(f"out_dim must be 1-3 coordinates of the end point, got {out_dim}")
+        if in_dim is not None and in_dim != 2 * joints:
+            raise ValueError(f"in_dim must be 2 n = {2 * joints} for {joints} joints, got {in_dim}")
+        super().__init__(2 * joints, out_dim, check_float("sigma", sigma, minimum=0.0, min_open=True))
+        self.chain, self.columns, self.joints = chain, tuple(cols), joints
+
+    @property
+    def trainable(self) -> bool:
+        """False: a known law is given, not learned."""
+        return False
+
+    def core(self, z: Tensor) -> Tensor:
+        """The effector's motion from ``[q_prev, dq]`` (the normalisers stay the identity)."""
+        cols = list(self.columns)
+        q_prev, dq = z[..., : self.joints][..., cols], z[..., self.joints :][..., cols]
+        before = self.chain(self.chain.clip(q_prev))
+        after = self.chain(self.chain.clip(q_prev + dq))
+        return (after - before)[..., : self.out_dim]
+
+    def config(self) -> dict[str, Any]:
+        """JSON-compatible constructor arguments."""
+        return {
+            "kind": self.kind,
+            "in_dim": self.in_dim,
+            "chain": self.chain.config(),
+            "columns": list(self.columns),
+            "joints": self.joints,
+            "out_dim": self.out_dim,
+            "sigma": float(self.sigma.detach()[0]),
+        }
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any], seed: Seed = 0) -> KinematicMechanism:
+        """Build from :meth:`config` output without ``kind``; ``seed`` is unused (nothing is random)."""
+        return cls(**config)
+
+
+class JointLimitMechanism(Mechanism):
+    """``q = clip(q_prev + dq, low, high) + sigma * eps`` per joint (module docstring).
+
+    Args:
+        limits: ``(n, 2)`` each joint's ``(low, high)``, rad (``None`` or inf for none).
+        sigma: the fixed residual sd, rad.
+
+    Shapes: parents ``(..., 2 n)`` = ``[q_prev, dq]`` -> ``(..., n)``.
+    """
+
+    kind = "joint_limits"
+    serialisable = True
+    config_keys = frozenset({"limits", "sigma", "in_dim"})
+
+    def __init__(self, limits: Any, sigma: float = 1e-4, in_dim: int | None = None) -> None:
+        rows = [
+            [float("-inf") if r[0] is None else r[0], float("inf") if r[1] is None else r[1]] for r in limits
+        ]
+        table = as_float_tensor(rows, "limits", torch.float64)
+        if table.ndim != 2 or table.shape[1] != 2 or len(table) < 1 or bool(torch.isnan(table).any()):
+            raise ValueError(f"limits must be n >= 1 pairs (low, high), got {rows}")
+        if bool((table[:, 0] > table[:, 1]).any()):
+            raise ValueError(f"limits must have low <= high, got {rows}")
+        n = len(table)
+        if in_dim is not None and in_dim != 2 * n:
+            raise ValueError(f"in_dim must be 2 n = {2 * n} for {n} joints, got {in_dim}")
+        super().__init__(2 * n, n, check_float("sigma", sigma, minimum=0.0, min_open=True))
+        self.register_buffer("limits", table)
+
+    @property
+    def trainable(self) -> bool:
+        """False: the limits are given, not learned."""
+        return False
+
+    def core(self, z: Tensor) -> Tensor:
+        """``clip(q_prev + dq)`` from ``[q_prev, dq]`` (the normalisers stay the identity)."""
+        n = self.out_dim
+        low, high = self.limits.to(z.dtype).unbind(1)
+        return torch.maximum(torch.minimum(z[..., :n] + z[..., n:], high), low)
+
+    def config(self) -> dict[str, Any]:
+        """JSON-compatible constructor arguments (``None`` for an infinite limit)."""
+        limits = [[None if abs(v) == float("inf") else v for v in row] for row in self.limits.tolist()]
+        return {
+            "kind": self.kind,
+            "in_dim": self.in_dim,
+            "limits": limits,
+            "sigma": float(self.sigma.detach()[0]),
+        }
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any], seed: Seed = 0) -> JointLimitMechanism:
+        """Build from :meth:`config` output without ``kind``; ``seed`` is unused."""
+        return cls(**config)
