@@ -37,7 +37,7 @@ class Config:
 
 def sequence_results(config: SequenceConfig, seed: int) -> dict[int, dict[str, Any]]:
     """``{stride: evaluate_sequence(...)}`` over the folder of ``config``."""
-    seq = open_sequence(config.path, config.camera)
+    seq = open_sequence(config.path, config.camera, config.undistort)
     return {s: evaluate_sequence(seq, s, config, seed=seed) for s in config.strides}
 
 

@@ -35,12 +35,21 @@ from pal.checks import check_choice, check_float, check_int
 from pal.experiments.perception.evaluation import rotation_angle_deg
 from pal.experiments.perception.real_frames import pair_rows, summarise
 from pal.perception import Pipeline, PipelineConfig
-from pal.perception.tum import FREIBURG1_K, FREIBURG2_K, FREIBURG3_K, TUM_DEPTH_SCALE, TUMSequence
+from pal.perception.tum import (
+    FREIBURG1_DISTORTION,
+    FREIBURG1_K,
+    FREIBURG2_K,
+    FREIBURG3_K,
+    TUM_DEPTH_SCALE,
+    TUMSequence,
+)
 
-__all__ = ["TUM_CAMERAS", "SequenceConfig", "evaluate_sequence", "excerpt_path", "open_sequence"]
+__all__ = ["TUM_CAMERAS", "TUM_DISTORTION", "SequenceConfig", "evaluate_sequence", "excerpt_path", "open_sequence"]
 
 #: The TUM cameras by name: (3, 3) intrinsics, pixels.
 TUM_CAMERAS = {"freiburg1": FREIBURG1_K, "freiburg2": FREIBURG2_K, "freiburg3": FREIBURG3_K}
+#: Their published lens distortion (OpenCV k1, k2, p1, p2, k3), where it is known here.
+TUM_DISTORTION = {"freiburg1": FREIBURG1_DISTORTION}
 
 
 def excerpt_path() -> Path:
@@ -62,6 +71,12 @@ class SequenceConfig:
         camera: ``"file"``: intrinsics and depth scale from the folder's ``calibration.json``;
             ``"freiburg1"``, ``"freiburg2"``, ``"freiburg3"``: that TUM camera's intrinsics and
             TUM's depth scale (1/5000 m per unit).
+        undistort: undistort the frames with the camera's lens coefficients (``"freiburg1"``'s
+            published ones, or ``calibration.json``'s ``"distortion"``); False: use the
+            recorded images as pinhole images.
+        truth_offset_s: clock offset of the camera truth, s: frame k is scored against the
+            motion-capture pose at its timestamp plus this (``TUMSequence.camera_poses``);
+            0 reads the truth at the image timestamps.
         strides: frame strides evaluated, each over its own fresh pipeline.
         frames: sequence frames used, from the first, before striding (None: all).
         seen_iou: IoU of a moved mask with an object of the next frame for "seen in both".
@@ -69,6 +84,8 @@ class SequenceConfig:
 
     path: str = ""
     camera: str = "file"
+    undistort: bool = True
+    truth_offset_s: float = 0.0
     strides: tuple[int, ...] = (1, 3)
     frames: int | None = None
     seen_iou: float = 0.3
@@ -79,21 +96,29 @@ class SequenceConfig:
         if not isinstance(self.strides, tuple) or not self.strides:
             raise ValueError(f"strides is {self.strides!r}; expected a non-empty tuple of ints >= 1")
         check_choice("camera", self.camera, ("file", *TUM_CAMERAS))
+        if not isinstance(self.undistort, bool):
+            raise TypeError(f"undistort is {self.undistort!r}; expected True or False")
         for s in self.strides:
             check_int("strides", s, minimum=1)
         if self.frames is not None:
             check_int("frames", self.frames, minimum=2)
         check_float("seen_iou", self.seen_iou, 0.0, 1.0, open_low=True)
+        check_float("truth_offset_s", self.truth_offset_s, -0.1, 0.1)
 
 
-def open_sequence(path: str | os.PathLike[str], camera: str = "file") -> TUMSequence:
-    """The TUM-layout folder ``path`` (``""``: the shipped excerpt), camera as in :class:`SequenceConfig`."""
+def open_sequence(path: str | os.PathLike[str], camera: str = "file", undistort: bool = True) -> TUMSequence:
+    """The TUM-layout folder ``path`` (``""``: the shipped excerpt), camera and lens as in :class:`SequenceConfig`."""
     folder = excerpt_path() if str(path) == "" else Path(path)
     if camera == "file":
-        return TUMSequence(folder, missing="skip")
-    if camera not in TUM_CAMERAS:
+        seq = TUMSequence(folder, missing="skip")
+    elif camera in TUM_CAMERAS:
+        lens = TUM_DISTORTION.get(camera) if undistort else None
+        seq = TUMSequence(folder, K=TUM_CAMERAS[camera], depth_scale=TUM_DEPTH_SCALE, missing="skip", distortion=lens)
+    else:
         raise ValueError(f"camera {camera!r} unknown; expected 'file' or one of {list(TUM_CAMERAS)}")
-    return TUMSequence(folder, K=TUM_CAMERAS[camera], depth_scale=TUM_DEPTH_SCALE, missing="skip")
+    if not undistort:
+        seq.undistortion = None
+    return seq
 
 
 def _run(pipe: Pipeline, frames: list[Any]) -> tuple[list[Any], float, float]:
@@ -131,7 +156,7 @@ def evaluate_sequence(
     if len(index) < 2:
         raise ValueError(f"{seq.path}: stride {stride} over {n} frames leaves {len(index)} frame; need 2")
     frames = [seq[k] for k in index]
-    poses = seq.camera_poses()
+    poses = seq.camera_poses(offset=config.truth_offset_s)
     pipe = Pipeline(PipelineConfig(**{**(pipeline or PipelineConfig()).__dict__, "seed": seed}))
     states, wall, cpu = _run(pipe, frames)
     rows: list[dict[str, Any]] = []

@@ -52,6 +52,7 @@ def test_stride_three_uses_frames_zero_and_three():
         ({"strides": (0,)}, "strides"),
         ({"camera": "kinect"}, "camera"),
         ({"frames": 1}, "frames"),
+        ({"truth_offset_s": 0.5}, "truth_offset_s"),
     ],
 )
 def test_bad_settings_are_refused(kwargs, match):
