@@ -44,7 +44,16 @@ from pal.perception.tum import (
     TUMSequence,
 )
 
-__all__ = ["TUM_CAMERAS", "TUM_DISTORTION", "SequenceConfig", "evaluate_sequence", "excerpt_path", "open_sequence"]
+__all__ = [
+    "OFFSET_SCAN_S",
+    "TUM_CAMERAS",
+    "TUM_DISTORTION",
+    "SequenceConfig",
+    "evaluate_sequence",
+    "excerpt_path",
+    "open_sequence",
+    "truth_clock_offset",
+]
 
 #: The TUM cameras by name: (3, 3) intrinsics, pixels.
 TUM_CAMERAS = {"freiburg1": FREIBURG1_K, "freiburg2": FREIBURG2_K, "freiburg3": FREIBURG3_K}
@@ -121,6 +130,41 @@ def open_sequence(path: str | os.PathLike[str], camera: str = "file", undistort:
     return seq
 
 
+#: Clock offsets of the camera truth that :func:`truth_clock_offset` tries, s (-40 to +40 ms).
+OFFSET_SCAN_S = tuple(round(-0.04 + 0.005 * k, 3) for k in range(17))
+
+
+def truth_clock_offset(
+    seq: TUMSequence, motions: list[tuple[int, int, np.ndarray]], offsets: tuple[float, ...] = OFFSET_SCAN_S
+) -> tuple[float | None, float | None]:
+    """The clock offset of the camera truth that Π's own camera motions agree with best.
+
+    For each offset (s), the median rotation angle between Π's ``current_from_previous`` of each
+    pair and the truth's motion read at the frame times plus that offset
+    (``seq.camera_poses(offset=...)``); pairs without truth at an offset are left out there.
+
+    Args:
+        seq: the sequence with its camera truth.
+        motions: ``(i, j, current_from_previous (4, 4))`` of the pairs Π measured.
+        offsets: the offsets tried, s.
+
+    Returns:
+        (the offset with the smallest median error, s; that median, degrees), or (None, None)
+        without motions.
+    """
+    best: tuple[float | None, float | None] = (None, None)
+    for offset in offsets:
+        poses = seq.camera_poses(offset=offset)
+        errs = [
+            rotation_angle_deg(est[:3, :3], (np.linalg.inv(poses.poses[j]) @ poses.poses[i])[:3, :3])
+            for i, j, est in motions
+            if poses.valid[i] and poses.valid[j]
+        ]
+        if errs and (best[1] is None or float(np.median(errs)) < best[1]):
+            best = (float(offset), float(np.median(errs)))
+    return best
+
+
 def _run(pipe: Pipeline, frames: list[Any]) -> tuple[list[Any], float, float]:
     """Π over ``frames`` in order: (states, wall seconds, CPU seconds of the process)."""
     wall, cpu = time.perf_counter(), time.process_time()
@@ -145,7 +189,8 @@ def evaluate_sequence(
     Returns:
         the totals of :func:`~pal.experiments.perception.real_frames.summarise` plus ``frames``,
         ``pairs`` (scored), ``pairs_without_truth``, ``camera_rot_err_deg_median`` and
-        ``camera_trans_err_m_median`` (Π's camera motion against the truth, pairs where it was measured), ``ids`` (distinct ids created),
+        ``camera_trans_err_m_median`` (Π's camera motion against the truth, pairs where it was measured),
+        ``truth_offset_best_s`` and ``camera_rot_err_deg_at_best`` (:func:`truth_clock_offset`), ``ids`` (distinct ids created),
         ``objects_per_frame`` (median visible), ``fps_wall``, ``fps_cpu``, ``stage_ms``,
         ``per_pair`` (pose share and kept share per pair), ``pose_fraction_halves`` (the
         share posed over the first and the second half of the pairs) and ``rows``.
@@ -162,6 +207,7 @@ def evaluate_sequence(
     rows: list[dict[str, Any]] = []
     per_pair, missing = [], 0
     camera_err: list[tuple[float, float]] = []
+    motions: list[tuple[int, int, np.ndarray]] = []
     for a in range(len(index) - 1):
         i, j = index[a], index[a + 1]
         if not (poses.valid[i] and poses.valid[j]):
@@ -171,6 +217,7 @@ def evaluate_sequence(
         cam = states[a + 1].camera
         if cam is not None and cam.known:
             est = cam.current_from_previous
+            motions.append((i, j, est))
             camera_err.append(
                 (rotation_angle_deg(est[:3, :3], ref[:3, :3]), float(np.linalg.norm(est[:3, 3] - ref[:3, 3])))
             )
@@ -198,6 +245,7 @@ def evaluate_sequence(
         "pairs_without_truth": missing,
         "camera_rot_err_deg_median": float(np.median([e[0] for e in camera_err])) if camera_err else None,
         "camera_trans_err_m_median": float(np.median([e[1] for e in camera_err])) if camera_err else None,
+        **dict(zip(("truth_offset_best_s", "camera_rot_err_deg_at_best"), truth_clock_offset(seq, motions))),
         "ids": len({o.obj_id for s in states for o in s.objects}),
         "objects_per_frame": float(np.median([sum(o.visible for o in s.objects) for s in states])),
         "seconds_wall": wall,
