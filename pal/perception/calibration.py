@@ -6,7 +6,11 @@ either passed by the caller or read from ``calibration.json`` next to the frames
 
     {"fx": 520.9, "fy": 521.0, "cx": 325.1, "cy": 249.7,   # or "K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]
      "depth_scale": 0.0002,                                 # metres per unit (TUM: 1/5000, Kinect: 0.001)
-     "fps": 30.0}                                           # optional: frame rate when there are no timestamps
+     "fps": 30.0,                                           # optional: frame rate when there are no timestamps
+     "distortion": [0.2624, -0.9531, -0.0054, 0.0026, 1.1633]}  # optional: OpenCV k1, k2, p1, p2[, k3]
+
+With distortion coefficients (given or in the file), the readers undistort every frame onto the
+pinhole image of the same K (:mod:`pal.perception.undistort`).
 
 Arguments given to the reader override the file. Without either, the reader raises
 :class:`~pal.io.sequence_files.SequenceError` naming what is missing and how to give it.
@@ -24,6 +28,7 @@ import numpy as np
 from pal.frames import check_intrinsics
 from pal.io.files import FileFormatError, read_json
 from pal.io.sequence_files import SequenceError
+from pal.perception.undistort import check_distortion
 
 __all__ = ["CALIBRATION_FILE", "Calibration", "intrinsics_matrix", "resolve_calibration"]
 
@@ -40,12 +45,15 @@ class Calibration:
         depth_scale: metres per stored depth unit (> 0).
         fps: frame rate, frames/s, or None when the recording has its own timestamps.
         source: where the values came from (``"arguments"``, the calibration file, or both).
+        distortion: (4,), (5,) or (8,) float64 OpenCV lens coefficients ``k1, k2, p1, p2[, k3]``,
+            or None for a pinhole camera (frames are used as recorded).
     """
 
     K: np.ndarray
     depth_scale: float
     fps: float | None
     source: str
+    distortion: np.ndarray | None = None
 
 
 def intrinsics_matrix(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
@@ -94,6 +102,7 @@ def resolve_calibration(
     depth_scale: float | None,
     fps: float | None = None,
     *,
+    distortion: object = None,
     scale_hint: str = "",
 ) -> Calibration:
     """The camera of the frames in ``directory``: the arguments, else ``calibration.json``.
@@ -103,12 +112,15 @@ def resolve_calibration(
         K: (3, 3) intrinsics, or None to read them from the file.
         depth_scale: metres per depth unit, or None to read it from the file.
         fps: frame rate, frames/s, or None (read from the file if it has one).
+        distortion: OpenCV lens coefficients ``k1, k2, p1, p2[, k3]``, or None to read them from
+            the file's ``"distortion"`` (absent: a pinhole camera).
         scale_hint: a sentence added to the error when the depth scale is missing (e.g. the
             format's usual scale).
 
     Raises:
         SequenceError: intrinsics or depth scale neither given nor in the file, the file is
-            malformed, or a value is invalid (depth_scale <= 0, focal lengths <= 0, ...).
+            malformed, or a value is invalid (depth_scale <= 0, focal lengths <= 0, distortion
+            not 4, 5 or 8 finite numbers, ...).
     """
     path = directory / CALIBRATION_FILE
     data = _read_file(path) if path.is_file() else {}
@@ -144,4 +156,16 @@ def resolve_calibration(
         fps = _positive("fps", data["fps"], str(path))
     elif fps is not None:
         fps = _positive("fps", fps, str(directory))
-    return Calibration(K, scale, fps, " + ".join(dict.fromkeys(sources)))
+    lens = _distortion(distortion, data, directory, path)
+    return Calibration(K, scale, fps, " + ".join(dict.fromkeys(sources)), lens)
+
+
+def _distortion(given: object, data: dict[str, Any], directory: Path, path: Path) -> np.ndarray | None:
+    """The lens coefficients given, else the file's ``"distortion"``, else None; checked."""
+    value, where = (given, str(directory)) if given is not None else (data.get("distortion"), str(path))
+    if value is None:
+        return None
+    try:
+        return check_distortion(value)
+    except ValueError as err:
+        raise SequenceError(f"{where}: {err}") from None

@@ -40,6 +40,7 @@ from pal.io.sequence_files import (
     resolve_inside,
 )
 from pal.perception.calibration import resolve_calibration
+from pal.perception.undistort import Undistortion
 from pal.perception.folder_layouts import (
     COLOR_EXTENSIONS,
     DEPTH_EXTENSIONS,
@@ -107,6 +108,8 @@ class FolderSequence(FrameSequence):
         stems: the frames' file stems, in frame order.
         depth_scale: metres per depth unit.
         timed: False when the timestamps are frame numbers (no ``timestamps.txt``, no fps).
+        undistortion: the lens correction of ``calibration.json``'s ``"distortion"`` applied to
+            every frame, or None.
 
     Raises:
         SequenceError: not a folder of frames, a layout that matches nothing, colour and depth
@@ -137,6 +140,7 @@ class FolderSequence(FrameSequence):
         self.layout = chosen.name
         calib = resolve_calibration(self.path, K, depth_scale, fps)
         self.K, self.depth_scale, self.calibration_source = calib.K, calib.depth_scale, calib.source
+        self.undistortion = None if calib.distortion is None else Undistortion(calib.K, calib.distortion)
         self.stems = [s for s, _, _ in frames]
         where = str(self.path)
         self._files = [
@@ -186,6 +190,8 @@ class FolderSequence(FrameSequence):
                 f"{color_file.name} is {rgb.shape[1]}x{rgb.shape[0]} but {depth_file.name} is "
                 f"{depth.shape[1]}x{depth.shape[0]}; colour and depth must be registered at the same size"
             )
+        if self.undistortion is not None:  # calibration.json's lens coefficients
+            rgb, depth = self.undistortion(rgb, depth)
         return RGBDFrame(rgb=rgb, depth=depth, K=self.K, timestamp=float(self.timestamps[index]))
 
     def camera_poses(self) -> CameraPoses:

@@ -167,6 +167,7 @@ class Pipeline:
         self._previous_time: float | None = None
         self._carry: tuple[np.ndarray, list[Candidate], dict[int, Mask]] | None = None
         self._since_full = 0
+        self._last_relations: SceneRelations | None = None
 
     def run(self, frames: Iterable[RGBDFrame], progress_bar: bool = False) -> list[PerceptionState]:
         """Process a recorded sequence (any iterable of frames) offline; returns every state."""
@@ -244,7 +245,9 @@ class Pipeline:
             self.records.pop(merged, None)
             logger.info("object %d merged into %d: they move rigidly together", merged, kept)
         support = getattr(self.segmenter, "last_plane", None)
-        relations = None if cfg.relations is None else self._relations(frame, states, support)
+        moved = frozenset(i for i, s in states.items() if s.mask is not None and known and self.merger is None)
+        relations = None if cfg.relations is None else self._relations(frame, states, support, moved)
+        self._last_relations = relations
         timings["relations"], clock = time.perf_counter() - clock, time.perf_counter()
         self.frame_count += 1
         scene = scene_descriptor(list(self.records.values()), t, self.frame_count, cfg.visible_window_s)
@@ -408,9 +411,13 @@ class Pipeline:
             )
 
     def _relations(
-        self, frame: RGBDFrame, states: dict[int, ObjectState], support: Plane | None
+        self, frame: RGBDFrame, states: dict[int, ObjectState], support: Plane | None, carried: frozenset[int]
     ) -> SceneRelations:
-        """The relational layer over the objects in ``states`` (their centroid histories, salience order)."""
+        """The relational layer over the objects in ``states`` (their centroid histories, salience order).
+
+        Pairs of ``carried`` objects (masks carried from the previous frame) keep the previous
+        frame's topology (:mod:`pal.perception.relations`).
+        """
         assert self.config.relations is not None
         histories = {}
         for tid in states:
@@ -427,6 +434,8 @@ class Pipeline:
             self.config.relations,
             support=support,
             salience={i: self._salience(i, frame) for i in states},
+            previous=self._last_relations,
+            carried=carried,
         )
 
     def _weights(self, frame: RGBDFrame, features: Features, candidates: list) -> np.ndarray:

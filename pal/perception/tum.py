@@ -39,8 +39,10 @@ from pal.io.sequence_files import (
 )
 from pal.perception.calibration import intrinsics_matrix, resolve_calibration
 from pal.perception.folders import pose_matrices
+from pal.perception.undistort import Undistortion
 
 __all__ = [
+    "FREIBURG1_DISTORTION",
     "FREIBURG1_K",
     "FREIBURG2_K",
     "FREIBURG3_K",
@@ -56,6 +58,8 @@ FREIBURG_DEFAULT_K = intrinsics_matrix(525.0, 525.0, 319.5, 239.5)
 FREIBURG1_K = intrinsics_matrix(517.3, 516.5, 318.6, 255.3)
 FREIBURG2_K = intrinsics_matrix(520.9, 521.0, 325.1, 249.7)
 FREIBURG3_K = intrinsics_matrix(535.4, 539.2, 320.1, 247.6)
+#: Published lens distortion of freiburg1's colour camera, OpenCV order k1, k2, p1, p2, k3.
+FREIBURG1_DISTORTION = (0.2624, -0.9531, -0.0054, 0.0026, 1.1633)
 #: TUM depth PNGs store 5000 units per metre.
 TUM_DEPTH_SCALE = 1.0 / 5000.0
 
@@ -130,9 +134,13 @@ class TUMSequence(FrameSequence):
         missing: ``"raise"``: a listed image not on disk is an error when the sequence is
             opened; ``"skip"``: frames with a missing image are left out with a
             :class:`MissingFramesWarning` naming their count (a partial download).
+        distortion: OpenCV lens coefficients ``k1, k2, p1, p2[, k3]`` (e.g.
+            :data:`FREIBURG1_DISTORTION`): every frame is undistorted onto the pinhole image of
+            ``K`` (:mod:`pal.perception.undistort`); None: ``calibration.json``'s, else none.
 
     Attributes:
         num_listed: frames the lists pair, present or not; ``len`` counts those present.
+        undistortion: the lens correction applied to every frame, or None.
 
     Raises:
         SequenceError: missing or malformed lists, timestamps out of order, intrinsics or depth
@@ -148,6 +156,7 @@ class TUMSequence(FrameSequence):
         depth_scale: float | None = None,
         max_difference: float = 0.02,
         missing: str = "raise",
+        distortion: object = None,
     ) -> None:
         if missing not in ("raise", "skip"):
             raise ValueError(f'missing is {missing!r}; expected "raise" or "skip"')
@@ -158,9 +167,11 @@ class TUMSequence(FrameSequence):
             self.path,
             K,
             depth_scale,
+            distortion=distortion,
             scale_hint="The TUM RGB-D benchmark's files use TUM_DEPTH_SCALE (1/5000).",
         )
         self.K, self.depth_scale = calib.K, calib.depth_scale
+        self.undistortion = None if calib.distortion is None else Undistortion(calib.K, calib.distortion)
         rgb_t, rgb_f = _read_list(self.path / "rgb.txt")
         depth_t, depth_f = _read_list(self.path / "depth.txt")
         check_timestamps(rgb_t, str(self.path / "rgb.txt"))
@@ -195,7 +206,11 @@ class TUMSequence(FrameSequence):
         return present
 
     def frame(self, index: int) -> RGBDFrame:
-        """RGB image ``index`` with its associated depth image; SequenceError if they differ in size."""
+        """RGB image ``index`` with its associated depth image (undistorted when the lens is known).
+
+        Raises:
+            SequenceError: the two images differ in size.
+        """
         rgb_file, depth_file = self._files[index]
         rgb = read_image(rgb_file)
         depth = read_depth(depth_file, self.depth_scale)
@@ -203,14 +218,21 @@ class TUMSequence(FrameSequence):
             raise SequenceError(
                 f"{rgb_file} is {rgb.shape[:2]} but {depth_file} is {depth.shape}; TUM images must be aligned"
             )
+        if self.undistortion is not None:
+            rgb, depth = self.undistortion(rgb, depth)
         return RGBDFrame(rgb=rgb, depth=depth, K=self.K, timestamp=float(self.timestamps[index]))
 
-    def groundtruth(self, max_difference: float = 0.02, max_gap: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
-        """Camera poses from ``groundtruth.txt`` at the frame timestamps, interpolated.
+    def groundtruth(
+        self, max_difference: float = 0.02, max_gap: float = 0.1, offset: float = 0.0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Camera poses from ``groundtruth.txt`` at the frame timestamps plus ``offset``, interpolated.
 
         A frame has a pose when a ground-truth sample lies within ``max_difference`` s of it.
         Between two samples at most ``max_gap`` s apart the pose is their linear (translation)
         and spherical linear (rotation) interpolation; otherwise it is the nearer sample.
+        ``offset`` (s) corrects a clock offset between the images and the motion capture: the
+        pose of frame k is read at ``timestamps[k] + offset`` (negative: the images are stamped
+        later than they were exposed).
 
         Returns:
             ((N, 7) float64 ``tx ty tz qx qy qz qw`` rows, (N,) bool valid); invalid rows are 0.
@@ -221,7 +243,9 @@ class TUMSequence(FrameSequence):
         """
         path = self.path / "groundtruth.txt"
         data = _groundtruth_rows(path)
-        out, valid = _interpolate_poses(data, self.timestamps, max_difference, max_gap)
+        if not np.isfinite(offset) or abs(offset) > max_gap:
+            raise ValueError(f"offset is {offset!r} s; expected a finite clock offset within +-{max_gap} s (max_gap)")
+        out, valid = _interpolate_poses(data, self.timestamps + offset, max_difference, max_gap)
         if not valid.any():
             raise SequenceError(
                 f"{path}: its {len(data)} poses ({data[0, 0]:.3f}-{data[-1, 0]:.3f} s) cover none of the "
@@ -229,15 +253,15 @@ class TUMSequence(FrameSequence):
             )
         return out, valid
 
-    def camera_poses(self, max_difference: float = 0.02, max_gap: float = 0.1) -> CameraPoses:
-        """Camera-to-world poses at the frame timestamps (:meth:`groundtruth`) and their validity.
+    def camera_poses(self, max_difference: float = 0.02, max_gap: float = 0.1, offset: float = 0.0) -> CameraPoses:
+        """Camera-to-world poses at the frame timestamps plus ``offset`` s (:meth:`groundtruth`), and their validity.
 
         Frames without ground truth are marked invalid and get the identity.
 
         Raises:
             SequenceError: no ground truth, malformed, or covering no frame.
         """
-        rows, valid = self.groundtruth(max_difference, max_gap)
+        rows, valid = self.groundtruth(max_difference, max_gap, offset)
         rows[~valid] = [0, 0, 0, 0, 0, 0, 1]
         return CameraPoses(pose_matrices(rows, str(self.path / "groundtruth.txt")), valid)
 

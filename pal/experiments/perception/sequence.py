@@ -37,7 +37,7 @@ class Config:
 
 def sequence_results(config: SequenceConfig, seed: int) -> dict[int, dict[str, Any]]:
     """``{stride: evaluate_sequence(...)}`` over the folder of ``config``."""
-    seq = open_sequence(config.path, config.camera)
+    seq = open_sequence(config.path, config.camera, config.undistort)
     return {s: evaluate_sequence(seq, s, config, seed=seed) for s in config.strides}
 
 
@@ -122,6 +122,7 @@ def sequence_table(results: dict[int, dict[str, Any]]) -> Table:
         "posed 1st / 2nd half",
         "mask area change",
         "camera rot. err. [deg]",
+        "truth clock offset [s] (camera rot. err.)",
         "rot. err. [deg]",
         "trans. err. [m]",
         "still rot. [deg]",
@@ -143,6 +144,7 @@ def sequence_table(results: dict[int, dict[str, Any]]) -> Table:
             " / ".join("n/a" if v is None else f"{v:.3f}" for v in r["pose_fraction_halves"]),
             r["area_change_median"],
             r["camera_rot_err_deg_median"],
+            _offset(r),
             r["rot_err_deg_median"],
             r["trans_err_m_median"],
             r["rot_err_still_deg_median"],
@@ -161,8 +163,17 @@ def sequence_table(results: dict[int, dict[str, Any]]) -> Table:
         rows,
         "Errors are medians over posed pairs; still: the no-motion predictor on the same pairs. Wrong: more "
         "than 10 deg or 5 cm off while marked estimated. Mask area change: median |log(area_j / area_i)| of "
-        "the objects keeping their id. Camera rot. err.: Pi's own camera motion against the truth.",
+        "the objects keeping their id. Camera rot. err.: Pi's own camera motion against the truth. Truth clock "
+        "offset: the shift of the truth's time, -40 to +40 ms, at which Pi's camera motion fits it best (a "
+        "diagnostic; the scores read the truth at the frame times plus sequence.truth_offset_s).",
     )
+
+
+def _offset(r: dict[str, Any]) -> str:
+    """``"+0.005 (0.15)"``: the best clock offset of the truth and Π's camera rotation error there."""
+    if r.get("truth_offset_best_s") is None:
+        return "n/a"
+    return f"{r['truth_offset_best_s']:+.3f} ({r['camera_rot_err_deg_at_best']:.3f})"
 
 
 def sequence_stage_table(results: dict[int, dict[str, Any]]) -> Table:

@@ -35,12 +35,30 @@ from pal.checks import check_choice, check_float, check_int
 from pal.experiments.perception.evaluation import rotation_angle_deg
 from pal.experiments.perception.real_frames import pair_rows, summarise
 from pal.perception import Pipeline, PipelineConfig
-from pal.perception.tum import FREIBURG1_K, FREIBURG2_K, FREIBURG3_K, TUM_DEPTH_SCALE, TUMSequence
+from pal.perception.tum import (
+    FREIBURG1_DISTORTION,
+    FREIBURG1_K,
+    FREIBURG2_K,
+    FREIBURG3_K,
+    TUM_DEPTH_SCALE,
+    TUMSequence,
+)
 
-__all__ = ["TUM_CAMERAS", "SequenceConfig", "evaluate_sequence", "excerpt_path", "open_sequence"]
+__all__ = [
+    "OFFSET_SCAN_S",
+    "TUM_CAMERAS",
+    "TUM_DISTORTION",
+    "SequenceConfig",
+    "evaluate_sequence",
+    "excerpt_path",
+    "open_sequence",
+    "truth_clock_offset",
+]
 
 #: The TUM cameras by name: (3, 3) intrinsics, pixels.
 TUM_CAMERAS = {"freiburg1": FREIBURG1_K, "freiburg2": FREIBURG2_K, "freiburg3": FREIBURG3_K}
+#: Their published lens distortion (OpenCV k1, k2, p1, p2, k3), where it is known here.
+TUM_DISTORTION = {"freiburg1": FREIBURG1_DISTORTION}
 
 
 def excerpt_path() -> Path:
@@ -62,6 +80,12 @@ class SequenceConfig:
         camera: ``"file"``: intrinsics and depth scale from the folder's ``calibration.json``;
             ``"freiburg1"``, ``"freiburg2"``, ``"freiburg3"``: that TUM camera's intrinsics and
             TUM's depth scale (1/5000 m per unit).
+        undistort: undistort the frames with the camera's lens coefficients (``"freiburg1"``'s
+            published ones, or ``calibration.json``'s ``"distortion"``); False: use the
+            recorded images as pinhole images.
+        truth_offset_s: clock offset of the camera truth, s: frame k is scored against the
+            motion-capture pose at its timestamp plus this (``TUMSequence.camera_poses``);
+            0 reads the truth at the image timestamps.
         strides: frame strides evaluated, each over its own fresh pipeline.
         frames: sequence frames used, from the first, before striding (None: all).
         seen_iou: IoU of a moved mask with an object of the next frame for "seen in both".
@@ -69,6 +93,8 @@ class SequenceConfig:
 
     path: str = ""
     camera: str = "file"
+    undistort: bool = True
+    truth_offset_s: float = 0.0
     strides: tuple[int, ...] = (1, 3)
     frames: int | None = None
     seen_iou: float = 0.3
@@ -79,21 +105,64 @@ class SequenceConfig:
         if not isinstance(self.strides, tuple) or not self.strides:
             raise ValueError(f"strides is {self.strides!r}; expected a non-empty tuple of ints >= 1")
         check_choice("camera", self.camera, ("file", *TUM_CAMERAS))
+        if not isinstance(self.undistort, bool):
+            raise TypeError(f"undistort is {self.undistort!r}; expected True or False")
         for s in self.strides:
             check_int("strides", s, minimum=1)
         if self.frames is not None:
             check_int("frames", self.frames, minimum=2)
         check_float("seen_iou", self.seen_iou, 0.0, 1.0, open_low=True)
+        check_float("truth_offset_s", self.truth_offset_s, -0.1, 0.1)
 
 
-def open_sequence(path: str | os.PathLike[str], camera: str = "file") -> TUMSequence:
-    """The TUM-layout folder ``path`` (``""``: the shipped excerpt), camera as in :class:`SequenceConfig`."""
+def open_sequence(path: str | os.PathLike[str], camera: str = "file", undistort: bool = True) -> TUMSequence:
+    """The TUM-layout folder ``path`` (``""``: the shipped excerpt), camera and lens as in :class:`SequenceConfig`."""
     folder = excerpt_path() if str(path) == "" else Path(path)
     if camera == "file":
-        return TUMSequence(folder, missing="skip")
-    if camera not in TUM_CAMERAS:
+        seq = TUMSequence(folder, missing="skip")
+    elif camera in TUM_CAMERAS:
+        lens = TUM_DISTORTION.get(camera) if undistort else None
+        seq = TUMSequence(folder, K=TUM_CAMERAS[camera], depth_scale=TUM_DEPTH_SCALE, missing="skip", distortion=lens)
+    else:
         raise ValueError(f"camera {camera!r} unknown; expected 'file' or one of {list(TUM_CAMERAS)}")
-    return TUMSequence(folder, K=TUM_CAMERAS[camera], depth_scale=TUM_DEPTH_SCALE, missing="skip")
+    if not undistort:
+        seq.undistortion = None
+    return seq
+
+
+#: Clock offsets of the camera truth that :func:`truth_clock_offset` tries, s (-40 to +40 ms).
+OFFSET_SCAN_S = tuple(round(-0.04 + 0.005 * k, 3) for k in range(17))
+
+
+def truth_clock_offset(
+    seq: TUMSequence, motions: list[tuple[int, int, np.ndarray]], offsets: tuple[float, ...] = OFFSET_SCAN_S
+) -> tuple[float | None, float | None]:
+    """The clock offset of the camera truth that Π's own camera motions agree with best.
+
+    For each offset (s), the median rotation angle between Π's ``current_from_previous`` of each
+    pair and the truth's motion read at the frame times plus that offset
+    (``seq.camera_poses(offset=...)``); pairs without truth at an offset are left out there.
+
+    Args:
+        seq: the sequence with its camera truth.
+        motions: ``(i, j, current_from_previous (4, 4))`` of the pairs Π measured.
+        offsets: the offsets tried, s.
+
+    Returns:
+        (the offset with the smallest median error, s; that median, degrees), or (None, None)
+        without motions.
+    """
+    best: tuple[float | None, float | None] = (None, None)
+    for offset in offsets:
+        poses = seq.camera_poses(offset=offset)
+        errs = [
+            rotation_angle_deg(est[:3, :3], (np.linalg.inv(poses.poses[j]) @ poses.poses[i])[:3, :3])
+            for i, j, est in motions
+            if poses.valid[i] and poses.valid[j]
+        ]
+        if errs and (best[1] is None or float(np.median(errs)) < best[1]):
+            best = (float(offset), float(np.median(errs)))
+    return best
 
 
 def _run(pipe: Pipeline, frames: list[Any]) -> tuple[list[Any], float, float]:
@@ -120,7 +189,8 @@ def evaluate_sequence(
     Returns:
         the totals of :func:`~pal.experiments.perception.real_frames.summarise` plus ``frames``,
         ``pairs`` (scored), ``pairs_without_truth``, ``camera_rot_err_deg_median`` and
-        ``camera_trans_err_m_median`` (Π's camera motion against the truth, pairs where it was measured), ``ids`` (distinct ids created),
+        ``camera_trans_err_m_median`` (Π's camera motion against the truth, pairs where it was measured),
+        ``truth_offset_best_s`` and ``camera_rot_err_deg_at_best`` (:func:`truth_clock_offset`), ``ids`` (distinct ids created),
         ``objects_per_frame`` (median visible), ``fps_wall``, ``fps_cpu``, ``stage_ms``,
         ``per_pair`` (pose share and kept share per pair), ``pose_fraction_halves`` (the
         share posed over the first and the second half of the pairs) and ``rows``.
@@ -131,12 +201,13 @@ def evaluate_sequence(
     if len(index) < 2:
         raise ValueError(f"{seq.path}: stride {stride} over {n} frames leaves {len(index)} frame; need 2")
     frames = [seq[k] for k in index]
-    poses = seq.camera_poses()
+    poses = seq.camera_poses(offset=config.truth_offset_s)
     pipe = Pipeline(PipelineConfig(**{**(pipeline or PipelineConfig()).__dict__, "seed": seed}))
     states, wall, cpu = _run(pipe, frames)
     rows: list[dict[str, Any]] = []
     per_pair, missing = [], 0
     camera_err: list[tuple[float, float]] = []
+    motions: list[tuple[int, int, np.ndarray]] = []
     for a in range(len(index) - 1):
         i, j = index[a], index[a + 1]
         if not (poses.valid[i] and poses.valid[j]):
@@ -146,6 +217,7 @@ def evaluate_sequence(
         cam = states[a + 1].camera
         if cam is not None and cam.known:
             est = cam.current_from_previous
+            motions.append((i, j, est))
             camera_err.append(
                 (rotation_angle_deg(est[:3, :3], ref[:3, :3]), float(np.linalg.norm(est[:3, 3] - ref[:3, 3])))
             )
@@ -173,6 +245,7 @@ def evaluate_sequence(
         "pairs_without_truth": missing,
         "camera_rot_err_deg_median": float(np.median([e[0] for e in camera_err])) if camera_err else None,
         "camera_trans_err_m_median": float(np.median([e[1] for e in camera_err])) if camera_err else None,
+        **dict(zip(("truth_offset_best_s", "camera_rot_err_deg_at_best"), truth_clock_offset(seq, motions))),
         "ids": len({o.obj_id for s in states for o in s.objects}),
         "objects_per_frame": float(np.median([sum(o.visible for o in s.objects) for s in states])),
         "seconds_wall": wall,

@@ -13,6 +13,7 @@ from pal.perception.plane import Plane
 from pal.perception.propagation import PropagationConfig, carried_plane, propagate_masks
 from pal.perception.segmentation import SegmentationConfig
 from pal.perception.synthetic import Box, SyntheticCamera, table_pose
+from pal.perception.topology import topology
 
 W, H = 320, 240
 TABLE = table_pose()
@@ -128,3 +129,39 @@ def test_periodic_full_segmentation_finds_a_new_object_and_ids_persist():
     assert 2 in seen[3] and seen[4].get(2) == seen[3][2]  # the full segmentation finds it, then it is carried
     box = [o for o in pipe(scene(np.eye(4), 5 / 30.0, extra=True)).objects if o.obj_id == first][0]
     assert iou(box.mask.full(), frames[-1].labels == 1) >= 0.9
+
+
+def test_carried_frames_keep_the_topology_of_the_last_full_segmentation(monkeypatch):
+    """Two boxes 4 mm apart (touching) and one farther, camera turning slowly: the labels of the full segmentations."""
+
+    def frame(k: int):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("y", 0.3 * k, degrees=True).as_matrix()
+        cam = SyntheticCamera(W, H, table=T @ TABLE)
+        boxes = [
+            Box((0.08, 0.1, 0.12), T @ on_table(-0.08, 0.0, 0.06), label=1, seed=1),
+            Box((0.08, 0.1, 0.05), T @ on_table(0.004, 0.0, 0.025), label=2, seed=2),  # 4 mm apart
+            Box((0.06, 0.06, 0.06), T @ on_table(0.2, 0.1, 0.03), label=3, seed=3),
+        ]
+        return cam.render(boxes, k / 30.0)
+
+    import pal.perception.relations as relations
+
+    calls = []
+    monkeypatch.setattr(relations, "topology", lambda *a, **k: calls.append(1) or topology(*a, **k))
+    pipe = Pipeline(PipelineConfig(propagation=PropagationConfig(every=3), estimate_pose=False, seed=3))
+    labels, computed = [], []
+    for k in range(6):
+        f = frame(k)
+        state = pipe(f)
+        computed.append(len(calls))
+        calls.clear()
+        ids = {}
+        for o in state.objects:
+            x0, y0, x1, y1 = o.mask.bbox
+            ids[int(np.bincount(f.labels[y0:y1, x0:x1][o.mask.crop]).argmax())] = o.obj_id
+        rel = state.relations
+        labels.append(rel.pair(min(ids[1], ids[2]), max(ids[1], ids[2])).topology)
+    assert labels[:3] == [labels[0]] * 3 and labels[3:] == [labels[3]] * 3
+    assert labels[0] == labels[3] == "touching"
+    assert computed[0] > 0 and computed[3] > 0 and computed[1] == computed[2] == computed[4] == computed[5] == 0

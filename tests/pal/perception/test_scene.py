@@ -148,3 +148,26 @@ def test_scene_descriptor_schema_with_nulls():
     assert scene["num_visible_objects"] == 2
     ball_now = states[-1].object(ball_d["obj_id"])
     assert not ball_now.visible and ball_now.position is None and ball_now.spatial is None
+
+
+def test_carried_pairs_keep_the_previous_topology_and_others_are_recomputed():
+    """Objects 1 and 2 touch in the previous frame; now 2 is 10 px away, 3 is new beside 1."""
+    f = flat()
+    before = {1: Mask.from_full(box(10, 30, 20, 40)), 2: Mask.from_full(box(30, 50, 20, 40))}
+    spatial = {i: spatial_descriptor(f, m) for i, m in before.items()}
+    prev = scene_relations(f, spatial, before, {}, RelationConfig())
+    assert prev.pair(1, 2).topology == "touching"
+    now = {1: before[1], 2: Mask.from_full(box(60, 80, 20, 40)), 3: Mask.from_full(box(10, 30, 40, 60))}
+    spatial = {i: spatial_descriptor(f, m) for i, m in now.items()}
+    fresh = scene_relations(f, spatial, now, {}, RelationConfig())
+    assert fresh.pair(1, 2).topology == "disjoint" and fresh.pair(1, 3).topology == "touching"
+    kept = scene_relations(f, spatial, now, {}, RelationConfig(), previous=prev, carried=frozenset({1, 2, 3}))
+    # (1, 2) were both carried and related before: the previous label; (1, 3) was not related before
+    assert kept.pair(1, 2).topology == "touching" and kept.pair(2, 1).topology == "touching"
+    assert kept.pair(1, 3).topology == "touching" and kept.pair(2, 3).topology == fresh.pair(2, 3).topology
+    # 2 segmented anew (not carried): recomputed
+    anew = scene_relations(f, spatial, now, {}, RelationConfig(), previous=prev, carried=frozenset({1, 3}))
+    assert anew.pair(1, 2).topology == "disjoint"
+    # everything but topology is computed from this frame's masks and positions
+    assert kept.pair(1, 2).distance == pytest.approx(fresh.pair(1, 2).distance)
+    assert kept.pair(1, 2).grades == fresh.pair(1, 2).grades

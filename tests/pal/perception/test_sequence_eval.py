@@ -52,6 +52,7 @@ def test_stride_three_uses_frames_zero_and_three():
         ({"strides": (0,)}, "strides"),
         ({"camera": "kinect"}, "camera"),
         ({"frames": 1}, "frames"),
+        ({"truth_offset_s": 0.5}, "truth_offset_s"),
     ],
 )
 def test_bad_settings_are_refused(kwargs, match):
@@ -74,3 +75,40 @@ def test_static_objects_take_the_checked_egomotion_prediction(stride1):
     table = sequence_stage_table({1: r})
     rows = {row[0]: row[1] for row in table.rows}
     assert rows["pose"] > 0 and rows["all (CPU time of the process)"] == pytest.approx(1000.0 / r["fps_cpu"])
+
+
+def test_the_truth_clock_offset_is_found_where_the_camera_motions_fit_it(tmp_path):
+    """A camera turning ever faster about its axis; motions measured 20 ms before the image times."""
+    import json
+
+    import cv2
+    from scipy.spatial.transform import Rotation
+
+    from pal.experiments.perception.sequence_eval import truth_clock_offset
+    from pal.perception.tum import TUMSequence
+
+    d = tmp_path / "tum"
+    (d / "rgb").mkdir(parents=True)
+    (d / "depth").mkdir()
+    times = [1.0 + k / 30.0 for k in range(5)]
+    for t in times:
+        cv2.imwrite(str(d / "rgb" / f"{t:.6f}.png"), np.zeros((8, 8, 3), np.uint8))
+        cv2.imwrite(str(d / "depth" / f"{t:.6f}.png"), np.full((8, 8), 5000, np.uint16))
+    for name in ("rgb", "depth"):
+        (d / f"{name}.txt").write_text("".join(f"{t:.6f} {name}/{t:.6f}.png\n" for t in times))
+    # yaw 20 deg/s^2 * t^2: each frame's turn depends on when it is read
+    rows = []
+    for t in np.arange(0.9, 1.25, 0.01):
+        q = Rotation.from_euler("z", 20.0 * (t - 0.9) ** 2, degrees=True).as_quat()
+        rows.append(f"{t:.3f} 0 0 0 {q[0]:.12f} {q[1]:.12f} {q[2]:.12f} {q[3]:.12f}\n")
+    (d / "groundtruth.txt").write_text("".join(rows))
+    (d / "calibration.json").write_text(json.dumps({"fx": 10, "fy": 10, "cx": 3.5, "cy": 3.5, "depth_scale": 2e-4}))
+    seq = TUMSequence(d)
+    P = seq.camera_poses(offset=-0.02).poses
+    motions = [(i, i + 1, np.linalg.inv(P[i + 1]) @ P[i]) for i in range(4)]
+    offset, err = truth_clock_offset(seq, motions)
+    assert offset == pytest.approx(-0.02) and err < 0.01  # degrees: the slerp between 10 ms samples
+    # at the image times the turns differ by 20 ms of acceleration: a measurable error
+    at_zero = truth_clock_offset(seq, motions, offsets=(0.0,))
+    assert at_zero[0] == 0.0 and at_zero[1] > 5 * err
+    assert truth_clock_offset(seq, []) == (None, None)
