@@ -49,15 +49,6 @@ def _array(value: Any, shape: tuple[int, ...], name: str) -> Tensor:
     return tensor
 
 
-def _rodrigues(axis: Tensor, angle: Tensor) -> Tensor:
-    """Rotations ``(..., 3, 3)`` by ``angle`` ``(...)`` about the unit ``axis`` ``(3,)``."""
-    k = axis.new_zeros(3, 3)
-    k[0, 1], k[0, 2], k[1, 2] = -axis[2], axis[1], -axis[0]
-    k = k - k.T
-    s, c = angle.sin()[..., None, None], angle.cos()[..., None, None]
-    return torch.eye(3, dtype=axis.dtype) + s * k + (1 - c) * (k @ k)
-
-
 class KinematicChain(torch.nn.Module):
     """Forward kinematics ``x(q)`` of J hinges (module docstring).
 
@@ -108,6 +99,8 @@ class KinematicChain(torch.nn.Module):
         self.register_buffer("refs", refs)
         self.register_buffer("end", _array(end, (3,), "end"))
         self.register_buffer("limits", limits)
+        self._derive()
+        self.register_load_state_dict_post_hook(lambda module, _keys: module._derive())
 
     @property
     def joints(self) -> int:
@@ -119,20 +112,43 @@ class KinematicChain(torch.nn.Module):
         low, high = self.limits.to(q.dtype).unbind(1)
         return torch.maximum(torch.minimum(q, high), low)
 
+    def _derive(self) -> None:
+        """Per hinge: ``R_k K_k``, ``R_k K_k^2`` ``(J, 3, 3)``, ``R_k K_k p_k``, ``R_k K_k^2 p_k`` ``(J, 3)``.
+
+        With them one hinge is ``M = R_k + sin A + (1 - cos) B`` (``R_k Rot``) and the frame's
+        origin moves by ``F (t_k - sin a - (1 - cos) b)``: the anchor's ``R_k p_k`` cancels. Kept
+        per dtype (derived from the chain's buffers, which are fixed).
+        """
+        k = torch.zeros(self.joints, 3, 3, dtype=torch.float64)
+        ax = self.axes
+        k[:, 0, 1], k[:, 0, 2], k[:, 1, 2] = -ax[:, 2], ax[:, 1], -ax[:, 0]
+        k = k - k.transpose(1, 2)
+        a_mat, b_mat = self.rotations @ k, self.rotations @ k @ k
+        a_vec = (a_mat @ self.anchors[..., None])[..., 0]
+        b_vec = (b_mat @ self.anchors[..., None])[..., 0]
+        terms = (self.rotations, a_mat, b_mat, self.translations, a_vec, b_vec, self.refs, self.end)
+        self._terms = {dtype: tuple(t.to(dtype) for t in terms) for dtype in (torch.float32, torch.float64)}
+
     def forward(self, q: Tensor) -> Tensor:
         """The end point ``x(q)``: ``(..., J) -> (..., 3)`` (world coordinates, the base's units)."""
         if q.shape[-1] != self.joints:
             raise ValueError(f"joint angles have last dim {q.shape[-1]}, expected {self.joints}")
-        dtype = q.dtype
-        rot = torch.eye(3, dtype=dtype).expand(*q.shape[:-1], 3, 3)
-        pos = q.new_zeros(*q.shape[:-1], 3)
+        if q.dtype not in self._terms:
+            raise ValueError(f"joint angles must be float32 or float64, got {q.dtype}")
+        rot_k, a_mat, b_mat, t_k, a_vec, b_vec, refs, end = self._terms[q.dtype]
+        theta = q - refs
+        sin, one_minus_cos = theta.sin(), 1 - theta.cos()
+        rot, pos = None, None
         for k in range(self.joints):
-            pos = pos + rot @ self.translations[k].to(dtype)
-            rot = rot @ self.rotations[k].to(dtype)
-            anchor = pos + rot @ self.anchors[k].to(dtype)
-            rot = rot @ _rodrigues(self.axes[k].to(dtype), q[..., k] - self.refs[k].to(dtype))
-            pos = anchor - rot @ self.anchors[k].to(dtype)
-        return pos + rot @ self.end.to(dtype)
+            s, c = sin[..., k, None], one_minus_cos[..., k, None]
+            step = t_k[k] - s * a_vec[k] - c * b_vec[k]  # (..., 3)
+            turn = rot_k[k] + s[..., None] * a_mat[k] + c[..., None] * b_mat[k]  # (..., 3, 3)
+            if rot is None:
+                rot, pos = turn, step
+            else:
+                pos = pos + (rot @ step[..., None])[..., 0]
+                rot = rot @ turn
+        return pos + (rot @ end[:, None])[..., 0]
 
     def config(self) -> dict[str, Any]:
         """JSON-compatible constructor arguments (limits as ``None`` for infinite)."""
@@ -214,9 +230,8 @@ class KinematicMechanism(Mechanism):
         """The effector's motion from ``[q_prev, dq]`` (the normalisers stay the identity)."""
         cols = list(self.columns)
         q_prev, dq = z[..., : self.joints][..., cols], z[..., self.joints :][..., cols]
-        before = self.chain(self.chain.clip(q_prev))
-        after = self.chain(self.chain.clip(q_prev + dq))
-        return (after - before)[..., : self.out_dim]
+        ends = self.chain(self.chain.clip(torch.stack([q_prev, q_prev + dq])))
+        return (ends[1] - ends[0])[..., : self.out_dim]
 
     def config(self) -> dict[str, Any]:
         """JSON-compatible constructor arguments."""

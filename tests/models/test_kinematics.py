@@ -113,3 +113,14 @@ def test_bad_chains_name_the_value():
         KinematicChain(**{**args, "translations": [[0, 0]]}, axes=[[0, 0, 1]], limits=[[-1, 1]])
     with pytest.raises(ValueError, match="last dim 3, expected 1"):
         KinematicChain(**args, axes=[[0, 0, 1]], limits=[[-1, 1]])(torch.zeros(3))
+
+
+def test_a_loaded_state_replaces_the_derived_terms_too():
+    chain, other = planar_arm(), planar_arm()
+    with torch.no_grad():
+        other.translations[1, 0] = 0.5  # a longer first link
+    chain.load_state_dict(other.state_dict())
+    q = torch.tensor([[0.0, 0.0]], dtype=torch.float64)
+    torch.testing.assert_close(chain(q), torch.tensor([[0.5 + L2, 0.0, 0.0]], dtype=torch.float64))
+    with pytest.raises(ValueError, match="float32 or float64"):
+        chain(q.half())
