@@ -184,8 +184,12 @@ class ActionObjective:
         self.fixed = fixed
         if noise:
             predicted = [v for v in graph.non_roots if v not in fixed]
+            # the sites not replayed take residual 0: a continuous site its loc, a discrete one its
+            # mode (K zero Gumbels), so a gated site follows its switch's mode, not the mixture
             self.noise: dict[str, Tensor] | None = {
-                v: noise[v] if v in noise else torch.zeros(n, graph[v].dim, dtype=model.dtype)
+                v: noise[v]
+                if v in noise
+                else torch.zeros(n, model.categories(v) or graph[v].dim, dtype=model.dtype)
                 for v in predicted
             }
         else:

@@ -42,7 +42,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from inference import ActionOptions
-from pal.agent import ModelConfig, PlanConfig
+from pal.agent import CorrectionConfig, ModelConfig, PlanConfig
 from pal.agent.aggregate import AggregationConfig
 from pal.agent.config import MODEL_SCHEDULE, PLAN_SAMPLING
 from pal.baselines.pets import BaselineConfig
@@ -112,6 +112,8 @@ class Config:
         eval_goals: evaluation episodes per seed and checkpoint.
         success: an episode succeeds when it ends within this x-y distance, m.
         model: the agent's world model and fit. plan: both planners' settings and step cost.
+        correction: the agent's online correction of its MPC rollouts from abducted residuals
+            (:mod:`pal.agent.correction`; off by default: the baseline has none).
         baseline: the PETS-style model and its fit (every refit).
         ranking: the probes of the models' rankings of candidate plans
             (:mod:`pal.experiments.closed_loop.pusher_ranking`). threads: torch threads per
@@ -125,6 +127,7 @@ class Config:
     success: float = 0.05
     model: ModelConfig = MODEL
     plan: PlanConfig = PLAN
+    correction: CorrectionConfig = CorrectionConfig()
     baseline: BaselineConfig = BaselineConfig(epochs=20)
     ranking: RankingConfig = RankingConfig()
     threads: int = 1
@@ -134,7 +137,11 @@ class Config:
         check_int("seed", self.seed, minimum=0)
         for name in ("runs", "eval_goals", "threads", "workers"):
             check_int(name, getattr(self, name))
-        for name, kind in (("aggregation", AggregationConfig), ("ranking", RankingConfig)):
+        for name, kind in (
+            ("aggregation", AggregationConfig),
+            ("ranking", RankingConfig),
+            ("correction", CorrectionConfig),
+        ):
             if not isinstance(getattr(self, name), kind):
                 raise ValueError(
                     f"{name} must be a {kind.__name__}, got {type(getattr(self, name)).__name__}"

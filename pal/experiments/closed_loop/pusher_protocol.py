@@ -55,7 +55,9 @@ def _log_point(name: str, seed: int, point: int, counts: Counts, episodes: list[
 
 def _pal(config: Any, seed: int, goals: list[int], found: list[Probe] | None = None) -> dict[str, Any]:
     """The agent's rounds and its checkpoint evaluations."""
-    cfg = AgentConfig(model=config.model, plan=config.plan, reset_every=None, servo=False)
+    cfg = AgentConfig(
+        model=config.model, plan=config.plan, correction=config.correction, reset_every=None, servo=False
+    )
     steps, h = config.aggregation.episode_steps, config.plan.action.horizon
     env, eval_env = gymnasium.make(ENV_ID), gymnasium.make(ENV_ID)
     agent = Agent(env, pusher_spec(), cfg, seed=seed)

@@ -153,3 +153,21 @@ def test_the_pusher_model_labels_a_push_of_a_few_millimetres_as_contact():
     rule, floor = contact_rule(pusher_spec(), pusher.MODEL)
     # a push moves Pusher-v5's object at most ~3.4 mm per step: the floor must sit well below it
     assert rule == "moved" and floor == pytest.approx(3e-4, abs=1e-12)
+
+
+def test_the_agents_half_runs_with_mjcf_kinematics_and_the_online_correction():
+    from pal.agent import CorrectionConfig
+    from pal.experiments.closed_loop.pusher_protocol import _pal
+
+    config = replace(
+        pusher.TINY,
+        model=replace(pusher.TINY.model, kinematics="mjcf"),
+        correction=CorrectionConfig(enabled=True),
+    )
+    out = _pal(config, 0, goals=[7])
+    assert out["counts"]["env_steps"] == config.aggregation.budget
+    for point in config.aggregation.checkpoints:
+        (episode,) = out["at"][point]["episodes"]
+        assert len(episode.path) == config.aggregation.episode_steps + 1 and episode.cpu is not None
+    with pytest.raises(ValueError, match="correction must be a CorrectionConfig, got int"):
+        replace(pusher.TINY, correction=1)
