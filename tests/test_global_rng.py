@@ -59,6 +59,9 @@ from models import (
     FunctionMechanism,
     GatedMechanism,
     HeteroscedasticMechanism,
+    JointLimitMechanism,
+    KinematicChain,
+    KinematicMechanism,
     LinearMechanism,
     MLPMechanism,
     Variable,
@@ -148,6 +151,32 @@ def _gated_queries() -> None:
     inference.coverage_by_regime(data["x"][:3], interval.lower, interval.upper, c[:3, 0])
     several = inference.predictive_intervals(model, {"b": b[:3]}, "x", (0.5, 0.9), num_samples=8, seed=1)
     assert len(several) == 2
+
+
+def _kinematics(tmp: Path) -> None:
+    """A hinge chain, its effector-motion and joint-limit mechanisms, saved and loaded in a model."""
+    chain = KinematicChain(
+        torch.eye(3).expand(2, 3, 3),
+        [[0, 0, 0], [0.3, 0, 0]],
+        torch.zeros(2, 3),
+        [[0, 0, 1]] * 2,
+        [0, 0],
+        [0.2, 0, 0],
+        [[-1, 1], [-2, 2]],
+    )
+    graph = CausalGraph(
+        [
+            Variable("q_prev", "observed", 2),
+            Variable("dq", "observed", 2),
+            Variable("q", "latent", 2),
+            Variable("dee", "latent", 3),
+        ],
+        [("q_prev", "q"), ("dq", "q"), ("q_prev", "dee"), ("dq", "dee")],
+    )
+    mechs = {"q": JointLimitMechanism([[-1, 1], [-2, 2]]), "dee": KinematicMechanism(chain, [0, 1], 2)}
+    model = WorldModel(graph, mechs, seed=0)
+    model.predict({"q_prev": torch.zeros(2, 2), "dq": torch.ones(2, 2)})
+    models.load(models.save(model, tmp / "kinematic.npz"))
 
 
 def _calibrated_models(tmp: Path) -> None:
@@ -320,6 +349,7 @@ CASES: dict[str, Callable[[Path], object]] = {
         _finger(), _finger_data(), loss="mse", schedule=FitSchedule(epochs=2, batch_size=8, validation=0.0)
     ),
     "heteroscedastic and ensemble models": _calibrated_models,
+    "kinematic chain, KinematicMechanism, JointLimitMechanism": _kinematics,
     "gated site: fit, predict, counterfactual_mixture (MixtureCounterfactual), predictive_interval(s)": (
         lambda tmp: _gated_queries()
     ),
