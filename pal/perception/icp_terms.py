@@ -17,7 +17,7 @@ from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask
 from pal.perception.quantiles import median
 
-__all__ = ["LiveSurface", "Match", "Photometric", "associate", "bilinear", "cross", "smooth"]
+__all__ = ["LiveSurface", "Match", "Photometric", "associate", "bilinear", "cross", "smooth", "surface_normals"]
 
 
 def smooth(gray: np.ndarray, sigma: float) -> np.ndarray:
@@ -73,31 +73,50 @@ class LiveSurface:
         b = self.baseline
         ok = (u >= b) & (v >= b) & (u < self.w - b) & (v < self.h - b)
         ok[ok] = self.valid[v[ok], u[ok]]
-        u, v = u[ok], v[ok]
-        z = self.z
-        zc, zr, zl, zd, zu = z[v, u], z[v, u + b], z[v, u - b], z[v + b, u], z[v - b, u]
-        # the centre and its four neighbours lifted at once: (5, N, 3)
-        uu = np.stack([u, u + b, u - b, u, u]) + self.x0
-        vv = np.stack([v, v, v, v + b, v - b]) + self.y0
-        L = backproject(uu, vv, np.stack([zc, zr, zl, zd, zu]), self.K)
-        P, dx, dy = L[0], L[1] - L[2], L[3] - L[4]
-        n = cross(dx, dy)
-        norm = np.linalg.norm(n, axis=1)
-        good = (
-            (zr > 0)
-            & (zl > 0)
-            & (zd > 0)
-            & (zu > 0)
-            & (np.abs(dx[:, 2]) < self.max_jump * b * zc)
-            & (np.abs(dy[:, 2]) < self.max_jump * b * zc)
-            & (norm > 1e-12)
-        )
-        n = n / np.where(norm > 1e-12, norm, 1.0)[:, None]
-        n = np.where((np.sum(n * P, axis=1) > 0)[:, None], -n, n)  # face the camera
-        out = np.flatnonzero(ok)
+        good, P, n = surface_normals(self.z, u[ok], v[ok], (self.x0, self.y0), self.K, b, self.max_jump)
         keep = np.zeros(len(ok), dtype=bool)
-        keep[out[good]] = True
-        return keep, P[good], n[good]
+        keep[np.flatnonzero(ok)[good]] = True
+        return keep, P, n
+
+
+def surface_normals(
+    z: np.ndarray, u: np.ndarray, v: np.ndarray, origin: tuple[int, int], K: np.ndarray, b: int, max_jump: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points and camera-facing unit normals from depth differences over +-``b`` pixels.
+
+    Args:
+        z: (h, w) depth, metres: the frame, or a crop whose top-left pixel is ``origin``.
+        u: (N,) int pixel columns in ``z``, at least ``b`` from its border.
+        v: (N,) int pixel rows in ``z``, the same.
+        origin: (x0, y0) of ``z`` in the full frame, pixels.
+        K: (3, 3) full-frame intrinsics.
+        b: the baseline, pixels.
+        max_jump: largest depth step across the baseline, per pixel and metre of depth.
+
+    Returns:
+        (good (N,): all four neighbours have depth, no step and a normal; points (P, 3) and
+        unit normals (P, 3) of the good pixels, metres).
+    """
+    zc, zr, zl, zd, zu = z[v, u], z[v, u + b], z[v, u - b], z[v + b, u], z[v - b, u]
+    # the centre and its four neighbours lifted at once: (5, N, 3)
+    uu = np.stack([u, u + b, u - b, u, u]) + origin[0]
+    vv = np.stack([v, v, v, v + b, v - b]) + origin[1]
+    L = backproject(uu, vv, np.stack([zc, zr, zl, zd, zu]), K)
+    P, dx, dy = L[0], L[1] - L[2], L[3] - L[4]
+    n = cross(dx, dy)
+    norm = np.linalg.norm(n, axis=1)
+    good = (
+        (zr > 0)
+        & (zl > 0)
+        & (zd > 0)
+        & (zu > 0)
+        & (np.abs(dx[:, 2]) < max_jump * b * zc)
+        & (np.abs(dy[:, 2]) < max_jump * b * zc)
+        & (norm > 1e-12)
+    )
+    n = n / np.where(norm > 1e-12, norm, 1.0)[:, None]
+    n = np.where((np.sum(n * P, axis=1) > 0)[:, None], -n, n)  # face the camera
+    return good, P[good], n[good]
 
 
 class Photometric:

@@ -15,7 +15,7 @@ from pal.perception.memory import AdmissionConfig, Gallery, ObjectRecord
 from pal.perception.pose import PoseConfig, PoseEstimator
 from pal.perception.pose_checks import PoseChecks, static_bounds
 from pal.perception.pose_config import PredictionCheck
-from pal.perception.pose_predicted import predicted_pose
+from pal.perception.pose_predicted import predicted_pose, predicted_poses
 from pal.perception.segmentation import OracleSegmenter
 from pal.perception.synthetic import Box, SyntheticCamera
 
@@ -86,6 +86,35 @@ def test_the_prediction_is_taken_while_the_box_stays_and_refused_once_it_moved()
     assert predicted_pose(rec, f, seg(f)[0].mask, np.eye(4), cfg, camera_known=False) is None
     with pytest.raises(ValueError, match="refit_every"):
         PredictionCheck(refit_every=0)
+
+
+def test_the_predictions_checked_in_one_pass_equal_those_checked_one_at_a_time():
+    cfg = PoseConfig(prediction=PredictionCheck(refit_every=3))
+    seg = OracleSegmenter()
+    frames = [
+        CAM.render([Box(SIZE, on_table(10.0, dx))], 0.033 * k) for k, dx in ((2, 0.0), (3, 0.0), (4, 0.03))
+    ]
+    one, batch = [_posed_record(cfg)[0] for _ in range(3)], [_posed_record(cfg)[0] for _ in range(3)]
+    one[2].predicted_run = batch[2].predicted_run = 2  # a refit is due: not eligible
+    for f in frames:
+        mask = seg(f)[0].mask
+        ref = [predicted_pose(r, f, mask, np.eye(4), cfg, camera_known=True) for r in one]
+        got = predicted_poses([(r, mask) for r in batch], f, np.eye(4), cfg, camera_known=True)
+        assert [p is None for p in got] == [p is None for p in ref]
+        for g, r in zip(got, ref, strict=True):
+            if r is not None:
+                np.testing.assert_array_equal(g.camera_from_object, r.camera_from_object)
+                np.testing.assert_allclose(g.covariance, r.covariance, rtol=1e-7, atol=1e-15)
+                assert g.diagnostics.inliers == r.diagnostics.inliers
+        for a, b in zip(one, batch, strict=True):
+            assert a.predicted_run == b.predicted_run and a.world_pose[0] == b.world_pose[0]
+    # the known answers: taken twice while the box stays, refused once it slid 3 cm
+    assert [r.predicted_run for r in batch] == [0, 0, 0] and batch[0].world_pose[0] == pytest.approx(
+        0.033 * 3
+    )
+    assert predicted_poses([], frames[0], np.eye(4), cfg, True) == []
+    with pytest.raises(ValueError, match="more than once"):
+        predicted_poses([(batch[0], mask), (batch[0], mask)], frames[0], np.eye(4), cfg, True)
 
 
 def test_the_score_at_the_truth_agrees_and_a_slide_is_seen():
