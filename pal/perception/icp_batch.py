@@ -117,9 +117,9 @@ def _photometric(photos: list, g: np.ndarray, sel: np.ndarray, y: np.ndarray, X:
     bounds = np.searchsorted(g, np.arange(len(photos) + 1))
     for i in np.flatnonzero(np.diff(bounds)):
         s, p = slice(bounds[i], bounds[i + 1]), photos[i]
-        ri = bilinear(p.img, u[s], v[s]) - p.model_gray[sel[s]]
-        r[s] = ri - median(ri)
-        gr[s, 0], gr[s, 1] = bilinear(p.gu, u[s], v[s]), bilinear(p.gv, u[s], v[s])
+        sampled = bilinear(p.levels, u[s], v[s])
+        ri = sampled[:, 0] - p.model_gray[sel[s]]
+        r[s], gr[s] = ri - median(ri), sampled[:, 1:]
     zero = np.zeros_like(z)
     du = np.stack([K[0, 0] / z, zero, -K[0, 0] * X[:, 0] / z**2], axis=1)
     dv = np.stack([zero, K[1, 1] / z, -K[1, 1] * X[:, 1] / z**2], axis=1)

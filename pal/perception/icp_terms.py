@@ -27,9 +27,14 @@ def smooth(gray: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Bilinear samples of (h, w) ``img`` at float pixels (u, v), which must lie in [0, w-1) x [0, h-1)."""
+    """Bilinear samples (N,) of (h, w) ``img``, or (N, C) of (h, w, C), at float pixels (u, v).
+
+    The pixels (N,) must lie in [0, w-1) x [0, h-1).
+    """
     u0, v0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
     a, b = u - u0, v - v0
+    if img.ndim == 3:
+        a, b = a[:, None], b[:, None]
     return (
         img[v0, u0] * (1 - a) * (1 - b)
         + img[v0, u0 + 1] * a * (1 - b)
@@ -135,21 +140,23 @@ class Photometric:
         self.img = smooth(frame.gray()[self.y0 : gy1, self.x0 : gx1], blur_sigma)
         self.gu = cv2.Sobel(self.img, cv2.CV_32F, 1, 0, ksize=3) / 8.0
         self.gv = cv2.Sobel(self.img, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+        self.levels = np.dstack([self.img, self.gu, self.gv])  # sampled together: (h, w, 3)
         self.K = frame.K
         self.model_gray = model_gray
         self.sigma = float(sigma)
 
     def __call__(self, sel: np.ndarray, y: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Residuals (P,) and Jacobian rows (P, 6) of model points ``sel`` (rotated ``y``, moved ``X``)."""
-        img, gu, gv, K = self.img, self.gu, self.gv, self.K
+        img, K = self.img, self.K
         z = X[:, 2]
         u = K[0, 0] * X[:, 0] / z + K[0, 1] * X[:, 1] / z + K[0, 2] - self.x0
         v = K[1, 1] * X[:, 1] / z + K[1, 2] - self.y0
         ok = (u >= 0) & (v >= 0) & (u < img.shape[1] - 1) & (v < img.shape[0] - 1)
         u, v, z, y, X, sel = u[ok], v[ok], z[ok], y[ok], X[ok], sel[ok]
-        r = bilinear(img, u, v) - self.model_gray[sel]
+        sampled = bilinear(self.levels, u, v)
+        r = sampled[:, 0] - self.model_gray[sel]
         r = r - median(r) if len(r) else r
-        g = np.stack([bilinear(gu, u, v), bilinear(gv, u, v)], axis=1)
+        g = sampled[:, 1:]
         # d(u, v)/dX for the pinhole, then dX/d(w, d) = [-[y]x, I]
         du = np.stack([K[0, 0] / z, np.zeros_like(z), -K[0, 0] * X[:, 0] / z**2], axis=1)
         dv = np.stack([np.zeros_like(z), K[1, 1] / z, -K[1, 1] * X[:, 1] / z**2], axis=1)

@@ -137,6 +137,8 @@ class Snapshot:
         anchor: (4, 4) object_from_camera at capture, or None.
         thumb: masked thumbnail for redundancy checks.
         visual: (54,) visual descriptor, computed when first needed (None until then).
+        surfaces: its sampled surfaces in the object frame by sampling settings, kept once computed
+            (:func:`pal.perception.pose_dense.snapshot_surface`).
     """
 
     index: int
@@ -151,6 +153,7 @@ class Snapshot:
     anchor: np.ndarray | None
     thumb: np.ndarray
     visual: np.ndarray | None = None
+    surfaces: dict = field(default_factory=dict, repr=False)
 
     def visual_vector(self) -> np.ndarray:
         """The (54,) visual descriptor of the snapshot (computed once)."""

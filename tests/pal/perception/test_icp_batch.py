@@ -8,7 +8,10 @@ from scipy.spatial.transform import Rotation
 
 from pal.perception.icp import IcpConfig, IcpFit, icp_score, surface_points
 from pal.perception.icp_batch import ScoreItem, icp_scores
+from pal.perception.icp_terms import bilinear
 from pal.perception.masks import Mask
+from pal.perception.memory import Snapshot
+from pal.perception.pose_dense import snapshot_surface
 from pal.perception.synthetic import Box, SyntheticCamera
 
 CAM = SyntheticCamera(320, 240)
@@ -81,3 +84,44 @@ def test_a_bad_item_is_refused_by_name():
         icp_scores([items[0], bad], frame)
     with pytest.raises(ValueError, match="model_gray has shape"):
         icp_scores([ScoreItem(items[0].model, items[0].T, items[0].mask, items[0].model_gray[:3])], frame)
+
+
+def test_grey_levels_and_their_gradients_sampled_together_equal_sampled_apart():
+    rng = np.random.default_rng(3)
+    levels = rng.random((20, 30, 3)).astype(np.float32)
+    u, v = rng.uniform(0, 28.99, 50), rng.uniform(0, 18.99, 50)
+    together = bilinear(levels, u, v)
+    for c in range(3):
+        np.testing.assert_array_equal(together[:, c], bilinear(levels[:, :, c], u, v))
+    # the known answer: a linear ramp is sampled exactly
+    ramp = np.add.outer(np.arange(20.0), 2.0 * np.arange(30.0))
+    np.testing.assert_allclose(bilinear(ramp, u, v), v + 2.0 * u, atol=1e-12)
+
+
+def test_a_snapshot_surface_is_sampled_once_per_setting():
+    frame = _scene(0.0)
+    mask = Mask.from_full(frame.labels == 1)
+    x0, y0, x1, y1 = mask.bbox
+    snap = Snapshot(
+        0,
+        0.0,
+        mask.bbox,
+        frame.rgb[y0:y1, x0:x1],
+        frame.depth[y0:y1, x0:x1],
+        mask.crop,
+        frame.K,
+        1.0,
+        None,
+        np.eye(4),
+        np.zeros(1),
+    )
+    first = snapshot_surface(snap, IcpConfig(), (0.1, 6.0))
+    assert snapshot_surface(snap, IcpConfig(), (0.1, 6.0))[0] is first[0]
+    pts, gray, step = surface_points(
+        frame.depth[y0:y1, x0:x1], mask.crop, (x0, y0), frame.K, 160, gray=frame.gray()[y0:y1, x0:x1]
+    )
+    np.testing.assert_array_equal(first[0], pts)
+    np.testing.assert_array_equal(first[1], gray)
+    assert first[2] == step and not first[0].flags.writeable
+    other = snapshot_surface(snap, IcpConfig(max_points=40), (0.1, 6.0))
+    assert len(other[0]) < len(first[0])
