@@ -340,6 +340,8 @@ class ObjectRecord:
         first_frame: index of the frame in which the object was born.
         speed: world speed of the pose origin between its last two estimated poses, m/s.
         predicted_run: poses in a row taken from the camera's egomotion (:mod:`pal.perception.pose_predicted`).
+        failed_fits: pose fits in a row that gave no ``estimated`` pose, skipped ones included
+            (:func:`pal.perception.pose_predicted.fit_due`).
     """
 
     obj_id: int
@@ -359,6 +361,7 @@ class ObjectRecord:
     first_frame: int = 0
     speed: float = 0.0
     predicted_run: int = 0
+    failed_fits: int = 0
 
 
 def _padded_bbox(frame: RGBDFrame, mask: Mask, margin: int) -> tuple[int, int, int, int]:

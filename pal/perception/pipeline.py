@@ -54,7 +54,7 @@ from pal.perception.masks import Mask
 from pal.perception.memory import AdmissionConfig, AdmissionDecision, Gallery, ObjectRecord
 from pal.perception.plane import Plane
 from pal.perception.pose import PoseConfig, PoseEstimator, position_std
-from pal.perception.pose_predicted import predicted_poses
+from pal.perception.pose_predicted import fit_due, predicted_poses
 from pal.perception.propagation import PropagationConfig, carried_plane, propagate_masks
 from pal.perception.regions import metric_area
 from pal.perception.reid import gallery_histograms
@@ -338,9 +338,13 @@ class Pipeline:
         if cfg.estimate_pose:
             pose, decision = predicted, None
             feats: Features | Callable[[], Features] = feats_of
-            if pose is None:
+            if pose is None and not fit_due(rec, cfg.pose.retry):
+                why = PoseDiagnostics(reason=f"not fitted in this frame: the last {rec.failed_fits} fits failed")
+                pose, rec.failed_fits = self.estimator.missing(rec, t, why), rec.failed_fits + 1
+            elif pose is None:
                 feats = feats_of()
                 pose, decision = self.estimator.estimate(rec, frame, gray, obs.mask, feats, world)
+                rec.failed_fits = 0 if pose.source == "estimated" else rec.failed_fits + 1
             else:  # the view is where the gallery last saw it: no new snapshot to consider
                 decision = AdmissionDecision(False, "predicted")
             c1 = time.perf_counter()
@@ -373,8 +377,7 @@ class Pipeline:
         seen = [o for o in observations if o.track_id in self.records] if self.config.estimate_pose else []
         W = np.eye(4) if camera is None else camera.world_from_camera
         known = camera is not None and camera.known
-        objs = [(self.records[o.track_id], o.mask) for o in seen]
-        poses = predicted_poses(objs, frame, W, self.config.pose, known)
+        poses = predicted_poses([(self.records[o.track_id], o.mask) for o in seen], frame, W, self.config.pose, known)
         return {o.track_id: p for o, p in zip(seen, poses, strict=True)}
 
     def _views(self, tid: int) -> list[np.ndarray]:
@@ -422,13 +425,10 @@ class Pipeline:
         frame's topology (:mod:`pal.perception.relations`).
         """
         assert self.config.relations is not None
-        histories = {}
-        for tid in states:
-            cents = self.records[tid].centroids
-            histories[tid] = (
-                np.array([c[0] for c in cents]),
-                np.array([c[1] for c in cents]).reshape(-1, 3),
-            )
+        cents = {tid: self.records[tid].centroids for tid in states}
+        histories = {
+            i: (np.array([c[0] for c in cs]), np.array([c[1] for c in cs]).reshape(-1, 3)) for i, cs in cents.items()
+        }
         return scene_relations(
             frame,
             {i: s.spatial for i, s in states.items()},

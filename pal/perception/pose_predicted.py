@@ -22,6 +22,9 @@ only when the data would have seen a deviation and sees none:
 :func:`predicted_poses` checks the predictions of all of a frame's objects at once
 (:func:`pal.perception.icp_batch.icp_scores`), with the same result as one at a time.
 
+An object whose fits keep failing is fitted only every few frames (:func:`fit_due`,
+``PoseConfig.retry``).
+
 Every ``refit_every``-th frame in a row the object is fitted again by features (and the dense
 fallback), so a drift of the camera's motion cannot go on unmeasured. The pose carries the
 covariance of the check's terms at the prediction; its world-frame pose does not move.
@@ -44,9 +47,9 @@ if TYPE_CHECKING:
     from pal.perception.frames import RGBDFrame
     from pal.perception.masks import Mask
     from pal.perception.memory import ObjectRecord, Snapshot
-    from pal.perception.pose_config import PoseConfig
+    from pal.perception.pose_config import FitRetry, PoseConfig
 
-__all__ = ["predicted_pose", "predicted_poses"]
+__all__ = ["fit_due", "predicted_pose", "predicted_poses"]
 
 
 def _eligible(record: ObjectRecord, t: float, config: PoseConfig, camera_known: bool) -> bool:
@@ -193,3 +196,17 @@ def predicted_poses(
         fit = next(fits) if p[2] is not None else None
         out.append(_confirm(record, fit, p[0], p[1], W, t, config))
     return out
+
+
+def fit_due(record: ObjectRecord, retry: FitRetry | None) -> bool:
+    """Whether ``record``'s object is fitted in this frame (its prediction was not taken).
+
+    Always, unless the object has a canonical frame and its last ``retry.after`` or more fits
+    failed in a row (``record.failed_fits``, which the caller counts, skipped frames included);
+    then on every ``retry.every``-th frame: after ``after`` failures, the frames
+    ``after + every - 1``, ``after + 2 every - 1``, ... of the run. An object without a
+    canonical frame is tried in every frame (the frame is defined by its first good view).
+    """
+    if retry is None or record.failed_fits < retry.after or record.gallery.canonical is None:
+        return True
+    return (record.failed_fits - retry.after) % retry.every == retry.every - 1

@@ -12,12 +12,14 @@ from pal.perception.association import appearance_distance, appearance_distances
 from pal.perception.icp import IcpConfig, icp_fit, icp_score, surface_points
 from pal.perception.masks import Mask
 from pal.perception.memory import AdmissionConfig, Gallery, ObjectRecord
+from pal.perception.pipeline import Pipeline, PipelineConfig
 from pal.perception.pose import PoseConfig, PoseEstimator
 from pal.perception.pose_checks import PoseChecks, static_bounds
-from pal.perception.pose_config import PredictionCheck
-from pal.perception.pose_predicted import predicted_pose, predicted_poses
+from pal.perception.pose_config import FitRetry, PredictionCheck
+from pal.perception.pose_predicted import fit_due, predicted_pose, predicted_poses
 from pal.perception.segmentation import OracleSegmenter
 from pal.perception.synthetic import Box, SyntheticCamera
+from pal.perception.trajectory import PoseDiagnostics
 
 CAM = SyntheticCamera(320, 240)
 SIZE = (0.12, 0.10, 0.07)
@@ -170,3 +172,40 @@ def test_appearance_distances_equal_opencvs_pair_by_pair():
     assert D[2, 1] < 1e-3
     with pytest.raises(ValueError, match="histograms"):
         appearance_distances(a, b[:, :10])
+
+
+def test_an_object_whose_fits_keep_failing_is_fitted_every_other_frame():
+    rec = ObjectRecord(1, Gallery(AdmissionConfig()), 0.0, 0.0, Mask.from_full(np.ones((4, 4), bool)), 1)
+    retry = FitRetry(after=2, every=2)
+    assert fit_due(rec, retry)  # no canonical frame yet: always tried
+    rec, _ = _posed_record(PoseConfig())
+    due = []
+    for failed in range(7):
+        rec.failed_fits = failed
+        due.append(fit_due(rec, retry))
+    assert due == [True, True, False, True, False, True, False]
+    assert fit_due(rec, None) and fit_due(rec, FitRetry(after=2, every=1))
+    with pytest.raises(ValueError, match="every"):
+        FitRetry(every=0)
+
+
+@pytest.mark.parametrize("retry", [FitRetry(after=2, every=2), None])
+def test_the_pipeline_spaces_out_the_fits_of_an_object_whose_fits_fail(retry):
+    pose_cfg = PoseConfig(prediction=None, retry=retry)
+    pipe = Pipeline(PipelineConfig(segmenter="oracle", camera_motion=None, relations=None, pose=pose_cfg))
+    fitted = []
+    real = pipe.estimator.estimate
+
+    def failing(record, frame, *args):
+        fitted.append(frame.timestamp)
+        if record.gallery.canonical is None:
+            return real(record, frame, *args)  # the canonical frame is defined
+        return pipe.estimator.missing(record, frame.timestamp, PoseDiagnostics(reason="no fit")), None
+
+    pipe.estimator.estimate = failing
+    T = on_table(10.0, 0.0)
+    states = [pipe(CAM.render([Box(SIZE, T)], 0.033 * k)) for k in range(7)]
+    frames = [round(t / 0.033) for t in fitted]
+    assert frames == ([0, 1, 2, 4, 6] if retry is not None else list(range(7)))
+    reasons = [s.objects[0].pose.diagnostics.reason for s in states]
+    assert sum("not fitted" in r for r in reasons) == (2 if retry is not None else 0)
