@@ -52,7 +52,7 @@ class FitRetry:
         every: then one fit every this many frames (>= 1; 1: every frame).
     """
 
-    after: int = 2
+    after: int = 3
     every: int = 2
 
     def __post_init__(self) -> None:
