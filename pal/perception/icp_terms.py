@@ -17,7 +17,7 @@ from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask
 from pal.perception.quantiles import median
 
-__all__ = ["LiveSurface", "Match", "Photometric", "associate", "bilinear", "cross", "smooth"]
+__all__ = ["LiveSurface", "Match", "Photometric", "associate", "bilinear", "cross", "smooth", "surface_normals"]
 
 
 def smooth(gray: np.ndarray, sigma: float) -> np.ndarray:
@@ -27,9 +27,14 @@ def smooth(gray: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Bilinear samples of (h, w) ``img`` at float pixels (u, v), which must lie in [0, w-1) x [0, h-1)."""
+    """Bilinear samples (N,) of (h, w) ``img``, or (N, C) of (h, w, C), at float pixels (u, v).
+
+    The pixels (N,) must lie in [0, w-1) x [0, h-1).
+    """
     u0, v0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
     a, b = u - u0, v - v0
+    if img.ndim == 3:
+        a, b = a[:, None], b[:, None]
     return (
         img[v0, u0] * (1 - a) * (1 - b)
         + img[v0, u0 + 1] * a * (1 - b)
@@ -73,31 +78,50 @@ class LiveSurface:
         b = self.baseline
         ok = (u >= b) & (v >= b) & (u < self.w - b) & (v < self.h - b)
         ok[ok] = self.valid[v[ok], u[ok]]
-        u, v = u[ok], v[ok]
-        z = self.z
-        zc, zr, zl, zd, zu = z[v, u], z[v, u + b], z[v, u - b], z[v + b, u], z[v - b, u]
-        # the centre and its four neighbours lifted at once: (5, N, 3)
-        uu = np.stack([u, u + b, u - b, u, u]) + self.x0
-        vv = np.stack([v, v, v, v + b, v - b]) + self.y0
-        L = backproject(uu, vv, np.stack([zc, zr, zl, zd, zu]), self.K)
-        P, dx, dy = L[0], L[1] - L[2], L[3] - L[4]
-        n = cross(dx, dy)
-        norm = np.linalg.norm(n, axis=1)
-        good = (
-            (zr > 0)
-            & (zl > 0)
-            & (zd > 0)
-            & (zu > 0)
-            & (np.abs(dx[:, 2]) < self.max_jump * b * zc)
-            & (np.abs(dy[:, 2]) < self.max_jump * b * zc)
-            & (norm > 1e-12)
-        )
-        n = n / np.where(norm > 1e-12, norm, 1.0)[:, None]
-        n = np.where((np.sum(n * P, axis=1) > 0)[:, None], -n, n)  # face the camera
-        out = np.flatnonzero(ok)
+        good, P, n = surface_normals(self.z, u[ok], v[ok], (self.x0, self.y0), self.K, b, self.max_jump)
         keep = np.zeros(len(ok), dtype=bool)
-        keep[out[good]] = True
-        return keep, P[good], n[good]
+        keep[np.flatnonzero(ok)[good]] = True
+        return keep, P, n
+
+
+def surface_normals(
+    z: np.ndarray, u: np.ndarray, v: np.ndarray, origin: tuple[int, int], K: np.ndarray, b: int, max_jump: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points and camera-facing unit normals from depth differences over +-``b`` pixels.
+
+    Args:
+        z: (h, w) depth, metres: the frame, or a crop whose top-left pixel is ``origin``.
+        u: (N,) int pixel columns in ``z``, at least ``b`` from its border.
+        v: (N,) int pixel rows in ``z``, the same.
+        origin: (x0, y0) of ``z`` in the full frame, pixels.
+        K: (3, 3) full-frame intrinsics.
+        b: the baseline, pixels.
+        max_jump: largest depth step across the baseline, per pixel and metre of depth.
+
+    Returns:
+        (good (N,): all four neighbours have depth, no step and a normal; points (P, 3) and
+        unit normals (P, 3) of the good pixels, metres).
+    """
+    zc, zr, zl, zd, zu = z[v, u], z[v, u + b], z[v, u - b], z[v + b, u], z[v - b, u]
+    # the centre and its four neighbours lifted at once: (5, N, 3)
+    uu = np.stack([u, u + b, u - b, u, u]) + origin[0]
+    vv = np.stack([v, v, v, v + b, v - b]) + origin[1]
+    L = backproject(uu, vv, np.stack([zc, zr, zl, zd, zu]), K)
+    P, dx, dy = L[0], L[1] - L[2], L[3] - L[4]
+    n = cross(dx, dy)
+    norm = np.linalg.norm(n, axis=1)
+    good = (
+        (zr > 0)
+        & (zl > 0)
+        & (zd > 0)
+        & (zu > 0)
+        & (np.abs(dx[:, 2]) < max_jump * b * zc)
+        & (np.abs(dy[:, 2]) < max_jump * b * zc)
+        & (norm > 1e-12)
+    )
+    n = n / np.where(norm > 1e-12, norm, 1.0)[:, None]
+    n = np.where((np.sum(n * P, axis=1) > 0)[:, None], -n, n)  # face the camera
+    return good, P[good], n[good]
 
 
 class Photometric:
@@ -116,21 +140,23 @@ class Photometric:
         self.img = smooth(frame.gray()[self.y0 : gy1, self.x0 : gx1], blur_sigma)
         self.gu = cv2.Sobel(self.img, cv2.CV_32F, 1, 0, ksize=3) / 8.0
         self.gv = cv2.Sobel(self.img, cv2.CV_32F, 0, 1, ksize=3) / 8.0
+        self.levels = np.dstack([self.img, self.gu, self.gv])  # sampled together: (h, w, 3)
         self.K = frame.K
         self.model_gray = model_gray
         self.sigma = float(sigma)
 
     def __call__(self, sel: np.ndarray, y: np.ndarray, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Residuals (P,) and Jacobian rows (P, 6) of model points ``sel`` (rotated ``y``, moved ``X``)."""
-        img, gu, gv, K = self.img, self.gu, self.gv, self.K
+        img, K = self.img, self.K
         z = X[:, 2]
         u = K[0, 0] * X[:, 0] / z + K[0, 1] * X[:, 1] / z + K[0, 2] - self.x0
         v = K[1, 1] * X[:, 1] / z + K[1, 2] - self.y0
         ok = (u >= 0) & (v >= 0) & (u < img.shape[1] - 1) & (v < img.shape[0] - 1)
         u, v, z, y, X, sel = u[ok], v[ok], z[ok], y[ok], X[ok], sel[ok]
-        r = bilinear(img, u, v) - self.model_gray[sel]
+        sampled = bilinear(self.levels, u, v)
+        r = sampled[:, 0] - self.model_gray[sel]
         r = r - median(r) if len(r) else r
-        g = np.stack([bilinear(gu, u, v), bilinear(gv, u, v)], axis=1)
+        g = sampled[:, 1:]
         # d(u, v)/dX for the pinhole, then dX/d(w, d) = [-[y]x, I]
         du = np.stack([K[0, 0] / z, np.zeros_like(z), -K[0, 0] * X[:, 0] / z**2], axis=1)
         dv = np.stack([np.zeros_like(z), K[1, 1] / z, -K[1, 1] * X[:, 1] / z**2], axis=1)

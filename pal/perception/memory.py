@@ -137,6 +137,8 @@ class Snapshot:
         anchor: (4, 4) object_from_camera at capture, or None.
         thumb: masked thumbnail for redundancy checks.
         visual: (54,) visual descriptor, computed when first needed (None until then).
+        surfaces: its sampled surfaces in the object frame by sampling settings, kept once computed
+            (:func:`pal.perception.pose_dense.snapshot_surface`).
     """
 
     index: int
@@ -151,6 +153,7 @@ class Snapshot:
     anchor: np.ndarray | None
     thumb: np.ndarray
     visual: np.ndarray | None = None
+    surfaces: dict = field(default_factory=dict, repr=False)
 
     def visual_vector(self) -> np.ndarray:
         """The (54,) visual descriptor of the snapshot (computed once)."""
@@ -337,6 +340,8 @@ class ObjectRecord:
         first_frame: index of the frame in which the object was born.
         speed: world speed of the pose origin between its last two estimated poses, m/s.
         predicted_run: poses in a row taken from the camera's egomotion (:mod:`pal.perception.pose_predicted`).
+        failed_fits: pose fits in a row that gave no ``estimated`` pose, skipped ones included
+            (:func:`pal.perception.pose_predicted.fit_due`).
     """
 
     obj_id: int
@@ -356,6 +361,7 @@ class ObjectRecord:
     first_frame: int = 0
     speed: float = 0.0
     predicted_run: int = 0
+    failed_fits: int = 0
 
 
 def _padded_bbox(frame: RGBDFrame, mask: Mask, margin: int) -> tuple[int, int, int, int]:

@@ -54,7 +54,7 @@ from pal.perception.masks import Mask
 from pal.perception.memory import AdmissionConfig, AdmissionDecision, Gallery, ObjectRecord
 from pal.perception.plane import Plane
 from pal.perception.pose import PoseConfig, PoseEstimator, position_std
-from pal.perception.pose_predicted import predicted_pose
+from pal.perception.pose_predicted import fit_due, predicted_poses
 from pal.perception.propagation import PropagationConfig, carried_plane, propagate_masks
 from pal.perception.regions import metric_area
 from pal.perception.reid import gallery_histograms
@@ -62,7 +62,7 @@ from pal.perception.relations import RelationConfig, SceneRelations, scene_relat
 from pal.perception.scene import scene_descriptor
 from pal.perception.segmentation import Candidate, GeometricSegmenter, OracleSegmenter, SegmentationConfig
 from pal.perception.spatial import SpatialDescriptor, spatial_descriptor
-from pal.perception.state import ObjectState, PerceptionState
+from pal.perception.state import ObjectState, PerceptionState, require_finite_positions
 from pal.perception.tracking import Observation, Tracker, TrackerConfig
 from pal.perception.trajectory import Pose, PoseDiagnostics
 
@@ -228,10 +228,11 @@ class Pipeline:
             observations = self.merger.apply(observations)
         timings["tracking"], clock = time.perf_counter() - clock, time.perf_counter()
         states: dict[int, ObjectState] = {}
-        t_pose = t_mem = 0.0
+        predicted = self._predicted(observations, frame, camera)
+        t_pose, t_mem = time.perf_counter() - clock, 0.0
         for obs in observations:
             states[obs.track_id], spent_pose, spent_mem = self._observe(
-                obs, frame, gray, frame_features, camera
+                obs, frame, gray, frame_features, camera, predicted.get(obs.track_id)
             )
             t_pose += spent_pose
             t_mem += spent_mem
@@ -253,15 +254,7 @@ class Pipeline:
         scene = scene_descriptor(list(self.records.values()), t, self.frame_count, cfg.visible_window_s)
         timings["scene"] = time.perf_counter() - clock
         objects = tuple(states[i] for i in sorted(states))
-        for o in objects:
-            if o.position is not None and not (
-                np.all(np.isfinite(o.position))
-                and o.position_std is not None
-                and np.all(np.isfinite(o.position_std))
-            ):
-                raise RuntimeError(
-                    f"internal error: object {o.obj_id} has a non-finite position {o.position} / std {o.position_std}"
-                )
+        require_finite_positions(objects)
         return PerceptionState(t, self.frame_count - 1, objects, scene, relations, timings, camera, support, merges)
 
     def _due_carry(self, t: float) -> tuple[np.ndarray, list[Candidate], dict[int, Mask]] | None:
@@ -317,8 +310,11 @@ class Pipeline:
         gray: np.ndarray,
         frame_features: Features | None,
         camera: CameraMotion | None,
+        predicted: Pose | None,
     ) -> tuple[ObjectState, float, float]:
         """Update the record of an associated object: spatial descriptor, pose and EEMS admission.
+
+        ``predicted``: its confirmed egomotion prediction (:meth:`_predicted`), taken as its pose.
 
         Returns:
             (the object's state, seconds spent on its pose, seconds on its memory).
@@ -327,9 +323,7 @@ class Pipeline:
         t = frame.timestamp
         world = None if camera is None else camera.world_from_camera
         rec = self._record(obs, t)
-        spatial = spatial_descriptor(
-            frame, obs.mask, min_depth=cfg.pose.min_depth, max_depth=cfg.pose.max_depth
-        )
+        spatial = spatial_descriptor(frame, obs.mask, min_depth=cfg.pose.min_depth, max_depth=cfg.pose.max_depth)
         if spatial is not None:
             rec.centroids.append((t, spatial.centroid))
         pose: Pose | None = None
@@ -342,13 +336,15 @@ class Pipeline:
             return self.estimator.extractor.for_mask(frame_features, gray, mask)
 
         if cfg.estimate_pose:
-            W = np.eye(4) if world is None else world
-            known = camera is not None and camera.known
-            pose, decision = predicted_pose(rec, frame, obs.mask, W, cfg.pose, known), None
+            pose, decision = predicted, None
             feats: Features | Callable[[], Features] = feats_of
-            if pose is None:
+            if pose is None and not fit_due(rec, cfg.pose.retry):
+                why = PoseDiagnostics(reason=f"not fitted in this frame: the last {rec.failed_fits} fits failed")
+                pose, rec.failed_fits = self.estimator.missing(rec, t, why), rec.failed_fits + 1
+            elif pose is None:
                 feats = feats_of()
                 pose, decision = self.estimator.estimate(rec, frame, gray, obs.mask, feats, world)
+                rec.failed_fits = 0 if pose.source == "estimated" else rec.failed_fits + 1
             else:  # the view is where the gallery last saw it: no new snapshot to consider
                 decision = AdmissionDecision(False, "predicted")
             c1 = time.perf_counter()
@@ -373,6 +369,16 @@ class Pipeline:
         rest = (position, std, source, len(rec.gallery), decision)
         state = ObjectState(obs.track_id, True, obs.status, obs.label, obs.mask, spatial, pose, *rest)
         return state, spent_pose, spent_mem
+
+    def _predicted(
+        self, observations: list[Observation], frame: RGBDFrame, camera: CameraMotion | None
+    ) -> dict[int, Pose | None]:
+        """The confirmed egomotion predictions of the observed objects with a record, by id (one pass)."""
+        seen = [o for o in observations if o.track_id in self.records] if self.config.estimate_pose else []
+        W = np.eye(4) if camera is None else camera.world_from_camera
+        known = camera is not None and camera.known
+        poses = predicted_poses([(self.records[o.track_id], o.mask) for o in seen], frame, W, self.config.pose, known)
+        return {o.track_id: p for o, p in zip(seen, poses, strict=True)}
 
     def _views(self, tid: int) -> list[np.ndarray]:
         """Hue-saturation histograms of the views in object ``tid``'s gallery (re-identification)."""
@@ -419,13 +425,10 @@ class Pipeline:
         frame's topology (:mod:`pal.perception.relations`).
         """
         assert self.config.relations is not None
-        histories = {}
-        for tid in states:
-            cents = self.records[tid].centroids
-            histories[tid] = (
-                np.array([c[0] for c in cents]),
-                np.array([c[1] for c in cents]).reshape(-1, 3),
-            )
+        cents = {tid: self.records[tid].centroids for tid in states}
+        histories = {
+            i: (np.array([c[0] for c in cs]), np.array([c[1] for c in cs]).reshape(-1, 3)) for i, cs in cents.items()
+        }
         return scene_relations(
             frame,
             {i: s.spatial for i, s in states.items()},
@@ -491,9 +494,7 @@ class Pipeline:
         return position, std, source
 
     def _forget(self, t: float) -> None:
-        horizon = self.config.forget_after_s
-        if horizon is None:
-            return
-        alive = set(self.tracker.tracks)
-        for tid in [i for i, r in self.records.items() if i not in alive and t - r.last_updated > horizon]:
+        horizon, alive = self.config.forget_after_s, set(self.tracker.tracks)
+        dead = [i for i, r in self.records.items() if i not in alive and t - r.last_updated > (horizon or 0.0)]
+        for tid in dead if horizon is not None else []:
             del self.records[tid]

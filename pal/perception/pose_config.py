@@ -12,7 +12,7 @@ from pal.perception.noise import DepthNoise
 from pal.perception.pose_checks import PoseChecks
 from pal.perception.pose_filter import PoseFilter
 
-__all__ = ["PoseConfig", "PredictionCheck"]
+__all__ = ["FitRetry", "PoseConfig", "PredictionCheck"]
 
 
 @dataclass(frozen=True)
@@ -37,6 +37,27 @@ class PredictionCheck:
         check_float("min_agreement", self.min_agreement, 0.0, 1.0)
         check_float("max_rmse_sigma", self.max_rmse_sigma, 0.0, open_low=True)
         check_float("max_photometric_sigma", self.max_photometric_sigma, 0.0, open_low=True)
+
+
+@dataclass(frozen=True)
+class FitRetry:
+    """How often an object whose pose fits keep failing is fitted (:func:`pal.perception.pose_predicted.fit_due`).
+
+    After ``after`` failed fits in a row (no ``estimated`` pose), the object is fitted only on
+    every ``every``-th frame until a fit succeeds; on the frames in between it takes the pose
+    sample of a missing observation (``propagated`` or ``lost``) without a fit.
+
+    Attributes:
+        after: failed fits in a row before fits are spaced out (>= 1).
+        every: then one fit every this many frames (>= 1; 1: every frame).
+    """
+
+    after: int = 3
+    every: int = 2
+
+    def __post_init__(self) -> None:
+        check_int("after", self.after, minimum=1)
+        check_int("every", self.every, minimum=1)
 
 
 @dataclass(frozen=True)
@@ -76,6 +97,7 @@ class PoseConfig:
             egomotion as prior (:mod:`pal.perception.pose_filter`); None: off.
         prediction: when a static object's egomotion prediction is taken as its pose without
             a fit (:mod:`pal.perception.pose_predicted`; needs ``icp``); None: always fit.
+        retry: how often an object whose fits keep failing is fitted; None: in every frame.
     """
 
     features: FeatureConfig = field(default_factory=FeatureConfig)
@@ -101,6 +123,7 @@ class PoseConfig:
     dense_horizon_s: float = 1.0
     filter: PoseFilter | None = field(default_factory=PoseFilter)
     prediction: PredictionCheck | None = field(default_factory=PredictionCheck)
+    retry: FitRetry | None = field(default_factory=FitRetry)
 
     def __post_init__(self) -> None:
         if not self.dense_horizon_s >= self.checks.static_horizon_s:

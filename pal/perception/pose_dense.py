@@ -41,11 +41,23 @@ def snapshot_surface(
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """A snapshot's surface in the canonical object frame: (points (M, 3) m, grey levels (M,), grid step px).
 
+    Computed once per snapshot and setting (kept in ``snap.surfaces``; the arrays are read-only).
+
     Raises:
         ValueError: the snapshot is not anchored.
     """
     if snap.anchor is None:
         raise ValueError(f"snapshot {snap.index} has no anchor: its surface has no object-frame coordinates")
+    key = (config.max_points, config.blur_sigma, tuple(depth_range), snap.anchor.tobytes())
+    if key not in snap.surfaces:
+        snap.surfaces[key] = _surface(snap, config, depth_range)
+    return snap.surfaces[key]
+
+
+def _surface(
+    snap: Snapshot, config: IcpConfig, depth_range: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray, int]:
+    assert snap.anchor is not None
     gray = cv2.cvtColor(np.ascontiguousarray(snap.rgb), cv2.COLOR_RGB2GRAY)
     pts, values, step = surface_points(
         snap.depth,
@@ -58,7 +70,9 @@ def snapshot_surface(
         config.blur_sigma,
     )
     assert values is not None
-    return pts @ snap.anchor[:3, :3].T + snap.anchor[:3, 3], values, step
+    model = pts @ snap.anchor[:3, :3].T + snap.anchor[:3, 3]
+    model.flags.writeable = values.flags.writeable = False
+    return model, values, step
 
 
 def dense_checks(

@@ -19,7 +19,7 @@ from pal.perception.relations import SceneRelations
 from pal.perception.spatial import SpatialDescriptor
 from pal.perception.trajectory import Pose
 
-__all__ = ["ObjectState", "PerceptionState"]
+__all__ = ["ObjectState", "PerceptionState", "require_finite_positions"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,3 +106,16 @@ class PerceptionState:
             "camera": None if self.camera is None else self.camera.to_dict(),
             "timings": dict(self.timings),
         }
+
+
+def require_finite_positions(objects: tuple[ObjectState, ...]) -> None:
+    """Raise ``RuntimeError`` naming the object when a reported position or its std is not finite."""
+    for o in objects:
+        if o.position is not None and not (
+            np.all(np.isfinite(o.position))
+            and o.position_std is not None
+            and np.all(np.isfinite(o.position_std))
+        ):
+            raise RuntimeError(
+                f"internal error: object {o.obj_id} has a non-finite position {o.position} / std {o.position_std}"
+            )

@@ -146,9 +146,15 @@ class Pose:
 
     @property
     def rotvec(self) -> np.ndarray | None:
-        """(3,) rotation vector, rad (Eq. 4.17); None when lost."""
-        R = self.rotation
-        return None if R is None else Rotation.from_matrix(R).as_rotvec()
+        """(3,) rotation vector, rad (Eq. 4.17); None when lost (computed once per rotation)."""
+        if self.camera_from_object is None:
+            return None
+        R = self.camera_from_object[:3, :3]
+        cached = self.__dict__.get("_rotvec")
+        if cached is None or cached[0] != R.tobytes():
+            cached = (R.tobytes(), Rotation.from_matrix(R).as_rotvec())
+            object.__setattr__(self, "_rotvec", cached)
+        return cached[1].copy()
 
 
 class Trajectory:

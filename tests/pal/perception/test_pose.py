@@ -247,3 +247,17 @@ def test_silhouette_corners_are_not_features():
     assert len(feats) > 20 and inside[kp[:, 1], kp[:, 0]].min() >= 3.0
     with pytest.raises(ValueError, match="border"):
         FeatureConfig(border=-1)
+
+
+def test_a_pose_rotation_vector_is_computed_once_and_follows_its_matrix():
+    w = np.array([0.3, -0.2, 0.5])
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(w).as_matrix()
+    pose = Pose(0.0, "estimated", T)
+    first = pose.rotvec
+    np.testing.assert_allclose(first, w, atol=1e-12)
+    first[:] = 0.0  # the caller's copy
+    np.testing.assert_allclose(pose.rotvec, w, atol=1e-12)
+    pose.camera_from_object[:3, :3] = np.eye(3)  # changed in place: computed again
+    np.testing.assert_allclose(pose.rotvec, np.zeros(3), atol=1e-12)
+    assert Pose(0.0, "lost", None).rotvec is None

@@ -12,12 +12,14 @@ from pal.perception.association import appearance_distance, appearance_distances
 from pal.perception.icp import IcpConfig, icp_fit, icp_score, surface_points
 from pal.perception.masks import Mask
 from pal.perception.memory import AdmissionConfig, Gallery, ObjectRecord
+from pal.perception.pipeline import Pipeline, PipelineConfig
 from pal.perception.pose import PoseConfig, PoseEstimator
 from pal.perception.pose_checks import PoseChecks, static_bounds
-from pal.perception.pose_config import PredictionCheck
-from pal.perception.pose_predicted import predicted_pose
+from pal.perception.pose_config import FitRetry, PredictionCheck
+from pal.perception.pose_predicted import fit_due, predicted_pose, predicted_poses
 from pal.perception.segmentation import OracleSegmenter
 from pal.perception.synthetic import Box, SyntheticCamera
+from pal.perception.trajectory import PoseDiagnostics
 
 CAM = SyntheticCamera(320, 240)
 SIZE = (0.12, 0.10, 0.07)
@@ -88,6 +90,35 @@ def test_the_prediction_is_taken_while_the_box_stays_and_refused_once_it_moved()
         PredictionCheck(refit_every=0)
 
 
+def test_the_predictions_checked_in_one_pass_equal_those_checked_one_at_a_time():
+    cfg = PoseConfig(prediction=PredictionCheck(refit_every=3))
+    seg = OracleSegmenter()
+    frames = [
+        CAM.render([Box(SIZE, on_table(10.0, dx))], 0.033 * k) for k, dx in ((2, 0.0), (3, 0.0), (4, 0.03))
+    ]
+    one, batch = [_posed_record(cfg)[0] for _ in range(3)], [_posed_record(cfg)[0] for _ in range(3)]
+    one[2].predicted_run = batch[2].predicted_run = 2  # a refit is due: not eligible
+    for f in frames:
+        mask = seg(f)[0].mask
+        ref = [predicted_pose(r, f, mask, np.eye(4), cfg, camera_known=True) for r in one]
+        got = predicted_poses([(r, mask) for r in batch], f, np.eye(4), cfg, camera_known=True)
+        assert [p is None for p in got] == [p is None for p in ref]
+        for g, r in zip(got, ref, strict=True):
+            if r is not None:
+                np.testing.assert_array_equal(g.camera_from_object, r.camera_from_object)
+                np.testing.assert_allclose(g.covariance, r.covariance, rtol=1e-7, atol=1e-15)
+                assert g.diagnostics.inliers == r.diagnostics.inliers
+        for a, b in zip(one, batch, strict=True):
+            assert a.predicted_run == b.predicted_run and a.world_pose[0] == b.world_pose[0]
+    # the known answers: taken twice while the box stays, refused once it slid 3 cm
+    assert [r.predicted_run for r in batch] == [0, 0, 0] and batch[0].world_pose[0] == pytest.approx(
+        0.033 * 3
+    )
+    assert predicted_poses([], frames[0], np.eye(4), cfg, True) == []
+    with pytest.raises(ValueError, match="more than once"):
+        predicted_poses([(batch[0], mask), (batch[0], mask)], frames[0], np.eye(4), cfg, True)
+
+
 def test_the_score_at_the_truth_agrees_and_a_slide_is_seen():
     A = on_table(10.0, 0.0)
     fa, fb = CAM.render([Box(SIZE, A)]), CAM.render([Box(SIZE, A)], 0.1)
@@ -141,3 +172,40 @@ def test_appearance_distances_equal_opencvs_pair_by_pair():
     assert D[2, 1] < 1e-3
     with pytest.raises(ValueError, match="histograms"):
         appearance_distances(a, b[:, :10])
+
+
+def test_an_object_whose_fits_keep_failing_is_fitted_every_other_frame():
+    rec = ObjectRecord(1, Gallery(AdmissionConfig()), 0.0, 0.0, Mask.from_full(np.ones((4, 4), bool)), 1)
+    retry = FitRetry(after=2, every=2)
+    assert fit_due(rec, retry)  # no canonical frame yet: always tried
+    rec, _ = _posed_record(PoseConfig())
+    due = []
+    for failed in range(7):
+        rec.failed_fits = failed
+        due.append(fit_due(rec, retry))
+    assert due == [True, True, False, True, False, True, False]
+    assert fit_due(rec, None) and fit_due(rec, FitRetry(after=2, every=1))
+    with pytest.raises(ValueError, match="every"):
+        FitRetry(every=0)
+
+
+@pytest.mark.parametrize("retry", [FitRetry(after=2, every=2), None])
+def test_the_pipeline_spaces_out_the_fits_of_an_object_whose_fits_fail(retry):
+    pose_cfg = PoseConfig(prediction=None, retry=retry)
+    pipe = Pipeline(PipelineConfig(segmenter="oracle", camera_motion=None, relations=None, pose=pose_cfg))
+    fitted = []
+    real = pipe.estimator.estimate
+
+    def failing(record, frame, *args):
+        fitted.append(frame.timestamp)
+        if record.gallery.canonical is None:
+            return real(record, frame, *args)  # the canonical frame is defined
+        return pipe.estimator.missing(record, frame.timestamp, PoseDiagnostics(reason="no fit")), None
+
+    pipe.estimator.estimate = failing
+    T = on_table(10.0, 0.0)
+    states = [pipe(CAM.render([Box(SIZE, T)], 0.033 * k)) for k in range(7)]
+    frames = [round(t / 0.033) for t in fitted]
+    assert frames == ([0, 1, 2, 4, 6] if retry is not None else list(range(7)))
+    reasons = [s.objects[0].pose.diagnostics.reason for s in states]
+    assert sum("not fitted" in r for r in reasons) == (2 if retry is not None else 0)
