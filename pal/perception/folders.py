@@ -40,7 +40,6 @@ from pal.io.sequence_files import (
     resolve_inside,
 )
 from pal.perception.calibration import resolve_calibration
-from pal.perception.undistort import Undistortion
 from pal.perception.folder_layouts import (
     COLOR_EXTENSIONS,
     DEPTH_EXTENSIONS,
@@ -49,6 +48,7 @@ from pal.perception.folder_layouts import (
     layout_named,
     paired_frames,
 )
+from pal.perception.undistort import Undistortion
 
 __all__ = [
     "COLOR_EXTENSIONS",
