@@ -49,6 +49,38 @@ def _array(value: Any, shape: tuple[int, ...], name: str) -> Tensor:
     return tensor
 
 
+def _limits(value: Any, joints: int | None = None) -> Tensor:
+    """Joint limits ``(n, 2)`` float64 from pairs ``(low, high)``, ``None`` meaning unlimited on that side.
+
+    Raises:
+        ValueError: not ``n >= 1`` pairs (``joints`` of them when given), NaN, or low > high.
+    """
+    try:
+        rows = [
+            [float("-inf") if r[0] is None else r[0], float("inf") if r[1] is None else r[1]] for r in value
+        ]
+    except (TypeError, IndexError) as exc:
+        raise ValueError(f"limits must be pairs (low, high), got {value!r}") from exc
+    table = as_float_tensor(rows, "limits", torch.float64)
+    n = joints if joints is not None else len(rows)
+    if table.ndim != 2 or tuple(table.shape) != (n, 2) or n < 1 or bool(torch.isnan(table).any()):
+        raise ValueError(f"limits must be {joints or 'n >= 1'} pairs (low, high), got {rows}")
+    if bool((table[:, 0] > table[:, 1]).any()):
+        raise ValueError(f"limits must have low <= high, got {rows}")
+    return table
+
+
+def _clip(q: Tensor, limits: Tensor) -> Tensor:
+    """``q`` ``(..., n)`` held inside ``limits`` ``(n, 2)``."""
+    low, high = limits.to(q.dtype).unbind(1)
+    return torch.maximum(torch.minimum(q, high), low)
+
+
+def _limits_json(limits: Tensor) -> list[list[float | None]]:
+    """``(n, 2)`` limits as JSON rows, ``None`` for an infinite side."""
+    return [[None if abs(v) == float("inf") else v for v in row] for row in limits.tolist()]
+
+
 class KinematicChain(torch.nn.Module):
     """Forward kinematics ``x(q)`` of J hinges (module docstring).
 
@@ -83,15 +115,7 @@ class KinematicChain(torch.nn.Module):
         norms = axes.norm(dim=1, keepdim=True)
         if not bool((norms > 1e-9).all()):
             raise ValueError(f"axes must be nonzero, got {axes.tolist()}")
-        limits = as_float_tensor(limits, "limits", torch.float64)
-        if (
-            tuple(limits.shape) != (j, 2)
-            or bool(torch.isnan(limits).any())
-            or bool((limits[:, 0] > limits[:, 1]).any())
-        ):
-            raise ValueError(
-                f"limits must be ({j}, 2) pairs (low, high) with low <= high, got {limits.tolist()}"
-            )
+        limits = _limits(limits, j)
         self.register_buffer("rotations", _array(rotations, (j, 3, 3), "rotations"))
         self.register_buffer("translations", _array(translations, (j, 3), "translations"))
         self.register_buffer("anchors", _array(anchors, (j, 3), "anchors"))
@@ -109,8 +133,7 @@ class KinematicChain(torch.nn.Module):
 
     def clip(self, q: Tensor) -> Tensor:
         """``q`` ``(..., J)`` held inside the joints' limits."""
-        low, high = self.limits.to(q.dtype).unbind(1)
-        return torch.maximum(torch.minimum(q, high), low)
+        return _clip(q, self.limits)
 
     def _derive(self) -> None:
         """Per hinge: ``R_k K_k``, ``R_k K_k^2`` ``(J, 3, 3)``, ``R_k K_k p_k``, ``R_k K_k^2 p_k`` ``(J, 3)``.
@@ -152,7 +175,6 @@ class KinematicChain(torch.nn.Module):
 
     def config(self) -> dict[str, Any]:
         """JSON-compatible constructor arguments (limits as ``None`` for infinite)."""
-        limits = [[None if abs(v) == float("inf") else v for v in row] for row in self.limits.tolist()]
         return {
             "rotations": self.rotations.tolist(),
             "translations": self.translations.tolist(),
@@ -160,17 +182,13 @@ class KinematicChain(torch.nn.Module):
             "axes": self.axes.tolist(),
             "refs": self.refs.tolist(),
             "end": self.end.tolist(),
-            "limits": limits,
+            "limits": _limits_json(self.limits),
         }
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> KinematicChain:
         """Inverse of :meth:`config`."""
-        limits = [
-            [float("-inf") if row[0] is None else row[0], float("inf") if row[1] is None else row[1]]
-            for row in config["limits"]
-        ]
-        return cls(**{**config, "limits": limits})
+        return cls(**config)
 
 
 class KinematicMechanism(Mechanism):
@@ -266,14 +284,7 @@ class JointLimitMechanism(Mechanism):
     config_keys = frozenset({"limits", "sigma", "in_dim"})
 
     def __init__(self, limits: Any, sigma: float = 1e-4, in_dim: int | None = None) -> None:
-        rows = [
-            [float("-inf") if r[0] is None else r[0], float("inf") if r[1] is None else r[1]] for r in limits
-        ]
-        table = as_float_tensor(rows, "limits", torch.float64)
-        if table.ndim != 2 or table.shape[1] != 2 or len(table) < 1 or bool(torch.isnan(table).any()):
-            raise ValueError(f"limits must be n >= 1 pairs (low, high), got {rows}")
-        if bool((table[:, 0] > table[:, 1]).any()):
-            raise ValueError(f"limits must have low <= high, got {rows}")
+        table = _limits(limits)
         n = len(table)
         if in_dim is not None and in_dim != 2 * n:
             raise ValueError(f"in_dim must be 2 n = {2 * n} for {n} joints, got {in_dim}")
@@ -288,16 +299,14 @@ class JointLimitMechanism(Mechanism):
     def core(self, z: Tensor) -> Tensor:
         """``clip(q_prev + dq)`` from ``[q_prev, dq]`` (the normalisers stay the identity)."""
         n = self.out_dim
-        low, high = self.limits.to(z.dtype).unbind(1)
-        return torch.maximum(torch.minimum(z[..., :n] + z[..., n:], high), low)
+        return _clip(z[..., :n] + z[..., n:], self.limits)
 
     def config(self) -> dict[str, Any]:
         """JSON-compatible constructor arguments (``None`` for an infinite limit)."""
-        limits = [[None if abs(v) == float("inf") else v for v in row] for row in self.limits.tolist()]
         return {
             "kind": self.kind,
             "in_dim": self.in_dim,
-            "limits": limits,
+            "limits": _limits_json(self.limits),
             "sigma": float(self.sigma.detach()[0]),
         }
 

@@ -5,7 +5,16 @@ import math
 import pytest
 import torch
 
-from models import CausalGraph, KinematicChain, KinematicMechanism, Variable, WorldModel, load, save
+from models import (
+    CausalGraph,
+    JointLimitMechanism,
+    KinematicChain,
+    KinematicMechanism,
+    Variable,
+    WorldModel,
+    load,
+    save,
+)
 from models.mechanisms import make_mechanism
 
 L1, L2 = 0.3, 0.2
@@ -124,3 +133,19 @@ def test_a_loaded_state_replaces_the_derived_terms_too():
     torch.testing.assert_close(chain(q), torch.tensor([[0.5 + L2, 0.0, 0.0]], dtype=torch.float64))
     with pytest.raises(ValueError, match="float32 or float64"):
         chain(q.half())
+
+
+def test_joint_limits_hold_the_angles_and_an_open_side_round_trips_as_none():
+    mech = JointLimitMechanism([[None, 1.0], [-2.0, None]])
+    out = mech(torch.tensor([[0.8, -1.5, 0.5, -1.0]]))  # q_prev + dq = (1.3, -2.5)
+    torch.testing.assert_close(out, torch.tensor([[1.0, -2.0]]))
+    out = mech(torch.tensor([[-50.0, 40.0, 0.0, 5.0]]))  # the open sides do not hold
+    torch.testing.assert_close(out, torch.tensor([[-50.0, 45.0]]))
+    assert mech.config()["limits"] == [[None, 1.0], [-2.0, None]]
+    assert make_mechanism(mech.config()).limits.tolist() == mech.limits.tolist()
+    with pytest.raises(ValueError, match="low <= high"):
+        JointLimitMechanism([[1.0, -1.0]])
+    with pytest.raises(ValueError, match="pairs"):
+        JointLimitMechanism([[1.0]])
+    with pytest.raises(ValueError, match="in_dim must be 2 n = 4"):
+        JointLimitMechanism([[0, 1], [0, 1]], in_dim=3)
