@@ -33,7 +33,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from models.checks import as_float_tensor, check_float, check_int
+from models.checks import as_float_tensor, check_finite_tensor, check_float, check_int
 from models.mechanisms import Mechanism, Seed
 
 __all__ = ["JointLimitMechanism", "KinematicChain", "KinematicMechanism"]
@@ -44,9 +44,7 @@ def _array(value: Any, shape: tuple[int, ...], name: str) -> Tensor:
     tensor = as_float_tensor(value, name, torch.float64)
     if tuple(tensor.shape) != shape:
         raise ValueError(f"{name} must have shape {shape}, got {tuple(tensor.shape)}")
-    if not bool(torch.isfinite(tensor).all()):
-        raise ValueError(f"{name} must be finite, got {tensor.tolist()}")
-    return tensor
+    return check_finite_tensor(name, tensor)
 
 
 def _limits(value: Any, joints: int | None = None) -> Tensor:
@@ -108,8 +106,9 @@ class KinematicChain(torch.nn.Module):
     ) -> None:
         super().__init__()
         refs = as_float_tensor(refs, "refs", torch.float64)
-        if refs.ndim != 1 or len(refs) < 1 or not bool(torch.isfinite(refs).all()):
-            raise ValueError(f"refs must be a vector of J >= 1 finite angles, got {refs.tolist()}")
+        if refs.ndim != 1 or len(refs) < 1:
+            raise ValueError(f"refs must be a vector of J >= 1 angles, got {refs.tolist()}")
+        check_finite_tensor("refs", refs)
         j = len(refs)
         axes = _array(axes, (j, 3), "axes")
         norms = axes.norm(dim=1, keepdim=True)

@@ -47,12 +47,6 @@ def _body_path(model: mujoco.MjModel, body: str) -> list[int]:
     return path[::-1]
 
 
-def _compose(
-    rot: np.ndarray, pos: np.ndarray, body_rot: np.ndarray, body_pos: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    return rot @ body_rot, pos + rot @ body_pos
-
-
 def mjcf_chain(model: mujoco.MjModel, joints: Sequence[str], body: str) -> tuple[KinematicChain, list[int]]:
     """The chain from the world to ``body``'s frame origin, and each hinge's index in ``joints``.
 
@@ -65,7 +59,7 @@ def mjcf_chain(model: mujoco.MjModel, joints: Sequence[str], body: str) -> tuple
     for bid in _body_path(model, body):
         body_rot = np.empty(9)
         mujoco.mju_quat2Mat(body_rot, model.body_quat[bid])
-        rot, pos = _compose(rot, pos, body_rot.reshape(3, 3), model.body_pos[bid])
+        rot, pos = rot @ body_rot.reshape(3, 3), pos + rot @ model.body_pos[bid]
         for jid in range(model.body_jntadr[bid], model.body_jntadr[bid] + model.body_jntnum[bid]):
             name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, jid)
             if model.jnt_type[jid] != mujoco.mjtJoint.mjJNT_HINGE:
