@@ -23,12 +23,12 @@ import numpy as np
 
 from pal.perception.frames import RGBDFrame
 from pal.perception.icp import IcpConfig, IcpFit, _checked, _terms
-from pal.perception.icp_terms import bilinear, cross, surface_normals
+from pal.perception.icp_terms import LiveSurface, Photometric, bilinear, cross, surface_normals
 from pal.perception.masks import Mask
 from pal.perception.noise import DepthNoise
 from pal.perception.quantiles import median
 
-__all__ = ["ScoreItem", "icp_scores"]
+__all__ = ["BatchMatch", "ScoreItem", "associate_all", "icp_scores", "scores_with_terms"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -169,6 +169,76 @@ def _conditions(
     return np.where(pinned, np.sqrt(ev[:, -1] / np.where(pinned, ev[:, 0], 1.0)), np.inf)
 
 
+@dataclass(frozen=True, eq=False)
+class BatchMatch:
+    """Projective correspondences of several objects' models at once (``icp_terms.associate`` batched).
+
+    Attributes:
+        g: (N,) object of each stacked model point.
+        y: (N, 3) the points rotated, ``X`` (N, 3) moved, metres.
+        U: (N,) int64 full-frame pixel columns, ``V`` (N,) rows, where they project.
+        inside: (N,) in front of the camera and inside their object's live box.
+        idx: (P,) the matched stacked points, ``gi`` (P,) their objects.
+        q: (P, 3) live points and ``n`` (P, 3) live unit normals of the matches, metres.
+    """
+
+    g: np.ndarray
+    y: np.ndarray
+    X: np.ndarray
+    U: np.ndarray
+    V: np.ndarray
+    inside: np.ndarray
+    idx: np.ndarray
+    gi: np.ndarray
+    q: np.ndarray
+    n: np.ndarray
+
+
+def associate_all(
+    models: Sequence[np.ndarray],
+    R: np.ndarray,
+    t: np.ndarray,
+    lives: Sequence[LiveSurface],
+    frame: RGBDFrame,
+    cfg: IcpConfig,
+) -> BatchMatch:
+    """Move each model ``k`` by (``R[k]``, ``t[k]``), project it and pair it with its live surface.
+
+    Args:
+        models: per object its (M_k, 3) object-frame points, metres.
+        R: (n, 3, 3) rotations.
+        t: (n, 3) translations, metres.
+        lives: per object its :class:`~pal.perception.icp_terms.LiveSurface`.
+        frame: the live frame.
+        cfg: the dense fit's parameters (``grow_px``, ``normal_px``).
+    """
+    n = len(models)
+    sizes = np.array([len(m) for m in models], dtype=np.int64)
+    g_all = np.repeat(np.arange(n), sizes)
+    y_all = np.concatenate([m @ R[k].T for k, m in enumerate(models)]) if sizes.sum() else np.zeros((0, 3))
+    X_all = y_all + t[g_all]
+    lo = np.array([(lv.x0, lv.y0) for lv in lives], dtype=np.int64).reshape(-1, 2)
+    hi = lo + np.array([(lv.w, lv.h) for lv in lives], dtype=np.int64).reshape(-1, 2)
+    K = frame.K
+    z_all = X_all[:, 2]
+    zs = np.where(z_all > 1e-6, z_all, 1e-6)
+    U = np.rint(K[0, 0] * X_all[:, 0] / zs + K[0, 1] * X_all[:, 1] / zs + K[0, 2]).astype(np.int64)
+    V = np.rint(K[1, 1] * X_all[:, 1] / zs + K[1, 2]).astype(np.int64)
+    inside = (
+        (z_all > 1e-6) & (U >= lo[g_all, 0]) & (V >= lo[g_all, 1]) & (U < hi[g_all, 0]) & (V < hi[g_all, 1])
+    )
+    idx = np.flatnonzero(inside)
+    gi = g_all[idx]
+    member = np.ones(len(idx), dtype=bool)
+    if round(cfg.grow_px * frame.width / 640) == 0:  # without a grown box: pixels of the live mask only
+        for i, lv in enumerate(lives):
+            s = np.flatnonzero(gi == i)
+            member[s] = lv.valid[V[idx[s]] - lv.y0, U[idx[s]] - lv.x0]
+    max_jump = lives[0].max_jump if lives else 0.0
+    good, q, nrm = _lookup(frame, U[idx], V[idx], (lo[gi], hi[gi]), member, cfg.normal_px, max_jump)
+    return BatchMatch(g_all, y_all, X_all, U, V, inside, idx[good], gi[good], q, nrm)
+
+
 def icp_scores(
     items: Sequence[ScoreItem],
     frame: RGBDFrame,
@@ -192,44 +262,34 @@ def icp_scores(
             not (M,).
     """
     cfg, noise = config or IcpConfig(), noise or DepthNoise()
-    n = len(items)
-    if n == 0:
+    if not items:
         return []
     checked = [_checked(it.model, it.T) for it in items]
     terms = [_terms(frame, it.mask, cfg, m, it.model_gray) for it, (m, _) in zip(items, checked, strict=True)]
-    sizes = np.array([len(m) for m, _ in checked])
-    g_all = np.repeat(np.arange(n), sizes)
-    y_all = np.concatenate([m @ T[:3, :3].T for m, T in checked]) if sizes.sum() else np.zeros((0, 3))
-    t = np.array([T[:3, 3] for _, T in checked])
-    X_all = y_all + t[g_all]
-    lo = np.array([(lv.x0, lv.y0) for lv, _ in terms])
-    hi = lo + np.array([(lv.w, lv.h) for lv, _ in terms])
-    K = frame.K
-    z_all = X_all[:, 2]
-    zs = np.where(z_all > 1e-6, z_all, 1e-6)
-    U = np.rint(K[0, 0] * X_all[:, 0] / zs + K[0, 1] * X_all[:, 1] / zs + K[0, 2]).astype(np.int64)
-    V = np.rint(K[1, 1] * X_all[:, 1] / zs + K[1, 2]).astype(np.int64)
-    inside = (
-        (z_all > 1e-6) & (U >= lo[g_all, 0]) & (V >= lo[g_all, 1]) & (U < hi[g_all, 0]) & (V < hi[g_all, 1])
-    )
-    idx = np.flatnonzero(inside)
-    gi = g_all[idx]
-    member = np.ones(len(idx), dtype=bool)
-    if round(cfg.grow_px * frame.width / 640) == 0:  # without a grown box: pixels of the live mask only
-        for i, (lv, _) in enumerate(terms):
-            s = np.flatnonzero(gi == i)
-            member[s] = lv.valid[V[idx[s]] - lv.y0, U[idx[s]] - lv.x0]
-    good, q, nrm = _lookup(
-        frame, U[idx], V[idx], (lo[gi], hi[gi]), member, cfg.normal_px, terms[0][0].max_jump
-    )
-    idx, gi = idx[good], gi[good]
+    return scores_with_terms(items, checked, terms, frame, noise, cfg)
+
+
+def scores_with_terms(
+    items: Sequence[ScoreItem],
+    checked: Sequence[tuple[np.ndarray, np.ndarray]],
+    terms: Sequence[tuple[LiveSurface, Photometric | None]],
+    frame: RGBDFrame,
+    noise: DepthNoise,
+    cfg: IcpConfig,
+) -> list[IcpFit | None]:
+    """:func:`icp_scores` with each item's checked (model, T) and live terms (``icp._terms``) given."""
+    n = len(items)
+    t = np.array([T[:3, 3] for _, T in checked]).reshape(-1, 3)
+    R = np.array([T[:3, :3] for _, T in checked]).reshape(-1, 3, 3)
+    bm = associate_all([m for m, _ in checked], R, t, [lv for lv, _ in terms], frame, cfg)
+    idx, gi = bm.idx, bm.gi
     matched = np.bincount(gi, minlength=n)
-    ib = np.flatnonzero(inside)
-    zp = z_all[ib]
-    zl = frame.depth[V[ib], U[ib]].astype(np.float64)
+    ib = np.flatnonzero(bm.inside)
+    zp = bm.X[ib, 2]
+    zl = frame.depth[bm.V[ib], bm.U[ib]].astype(np.float64)
     behind = (zl > 0) & (zl > zp + 3.0 * noise.sigma(zp).astype(np.float64) + cfg.gate)
-    free = np.bincount(g_all[ib], weights=behind, minlength=n).astype(int)
-    y, X = y_all[idx], X_all[idx]
+    free = np.bincount(bm.g[ib], weights=behind, minlength=n).astype(int)
+    y, X, q, nrm = bm.y[idx], bm.X[idx], bm.q, bm.n
     sig = noise.sigma(q[:, 2]).astype(np.float64)
     r = np.sum((X - q) * nrm, axis=1)
     near = np.linalg.norm(X - q, axis=1) < 3.0 * sig + cfg.tolerance
