@@ -38,97 +38,53 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
-from typing import Literal
+from dataclasses import dataclass
 
 import numpy as np
 
 from pal.frames import TimestampOrderError
-from pal.perception.egomotion import CameraMotion, EgoMotion, EgoMotionConfig, feature_weights
+from pal.perception.egomotion import CameraMotion, EgoMotion, feature_weights
 from pal.perception.features import Features
-from pal.perception.filters import OneEuroConfig, OneEuroFilter
-from pal.perception.fragments import FragmentMerger, MergeConfig
+from pal.perception.filters import OneEuroFilter
+from pal.perception.fragments import FragmentMerger
 from pal.perception.frames import RGBDFrame
+from pal.perception.icp_batch import ScoreItem
+from pal.perception.icp_fit_batch import icp_fits
 from pal.perception.kinematic import KinematicConfig, KinematicDescriptor, trajectory_descriptor
 from pal.perception.masks import Mask
-from pal.perception.memory import AdmissionConfig, AdmissionDecision, Gallery, ObjectRecord
+from pal.perception.memory import AdmissionDecision, Gallery, ObjectRecord
+from pal.perception.pipeline_config import PipelineConfig
 from pal.perception.plane import Plane
-from pal.perception.pose import PoseConfig, PoseEstimator, position_std
+from pal.perception.pose import PoseEstimator, position_std
+from pal.perception.pose_dense import DenseRequest
 from pal.perception.pose_predicted import fit_due, predicted_poses
-from pal.perception.propagation import PropagationConfig, carried_plane, propagate_masks
+from pal.perception.propagation import carried_plane, propagate_masks
 from pal.perception.regions import metric_area
 from pal.perception.reid import gallery_histograms
-from pal.perception.relations import RelationConfig, SceneRelations, scene_relations
+from pal.perception.relations import SceneRelations, scene_relations
 from pal.perception.scene import scene_descriptor
-from pal.perception.segmentation import Candidate, GeometricSegmenter, OracleSegmenter, SegmentationConfig
+from pal.perception.segmentation import Candidate, GeometricSegmenter, OracleSegmenter
 from pal.perception.spatial import SpatialDescriptor, spatial_descriptor
 from pal.perception.state import ObjectState, PerceptionState, require_finite_positions
-from pal.perception.tracking import Observation, Tracker, TrackerConfig
+from pal.perception.tracking import Observation, Tracker
 from pal.perception.trajectory import Pose, PoseDiagnostics
 
 __all__ = ["ObjectState", "PerceptionState", "Pipeline", "PipelineConfig"]
 
 logger = logging.getLogger(__name__)
 
-PositionSource = Literal["pose_then_centroid", "centroid", "pose"]
+@dataclass(eq=False)
+class _Pending:
+    """An observed object between the phases of its update (:meth:`Pipeline._observe_all`)."""
 
-
-@dataclass(frozen=True)
-class PipelineConfig:
-    """Configuration of Π; every stage's config is nested.
-
-    Attributes:
-        segmenter: ``"geometric"`` (default) or ``"oracle"`` (reads ``frame.labels``).
-        segmentation: geometric segmenter parameters.
-        propagation: between full segmentations, carry the previous masks by the camera's
-            motion and refine them (:mod:`pal.perception.propagation`; geometric segmenter
-            only), or None to segment every frame.
-        oracle_background_ids: label ids the oracle ignores (0 and e.g. the table).
-        tracker: association parameters.
-        camera_motion: camera-motion estimation, or None for a camera known to be static
-            (no features are matched between frames then).
-        admission: EEMS parameters.
-        estimate_pose: run pose estimation (off: faster; no trajectories).
-        pose: pose-estimation parameters.
-        relations: relational-layer parameters, or None to skip that layer.
-        visible_window_s: an object counts as visible in the scene descriptor if seen this recently, s.
-        position_source: what the reported object position is: ``"pose_then_centroid"`` (the
-            estimated pose's origin when this frame's pose is estimated, else the mask's depth
-            centroid), ``"centroid"`` or ``"pose"`` (only estimated poses). Note that the pose
-            origin is a point fixed on the object, the centroid is that of the visible surface.
-        smoothing: a 1€ filter on reported positions (reset when their source changes), or None.
-        forget_after_s: drop records dead for longer than this, s (None: keep all).
-        merge: merge fragments that move rigidly together (:mod:`pal.perception.fragments`;
-            needs ``estimate_pose``), or None (default) to keep them apart.
-        seed: seeds every random choice (plane, camera-motion and pose RANSAC).
-    """
-
-    segmenter: Literal["geometric", "oracle"] = "geometric"
-    segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
-    propagation: PropagationConfig | None = field(default_factory=PropagationConfig)
-    oracle_background_ids: tuple[int, ...] = (0,)
-    tracker: TrackerConfig = field(default_factory=TrackerConfig)
-    camera_motion: EgoMotionConfig | None = field(default_factory=EgoMotionConfig)
-    admission: AdmissionConfig = field(default_factory=AdmissionConfig)
-    estimate_pose: bool = True
-    pose: PoseConfig = field(default_factory=PoseConfig)
-    relations: RelationConfig | None = field(default_factory=RelationConfig)
-    visible_window_s: float = 2.0
-    position_source: PositionSource = "pose_then_centroid"
-    smoothing: OneEuroConfig | None = None
-    forget_after_s: float | None = None
-    merge: MergeConfig | None = None
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if self.segmenter not in ("geometric", "oracle"):
-            raise ValueError(f"segmenter {self.segmenter!r} unknown; expected 'geometric' or 'oracle'")
-        if self.position_source not in ("pose_then_centroid", "centroid", "pose"):
-            raise ValueError(f"position_source {self.position_source!r} unknown")
-        if not self.visible_window_s >= 0 or (
-            self.forget_after_s is not None and not self.forget_after_s >= 0
-        ):
-            raise ValueError("visible_window_s and forget_after_s must be >= 0 seconds")
+    obs: Observation
+    rec: ObjectRecord
+    spatial: SpatialDescriptor | None
+    feats: Features | Callable[[], Features]
+    pose: Pose | None = None
+    decision: AdmissionDecision | None = None
+    request: DenseRequest | None = None
+    fitted: bool = False  # a fit ran: its outcome updates ``rec.failed_fits`` after the dense phase
 
 
 class Pipeline:
@@ -227,16 +183,10 @@ class Pipeline:
         if self.merger is not None:
             observations = self.merger.apply(observations)
         timings["tracking"], clock = time.perf_counter() - clock, time.perf_counter()
-        states: dict[int, ObjectState] = {}
         predicted = self._predicted(observations, frame, camera)
-        t_pose, t_mem = time.perf_counter() - clock, 0.0
-        for obs in observations:
-            states[obs.track_id], spent_pose, spent_mem = self._observe(
-                obs, frame, gray, frame_features, camera, predicted.get(obs.track_id)
-            )
-            t_pose += spent_pose
-            t_mem += spent_mem
-        timings["pose"], timings["memory"] = t_pose, t_mem
+        t_pose = time.perf_counter() - clock
+        states, spent, t_mem = self._observe_all(observations, frame, gray, frame_features, camera, predicted)
+        timings["pose"], timings["memory"] = t_pose + spent, t_mem
         clock = time.perf_counter()
         self._add_missing(states, t)
         self._forget(t)
@@ -303,7 +253,35 @@ class Pipeline:
         frame.require_depth()
         self._previous_time, self._last_time = self._last_time, t
 
-    def _observe(
+    def _observe_all(
+        self,
+        observations: list[Observation],
+        frame: RGBDFrame,
+        gray: np.ndarray,
+        frame_features: Features | None,
+        camera: CameraMotion | None,
+        predicted: dict[int, Pose | None],
+    ) -> tuple[dict[int, ObjectState], float, float]:
+        """Update the associated objects: feature poses, then all dense fits at once, then admissions.
+
+        Objects share no state, so this equals updating them one at a time.
+
+        Returns:
+            (states by id, seconds spent on poses, seconds on memory).
+        """
+        pending, t_pose = [], 0.0
+        for obs in observations:
+            item, spent = self._observe_start(obs, frame, gray, frame_features, camera, predicted.get(obs.track_id))
+            pending.append(item)
+            t_pose += spent
+        clock = time.perf_counter()
+        self._dense_phase(pending, frame)
+        t_pose += time.perf_counter() - clock
+        clock = time.perf_counter()
+        states = {p.obs.track_id: self._observe_finish(p, frame, gray, camera) for p in pending}
+        return states, t_pose, time.perf_counter() - clock
+
+    def _observe_start(
         self,
         obs: Observation,
         frame: RGBDFrame,
@@ -311,23 +289,20 @@ class Pipeline:
         frame_features: Features | None,
         camera: CameraMotion | None,
         predicted: Pose | None,
-    ) -> tuple[ObjectState, float, float]:
-        """Update the record of an associated object: spatial descriptor, pose and EEMS admission.
+    ) -> tuple[_Pending, float]:
+        """An associated object's record, spatial descriptor and feature pose (with its dense fit to run).
 
         ``predicted``: its confirmed egomotion prediction (:meth:`_predicted`), taken as its pose.
 
         Returns:
-            (the object's state, seconds spent on its pose, seconds on its memory).
+            (the object between phases, seconds spent on its pose).
         """
         cfg = self.config
         t = frame.timestamp
-        world = None if camera is None else camera.world_from_camera
         rec = self._record(obs, t)
         spatial = spatial_descriptor(frame, obs.mask, min_depth=cfg.pose.min_depth, max_depth=cfg.pose.max_depth)
         if spatial is not None:
             rec.centroids.append((t, spatial.centroid))
-        pose: Pose | None = None
-        c0 = time.perf_counter()
         mask = obs.mask
 
         def feats_of(mask: Mask = mask) -> Features:
@@ -335,25 +310,52 @@ class Pipeline:
                 return self.estimator.features(gray, mask)
             return self.estimator.extractor.for_mask(frame_features, gray, mask)
 
-        if cfg.estimate_pose:
-            pose, decision = predicted, None
-            feats: Features | Callable[[], Features] = feats_of
-            if pose is None and not fit_due(rec, cfg.pose.retry):
-                why = PoseDiagnostics(reason=f"not fitted in this frame: the last {rec.failed_fits} fits failed")
-                pose, rec.failed_fits = self.estimator.missing(rec, t, why), rec.failed_fits + 1
-            elif pose is None:
-                feats = feats_of()
-                pose, decision = self.estimator.estimate(rec, frame, gray, obs.mask, feats, world)
-                rec.failed_fits = 0 if pose.source == "estimated" else rec.failed_fits + 1
-            else:  # the view is where the gallery last saw it: no new snapshot to consider
-                decision = AdmissionDecision(False, "predicted")
-            c1 = time.perf_counter()
+        item = _Pending(obs, rec, spatial, feats_of)
+        c0 = time.perf_counter()
+        if not cfg.estimate_pose:
+            return item, 0.0
+        item.pose = predicted
+        if predicted is None and not fit_due(rec, cfg.pose.retry):
+            why = PoseDiagnostics(reason=f"not fitted in this frame: the last {rec.failed_fits} fits failed")
+            item.pose, rec.failed_fits = self.estimator.missing(rec, t, why), rec.failed_fits + 1
+        elif predicted is None:
+            world = None if camera is None else camera.world_from_camera
+            item.feats = feats = feats_of()
+            item.pose, item.decision = self.estimator.estimate_features(rec, frame, gray, mask, feats, world)
+            item.request = self.estimator.dense_request(rec, frame, mask, world, item.pose)
+            item.fitted = True
+        else:  # the view is where the gallery last saw it: no new snapshot to consider
+            item.decision = AdmissionDecision(False, "predicted")
+        return item, time.perf_counter() - c0
+
+    def _dense_phase(self, pending: list[_Pending], frame: RGBDFrame) -> None:
+        """The dense fits of all objects that need one, at once (:func:`pal.perception.icp_fit_batch.icp_fits`)."""
+        todo = [p for p in pending if p.request is not None]
+        if todo:
+            cfg = self.config.pose
+            items = [ScoreItem(r.model, r.prior, r.mask, r.values, r.step) for r in (p.request for p in todo)]
+            for p, fit in zip(todo, icp_fits(items, frame, cfg.noise, cfg.icp), strict=True):
+                assert p.request is not None
+                dense = self.estimator.dense_pose(p.request, fit)
+                p.pose = p.pose if dense is None else dense
+        for p in pending:
+            if p.fitted and p.pose is not None:
+                p.rec.failed_fits = 0 if p.pose.source == "estimated" else p.rec.failed_fits + 1
+
+    def _observe_finish(
+        self, item: _Pending, frame: RGBDFrame, gray: np.ndarray, camera: CameraMotion | None
+    ) -> ObjectState:
+        """An object's EEMS admission, trajectory sample and reported position, after its pose."""
+        rec, pose, decision, obs = item.rec, item.pose, item.decision, item.obs
+        if self.config.estimate_pose:
+            assert pose is not None
             if decision is None:
+                world = None if camera is None else camera.world_from_camera
                 decision = rec.gallery.consider(
                     frame,
                     gray,
                     obs.mask,
-                    feats,
+                    item.feats,
                     self.estimator.extractor,
                     self.estimator.anchor_for(pose, rec, world, camera is not None and camera.known),
                     novel=not pose.is_valid and rec.gallery.canonical is not None,
@@ -361,14 +363,11 @@ class Pipeline:
             rec.trajectory.append(pose)
             rec.last_pose_diagnostics = pose.diagnostics
         else:
-            c1 = time.perf_counter()
-            decision = rec.gallery.consider(frame, gray, obs.mask, feats_of, self.estimator.extractor, None)
-        spent_pose, spent_mem = c1 - c0, time.perf_counter() - c1
+            decision = rec.gallery.consider(frame, gray, obs.mask, item.feats, self.estimator.extractor, None)
         rec.last_decision = decision
-        position, std, source = self._position(obs.track_id, frame, pose, spatial)
+        position, std, source = self._position(obs.track_id, frame, pose, item.spatial)
         rest = (position, std, source, len(rec.gallery), decision)
-        state = ObjectState(obs.track_id, True, obs.status, obs.label, obs.mask, spatial, pose, *rest)
-        return state, spent_pose, spent_mem
+        return ObjectState(obs.track_id, True, obs.status, obs.label, obs.mask, item.spatial, pose, *rest)
 
     def _predicted(
         self, observations: list[Observation], frame: RGBDFrame, camera: CameraMotion | None

@@ -3,7 +3,7 @@
 Parameters: :class:`PoseConfig` (:mod:`pal.perception.pose_config`); snapshot choice and
 matching: :mod:`pal.perception.pose_matching`.
 
-**Canonical object frame.** The first view of an object with enough depth-backed features
+**Canonical object frame** (:mod:`pal.perception.pose_canonical`). The first view of an object with enough depth-backed features
 (``min_canonical_points``) or, with the dense fit on, enough depth pixels (twice its
 ``min_points``) on a surface that pins all six degrees of freedom (a box, not a ball:
 :func:`pal.perception.icp.geometric_condition`), and enough area (the gallery's ``min_area``,
@@ -42,8 +42,9 @@ none in rotation, the depth noise and spread of its origin's median in translati
 ``anchor_min_inliers`` inliers (see :meth:`PoseEstimator.anchor_for`). Anchors chain, so
 orientation error accumulates slowly as an object turns through views it never showed before.
 
-**Dense fallback.** When the features give no accepted pose and the object is presumed
-static (so the camera's motion predicts its pose), :mod:`pal.perception.icp` aligns the
+**Dense fallback** (:meth:`PoseEstimator.dense_request`, :meth:`PoseEstimator.dense_pose`; Π
+runs the fits of all objects of a frame at once, :mod:`pal.perception.icp_fit_batch`). When
+the features give no accepted pose and the object is presumed static (so the camera's motion predicts its pose), :mod:`pal.perception.icp` aligns the
 surface and texture of its best snapshot with the live depth and grey levels (point-to-plane
 ICP plus photometric terms, started at the prediction). That pose has solver ``icp``; it is
 ``estimated`` only if enough of the surface agrees with the live depth (few points in free
@@ -68,17 +69,17 @@ from scipy.spatial.transform import Rotation
 
 from pal.perception.features import FeatureExtractor, Features
 from pal.perception.frames import RGBDFrame
-from pal.perception.icp import geometric_condition, icp_fit
+from pal.perception.icp import IcpFit, icp_fit
 from pal.perception.masks import Mask
 from pal.perception.memory import AdmissionDecision, ObjectRecord
 from pal.perception.pnp import RgbdFit, pnp_ransac
+from pal.perception.pose_canonical import define_canonical
 from pal.perception.pose_checks import Evidence, Limits, check_fit, motion_between
 from pal.perception.pose_config import PoseConfig
-from pal.perception.pose_dense import dense_checks, snapshot_surface
+from pal.perception.pose_dense import DenseRequest, dense_checks, dense_diagnostics, dense_request
 from pal.perception.pose_filter import filter_static
 from pal.perception.pose_matching import FeaturePairs, choose_snapshots, fuse_pairs
-from pal.perception.rigid import to_homogeneous
-from pal.perception.spatial import lift, mask_points
+from pal.perception.spatial import lift
 from pal.perception.trajectory import Pose, PoseDiagnostics
 
 __all__ = ["PoseConfig", "PoseEstimator", "lift", "position_std"]
@@ -183,14 +184,18 @@ class PoseEstimator:
             call defined the canonical frame, else None (the caller then runs the normal
             admission with :meth:`anchor_for`).
         """
-        pose, decision = self._estimate_features(record, frame, gray, mask, feats, world_from_camera)
-        if pose.source == "estimated" or self.config.icp is None or record.gallery.canonical is None:
+        pose, decision = self.estimate_features(record, frame, gray, mask, feats, world_from_camera)
+        request = self.dense_request(record, frame, mask, world_from_camera, pose)
+        if request is None:
             return pose, decision
-        W = np.eye(4) if world_from_camera is None else np.asarray(world_from_camera, dtype=np.float64)
-        depth_pose = self._depth_pose(record, frame, mask, W, pose)
+        cfg = self.config
+        fit = icp_fit(
+            request.model, request.prior, frame, mask, cfg.noise, cfg.icp, request.values, request.step
+        )
+        depth_pose = self.dense_pose(request, fit)
         return (pose if depth_pose is None else depth_pose), decision
 
-    def _estimate_features(
+    def estimate_features(
         self,
         record: ObjectRecord,
         frame: RGBDFrame,
@@ -199,12 +204,12 @@ class PoseEstimator:
         feats: Features,
         world_from_camera: np.ndarray | None = None,
     ) -> tuple[Pose, AdmissionDecision | None]:
-        """The feature-based pose (arguments and result as :meth:`estimate`)."""
+        """The feature-based pose, the first phase of :meth:`estimate` (arguments and result as there)."""
         cfg = self.config
         t = frame.timestamp
         W = np.eye(4) if world_from_camera is None else np.asarray(world_from_camera, dtype=np.float64)
         if record.gallery.canonical is None:
-            pose, decision = self._define_canonical(record, frame, gray, mask, feats)
+            pose, decision = define_canonical(cfg, record, frame, gray, mask, feats)
             if pose.is_valid and pose.camera_from_object is not None:
                 record.world_pose = (t, W @ pose.camera_from_object)
                 record.world_origin = record.world_pose[1]
@@ -337,56 +342,39 @@ class PoseEstimator:
         if moved or motion_between(record.world_origin, world)[0] > self.config.checks.moving_threshold:
             record.moving = True
 
-    def _depth_pose(
-        self, record: ObjectRecord, frame: RGBDFrame, mask: Mask, W: np.ndarray, feature_pose: Pose
-    ) -> Pose | None:
-        """The ICP pose (:mod:`pal.perception.icp`) when the features gave none, or None.
+    def dense_request(
+        self,
+        record: ObjectRecord,
+        frame: RGBDFrame,
+        mask: Mask,
+        world_from_camera: np.ndarray | None,
+        feature_pose: Pose,
+    ) -> DenseRequest | None:
+        """The dense fit the object needs after its feature pose, the second phase of :meth:`estimate`.
 
-        Only an object presumed static is fitted (not moving, estimated within
-        ``dense_horizon_s``): the fit starts from where the camera's motion puts it
-        (its last world pose seen from the live camera) and uses the surface of the snapshot
-        closest to that in orientation. A moving object's masks can hold pieces of the table
-        or a hand that pin a pose its own surface cannot (a rolling one-colour ball), so it is
-        left to its features. The pose is ``estimated`` only if it passes
-        :func:`pal.perception.pose_dense.dense_checks`, else ``rejected`` (when the features
-        gave no transform either) with the failed checks; None when not tried or without a fit.
+        None when the features gave an accepted pose, the dense fit is off, the object has no
+        canonical frame or is not presumed static (:func:`pal.perception.pose_dense.dense_request`).
         """
         cfg = self.config
-        assert cfg.icp is not None
-        if (
-            record.world_pose is None
-            or record.moving
-            or frame.timestamp - record.world_pose[0] > cfg.dense_horizon_s
-        ):
+        if feature_pose.source == "estimated" or cfg.icp is None or record.gallery.canonical is None:
             return None
-        prior = np.linalg.inv(W) @ record.world_pose[1]
-        snaps = choose_snapshots(record, cfg.max_snapshots, prior)
-        if not snaps or snaps[0].anchor is None:
-            return None
-        snap = snaps[0]
-        model, values, step = snapshot_surface(snap, cfg.icp, (cfg.min_depth, cfg.max_depth))
-        fit = icp_fit(model, prior, frame, mask, cfg.noise, cfg.icp, values, step)
+        W = np.eye(4) if world_from_camera is None else np.asarray(world_from_camera, dtype=np.float64)
+        return dense_request(cfg, record, frame, mask, W, feature_pose)
+
+    def dense_pose(self, request: DenseRequest, fit: IcpFit | None) -> Pose | None:
+        """The pose of a dense fit of ``request`` after its checks, the last phase of :meth:`estimate`.
+
+        ``estimated`` (and accepted into the record's world-frame state) if it passes
+        :func:`pal.perception.pose_dense.dense_checks`, else ``rejected`` when the features gave
+        no transform either; None when there is no fit or the feature pose is kept.
+        """
         if fit is None:
             return None
-        t = frame.timestamp
+        cfg, record, W, prior = self.config, request.record, request.W, request.prior
+        t = request.timestamp
         failed = dense_checks(fit, record, prior, W, t, cfg)
-        before = feature_pose.diagnostics.reason
-        diag = PoseDiagnostics(
-            feature_pose.diagnostics.matches,
-            fit.visible,
-            fit.points,
-            fit.rmse,
-            "icp",
-            (
-                f"rejected: {'; '.join(failed)} (depth fit; features: {before})"
-                if failed
-                else f"depth fit; features: {before}"
-            ),
-            snap.index,
-            1,
-            fit.agreement,
-            tuple(failed),
-        )
+        feature_pose = request.feature_pose
+        diag = dense_diagnostics(fit, request, failed)
         if failed:
             if feature_pose.source == "rejected" or feature_pose.camera_from_object is not None:
                 return None  # keep the feature pose (rejected or propagated) and its reason
@@ -404,69 +392,6 @@ class PoseEstimator:
         zz = np.where(np.isfinite(z), z, 1.0)
         sigma = np.sqrt(2.0) * self.config.noise.sigma(zz).astype(np.float64) + 1e-3
         return sigma, 3.0 * sigma + self.config.ransac_threshold
-
-    def _define_canonical(
-        self, record: ObjectRecord, frame: RGBDFrame, gray: np.ndarray, mask: Mask, feats: Features
-    ) -> tuple[Pose, AdmissionDecision | None]:
-        cfg = self.config
-        t = frame.timestamp
-        adm = record.gallery.config
-        _, valid = lift(feats.keypoints, frame.depth, (0, 0), frame.K, cfg.min_depth, cfg.max_depth)
-        n3d = int(valid.sum())
-        small_ok = 2 * mask.area >= adm.min_area and n3d >= cfg.small_canonical_points
-        if mask.area < adm.min_area and not small_ok:
-            return Pose(
-                t,
-                "lost",
-                None,
-                PoseDiagnostics(
-                    reason=f"no canonical frame yet: mask area {mask.area} < {adm.min_area} px"
-                    f" with {n3d} depth-backed features < {cfg.small_canonical_points}"
-                ),
-            ), None
-        pts = mask_points(frame, mask, cfg.min_depth, cfg.max_depth)
-        dense = (
-            n3d < cfg.min_canonical_points
-            and cfg.icp is not None
-            and len(pts) >= 2 * cfg.icp.min_points
-            and geometric_condition(frame, mask, cfg.icp, cfg.noise) <= cfg.icp.max_condition
-        )
-        if n3d < cfg.min_canonical_points and not dense:
-            return Pose(
-                t,
-                "lost",
-                None,
-                PoseDiagnostics(
-                    matches=len(feats),
-                    reason=f"no canonical frame yet: {n3d} depth-backed features < {cfg.min_canonical_points}"
-                    + ("" if cfg.icp is None else " and a surface that depth alone cannot pin"),
-                ),
-            ), None
-        c0 = np.median(pts, axis=0)
-        anchor = to_homogeneous(np.eye(3), -c0)
-        decision = record.gallery.set_canonical(frame, gray, mask, feats, anchor)
-        if not decision.admitted:
-            return Pose(
-                t,
-                "lost",
-                None,
-                PoseDiagnostics(reason=f"no canonical frame yet: view rejected ({decision.reason})"),
-            ), decision
-        diag = PoseDiagnostics(
-            matches=len(feats),
-            pairs=n3d,
-            inliers=n3d,
-            rmse=0.0,
-            solver="canonical",
-            reason="canonical frame defined",
-            snapshot=decision.snapshot,
-            attempts=0,
-        )
-        # the frame is defined, not measured: no rotation uncertainty; the origin is a median of
-        # pts, as uncertain as the sensor's depth there and the points' spread allow
-        var = (np.var(pts, axis=0) / max(pts.shape[0], 1)) + float(cfg.noise.sigma(float(c0[2]))) ** 2
-        cov = np.diag(np.concatenate([np.full(3, 1e-10), var]))
-        return Pose(t, "estimated", np.linalg.inv(anchor), diag, cov), decision
 
     def missing(self, record: ObjectRecord, t: float, diag: PoseDiagnostics) -> Pose:
         """The pose sample of an object with no usable observation at ``t``: ``propagated`` or ``lost``.

@@ -21,6 +21,7 @@ trusted. A dense fit is ``estimated`` only if it passes all of:
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import cv2
@@ -28,12 +29,94 @@ import numpy as np
 
 from pal.perception.icp import IcpConfig, IcpFit, surface_points
 from pal.perception.pose_checks import motion_between, sigmas, static_bounds
+from pal.perception.pose_matching import choose_snapshots
+from pal.perception.trajectory import PoseDiagnostics
 
 if TYPE_CHECKING:
+    from pal.perception.frames import RGBDFrame
+    from pal.perception.masks import Mask
     from pal.perception.memory import ObjectRecord, Snapshot
     from pal.perception.pose_config import PoseConfig
+    from pal.perception.trajectory import Pose
 
-__all__ = ["dense_checks", "snapshot_surface"]
+__all__ = ["DenseRequest", "dense_checks", "dense_diagnostics", "dense_request", "snapshot_surface"]
+
+
+@dataclass(frozen=True, eq=False)
+class DenseRequest:
+    """One object's dense fit to run (:func:`dense_request`).
+
+    Attributes:
+        record: the object's record.
+        mask: its live mask.
+        W: (4, 4) the live camera's pose in the world.
+        prior: (4, 4) the predicted ``camera_from_object`` the fit starts from.
+        snapshot: the snapshot whose surface is fitted.
+        model: (M, 3) its surface in the object frame, metres; ``values`` (M,) its grey levels;
+            ``step`` its grid step, pixels (:func:`snapshot_surface`).
+        feature_pose: the pose the features gave.
+        timestamp: the frame's time, s.
+    """
+
+    record: ObjectRecord
+    mask: Mask
+    W: np.ndarray
+    prior: np.ndarray
+    snapshot: Snapshot
+    model: np.ndarray
+    values: np.ndarray
+    step: int
+    feature_pose: Pose
+    timestamp: float
+
+
+def dense_request(
+    config: PoseConfig, record: ObjectRecord, frame: RGBDFrame, mask: Mask, W: np.ndarray, feature_pose: Pose
+) -> DenseRequest | None:
+    """The dense fit of an object presumed static, or None (``config.icp`` must be set).
+
+    Only an object presumed static is fitted (not moving, estimated within
+    ``dense_horizon_s``): the fit starts from where the camera's motion puts it (its last
+    world pose seen from the live camera) and uses the surface of the snapshot closest to that
+    in orientation. A moving object's masks can hold pieces of the table or a hand that pin a
+    pose its own surface cannot (a rolling one-colour ball), so it is left to its features.
+    None also when no snapshot is anchored.
+    """
+    cfg = config
+    assert cfg.icp is not None
+    if (
+        record.world_pose is None
+        or record.moving
+        or frame.timestamp - record.world_pose[0] > cfg.dense_horizon_s
+    ):
+        return None
+    prior = np.linalg.inv(W) @ record.world_pose[1]
+    snaps = choose_snapshots(record, cfg.max_snapshots, prior)
+    if not snaps or snaps[0].anchor is None:
+        return None
+    model, values, step = snapshot_surface(snaps[0], cfg.icp, (cfg.min_depth, cfg.max_depth))
+    return DenseRequest(record, mask, W, prior, snaps[0], model, values, step, feature_pose, frame.timestamp)
+
+
+def dense_diagnostics(fit: IcpFit, request: DenseRequest, failed: list[str]) -> PoseDiagnostics:
+    """The diagnostics of a dense fit with its failed checks (``solver`` ``icp``)."""
+    before = request.feature_pose.diagnostics.reason
+    return PoseDiagnostics(
+        request.feature_pose.diagnostics.matches,
+        fit.visible,
+        fit.points,
+        fit.rmse,
+        "icp",
+        (
+            f"rejected: {'; '.join(failed)} (depth fit; features: {before})"
+            if failed
+            else f"depth fit; features: {before}"
+        ),
+        request.snapshot.index,
+        1,
+        fit.agreement,
+        tuple(failed),
+    )
 
 
 def snapshot_surface(

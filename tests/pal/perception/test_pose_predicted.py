@@ -194,7 +194,7 @@ def test_the_pipeline_spaces_out_the_fits_of_an_object_whose_fits_fail(retry):
     pose_cfg = PoseConfig(prediction=None, retry=retry)
     pipe = Pipeline(PipelineConfig(segmenter="oracle", camera_motion=None, relations=None, pose=pose_cfg))
     fitted = []
-    real = pipe.estimator.estimate
+    real = pipe.estimator.estimate_features
 
     def failing(record, frame, *args):
         fitted.append(frame.timestamp)
@@ -202,7 +202,8 @@ def test_the_pipeline_spaces_out_the_fits_of_an_object_whose_fits_fail(retry):
             return real(record, frame, *args)  # the canonical frame is defined
         return pipe.estimator.missing(record, frame.timestamp, PoseDiagnostics(reason="no fit")), None
 
-    pipe.estimator.estimate = failing
+    pipe.estimator.estimate_features = failing
+    pipe.estimator.dense_request = lambda *args: None
     T = on_table(10.0, 0.0)
     states = [pipe(CAM.render([Box(SIZE, T)], 0.033 * k)) for k in range(7)]
     frames = [round(t / 0.033) for t in fitted]
