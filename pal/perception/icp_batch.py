@@ -23,12 +23,11 @@ import numpy as np
 
 from pal.perception.frames import RGBDFrame
 from pal.perception.icp import IcpConfig, IcpFit, _checked, _terms
-from pal.perception.icp_terms import LiveSurface, Photometric, bilinear, cross, surface_normals
+from pal.perception.icp_terms import LiveSurface, Photometric, cross, surface_normals
 from pal.perception.masks import Mask
 from pal.perception.noise import DepthNoise
-from pal.perception.quantiles import median
 
-__all__ = ["BatchMatch", "ScoreItem", "associate_all", "icp_scores", "scores_with_terms"]
+__all__ = ["BatchMatch", "PhotoStack", "ScoreItem", "associate_all", "icp_scores", "scores_with_terms"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,34 +97,92 @@ def _lookup(
     return keep, P, n
 
 
-def _photometric(photos: list, g: np.ndarray, sel: np.ndarray, y: np.ndarray, X: np.ndarray, K: np.ndarray):
+class PhotoStack:
+    """The photometric terms of several objects stacked for one-pass sampling (``Photometric`` batched).
+
+    Each object's (h, w, 3) grey levels and gradients are flattened into one (sum h w, 3)
+    buffer at offset ``base``, its model grey levels into one (sum M,) buffer at ``gray_base``.
+    """
+
+    def __init__(self, photos: Sequence[Photometric | None]) -> None:
+        self.has = np.array([p is not None for p in photos], dtype=bool)
+        got = [p for p in photos if p is not None]
+        self.x0 = np.array([p.x0 if p is not None else 0 for p in photos], dtype=np.float64)
+        self.y0 = np.array([p.y0 if p is not None else 0 for p in photos], dtype=np.float64)
+        shape = np.array([p.img.shape if p is not None else (0, 0) for p in photos], dtype=np.int64).reshape(-1, 2)
+        self.wh = shape[:, ::-1].astype(np.float64)
+        self.width = shape[:, 1]
+        sizes = shape[:, 0] * shape[:, 1]
+        self.base = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+        self.levels = np.concatenate([p.levels.reshape(-1, 3) for p in got]) if got else np.zeros((0, 3), np.float32)
+        lengths = np.array([len(p.model_gray) if p is not None else 0 for p in photos], dtype=np.int64)
+        self.gray_base = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+        self.gray = np.concatenate([p.model_gray for p in got]) if got else np.zeros(0)
+        self.sigma = np.array([p.sigma if p is not None else 1.0 for p in photos])
+
+    def sample(self, g: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Bilinear samples (N, 3) of the objects ``g`` (N,) at their crops' float pixels (``bilinear``)."""
+        u0, v0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+        a, b = (u - u0)[:, None], (v - v0)[:, None]
+        w = self.width[g]
+        i = self.base[g] + v0 * w + u0
+        L = self.levels
+        return L[i] * (1 - a) * (1 - b) + L[i + 1] * a * (1 - b) + L[i + w] * (1 - a) * b + L[i + w + 1] * a * b
+
+
+def _group_medians(values: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """The median (``quantiles.median``) of each group's values, per value (N,); ``groups`` sorted."""
+    order = np.lexsort((values, groups))
+    s = values[order]
+    _, start, count = np.unique(groups, return_index=True, return_counts=True)
+    pos = 0.5 * (count - 1)
+    lo = np.floor(pos).astype(np.int64)
+    hi = np.minimum(lo + 1, count - 1)
+    med = s[start + lo] + (s[start + hi] - s[start + lo]) * (pos - lo)
+    return np.repeat(med, count)
+
+
+def _photometric(
+    stack: PhotoStack,
+    g: np.ndarray,
+    sel: np.ndarray,
+    y: np.ndarray,
+    X: np.ndarray,
+    K: np.ndarray,
+    use: np.ndarray | None = None,
+):
     """Whitened grey-level residuals and Jacobian rows of all objects' agreeing points (``Photometric.__call__``).
+
+    Args:
+        stack: the objects' photometric terms.
+        g: (P,) sorted objects of the points (indices into ``stack``).
+        sel: (P,) the points' indices in their object's model.
+        y: (P, 3) the points rotated, metres.
+        X: (P, 3) the points moved, metres.
+        K: (3, 3) intrinsics.
+        use: (n,) the objects whose terms are wanted (default: those with grey levels).
 
     Returns:
         (residuals (Q,), Jacobian rows (Q, 6), their objects (Q,), in object order).
     """
     z = X[:, 2]
-    has = np.array([p is not None for p in photos], dtype=bool)
-    x0 = np.array([p.x0 if p is not None else 0 for p in photos], dtype=np.float64)
-    y0 = np.array([p.y0 if p is not None else 0 for p in photos], dtype=np.float64)
-    wh = np.array([p.img.shape[::-1] if p is not None else (0, 0) for p in photos], dtype=np.float64)
-    u = K[0, 0] * X[:, 0] / z + K[0, 1] * X[:, 1] / z + K[0, 2] - x0[g]
-    v = K[1, 1] * X[:, 1] / z + K[1, 2] - y0[g]
+    wh = stack.wh
+    u = K[0, 0] * X[:, 0] / z + K[0, 1] * X[:, 1] / z + K[0, 2] - stack.x0[g]
+    v = K[1, 1] * X[:, 1] / z + K[1, 2] - stack.y0[g]
+    has = stack.has if use is None else stack.has & use
     ok = has[g] & (u >= 0) & (v >= 0) & (u < wh[g, 0] - 1) & (v < wh[g, 1] - 1)
     u, v, z, y, X, sel, g = u[ok], v[ok], z[ok], y[ok], X[ok], sel[ok], g[ok]
-    r, gr = np.empty(len(u)), np.empty((len(u), 2))
-    bounds = np.searchsorted(g, np.arange(len(photos) + 1))
-    for i in np.flatnonzero(np.diff(bounds)):
-        s, p = slice(bounds[i], bounds[i + 1]), photos[i]
-        sampled = bilinear(p.levels, u[s], v[s])
-        ri = sampled[:, 0] - p.model_gray[sel[s]]
-        r[s], gr[s] = ri - median(ri), sampled[:, 1:]
+    sampled = stack.sample(g, u, v)
+    r = sampled[:, 0] - stack.gray[stack.gray_base[g] + sel]
+    if len(r):
+        r = r - _group_medians(r, g)
+    gr = sampled[:, 1:]
     zero = np.zeros_like(z)
     du = np.stack([K[0, 0] / z, zero, -K[0, 0] * X[:, 0] / z**2], axis=1)
     dv = np.stack([zero, K[1, 1] / z, -K[1, 1] * X[:, 1] / z**2], axis=1)
     gX = gr[:, :1] * du + gr[:, 1:] * dv
     J = np.concatenate([cross(y, gX), gX], axis=1)
-    sigma = np.array([p.sigma if p is not None else 1.0 for p in photos])[g]
+    sigma = stack.sigma[g]
     return r / sigma, J / sigma[:, None], g
 
 
@@ -314,7 +371,7 @@ def _finish(items, terms, checked, match, counts, t, cfg) -> list[IcpFit | None]
     starts = np.concatenate([[0], np.cumsum([len(m) for m, _ in checked])])
     n_photo, spread = np.zeros(n, dtype=int), np.zeros(n)
     if any(p is not None for p in photos):
-        rp, Jp, gp = _photometric(photos, ng, idx[near] - starts[ng], y[near], X[near], terms[0][0].K)
+        rp, Jp, gp = _photometric(PhotoStack(photos), ng, idx[near] - starts[ng], y[near], X[near], terms[0][0].K)
         H += _group_sum(Jp[:, :, None] * Jp[:, None, :], gp, n)
         sq += _group_sum(np.minimum(rp**2, 9.0), gp, n)
         n_photo = np.bincount(gp, minlength=n)

@@ -25,6 +25,7 @@ import numpy as np
 from pal.perception.frames import RGBDFrame
 from pal.perception.icp import IcpConfig, IcpFit, _checked, _terms
 from pal.perception.icp_batch import (
+    PhotoStack,
     ScoreItem,
     _conditions,
     _group_sum,
@@ -78,6 +79,7 @@ class _Steps:
         n = len(checked)
         self.models = [m for m, _ in checked]
         self.terms, self.cfg = terms, cfg
+        self.photos = PhotoStack([p for _, p in terms])
         self.R = np.array([T[:3, :3] for _, T in checked]).reshape(n, 3, 3)
         self.t = np.array([T[:3, 3] for _, T in checked]).reshape(n, 3)
         self.active = np.ones(n, dtype=bool)
@@ -116,11 +118,12 @@ class _Steps:
         w = _huber(rs) * go[ng]
         H = _group_sum(J[:, :, None] * (J * w[:, None])[:, None, :], ng, na)
         g = _group_sum(J * (w * rs)[:, None], ng, na)
-        photos = [self.terms[i][1] if go[a] else None for a, i in enumerate(act)]
-        if any(p is not None for p in photos):
+        if self.photos.has[act[go]].any():
             sel = bm.idx[keep] - np.concatenate([[0], np.cumsum([len(self.models[i]) for i in act])])[ng]
-            gok = go[ng]
-            rp, Jp, gp = _photometric(photos, ng[gok], sel[gok], y[keep][gok], X[keep][gok], frame.K)
+            use = np.zeros(len(self.active), dtype=bool)
+            use[act[go]] = True
+            rp, Jp, gp = _photometric(self.photos, act[ng], sel, y[keep], X[keep], frame.K, use)
+            gp = np.searchsorted(act, gp)
             wp = _huber(rp)
             H += _group_sum(Jp[:, :, None] * (Jp * wp[:, None])[:, None, :], gp, na)
             g += _group_sum(Jp * (wp * rp)[:, None], gp, na)
