@@ -52,13 +52,13 @@ from pal.perception.grounding import (
     PREDICATES,
     GroundingConfig,
     ObjectGeometry,
-    box_gap,
     grade,
     object_geometry,
     on_support,
     support_frame,
 )
 from pal.perception.masks import Mask
+from pal.perception.pair_geometry import displacements, grade_pairs, surface_gaps
 from pal.perception.plane import Plane
 from pal.perception.spatial import SpatialDescriptor
 from pal.perception.topology import TOPOLOGY, TopologyConfig, mask_hull, topology
@@ -347,22 +347,45 @@ def _neighbour_pairs(points: np.ndarray, k: int) -> set[tuple[int, int]]:
     return out
 
 
-def _gap(
-    a: int,
-    ga: ObjectGeometry | None,
-    gb: ObjectGeometry | None,
+def _pair_relations(
+    selected: Sequence[tuple[int, int]],
+    spatial: Mapping[int, SpatialDescriptor | None],
+    geometry: Mapping[int, ObjectGeometry | None],
+    distinct: Mapping[int, tuple[np.ndarray, np.ndarray]],
+    labels: Mapping[tuple[int, int], tuple[str | None, int | None]],
+    now: float,
     cfg: RelationConfig,
-    trees: dict[int, cKDTree],
-) -> float | None:
-    """The surface gap of a pair, metres (None without geometry); ``a``'s k-d tree is kept in ``trees``."""
-    if ga is None or gb is None:
-        return None
-    far = box_gap(ga, gb)  # surfaces far apart cannot touch: their footprints' gap will do
-    if far > cfg.grounding.touch_gap + 0.05:
-        return far
-    if a not in trees:
-        trees[a] = cKDTree(ga.surface)
-    return float(trees[a].query(gb.surface, k=1)[0].min())  # grounding.surface_gap(ga, gb)
+) -> list[PairRelation]:
+    """Both ordered relations of each selected pair (a < b): positions, gaps and grades of all pairs at once."""
+    located = [k for k, (a, b) in enumerate(selected) if spatial.get(a) is not None and spatial.get(b) is not None]
+    rel: dict[int, tuple[np.ndarray, float, np.ndarray]] = {}
+    if located:
+        ca = np.array([spatial[selected[k][0]].centroid for k in located])  # type: ignore[union-attr]
+        cb = np.array([spatial[selected[k][1]].centroid for k in located])  # type: ignore[union-attr]
+        disp, dist, direc = displacements(ca, cb)
+        back, back_dir = -disp, -direc
+        for j, k in enumerate(located):
+            rel[k] = (disp[j], float(dist[j]), direc[j])
+            rel[-k - 1] = (back[j], float(dist[j]), back_dir[j])
+    shaped = [k for k, (a, b) in enumerate(selected) if geometry.get(a) is not None and geometry.get(b) is not None]
+    grades: dict[int, dict[str, float]] = {}
+    if shaped:
+        geo: dict[int, ObjectGeometry] = {i: g for i, g in geometry.items() if g is not None}
+        gap = surface_gaps([selected[k] for k in shaped], geo, cfg.grounding, {})
+        ga, gb = [geo[selected[k][0]] for k in shaped], [geo[selected[k][1]] for k in shaped]
+        rows = grade_pairs(ga + gb, gb + ga, cfg.grounding, np.concatenate([gap, gap])).tolist()
+        for j, k in enumerate(shaped):
+            grades[k] = dict(zip(PREDICATES, rows[j], strict=True))
+            grades[-k - 1] = dict(zip(PREDICATES, rows[j + len(shaped)], strict=True))
+    empty = (np.zeros(0), np.zeros((0, 3)))
+    out = []
+    for k, (a, b) in enumerate(selected):
+        label, container = labels[(a, b)]
+        sync = _synchrony(distinct.get(a, empty), distinct.get(b, empty), now, cfg)
+        for x, y, key in ((a, b, k), (b, a, -k - 1)):
+            disp_xy, dist_xy, dir_xy = rel.get(key, (None, None, None))
+            out.append(PairRelation(x, y, disp_xy, dist_xy, dir_xy, label, container, sync, grades.get(key)))
+    return out
 
 
 def _carried_topology(
@@ -446,25 +469,9 @@ def scene_relations(
             [[(m.bbox[0] + m.bbox[2]) / 2, (m.bbox[1] + m.bbox[3]) / 2] for m in (masks[i] for i in shown)]
         )
         selected |= {(shown[a], shown[b]) for a, b in _neighbour_pairs(boxes, cfg.neighbours)}
-    empty = (np.zeros(0), np.zeros((0, 3)))
     distinct = {i: _distinct(h) for i, h in histories.items() if len(h[0]) >= 3}
-    pairs = []
-    trees: dict[int, cKDTree] = {}
     labels = _pair_topology(frame, masks, sorted(selected), cfg, _carried_topology(previous, carried))
-    for a, b in sorted(selected):
-        label, container = labels[(a, b)]
-        gap = _gap(a, geometry.get(a), geometry.get(b), cfg, trees)
-        sync = _synchrony(distinct.get(a, empty), distinct.get(b, empty), frame.timestamp, cfg)
-        for x, y in ((a, b), (b, a)):
-            sx, sy = spatial.get(x), spatial.get(y)
-            disp = dist = direc = None
-            if sx is not None and sy is not None:
-                disp = sy.centroid - sx.centroid
-                dist = float(np.linalg.norm(disp))
-                direc = disp / dist if dist > 0 else np.zeros(3)
-            gx, gy = geometry.get(x), geometry.get(y)
-            grades = None if gx is None or gy is None else grade(gx, gy, cfg.grounding, gap)
-            pairs.append(PairRelation(x, y, disp, dist, direc, label, container, sync, grades))
+    pairs = _pair_relations(sorted(selected), spatial, geometry, distinct, labels, frame.timestamp, cfg)
     pairs.sort(key=lambda p: (p.a, p.b))
     return SceneRelations(
         {i: spatial.get(i) for i in ids},
