@@ -162,6 +162,18 @@ class Trajectory:
 
     def __init__(self) -> None:
         self.poses: list[Pose] = []
+        self._valid: list[int] = []  # indices of the estimated samples among the first ``_seen``
+        self._seen = 0
+
+    def _valid_index(self) -> list[int]:
+        """Indices of the estimated samples, brought up to date with the samples appended since."""
+        if self._seen > len(self.poses):  # the list was cut: start again
+            self._valid, self._seen = [], 0
+        for k in range(self._seen, len(self.poses)):
+            if self.poses[k].is_valid:
+                self._valid.append(k)
+        self._seen = len(self.poses)
+        return self._valid
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -177,17 +189,12 @@ class Trajectory:
     @property
     def num_valid(self) -> int:
         """Number of estimated (valid) samples."""
-        return sum(p.is_valid for p in self.poses)
+        return len(self._valid_index())
 
     def last_valid(self, k: int = 1) -> list[Pose]:
         """The last ``k`` estimated poses, oldest first."""
-        out: list[Pose] = []
-        for p in reversed(self.poses):
-            if p.is_valid:
-                out.append(p)
-                if len(out) == k:
-                    break
-        return out[::-1]
+        index = self._valid_index()
+        return [self.poses[i] for i in (index[max(len(index) - k, 0) :] if k > 0 else index)]
 
     def valid(self) -> tuple[np.ndarray, np.ndarray]:
         """Estimated samples only: ((M,) timestamps s, (M, 4, 4) camera_from_object)."""

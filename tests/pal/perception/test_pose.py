@@ -261,3 +261,18 @@ def test_a_pose_rotation_vector_is_computed_once_and_follows_its_matrix():
     pose.camera_from_object[:3, :3] = np.eye(3)  # changed in place: computed again
     np.testing.assert_allclose(pose.rotvec, np.zeros(3), atol=1e-12)
     assert Pose(0.0, "lost", None).rotvec is None
+
+
+def test_the_valid_samples_of_a_trajectory_follow_its_appends():
+    traj = Trajectory()
+    sources = ["estimated", "lost", "rejected", "estimated", "propagated", "estimated", "lost"]
+    for k, src in enumerate(sources):
+        traj.append(Pose(0.1 * k, src, None if src == "lost" else np.eye(4)))
+        valid = [p for p in traj.poses if p.is_valid]
+        assert traj.num_valid == len(valid)
+        for n in (0, 1, 2, 5):
+            assert traj.last_valid(n) == (valid[-n:] if n > 0 else valid)
+    traj.poses.append(Pose(1.0, "estimated", np.eye(4)))  # appended to the list directly
+    assert traj.num_valid == 4 and traj.last_valid(1)[0].timestamp == 1.0
+    del traj.poses[2:]
+    assert traj.num_valid == 1
