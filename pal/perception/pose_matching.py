@@ -51,10 +51,12 @@ def choose_snapshots(
         reach = max(float(np.linalg.norm(centre)), 1e-3)
         # anchor = object_from_camera at capture: its rotation transposed is camera_R_object then,
         # its translation the camera centre in the object frame
+        A = np.array([s.anchor for s in anchored])  # (S, 4, 4); rotation_angle of each, at once
+        cos = (np.trace(A[:, :3, :3] @ R, axis1=1, axis2=2) - 1.0) / 2.0
+        angles = np.arccos(np.clip(cos, -1.0, 1.0)).tolist()
         key = {
-            s.index: rotation_angle(s.anchor[:3, :3].T, R)
-            + float(np.linalg.norm(s.anchor[:3, 3] - centre)) / reach  # type: ignore[index]
-            for s in anchored
+            s.index: angles[k] + float(np.sqrt(d.dot(d))) / reach
+            for k, (s, d) in enumerate(zip(anchored, A[:, :3, 3] - centre, strict=True))
         }
         order = sorted(anchored, key=lambda s: (key[s.index], -s.index))
     else:
