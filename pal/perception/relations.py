@@ -61,6 +61,7 @@ from pal.perception.masks import Mask
 from pal.perception.pair_geometry import displacements, grade_pairs, surface_gaps
 from pal.perception.plane import Plane
 from pal.perception.spatial import SpatialDescriptor
+from pal.perception.synchrony import distinct_history, pair_synchrony, velocity_correlation
 from pal.perception.topology import TOPOLOGY, TopologyConfig, mask_hull, topology
 
 __all__ = [
@@ -157,52 +158,18 @@ class PairRelation:
         }
 
 
-def _distinct(history: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """The history with each timestamp once (the last sample of a repeated time), sorted."""
-    t, p = np.asarray(history[0], dtype=np.float64), np.asarray(history[1], dtype=np.float64).reshape(-1, 3)
-    if t.size < 2:
-        return t, p
-    rev = t[::-1]
-    _, first = np.unique(rev, return_index=True)  # first occurrence in reverse = last one
-    keep = (t.size - 1 - first)[np.argsort(t[t.size - 1 - first])]
-    return t[keep], p[keep]
-
-
 def synchrony(
     history_a: tuple[np.ndarray, np.ndarray],
     history_b: tuple[np.ndarray, np.ndarray],
     now: float,
     config: RelationConfig | None = None,
 ) -> float | None:
-    """Velocity correlation of two (timestamps (N,), positions (N, 3)) histories (module docstring)."""
+    """Velocity correlation of two (timestamps (N,), positions (N, 3)) histories (:mod:`pal.perception.synchrony`)."""
     cfg = config or RelationConfig()
     if len(history_a[0]) < 3 or len(history_b[0]) < 3:
         return None  # fewer than 3 common timestamps
-    return _synchrony(_distinct(history_a), _distinct(history_b), now, cfg)
-
-
-def _synchrony(
-    a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], now: float, cfg: RelationConfig
-) -> float | None:
-    """:func:`synchrony` of two histories already made distinct (:func:`_distinct`)."""
-    (ta, pa), (tb, pb) = a, b
-    if ta.size < 3 or tb.size < 3:
-        return None
-    common, ia, ib = np.intersect1d(ta, tb, assume_unique=True, return_indices=True)
-    recent = common >= now - cfg.sync_window_s
-    common, ia, ib = common[recent], ia[recent], ib[recent]
-    if common.size < 3:
-        return None
-    dt = np.diff(common)[:, None]
-    va = np.diff(pa[ia], axis=0) / dt
-    vb = np.diff(pb[ib], axis=0) / dt
-    sa, sb = np.linalg.norm(va, axis=1).mean(), np.linalg.norm(vb, axis=1).mean()
-    moving_a, moving_b = sa >= cfg.min_speed, sb >= cfg.min_speed
-    if not moving_a and not moving_b:
-        return None
-    if not (moving_a and moving_b):
-        return 0.0
-    return float(np.sum(va * vb) / np.sqrt(np.sum(va * va) * np.sum(vb * vb)))
+    a, b = distinct_history(history_a), distinct_history(history_b)
+    return velocity_correlation(a, b, now, cfg.sync_window_s, cfg.min_speed)
 
 
 def scene_vector_names(max_objects: int) -> list[str]:
@@ -377,11 +344,11 @@ def _pair_relations(
         for j, k in enumerate(shaped):
             grades[k] = dict(zip(PREDICATES, rows[j], strict=True))
             grades[-k - 1] = dict(zip(PREDICATES, rows[j + len(shaped)], strict=True))
-    empty = (np.zeros(0), np.zeros((0, 3)))
+    syncs = pair_synchrony(selected, distinct, now, cfg.sync_window_s, cfg.min_speed)
     out = []
     for k, (a, b) in enumerate(selected):
         label, container = labels[(a, b)]
-        sync = _synchrony(distinct.get(a, empty), distinct.get(b, empty), now, cfg)
+        sync = syncs[k]
         for x, y, key in ((a, b, k), (b, a, -k - 1)):
             disp_xy, dist_xy, dir_xy = rel.get(key, (None, None, None))
             out.append(PairRelation(x, y, disp_xy, dist_xy, dir_xy, label, container, sync, grades.get(key)))
@@ -469,7 +436,7 @@ def scene_relations(
             [[(m.bbox[0] + m.bbox[2]) / 2, (m.bbox[1] + m.bbox[3]) / 2] for m in (masks[i] for i in shown)]
         )
         selected |= {(shown[a], shown[b]) for a, b in _neighbour_pairs(boxes, cfg.neighbours)}
-    distinct = {i: _distinct(h) for i, h in histories.items() if len(h[0]) >= 3}
+    distinct = {i: distinct_history(h) for i, h in histories.items() if len(h[0]) >= 3}
     labels = _pair_topology(frame, masks, sorted(selected), cfg, _carried_topology(previous, carried))
     pairs = _pair_relations(sorted(selected), spatial, geometry, distinct, labels, frame.timestamp, cfg)
     pairs.sort(key=lambda p: (p.a, p.b))
