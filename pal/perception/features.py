@@ -148,6 +148,14 @@ def in_mask(points: np.ndarray, mask: Mask, crop: np.ndarray | None = None) -> n
     return out
 
 
+def _hamming(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamming distances (N,) int32 of (N, D) uint8 binary descriptors, row by row."""
+    x = np.bitwise_xor(np.ascontiguousarray(a), np.ascontiguousarray(b))
+    if x.shape[1] % 8 == 0:  # 64 bits at a time
+        return np.bitwise_count(x.view(np.uint64)).sum(axis=1, dtype=np.int32)
+    return _POPCOUNT[x].sum(axis=1, dtype=np.int32)
+
+
 def guided_matches(
     predicted: np.ndarray,
     descriptors: np.ndarray,
@@ -186,7 +194,7 @@ def guided_matches(
     ti = near[found]
     if qi.size == 0:
         return empty
-    dist = _POPCOUNT[np.bitwise_xor(descriptors[qi], live_descriptors[ti])].sum(axis=1, dtype=np.int32)
+    dist = _hamming(descriptors[qi], live_descriptors[ti])
     ok = dist <= max_bits
     qi, ti, dist = qi[ok], ti[ok], dist[ok]
     if qi.size == 0:

@@ -276,3 +276,15 @@ def test_the_valid_samples_of_a_trajectory_follow_its_appends():
     assert traj.num_valid == 4 and traj.last_valid(1)[0].timestamp == 1.0
     del traj.poses[2:]
     assert traj.num_valid == 1
+
+
+def test_hamming_distances_count_the_differing_bits():
+    from pal.perception.features import _hamming
+
+    rng = np.random.default_rng(1)
+    for width in (32, 12):
+        a = rng.integers(0, 256, (50, width), dtype=np.uint8)
+        b = rng.integers(0, 256, (50, width), dtype=np.uint8)
+        ref = np.unpackbits(a ^ b, axis=1).sum(axis=1)
+        np.testing.assert_array_equal(_hamming(a, b), ref)
+    assert _hamming(a[:1], a[:1])[0] == 0
