@@ -11,7 +11,8 @@ back by predicted 3-D position and gallery appearance, :mod:`pal.perception.reid
 (:mod:`pal.perception.fragments`) -> for each associated object: spatial
 descriptor, pose (optional; a static object's egomotion prediction when the live data confirm
 it, :mod:`pal.perception.pose_predicted`, else a fit with world-frame gates and consistency with
-the camera's motion) and EEMS admission (skipped for a confirmed prediction) -> missing objects get a ``lost`` (or flagged ``propagated``) pose sample ->
+the camera's motion) and EEMS admission (skipped for a confirmed prediction; the dense fits of
+all objects run at once, :mod:`pal.perception.icp_fit_batch`) -> missing objects get a ``lost`` (or flagged ``propagated``) pose sample ->
 relational layer (grounded predicates in the support-plane frame, salience order) -> scene
 descriptor (Table 5.6). Each stage's time is in :attr:`PerceptionState.timings`; the state's types
 are in :mod:`pal.perception.state`.
