@@ -49,11 +49,21 @@ class ScoreItem:
     step: int = 1
 
 
-def _group_sum(values: np.ndarray, groups: np.ndarray, n: int) -> np.ndarray:
-    """Sums of ``values`` (P, ...) over the rows of each group; ``groups`` (P,) sorted, in [0, n)."""
+def _group_index(groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the groups present, the first row of each) of sorted ``groups`` (P,), for :func:`_group_sum`."""
+    return np.unique(groups, return_index=True)
+
+
+def _group_sum(
+    values: np.ndarray, groups: np.ndarray, n: int, index: tuple[np.ndarray, np.ndarray] | None = None
+) -> np.ndarray:
+    """Sums of ``values`` (P, ...) over the rows of each group; ``groups`` (P,) sorted, in [0, n).
+
+    ``index``: :func:`_group_index` of ``groups`` when already computed.
+    """
     out = np.zeros((n, *values.shape[1:]))
     if len(values):
-        idx, start = np.unique(groups, return_index=True)
+        idx, start = _group_index(groups) if index is None else index
         out[idx] = np.add.reduceat(values, start, axis=0)
     return out
 
@@ -360,20 +370,22 @@ def _finish(items, terms, checked, match, counts, t, cfg) -> list[IcpFit | None]
     idx, gi, y, X, nrm, r, sig, near = match
     matched, agree, free = counts
     ng, rn, sn = gi[near], r[near], sig[near]
+    gix = _group_index(ng)
     cnt = np.maximum(agree, 1)
-    rmse = np.sqrt(_group_sum(rn**2, ng, n) / cnt)
-    rmse_sigma = np.sqrt(_group_sum((rn / sn) ** 2, ng, n) / cnt)
+    rmse = np.sqrt(_group_sum(rn**2, ng, n, gix) / cnt)
+    rmse_sigma = np.sqrt(_group_sum((rn / sn) ** 2, ng, n, gix) / cnt)
     rs = rn / sn
     J = np.concatenate([cross(y[near], nrm[near]), nrm[near]], axis=1) / sn[:, None]
-    H_depth = _group_sum(J[:, :, None] * J[:, None, :], ng, n)
-    H, sq, rows = H_depth.copy(), _group_sum(np.minimum(rs**2, 9.0), ng, n), agree.copy()
+    H_depth = _group_sum(J[:, :, None] * J[:, None, :], ng, n, gix)
+    H, sq, rows = H_depth.copy(), _group_sum(np.minimum(rs**2, 9.0), ng, n, gix), agree.copy()
     photos = [p for _, p in terms]
     starts = np.concatenate([[0], np.cumsum([len(m) for m, _ in checked])])
     n_photo, spread = np.zeros(n, dtype=int), np.zeros(n)
     if any(p is not None for p in photos):
         rp, Jp, gp = _photometric(PhotoStack(photos), ng, idx[near] - starts[ng], y[near], X[near], terms[0][0].K)
-        H += _group_sum(Jp[:, :, None] * Jp[:, None, :], gp, n)
-        sq += _group_sum(np.minimum(rp**2, 9.0), gp, n)
+        gpx = _group_index(gp)
+        H += _group_sum(Jp[:, :, None] * Jp[:, None, :], gp, n, gpx)
+        sq += _group_sum(np.minimum(rp**2, 9.0), gp, n, gpx)
         n_photo = np.bincount(gp, minlength=n)
         rows += n_photo
         bounds = np.searchsorted(gp, np.arange(n + 1))

@@ -28,6 +28,7 @@ from pal.perception.icp_batch import (
     PhotoStack,
     ScoreItem,
     _conditions,
+    _group_index,
     _group_sum,
     _photometric,
     associate_all,
@@ -108,16 +109,17 @@ class _Steps:
         ng, sn = gi[keep], sig[keep]
         rs = r[keep] / sn
         J = np.concatenate([cross(y[keep], nrm[keep]), nrm[keep]], axis=1) / sn[:, None]
+        gix = _group_index(ng)
         stop = np.zeros(na, dtype=bool)
         if k == 0 and cfg.early_condition is not None:
-            H_depth = _group_sum(J[:, :, None] * J[:, None, :], ng, na)
+            H_depth = _group_sum(J[:, :, None] * J[:, None, :], ng, na, gix)
             count = np.bincount(ng, minlength=na)
             cond = _conditions(H_depth, X[keep], ng, self.t[act], count)
             stop = ~fail & (cond > cfg.early_condition * cfg.max_condition)
         go = ~fail & ~stop
         w = _huber(rs) * go[ng]
-        H = _group_sum(J[:, :, None] * (J * w[:, None])[:, None, :], ng, na)
-        g = _group_sum(J * (w * rs)[:, None], ng, na)
+        H = _group_sum(J[:, :, None] * (J * w[:, None])[:, None, :], ng, na, gix)
+        g = _group_sum(J * (w * rs)[:, None], ng, na, gix)
         if self.photos.has[act[go]].any():
             sel = bm.idx[keep] - np.concatenate([[0], np.cumsum([len(self.models[i]) for i in act])])[ng]
             use = np.zeros(len(self.active), dtype=bool)
@@ -125,8 +127,9 @@ class _Steps:
             rp, Jp, gp = _photometric(self.photos, act[ng], sel, y[keep], X[keep], frame.K, use)
             gp = np.searchsorted(act, gp)
             wp = _huber(rp)
-            H += _group_sum(Jp[:, :, None] * (Jp * wp[:, None])[:, None, :], gp, na)
-            g += _group_sum(Jp * (wp * rp)[:, None], gp, na)
+            gpx = _group_index(gp)
+            H += _group_sum(Jp[:, :, None] * (Jp * wp[:, None])[:, None, :], gp, na, gpx)
+            g += _group_sum(Jp * (wp * rp)[:, None], gp, na, gpx)
         self._update(act, fail, stop, go, H, g, k)
 
     def _update(
