@@ -64,7 +64,14 @@ def _same(got: IcpFit | None, ref: IcpFit | None) -> None:
 
 
 @pytest.mark.parametrize(
-    "cfg", [IcpConfig(), IcpConfig(grow_px=0), IcpConfig(early_condition=None, iterations=4)], ids=str
+    "cfg",
+    [
+        IcpConfig(),
+        IcpConfig(grow_px=0),
+        IcpConfig(early_condition=None, iterations=4),
+        IcpConfig(photometric_sigma=None),
+    ],
+    ids=str,
 )
 def test_the_batched_fits_equal_the_per_object_fits(cfg):
     items, frame = _items()
