@@ -105,3 +105,44 @@ def test_a_bad_item_is_refused_by_name():
     items, frame = _items()
     with pytest.raises(ValueError, match="model has shape"):
         icp_fits([items[0], ScoreItem(items[0].model[:, :2], items[0].T, items[0].mask)], frame)
+
+
+def test_the_pipeline_with_batched_dense_fits_equals_it_with_per_object_fits(monkeypatch):
+    """Two one-colour boxes (no features inside): every frame's dense fits run at once or one at a time."""
+    import pal.perception.pipeline as pipeline
+    from pal.perception.memory import AdmissionConfig
+    from pal.perception.pose import PoseConfig
+
+    def run():
+        cfg = pipeline.PipelineConfig(
+            segmenter="oracle",
+            camera_motion=None,
+            relations=None,
+            admission=AdmissionConfig(min_area=200),
+            pose=PoseConfig(prediction=None),
+        )
+        pipe, out = pipeline.Pipeline(cfg), []
+        for k in range(4):
+            boxes = []
+            for j, (x, y) in enumerate([(-0.12, 0.0), (0.12, 0.04)]):
+                T = np.eye(4)
+                T[:3, :3] = Rotation.from_euler("z", 10.0 + 2.0 * k + 20.0 * j, degrees=True).as_matrix()
+                T[:3, 3] = [x + 0.004 * k, y, 0.035]
+                boxes.append(Box(SIZE, CAM.table @ T, j + 1, cells=1))
+            out.append(pipe(CAM.render(boxes, 0.1 * k)))
+        return out
+
+    batched = run()
+
+    def one_at_a_time(items, frame, noise, config):
+        return [icp_fit(i.model, i.T, frame, i.mask, noise, config, i.model_gray, i.step) for i in items]
+
+    monkeypatch.setattr(pipeline, "icp_fits", one_at_a_time)
+    alone = run()
+    solvers = []
+    for a, b in zip(batched, alone, strict=True):
+        for oa, ob in zip(a.objects, b.objects, strict=True):
+            assert oa.pose.source == ob.pose.source and oa.pose.diagnostics.solver == ob.pose.diagnostics.solver
+            np.testing.assert_allclose(oa.pose.camera_from_object, ob.pose.camera_from_object, atol=1e-6)
+            solvers.append(oa.pose.diagnostics.solver)
+    assert solvers[2::2] == ["icp"] * 3  # the known answer: the first box is posed by depth after frame 0
