@@ -12,8 +12,9 @@ the fingertip (3-D, m) and ``a`` the torques:
     c = w_g c(p - g) + w_e c(e - p) + w_b c(e_xy - behind(p, g)) + w_a |a|^2
 
 (the agent's :func:`pal.agent.plan.preference` with ``scale=1``, ``target_at="every"``; the
-form of ``c`` and the weights from :class:`pal.agent.PlanConfig`: PETS's L1 cost with 1.25,
-0.5 and 0, and 0.01 on the torques in the ``pusher`` experiment, a tenth of PETS's 0.1).
+form of ``c`` and the weights from :class:`pal.agent.PlanConfig`: in the ``pusher`` experiment
+PETS's L1 cost with 12.5 (10x PETS's 1.25), 0.5 and 0, and 0.01 on the torques, a tenth of
+PETS's 0.1).
 """
 
 from __future__ import annotations

@@ -24,9 +24,10 @@ def _values():
     }
 
 
-def test_pusher_defaults_are_horizon_25_and_petss_l1_cost_with_a_tenth_of_its_action_weight():
+def test_pusher_defaults_are_horizon_25_and_petss_l1_cost_reweighted_for_100_step_episodes():
     assert PLAN.action.horizon == 25 and PLAN.preference == "l1"
-    assert (PLAN.goal_weight, PLAN.effector_weight, PLAN.action_weight) == (1.25, 0.5, 0.01)
+    # PETS's (1.25, 0.5, 0.1) with the object term 10x and the action term 0.1x (pusher-ceiling)
+    assert (PLAN.goal_weight, PLAN.effector_weight, PLAN.action_weight) == (12.5, 0.5, 0.01)
     assert PLAN.behind_weight == 0.0  # the shaping term is off by default
     s = PLAN.action.sampling
     assert s.noise_beta == 2.0 and s.keep_elites == 0.3 and s.population_decay == 1.25
@@ -40,7 +41,8 @@ def test_the_agents_default_plans_risk_aware_with_icem():
 def test_l1_preference_is_the_hand_computed_pets_cost():
     v = _values()
     target = torch.tensor([[0.1, -0.2, 0.0]])
-    log_p = preference({"object": target}, replace(PLAN, action_weight=0.1), effector=True)(v)
+    pets = replace(PLAN, goal_weight=1.25, action_weight=0.1)
+    log_p = preference({"object": target}, pets, effector=True)(v)
     obj, tip, act = v["pos.object"], v["ee"], v["act"]
     want = 1.25 * (obj - target).abs().sum(-1) + 0.5 * (tip - obj).abs().sum(-1) + 0.1 * act.pow(2).sum(-1)
     torch.testing.assert_close(-log_p, want, atol=1e-6, rtol=0)

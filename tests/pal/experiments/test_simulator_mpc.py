@@ -65,3 +65,21 @@ def test_simulator_mpc_refuses_what_it_cannot_simulate():
     with pytest.raises(ValueError, match=r"actions must have shape \(R, H, 7\), got \(3, 7\)"):
         planner.predict(planner.state(), np.zeros((3, 7)))
     env.close()
+
+
+def test_the_ceiling_grid_names_each_setting_and_refuses_empty_or_zero_axes():
+    from pal.experiments.closed_loop import pusher_ceiling
+
+    plan = pusher_ceiling.sized(pusher.PLAN, 30, 7.0, 0.5)
+    assert (plan.action.sampling.population, plan.action.sampling.elites) == (30, 3)
+    assert (plan.goal_weight, plan.behind_weight) == (7.0, 0.5)
+    assert plan.effector_weight == pusher.PLAN.effector_weight
+    with pytest.raises(ValueError, match=r"goal_weights needs at least one value, got \(\)"):
+        pusher_ceiling.Config(goal_weights=())
+    with pytest.raises(ValueError, match="goal_weights"):
+        pusher_ceiling.Config(goal_weights=(0.0,))
+    config = replace(pusher_ceiling.TINY, goal_weights=(1.0, 2.0))
+    report = pusher_ceiling.run(config)
+    rows = report.metrics["settings"]
+    assert [r["goal_weight"] for r in rows] == [1.0, 2.0]
+    assert report.metrics["chosen"] is None  # the plan's own weight is not in this grid
