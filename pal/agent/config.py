@@ -112,6 +112,10 @@ class ModelConfig:
             ``"mjcf"``: the effector's forward kinematics read from the MuJoCo env's own model
             up to ``EnvSpec.effector_body``, a fixed :class:`models.KinematicMechanism`
             (:mod:`pal.agent.kinematics`).
+        dynamics: ``"learned"`` (``dq`` and ``v`` MLPs) or ``"mjcf"``: the joints' motion under
+            the torques stepped by MuJoCo through the env's own model without contacts
+            (:mod:`pal.agent.dynamics`); needs ``kinematics="mjcf"``, so that only the objects
+            are learned.
     """
 
     kind: str = "hetero"
@@ -126,10 +130,16 @@ class ModelConfig:
     log_scale_bounds: tuple[float, float] = LOG_SCALE_BOUNDS
     arm_log_scale_bounds: tuple[float, float] = ARM_LOG_SCALE_BOUNDS
     kinematics: str = "learned"
+    dynamics: str = "learned"
 
     def __post_init__(self) -> None:
         check_choice("kind", self.kind, ("hetero", "mlp"))
         check_choice("kinematics", self.kinematics, ("learned", "mjcf"))
+        check_choice("dynamics", self.dynamics, ("learned", "mjcf"))
+        if self.dynamics == "mjcf" and self.kinematics != "mjcf":
+            raise ValueError(
+                f"dynamics='mjcf' needs kinematics='mjcf' (the body known from its MJCF), got kinematics={self.kinematics!r}"
+            )
         check_choice("structure", self.structure, ("preset", "discover"))
         check_choice("displacement", self.displacement, DISPLACEMENTS)
         check_int("members", self.members)

@@ -123,7 +123,8 @@ def fit_model(
         return {"schedule": base if held_out else replace(base, validation=0.0, patience=None), "seed": seed}
 
     arm_sites = [s for s in learned if s in ("dq", "v", "dee")]
-    fit(model, arm, variables=arm_sites, **schedule(len(arm["act"])))
+    if arm_sites:  # none when the body's laws are all given (kinematics and dynamics from the MJCF)
+        fit(model, arm, variables=arm_sites, **schedule(len(arm["act"])))
     fitted = list(arm_sites)
     for o, cols in objects.items():
         sites = [s for s in learned if s.endswith(f".{o}")]

@@ -38,6 +38,7 @@ from pal.agent.body_checks import check_joint_sensors, resolve_servo
 from pal.agent.config import AgentConfig
 from pal.agent.correction import Correction
 from pal.agent.curiosity import GridCuriosity
+from pal.agent.dynamics import dynamics_mechanisms
 from pal.agent.estimate import Estimator, belief
 from pal.agent.explore import contact_search, diagnose, push_counts
 from pal.agent.goals import check_reachable, check_targets, current
@@ -183,11 +184,10 @@ class Agent:
         self._probe()
 
     def _new_model(self, graph: Any) -> WorldModel:
-        known = (
-            known_mechanisms(self.env, self.spec, FIXED_SIGMA)
-            if self.config.model.kinematics == "mjcf"
-            else {}
-        )
+        model = self.config.model
+        known = known_mechanisms(self.env, self.spec, FIXED_SIGMA) if model.kinematics == "mjcf" else {}
+        if model.dynamics == "mjcf":
+            known.update(dynamics_mechanisms(self.env, self.spec, FIXED_SIGMA, self.servo))
         return build_model(self.spec, graph, self.config.model, mechanisms=known, seed=self.seed)
 
     def _probe(self) -> None:
