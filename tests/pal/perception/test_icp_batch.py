@@ -47,15 +47,21 @@ def _items() -> tuple[list[ScoreItem], object]:
     return items, fb
 
 
-def _same(got: IcpFit | None, ref: IcpFit | None) -> None:
+def _same(
+    got: IcpFit | None, ref: IcpFit | None, rtol: float = 1e-9, atol: float = 0.0, pose_atol: float = 0.0
+) -> None:
+    """Equal counts; residuals within ``rtol``/``atol``; poses within ``pose_atol`` (0: bit for bit)."""
     assert (got is None) == (ref is None)
     if ref is None or got is None:
         return
     for name in ("points", "visible", "agree", "free_space", "photometric", "iterations"):
         assert getattr(got, name) == getattr(ref, name), name
     for name in ("rmse", "rmse_sigma", "condition", "photometric_sigma"):
-        np.testing.assert_allclose(getattr(got, name), getattr(ref, name), rtol=1e-9, err_msg=name)
-    np.testing.assert_array_equal(got.T, ref.T)
+        np.testing.assert_allclose(getattr(got, name), getattr(ref, name), rtol=rtol, atol=atol, err_msg=name)
+    if pose_atol:
+        np.testing.assert_allclose(got.T, ref.T, atol=pose_atol)
+    else:
+        np.testing.assert_array_equal(got.T, ref.T)
     assert (got.covariance is None) == (ref.covariance is None)
     if ref.covariance is not None:
         np.testing.assert_allclose(got.covariance, ref.covariance, rtol=1e-7, atol=1e-15)
