@@ -113,8 +113,8 @@ class ModelConfig:
             up to ``EnvSpec.effector_body``, a fixed :class:`models.KinematicMechanism`
             (:mod:`pal.agent.kinematics`).
         dynamics: ``"learned"`` (``dq`` and ``v`` MLPs) or ``"mjcf"``: the joints' motion under
-            the torques stepped by MuJoCo through the env's own model without contacts
-            (:mod:`pal.agent.dynamics`); needs ``kinematics="mjcf"``, so that only the objects
+            the torques stepped by MuJoCo through the env's own model, with the body's contacts
+            with static geometry and without those with objects (:mod:`pal.agent.dynamics`); needs ``kinematics="mjcf"``, so that only the objects
             are learned.
     """
 

@@ -2,15 +2,18 @@
 
 With ``ModelConfig.dynamics = "mjcf"`` (which needs ``kinematics = "mjcf"``) the agent does not
 learn how its torques move its joints either: ``dq`` and ``v`` come from the body's own MJCF,
-stepped by MuJoCo with every contact switched off,
+stepped by MuJoCo with the contacts of the body and its fixed surroundings only,
 
     (q, v) = step^k(q_prev, v_prev, act),    dq = q - q_prev,
 
 k the environment's frame skip, the action held over the k substeps (as Gymnasium's
 ``do_simulation``), the joints outside the spec's at their ``qpos0`` and at rest. The joint
-limits, damping, armature and the actuators' gains are the MJCF's. What is left to learn is how
-the body moves the objects. The map is exact while the body touches nothing; a contact's push
-back on the body is not in it (residual sd ``sigma``).
+limits, damping, armature, the actuators' gains and the body's contacts with itself and with
+static geometry (a table it presses on, a wall) are the MJCF's: a geom collides unless it sits
+on a body that moves by joints none of which is the spec's (an object, a goal marker), whose
+geoms are switched off (:func:`mobile_geoms`). What is left to learn is how the body moves the
+objects. The map is exact while the body touches no object; an object's push back on the body
+is not in it (residual sd ``sigma``).
 
 MuJoCo is not differentiable here: the mechanisms refuse inputs that require a gradient, so
 plan with the sampling planner (``refine_steps = 0``). The candidates of one planner step are
@@ -36,7 +39,7 @@ from models.mechanisms import Seed
 from pal.agent.body_checks import mujoco_model
 from pal.agent.spec import EnvSpec
 
-__all__ = ["JointSimulator", "SimulatedJointMechanism", "dynamics_mechanisms", "mjcf_xml"]
+__all__ = ["JointSimulator", "SimulatedJointMechanism", "dynamics_mechanisms", "mjcf_xml", "mobile_geoms"]
 
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
@@ -55,8 +58,23 @@ def mjcf_xml(env: gymnasium.Env) -> str:
     return mujoco.MjSpec.from_file(str(path)).to_xml()
 
 
+def mobile_geoms(model: mujoco.MjModel, joints: Sequence[int]) -> np.ndarray:
+    """Ids of the geoms on bodies moved by some joint, none of which is one of ``joints``.
+
+    A body moves by the joints of its own and of its ancestors up to the world; one moved by no
+    joint is static (the world's geometry), one moved by a joint of ``joints`` is the body's.
+    """
+    body_joints: list[set[int]] = [set() for _ in range(model.nbody)]
+    for b in range(1, model.nbody):  # parents come before children in MuJoCo's body order
+        own = range(model.body_jntadr[b], model.body_jntadr[b] + model.body_jntnum[b])
+        body_joints[b] = body_joints[model.body_parentid[b]] | set(own)
+    mine = set(joints)
+    moved = [b for b in range(model.nbody) if body_joints[b] and not body_joints[b] & mine]
+    return np.flatnonzero(np.isin(model.geom_bodyid, moved))
+
+
 class JointSimulator:
-    """The body of an MJCF without contacts, stepped in batches (module docstring).
+    """The body of an MJCF, its contacts with objects off, stepped in batches (module docstring).
 
     Args:
         xml: the MJCF as a string. joints: the spec's joint names, in its order (hinge or slide).
@@ -71,13 +89,15 @@ class JointSimulator:
             self.model = mujoco.MjModel.from_xml_string(xml)
         except ValueError as exc:
             raise ValueError(f"the MJCF does not compile: {exc}") from exc
-        self.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
         self.xml, self.joints = xml, tuple(joints)
         self.frame_skip = check_int("frame_skip", frame_skip, minimum=1)
         ids = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, j) for j in self.joints]
         missing = [j for j, i in zip(self.joints, ids, strict=True) if i < 0]
         if missing or not ids:
             raise ValueError(f"joints {missing or list(joints)} are not joints of the MJCF")
+        off = mobile_geoms(self.model, ids)
+        self.model.geom_contype[off] = 0
+        self.model.geom_conaffinity[off] = 0
         self.qpos = np.array([1 + self.model.jnt_qposadr[i] for i in ids])
         self.qvel = np.array([1 + self.model.nq + self.model.jnt_dofadr[i] for i in ids])
         self.data = mujoco.MjData(self.model)

@@ -122,7 +122,9 @@ def open_sequence(path: str | os.PathLike[str], camera: str = "file", undistort:
         seq = TUMSequence(folder, missing="skip")
     elif camera in TUM_CAMERAS:
         lens = TUM_DISTORTION.get(camera) if undistort else None
-        seq = TUMSequence(folder, K=TUM_CAMERAS[camera], depth_scale=TUM_DEPTH_SCALE, missing="skip", distortion=lens)
+        seq = TUMSequence(
+            folder, K=TUM_CAMERAS[camera], depth_scale=TUM_DEPTH_SCALE, missing="skip", distortion=lens
+        )
     else:
         raise ValueError(f"camera {camera!r} unknown; expected 'file' or one of {list(TUM_CAMERAS)}")
     if not undistort:
@@ -245,7 +247,13 @@ def evaluate_sequence(
         "pairs_without_truth": missing,
         "camera_rot_err_deg_median": float(np.median([e[0] for e in camera_err])) if camera_err else None,
         "camera_trans_err_m_median": float(np.median([e[1] for e in camera_err])) if camera_err else None,
-        **dict(zip(("truth_offset_best_s", "camera_rot_err_deg_at_best"), truth_clock_offset(seq, motions))),
+        **dict(
+            zip(
+                ("truth_offset_best_s", "camera_rot_err_deg_at_best"),
+                truth_clock_offset(seq, motions),
+                strict=True,
+            )
+        ),
         "ids": len({o.obj_id for s in states for o in s.objects}),
         "objects_per_frame": float(np.median([sum(o.visible for o in s.objects) for s in states])),
         "seconds_wall": wall,
