@@ -225,7 +225,13 @@ class ForwardQueries:
     def _predict_members(
         self, values: Mapping[str, Tensor], noise: NoiseSpec, generator: torch.Generator | None, k: int
     ) -> dict[str, Tensor]:
-        """One step with a member axis: values ``(N, dim)`` or ``(K, N, dim)``; returns ``(K, N, dim)``."""
+        """One step with a member axis: values ``(N, dim)`` or ``(K, N, dim)``; returns ``(K, N, dim)``.
+
+        A single mechanism (a known law, not an ensemble) whose parents are the same for every
+        member (``(N, dim)`` values, or ``(K, N, dim)`` ones equal along K) runs once on member
+        0's rows and is shared: a body given by its MJCF is stepped once, not K times.
+        """
+        shared = {n for n, v in values.items() if v.ndim != 3 or bool((v == v[:1]).all())}
         out = {name: (v if v.ndim == 3 else v.expand(k, *v.shape)) for name, v in values.items()}
         at_mode: dict[str, Tensor] = {}
         for name in self.graph.non_roots:
@@ -247,6 +253,9 @@ class ForwardQueries:
                 loc, scale = mech.mixture_members(pa, paired=True)  # draws: the calibrated mixture
             elif mech.size > 1:  # an ensemble, or a gated site whose on branch is one
                 loc, scale = mech.member_loc_scale(pa, paired=True)
+            elif all(p in shared for p in self.graph.parents(name)):
+                loc, scale = (t.expand(k, *t.shape) for t in mech.loc_scale(pa[0]))
+                shared.add(name)
             else:
                 loc, scale = mech.loc_scale(pa)
             out[name] = loc if eps is None else loc + scale * eps

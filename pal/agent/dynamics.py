@@ -17,8 +17,9 @@ is not in it (residual sd ``sigma``).
 
 MuJoCo is not differentiable here: the mechanisms refuse inputs that require a gradient, so
 plan with the sampling planner (``refine_steps = 0``). The candidates of one planner step are
-simulated in one :func:`mujoco.rollout.rollout` call; ``dq`` and ``v`` share it (the two sites
-get the same parents, the second reads the first's result).
+simulated in one :func:`mujoco.rollout.rollout` call (once for all ensemble members: a fixed
+law of inputs the members share runs once, :meth:`models.WorldModel.predict`); ``dq`` and ``v``
+share it (the two sites get the same parents, the second reads the first's result).
 """
 
 from __future__ import annotations

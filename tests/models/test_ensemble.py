@@ -238,3 +238,35 @@ def test_function_members_are_not_trainable_and_dims_are_checked():
     g = CausalGraph([Variable("x", "observed"), Variable("y", "latent")], [("x", "y")])
     with pytest.raises(ValueError, match="maps 2 -> 1, expected 1"):
         WorldModel(g, {"y": EnsembleMechanism([LinearMechanism(2, 1, seed=0)])})
+
+
+class _Counting(LinearMechanism):
+    """A known linear law that records the batch shapes it is asked for."""
+
+    shapes: list
+
+    def loc_scale(self, z):
+        self.shapes.append(tuple(z.shape))
+        return super().loc_scale(z)
+
+
+def test_a_known_law_of_inputs_the_members_share_runs_once_and_one_fed_by_members_per_member():
+    known = _Counting(1, 1, sigma=0.1)
+    known.shapes = []
+    with torch.no_grad():
+        known.linear.weight.fill_(3.0)
+        known.linear.bias.zero_()
+    # x -> y (the known law, shared by the members) -> z (two members); z has no successor here
+    model = WorldModel(chain_graph(), {"y": known, "z": EnsembleMechanism([lin(W_Z[k]) for k in range(2)])})
+    x = torch.tensor([[1.0], [-2.0], [0.5]])
+    out = model.predict({"x": x}, members=True)
+    assert known.shapes == [(3, 1)]  # once on member 0's rows, not on (2, 3, 1)
+    torch.testing.assert_close(out["y"], (3.0 * x).expand(2, 3, 1))
+    torch.testing.assert_close(out["z"], torch.stack([W_Z[k] * 3.0 * x for k in range(2)]))
+    # member-specific parents: a chain whose y is an ensemble feeds z per member
+    chained = WorldModel(
+        chain_graph(), {"y": EnsembleMechanism([lin(W_Y[k], B_Y[k]) for k in range(2)]), "z": known}
+    )
+    known.shapes.clear()
+    chained.predict({"x": x}, members=True)
+    assert known.shapes == [(2, 3, 1)]

@@ -235,6 +235,7 @@ def evaluate_sequence(
     if not per_pair:
         raise ValueError(f"{seq.path}: no pair of evaluated frames has camera poses for both frames")
     half = (len(index) - 1) / 2
+    offset = truth_clock_offset(seq, motions)
     return {
         **summarise(rows),
         "pose_fraction_halves": [
@@ -247,13 +248,7 @@ def evaluate_sequence(
         "pairs_without_truth": missing,
         "camera_rot_err_deg_median": float(np.median([e[0] for e in camera_err])) if camera_err else None,
         "camera_trans_err_m_median": float(np.median([e[1] for e in camera_err])) if camera_err else None,
-        **dict(
-            zip(
-                ("truth_offset_best_s", "camera_rot_err_deg_at_best"),
-                truth_clock_offset(seq, motions),
-                strict=True,
-            )
-        ),
+        **dict(zip(("truth_offset_best_s", "camera_rot_err_deg_at_best"), offset, strict=True)),
         "ids": len({o.obj_id for s in states for o in s.objects}),
         "objects_per_frame": float(np.median([sum(o.visible for o in s.objects) for s in states])),
         "seconds_wall": wall,

@@ -89,6 +89,9 @@ def test_batches_of_any_shape_and_the_serialised_mechanism_agree():
     assert out.shape == (2, 3, 7)
     flat = mechs["v"](z.reshape(6, 21)).reshape(2, 3, 7)
     torch.testing.assert_close(flat, out, rtol=0, atol=0)
+    picks = [3, 0, 3, 5, 0, 3]  # repeated rows are simulated once and handed back to each
+    again_rows = mechs["v"](z.reshape(6, 21)[picks])
+    torch.testing.assert_close(again_rows, flat.reshape(6, 7)[picks], rtol=0, atol=0)
     again = make_mechanism(mechs["dq"].config())
     assert isinstance(again, SimulatedJointMechanism) and again.simulator is not mechs["dq"].simulator
     torch.testing.assert_close(again(z), mechs["dq"](z), rtol=0, atol=0)
@@ -125,4 +128,12 @@ def test_an_agent_with_the_mjcf_body_learns_only_the_object():
     assert all(torch.equal(before[k], v) for k, v in agent.model.mechanism("dq").state_dict().items())
     plan = agent.plan({"object": np.array([0.5, 0.0, -0.275])})
     assert plan.action.shape == (7,) and np.isfinite(plan.action).all()
+    # the members' particles share the body: a rollout steps MuJoCo once per candidate, not per member
+    sim, seen = agent.model.mechanism("dq").simulator, []
+    step = sim.step
+    sim.step = lambda z: seen.append(tuple(z.shape)) or step(z)
+    belief = {k: torch.as_tensor(v)[None] for k, v in agent.belief().items()}
+    acts = torch.zeros(3, 4, 7, dtype=agent.model.dtype)
+    agent.model.rollout({k: belief[k].expand(3, -1) for k in belief}, {"act": acts}, members=True)
+    assert seen and all(s == (3, 21) for s in seen), seen
     env.close()
