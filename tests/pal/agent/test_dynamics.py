@@ -89,7 +89,7 @@ def test_batches_of_any_shape_and_the_serialised_mechanism_agree():
     assert out.shape == (2, 3, 7)
     flat = mechs["v"](z.reshape(6, 21)).reshape(2, 3, 7)
     torch.testing.assert_close(flat, out, rtol=0, atol=0)
-    picks = [3, 0, 3, 5, 0, 3]  # repeated rows are simulated once and handed back to each
+    picks = [3, 0, 3, 5, 0, 3]  # rows in any order, repeated or not, each get their own result
     again_rows = mechs["v"](z.reshape(6, 21)[picks])
     torch.testing.assert_close(again_rows, flat.reshape(6, 7)[picks], rtol=0, atol=0)
     again = make_mechanism(mechs["dq"].config())
