@@ -114,8 +114,8 @@ class ModelConfig:
             (:mod:`pal.agent.kinematics`).
         dynamics: ``"learned"`` (``dq`` and ``v`` MLPs) or ``"mjcf"``: the joints' motion under
             the torques stepped by MuJoCo through the env's own model, with the body's contacts
-            with static geometry and without those with objects (:mod:`pal.agent.dynamics`); needs ``kinematics="mjcf"``, so that only the objects
-            are learned.
+            with static geometry and without those with objects (:mod:`pal.agent.dynamics`);
+            needs ``kinematics="mjcf"``, so that only the objects are learned.
     """
 
     kind: str = "hetero"
