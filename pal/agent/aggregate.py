@@ -12,6 +12,15 @@ every later episode is gathered with the model. The babbling-heavy protocol (man
 steps, then few model-driven episodes) is the same loop with ``random_rounds`` > 1; no refit runs
 between two random rounds, since a random round does not use the model.
 
+An MPC episode gathers data only along the plans its model already prefers, so the model never
+learns how the alternatives the planner compares would turn out. :class:`Exploration` perturbs
+the executed actions of the model's episodes with colored noise,
+
+    a_t = clip(pi_r(s_t) + sd (high - low) n_t)     n = colored noise over the episode (unit sd, 1/f^beta)
+
+which puts transitions around the plans. The noise depends on the episode seed alone, so two
+learners given the same ``seed`` execute the same perturbations. No state is ever restored.
+
 :func:`run_rounds` runs the loop for any :class:`Learner` (the agent here, the PETS-style
 baseline in :mod:`pal.baselines.pets_aggregate`) and calls ``at_checkpoint`` after the first
 refit whose environment-step count reaches each checkpoint (the learning curve is scored there);
@@ -32,23 +41,57 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from inference.planning import colored_noise
 from pal.agent.loop import Agent
-from pal.checks import check_int
+from pal.checks import check_float, check_int
 
 __all__ = [
     "AgentLearner",
     "AggregationConfig",
     "Counts",
+    "Exploration",
     "Learner",
     "Rollout",
     "RoundsResult",
     "aggregate",
+    "episode_seed",
     "goal_episode",
     "parameter_digest",
     "run_rounds",
 ]
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Exploration:
+    """Colored noise on the executed actions of the model's episodes (module docstring).
+
+    Attributes:
+        sd: the noise sd as a fraction of each action's range ``high - low`` (0: none).
+        beta: the colour exponent of the noise over the episode's steps (0: white; 2: smooth drifts).
+    """
+
+    sd: float = 0.0
+    beta: float = 2.0
+
+    def __post_init__(self) -> None:
+        check_float("exploration.sd", self.sd, 0.0)
+        check_float("exploration.beta", self.beta, 0.0)
+
+    def offsets(self, seed: int, steps: int, low: np.ndarray, high: np.ndarray) -> np.ndarray | None:
+        """The action offsets ``(steps, A)`` of an episode seeded ``seed``; None when ``sd`` is 0.
+
+        ``low``, ``high``: (A,) action bounds. The same seed gives the same unit noise for any bounds.
+        """
+        if self.sd == 0:
+            return None
+        lo, hi = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+        if lo.ndim != 1 or lo.shape != hi.shape:
+            raise ValueError(f"action bounds must be two (A,) arrays, got shapes {lo.shape} and {hi.shape}")
+        generator = torch.Generator().manual_seed(_seed(seed, 11))
+        unit = colored_noise((len(lo), steps), self.beta, generator, torch.float64).numpy().T
+        return self.sd * (hi - lo) * unit
 
 
 @dataclass(frozen=True)
@@ -62,12 +105,14 @@ class AggregationConfig:
         checkpoints: environment-step counts, strictly increasing, from the first fit
             (``max(random_rounds, 1) * episode_steps``) to the budget ``rounds * episode_steps``,
             at which ``at_checkpoint`` is called.
+        exploration: the noise on the executed actions of the model's episodes (default none).
     """
 
     rounds: int = 60
     episode_steps: int = 100
     random_rounds: int = 1
     checkpoints: tuple[int, ...] = ()
+    exploration: Exploration = Exploration()
 
     def __post_init__(self) -> None:
         if isinstance(self.rounds, int) and not isinstance(self.rounds, bool) and self.rounds < 1:
@@ -75,6 +120,8 @@ class AggregationConfig:
         check_int("rounds", self.rounds)
         check_int("episode_steps", self.episode_steps)
         check_int("random_rounds", self.random_rounds, minimum=0, maximum=self.rounds)
+        if not isinstance(self.exploration, Exploration):
+            raise ValueError(f"exploration must be an Exploration, got {type(self.exploration).__name__}")
         points = tuple(check_int("checkpoints", c) for c in self.checkpoints)
         for a, b in itertools.pairwise(points):
             if b <= a:
@@ -125,8 +172,11 @@ class Rollout:
 class Learner(Protocol):
     """What :func:`run_rounds` drives: episodes that add to the learner's data, and warm refits."""
 
-    def episode(self, seed: int, steps: int, random: bool) -> Rollout:
-        """Act for up to ``steps`` steps from ``reset(seed=seed)``, appending the transitions to the data."""
+    def episode(self, seed: int, steps: int, random: bool, exploration: Exploration | None = None) -> Rollout:
+        """Act for up to ``steps`` steps from ``reset(seed=seed)``, appending the transitions to the data.
+
+        ``exploration`` (model episodes only): add ``exploration.offsets(seed, steps, low, high)`` to the actions.
+        """
         ...
 
     def refit(self) -> bool:
@@ -146,6 +196,11 @@ class RoundsResult:
 
 def _seed(*keys: int) -> int:
     return int(np.random.SeedSequence(list(keys)).generate_state(1)[0])
+
+
+def episode_seed(seed: int, r: int) -> int:
+    """The reset seed :func:`run_rounds` gives round ``r``'s episode in a run seeded ``seed``."""
+    return _seed(seed, 7, r)
 
 
 def run_rounds(
@@ -170,7 +225,7 @@ def run_rounds(
     counts, pending = result.counts, list(config.checkpoints)
     for r in tqdm(range(config.rounds), desc="aggregation", disable=not progress_bar, leave=False):
         random = r < config.random_rounds
-        rollout = learner.episode(_seed(seed, 7, r), config.episode_steps, random)
+        rollout = learner.episode(episode_seed(seed, r), config.episode_steps, random, config.exploration)
         counts.env_steps += rollout.steps
         counts.episodes += 1
         counts.random_episodes += int(random)
@@ -194,21 +249,27 @@ def parameter_digest(module: torch.nn.Module) -> tuple[float, ...]:
         return tuple(float(v) for p in module.parameters() for v in (p.sum(), p.pow(2).sum()))
 
 
-def goal_episode(agent: Agent, seed: int, steps: int, random: bool) -> Rollout:
+def goal_episode(
+    agent: Agent, seed: int, steps: int, random: bool, exploration: Exploration | None = None
+) -> Rollout:
     """The agent in goal mode (MPC towards its goal) or random actions for up to ``steps`` steps from ``reset(seed)``.
 
-    Every step goes into the agent's history. The record is the list of decisions (None for random steps).
+    Every step goes into the agent's history; ``exploration`` perturbs the MPC actions
+    (:meth:`Exploration.offsets`). The record is the list of decisions (None for random steps).
     """
     agent.reset(seed=seed)
+    offsets = (
+        None if random or exploration is None else exploration.offsets(seed, steps, agent.low, agent.high)
+    )
     decisions: list[Any] = []
-    for _ in range(steps):
+    for t in range(steps):
         if random:
             decisions.append(None)
             agent.step(agent.random_action())
         else:
             decision = agent.decide("goal")
             decisions.append(decision)
-            agent.step(decision.action)
+            agent.step(decision.action if offsets is None else decision.action + offsets[t])
         if agent.done:
             break
     return Rollout(len(decisions), decisions)
@@ -219,19 +280,17 @@ class AgentLearner:
 
     Args:
         agent: the agent (its ``reset_every`` is not used: episodes are the rounds').
-        episode: ``(agent, seed, steps, random) -> Rollout`` (default :func:`goal_episode`).
+        episode: ``(agent, seed, steps, random, exploration) -> Rollout`` (default :func:`goal_episode`).
     """
 
-    def __init__(
-        self, agent: Agent, episode: Callable[[Agent, int, int, bool], Rollout] | None = None
-    ) -> None:
+    def __init__(self, agent: Agent, episode: Callable[..., Rollout] | None = None) -> None:
         self.agent = agent
         self._episode = episode or goal_episode
         self._digest: tuple[float, ...] | None = None
 
-    def episode(self, seed: int, steps: int, random: bool) -> Rollout:
+    def episode(self, seed: int, steps: int, random: bool, exploration: Exploration | None = None) -> Rollout:
         """One episode of the agent (:class:`Learner`)."""
-        return self._episode(self.agent, seed, steps, random)
+        return self._episode(self.agent, seed, steps, random, exploration)
 
     def refit(self) -> bool:
         """Refit the agent's model on its whole history, from its current weights (:class:`Learner`)."""

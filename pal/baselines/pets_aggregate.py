@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import gymnasium
 import numpy as np
 
-from pal.agent.aggregate import Rollout, parameter_digest
+from pal.agent.aggregate import Exploration, Rollout, parameter_digest
 from pal.agent.config import PlanConfig
 from pal.baselines.pets import BaselineConfig, CEMPlanner, Cost, ProbabilisticEnsemble
 
@@ -65,12 +65,24 @@ class PetsLearner:
         self.fitted = False
         self._digest: tuple[float, ...] | None = None
 
-    def run(self, env: gymnasium.Env, seed: int, steps: int, random: bool, record: bool) -> PetsEpisode:
-        """Up to ``steps`` steps on ``env`` from ``reset(seed=seed)``; ``record`` appends the transitions to the data."""
+    def run(
+        self,
+        env: gymnasium.Env,
+        seed: int,
+        steps: int,
+        random: bool,
+        record: bool,
+        exploration: Exploration | None = None,
+    ) -> PetsEpisode:
+        """Up to ``steps`` steps on ``env`` from ``reset(seed=seed)``; ``record`` appends the transitions to the data.
+
+        ``exploration`` perturbs the planner's actions (:meth:`pal.agent.aggregate.Exploration.offsets`).
+        """
         obs, _ = env.reset(seed=seed)
+        offsets = None if exploration is None else exploration.offsets(seed, steps, self.low, self.high)
         path, pred, cpu, wall = [np.asarray(obs, dtype=np.float64)], [], [], []
         self.planner.reset()
-        for _ in range(steps):
+        for t in range(steps):
             o = path[-1]
             if random or not self.fitted:
                 a = self.rng.uniform(self.low, self.high)
@@ -80,6 +92,8 @@ class PetsLearner:
                 cpu.append(time.process_time() - c0)
                 wall.append(time.perf_counter() - w0)
                 pred.append(final)
+                if offsets is not None:
+                    a = np.clip(a + offsets[t], self.low, self.high)
             obs, _, terminated, truncated, _ = env.step(a.astype(np.float32))
             path.append(np.asarray(obs, dtype=np.float64))
             if record:
@@ -90,9 +104,9 @@ class PetsLearner:
         predicted = np.stack(pred) if pred else np.zeros((0, len(path[0])))
         return PetsEpisode(np.stack(path), predicted, cpu, wall)
 
-    def episode(self, seed: int, steps: int, random: bool) -> Rollout:
+    def episode(self, seed: int, steps: int, random: bool, exploration: Exploration | None = None) -> Rollout:
         """One training episode on its environment (:class:`pal.agent.aggregate.Learner`)."""
-        e = self.run(self.env, seed, steps, random, record=True)
+        e = self.run(self.env, seed, steps, random, record=True, exploration=exploration)
         return Rollout(len(e.observations) - 1, e)
 
     def refit(self) -> bool:

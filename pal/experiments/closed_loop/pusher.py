@@ -5,7 +5,9 @@ Per seed (``seed``, ``seed + 1``, ...), state-based (the spec :func:`pal.agent.p
 1. **aggregation** (:mod:`pal.agent.aggregate`): each learner runs ``aggregation.rounds``
    episodes of ``aggregation.episode_steps`` steps; the first ``aggregation.random_rounds`` are
    uniform random torques (1: PETS's protocol; more: the babbling-heavy one), every later one
-   is goal-directed MPC with the current model; after each episode its transitions join the
+   is goal-directed MPC with the current model, its torques perturbed by the episode's colored
+   noise when ``aggregation.exploration.sd`` > 0 (the same noise for both learners,
+   :class:`pal.agent.aggregate.Exploration`); after each episode its transitions join the
    learner's data and the model is refitted from its current weights. The agent plans with its
    world model built from the spec (joints, fingertip and object as causal variables,
    heteroscedastic ensembles, the sampling planner over ``plan.action.horizon`` steps); the

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from pal.agent import Agent
-from pal.agent.aggregate import Rollout
+from pal.agent.aggregate import Exploration, Rollout
 from pal.agent.config import PlanConfig
 from pal.agent.plan import behind, distance
 from pal.baselines.pets_aggregate import PetsEpisode
@@ -150,9 +150,22 @@ def roots(previous: np.ndarray, obs: np.ndarray) -> dict[str, np.ndarray]:
     }
 
 
-def agent_episode(agent: Agent, seed: int, steps: int, horizon: int, random: bool = False) -> Episode:
-    """The agent in goal mode (MPC towards the observed goal), or random torques, for ``steps`` steps from ``reset(seed)``."""
+def agent_episode(
+    agent: Agent,
+    seed: int,
+    steps: int,
+    horizon: int,
+    random: bool = False,
+    exploration: Exploration | None = None,
+) -> Episode:
+    """The agent in goal mode (MPC towards the observed goal), or random torques, for ``steps`` steps from ``reset(seed)``.
+
+    ``exploration`` perturbs the MPC torques (:meth:`pal.agent.aggregate.Exploration.offsets`).
+    """
     percept = agent.reset(seed=seed)
+    offsets = (
+        None if random or exploration is None else exploration.offsets(seed, steps, agent.low, agent.high)
+    )
     obs, cpu, wall, pred = [_observation(percept)], [], [], None
     for t in range(steps):
         if random:
@@ -162,7 +175,7 @@ def agent_episode(agent: Agent, seed: int, steps: int, horizon: int, random: boo
             decision = agent.decide("goal")
             cpu.append(time.process_time() - c0)
             wall.append(time.perf_counter() - w0)
-            action = decision.action
+            action = decision.action if offsets is None else decision.action + offsets[t]
             if t == max(steps - horizon, 0) and decision.predicted:
                 goal = agent.percept.goals["object"]
                 pred = float(np.linalg.norm((decision.predicted["object"] - goal)[:2]))
@@ -176,8 +189,10 @@ def agent_episode(agent: Agent, seed: int, steps: int, horizon: int, random: boo
 def agent_rollout(horizon: int) -> Any:
     """:func:`agent_episode` as the episode of :class:`pal.agent.aggregate.AgentLearner`."""
 
-    def episode(agent: Agent, seed: int, steps: int, random: bool) -> Rollout:
-        e = agent_episode(agent, seed, steps, horizon, random)
+    def episode(
+        agent: Agent, seed: int, steps: int, random: bool, exploration: Exploration | None = None
+    ) -> Rollout:
+        e = agent_episode(agent, seed, steps, horizon, random, exploration)
         return Rollout(len(e.path) - 1, e)
 
     return episode

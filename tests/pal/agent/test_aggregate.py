@@ -10,8 +10,10 @@ from pal.agent import Agent, AgentConfig, ModelConfig, PlanConfig, pusher_spec
 from pal.agent.aggregate import (
     AgentLearner,
     AggregationConfig,
+    Exploration,
     Rollout,
     aggregate,
+    episode_seed,
     parameter_digest,
     run_rounds,
 )
@@ -25,8 +27,8 @@ class _Fake:
         self.calls: list[tuple] = []
         self.short = short
 
-    def episode(self, seed: int, steps: int, random: bool) -> Rollout:
-        self.calls.append(("episode", seed, random))
+    def episode(self, seed: int, steps: int, random: bool, exploration: Exploration | None = None) -> Rollout:
+        self.calls.append(("episode", seed, random, exploration))
         n = steps if self.short is None else min(steps, self.short)
         return Rollout(n, {"random": random})
 
@@ -56,6 +58,7 @@ def test_rounds_count_steps_episodes_and_refits_and_call_checkpoints_once():
     ]  # only the first round is random
     # the same seed gives the same episode seeds, another seed others
     seeds = [s for kind, *rest in learner.calls if kind == "episode" for s in rest[:1]]
+    assert seeds == [episode_seed(3, r) for r in range(4)]
     again = _Fake()
     run_rounds(again, config, seed=3)
     assert seeds == [s for kind, *rest in again.calls if kind == "episode" for s in rest[:1]]
@@ -150,8 +153,67 @@ def test_aggregate_runs_the_agent_in_goal_mode():
         ),
         ({"rounds": 2, "random_rounds": 3}, "random_rounds must be"),
         ({"episode_steps": 0}, "episode_steps must be"),
+        ({"exploration": 0.1}, "exploration must be an Exploration, got float"),
     ],
 )
 def test_bad_aggregation_settings_name_the_value(kwargs, match):
     with pytest.raises(ValueError, match=match):
         AggregationConfig(**kwargs)
+
+
+def test_exploration_noise_is_seeded_scaled_to_the_action_range_and_smooth():
+    low, high = np.array([-2.0, 0.0]), np.array([2.0, 1.0])
+    noise = Exploration(sd=0.1, beta=2.0)
+    a = noise.offsets(5, 4000, low, high)
+    assert a.shape == (4000, 2)
+    assert np.array_equal(a, noise.offsets(5, 4000, low, high))  # the seed alone decides
+    assert not np.allclose(a, noise.offsets(6, 4000, low, high))
+    np.testing.assert_allclose(
+        noise.offsets(5, 4000, 3 * low, 3 * high), 3 * a
+    )  # one unit sequence, any bounds
+    # unit noise times sd x range: across 400 episodes each step has sd 0.4 and 0.1 (sampling error ~4 %)
+    many = np.stack([noise.offsets(s, 50, low, high) for s in range(400)])
+    np.testing.assert_allclose(many.std(0).mean(0), [0.4, 0.1], rtol=0.1)
+    # beta 2 drifts: successive steps are strongly correlated; white noise is not
+    lag1 = lambda x: np.corrcoef(x[:-1], x[1:])[0, 1]  # noqa: E731
+    assert lag1(a[:, 0]) > 0.9
+    assert abs(lag1(Exploration(sd=0.1, beta=0.0).offsets(5, 4000, low, high)[:, 0])) < 0.1
+    assert Exploration().offsets(5, 10, low, high) is None  # sd 0: no noise
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [({"sd": -0.1}, "exploration.sd must be"), ({"beta": -1.0}, "exploration.beta must be")],
+)
+def test_bad_exploration_settings_name_the_value(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        Exploration(**kwargs)
+    with pytest.raises(ValueError, match=r"two \(A,\) arrays, got shapes \(2,\) and \(3,\)"):
+        Exploration(sd=0.1).offsets(0, 5, np.zeros(2), np.ones(3))
+
+
+def test_rounds_hand_the_exploration_to_model_episodes():
+    learner = _Fake()
+    noise = Exploration(sd=0.2)
+    run_rounds(learner, AggregationConfig(rounds=2, episode_steps=3, exploration=noise), seed=0)
+    assert [c[3] for c in learner.calls if c[0] == "episode"] == [noise, noise]
+
+
+def test_the_agent_executes_its_plan_plus_the_episode_noise():
+    config = AggregationConfig(rounds=2, episode_steps=5, exploration=Exploration(sd=0.05))
+    executed = {}
+    for label, cfg in (("plain", replace(config, exploration=Exploration())), ("noisy", config)):
+        env = gymnasium.make("Pusher-v5")
+        agent = Agent(env, pusher_spec(), TINY, seed=4)
+        result = aggregate(agent, cfg, seed=9)
+        env.close()
+        executed[label] = (agent.history.array("act")[5:], np.stack([d.action for d in result.episodes[1]]))
+    act, planned = executed["noisy"]
+    seed = episode_seed(9, 1)
+    expected = np.clip(
+        planned + config.exploration.offsets(seed, 5, agent.low, agent.high), agent.low, agent.high
+    )
+    np.testing.assert_allclose(act, expected, atol=1e-12)
+    assert np.abs(act - planned).max() > 0.01  # the noise is really there
+    plain_act, plain_planned = executed["plain"]
+    np.testing.assert_allclose(plain_act, np.clip(plain_planned, agent.low, agent.high), atol=1e-12)

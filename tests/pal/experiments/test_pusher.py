@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from pal.agent import PlanConfig, pusher_spec
-from pal.agent.aggregate import AggregationConfig, run_rounds
+from pal.agent.aggregate import AggregationConfig, Exploration, episode_seed, run_rounds
 from pal.agent.graph import contact_rule
 from pal.baselines.pets import BaselineConfig, CEMPlanner, ProbabilisticEnsemble
 from pal.baselines.pets_aggregate import PetsLearner
@@ -81,6 +81,29 @@ def test_the_baseline_aggregates_its_own_episodes_with_warm_refits():
     first, *later = result.episodes
     assert len(first.predicted) == 0 and all(len(e.predicted) == 4 for e in later)  # random first, then CEM
     assert all(e.observations.shape == (5, 23) for e in result.episodes)
+
+
+def test_the_baseline_executes_its_plan_plus_the_same_episode_noise_as_the_agent():
+    env = gymnasium.make("Pusher-v5")
+    plan = pusher.TINY.plan
+    learner = PetsLearner(
+        env, BaselineConfig(members=2, hidden=(8,), epochs=1), plan, step_cost(plan), seed=0
+    )
+    planned, act = [], learner.planner.act
+
+    def spy(obs):
+        a, final = act(obs)
+        planned.append(a)
+        return a, final
+
+    learner.planner.act = spy
+    noise = Exploration(sd=0.05)
+    run_rounds(learner, AggregationConfig(rounds=2, episode_steps=4, exploration=noise), seed=0)
+    env.close()
+    seed = episode_seed(0, 1)
+    expected = np.clip(np.stack(planned) + noise.offsets(seed, 4, learner.low, learner.high), -2, 2)
+    np.testing.assert_allclose(np.stack(learner.data[1][4:]), expected, atol=1e-12)
+    assert np.abs(expected - np.stack(planned)).max() > 0.01
 
 
 def test_the_baseline_learns_a_linear_system_and_plans_with_it():
