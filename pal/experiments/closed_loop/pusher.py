@@ -45,7 +45,7 @@ from typing import Any
 
 from inference import ActionOptions
 from pal.agent import CorrectionConfig, ModelConfig, PlanConfig
-from pal.agent.aggregate import AggregationConfig
+from pal.agent.aggregate import AggregationConfig, Exploration
 from pal.agent.config import MODEL_SCHEDULE, PLAN_SAMPLING
 from pal.baselines.pets import BaselineConfig
 from pal.checks import check_float, check_int
@@ -174,7 +174,9 @@ QUICK = Config(
 )
 TINY = Config(
     runs=1,
-    aggregation=AggregationConfig(rounds=2, episode_steps=3, random_rounds=1, checkpoints=(3, 6)),
+    aggregation=AggregationConfig(
+        rounds=2, episode_steps=3, random_rounds=1, checkpoints=(3, 6), exploration=Exploration(sd=0.05)
+    ),
     eval_goals=1,
     model=ModelConfig(members=2, hidden=(8,), schedule=replace(MODEL_SCHEDULE, epochs=2, patience=None)),
     plan=replace(
