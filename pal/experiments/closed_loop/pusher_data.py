@@ -45,7 +45,7 @@ from pal.experiments.closed_loop.pusher import MODEL, PLAN
 from pal.experiments.closed_loop.pusher_ranking import RankingConfig, pal_predictor, probes, score
 from pal.experiments.closed_loop.pusher_runs import ENV_ID, step_cost
 from pal.lab.registry import register
-from pal.lab.report import Report, Table
+from pal.lab.report import Precondition, Report, Table, Target
 
 __all__ = ["Config", "Continuations", "StartFromState", "run"]
 
@@ -243,6 +243,20 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     rows.append(_scored(both, found, config.plan, "expert + continuations"))
     header = ["data", "transitions", "moving", "fit CPU [s]", "rho", "rho_obj", "regret", "probes"]
     metrics = {r[0]: dict(zip(header[1:], r[1:], strict=True)) for r in rows}
+    before, after = (m["rho_obj"] for m in metrics.values())
+    gain = None if before is None or after is None else after - before
+    target = Target(
+        "continuations_rho_obj_gain",
+        gain,
+        0.3,
+        ">=",
+        "rho_obj with the continuations minus without: do pushes seen with their neighbours teach the ranking?",
+        Precondition(
+            config.expert_episodes >= 10 and rows[0][-1] >= 15 and gain is not None,
+            f">= 10 expert episodes and >= 15 probes, rho_obj defined for both "
+            f"(this run: {config.expert_episodes} episodes, {rows[0][-1]} probes)",
+        ),
+    )
     return Report(
         title="Pusher-v5: which training data teach the agent's model to rank candidate pushes",
         metrics=metrics,
@@ -257,6 +271,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 "(the object moved more than 3 position_sigma).",
             )
         ],
+        targets=[target],
         notes=[
             f"{config.expert_episodes} ceiling episodes of {config.episode_steps} steps; continuations: "
             f"{config.continuations.per_state} per start, every {config.continuations.every} steps, "

@@ -54,6 +54,8 @@ def test_pusher_data_scores_the_expert_data_and_the_data_with_continuations(tiny
         m["expert + continuations"]["transitions"]
         == steps + tiny.expert_episodes * starts * c.per_state * c.steps
     )
+    (target,) = rep.targets
+    assert target.name == "continuations_rho_obj_gain" and target.verdict == "not evaluated"  # 1 episode, 1 probe
     for row in m.values():
         assert row["probes"] == 1 and 0 <= row["moving"] <= row["transitions"]
         assert row["rho"] is None or -1.0 <= row["rho"] <= 1.0
