@@ -37,11 +37,11 @@ import numpy as np
 
 from pal.agent import Agent, AgentConfig, ModelConfig, PlanConfig, pusher_spec
 from pal.agent.aggregate import Exploration
-from pal.agent.config import MODEL_SCHEDULE
 from pal.agent.learn import site_data
 from pal.baselines.simulator_mpc import SimulatorMPC, pusher_observation
 from pal.checks import check_int
 from pal.experiments.closed_loop.pusher import MODEL, PLAN
+from pal.experiments.closed_loop.pusher import TINY as PUSHER_TINY
 from pal.experiments.closed_loop.pusher_ranking import RankingConfig, pal_predictor, probes, score
 from pal.experiments.closed_loop.pusher_runs import ENV_ID, step_cost
 from pal.lab.registry import register
@@ -115,23 +115,9 @@ TINY = Config(
     expert_episodes=1,
     episode_steps=6,
     continuations=Continuations(every=3, per_state=2, steps=3),
-    model=ModelConfig(
-        members=2,
-        hidden=(8,),
-        kinematics="mjcf",
-        dynamics="mjcf",
-        position_sigma=1e-4,
-        schedule=replace(MODEL_SCHEDULE, epochs=2, patience=None),
-    ),
-    plan=replace(
-        PLAN,
-        action=replace(
-            PLAN.action,
-            horizon=2,
-            sampling=replace(PLAN.action.sampling, population=8, elites=2, iterations=1),
-        ),
-    ),
-    ranking=RankingConfig(goals=1, steps=2, every=2, candidates=4),
+    model=replace(PUSHER_TINY.model, kinematics="mjcf", dynamics="mjcf", position_sigma=1e-4),
+    plan=PUSHER_TINY.plan,
+    ranking=PUSHER_TINY.ranking,
 )
 
 
