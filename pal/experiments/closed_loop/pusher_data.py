@@ -227,6 +227,8 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     _replay(both, episodes)
     _continue(both, episodes, config.continuations)
     rows.append(_scored(both, found, config.plan, "expert + continuations"))
+    expert_agent.env.close()
+    both.env.close()
     header = ["data", "transitions", "moving", "fit CPU [s]", "rho", "rho_obj", "regret", "probes"]
     metrics = {r[0]: dict(zip(header[1:], r[1:], strict=True)) for r in rows}
     before, after = (m["rho_obj"] for m in metrics.values())
