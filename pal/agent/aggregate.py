@@ -54,6 +54,7 @@ __all__ = [
     "Rollout",
     "RoundsResult",
     "aggregate",
+    "derived_seed",
     "episode_seed",
     "goal_episode",
     "parameter_digest",
@@ -89,7 +90,7 @@ class Exploration:
         lo, hi = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
         if lo.ndim != 1 or lo.shape != hi.shape:
             raise ValueError(f"action bounds must be two (A,) arrays, got shapes {lo.shape} and {hi.shape}")
-        generator = torch.Generator().manual_seed(_seed(seed, 11))
+        generator = torch.Generator().manual_seed(derived_seed(seed, 11))
         unit = colored_noise((len(lo), steps), self.beta, generator, torch.float64).numpy().T
         return self.sd * (hi - lo) * unit
 
@@ -194,13 +195,14 @@ class RoundsResult:
     checkpoints: dict[int, Any] = field(default_factory=dict)
 
 
-def _seed(*keys: int) -> int:
+def derived_seed(*keys: int) -> int:
+    """A 32-bit seed derived from ``keys`` (``numpy.random.SeedSequence``): independent streams per key tuple."""
     return int(np.random.SeedSequence(list(keys)).generate_state(1)[0])
 
 
 def episode_seed(seed: int, r: int) -> int:
     """The reset seed :func:`run_rounds` gives round ``r``'s episode in a run seeded ``seed``."""
-    return _seed(seed, 7, r)
+    return derived_seed(seed, 7, r)
 
 
 def run_rounds(

@@ -36,7 +36,7 @@ import mujoco
 import numpy as np
 
 from pal.agent import Agent, AgentConfig, ModelConfig, PlanConfig, pusher_spec
-from pal.agent.aggregate import Exploration
+from pal.agent.aggregate import Exploration, derived_seed
 from pal.agent.learn import site_data
 from pal.baselines.simulator_mpc import SimulatorMPC, pusher_observation
 from pal.checks import check_int
@@ -153,10 +153,6 @@ class StartFromState(gymnasium.Wrapper):
         return pusher_observation(sim.data.qpos.copy(), sim.data.qvel.copy(), bodies), info
 
 
-def _seed(*keys: int) -> int:
-    return int(np.random.SeedSequence(list(keys)).generate_state(1)[0])
-
-
 def _agent(config: Config) -> Agent:
     cfg = AgentConfig(model=config.model, plan=config.plan, reset_every=None, servo=False)
     return Agent(StartFromState(gymnasium.make(ENV_ID)), pusher_spec(), cfg, seed=config.seed)
@@ -166,7 +162,7 @@ def _expert(agent: Agent, config: Config) -> list[tuple[int, np.ndarray, np.ndar
     """The ceiling's episodes through ``agent``: ``(reset seed, states (T, S), torques (T, A))`` each."""
     out = []
     for e in range(config.expert_episodes):
-        seed = _seed(config.seed, 70, e)
+        seed = derived_seed(config.seed, 70, e)
         agent.reset(seed=seed)
         planner = SimulatorMPC(
             agent.env, config.plan, step_cost(config.plan), pusher_observation, _BODIES, seed=seed
@@ -196,7 +192,7 @@ def _continue(agent: Agent, episodes: list[tuple[int, np.ndarray, np.ndarray]], 
         for t in range(0, len(torques) - c.steps + 1, c.every):
             for k in range(c.per_state):
                 agent.reset(seed=seed, options={"state": states[t]})
-                offsets = c.noise.offsets(_seed(seed, t, k), c.steps, agent.low, agent.high)
+                offsets = c.noise.offsets(derived_seed(seed, t, k), c.steps, agent.low, agent.high)
                 base = torques[t : t + c.steps]
                 for i in range(c.steps):
                     agent.step(base[i] if offsets is None else base[i] + offsets[i])
@@ -217,7 +213,10 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     """How the agent's Pusher-v5 model ranks candidate pushes after two kinds of training data (module docstring)."""
     env = gymnasium.make(ENV_ID)
     found = probes(
-        env, config.plan, config.ranking, [_seed(config.seed, 93, g) for g in range(config.ranking.goals)]
+        env,
+        config.plan,
+        config.ranking,
+        [derived_seed(config.seed, 93, g) for g in range(config.ranking.goals)],
     )
     env.close()
     expert_agent = _agent(config)

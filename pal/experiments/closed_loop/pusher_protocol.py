@@ -15,7 +15,7 @@ import gymnasium
 import numpy as np
 
 from pal.agent import Agent, AgentConfig, pusher_spec
-from pal.agent.aggregate import AgentLearner, Counts, run_rounds
+from pal.agent.aggregate import AgentLearner, Counts, derived_seed, run_rounds
 from pal.baselines.pets_aggregate import PetsLearner
 from pal.experiments.closed_loop.pusher_ranking import Probe, pal_predictor, pets_predictor, probes, score
 from pal.experiments.closed_loop.pusher_runs import (
@@ -33,10 +33,6 @@ from pal.experiments.closed_loop.pusher_runs import (
 __all__ = ["one_seed"]
 
 log = logging.getLogger(__name__)
-
-
-def _seed(*keys: int) -> int:
-    return int(np.random.SeedSequence(list(keys)).generate_state(1)[0])
 
 
 def _log_point(name: str, seed: int, point: int, counts: Counts, episodes: list[Episode]) -> None:
@@ -63,7 +59,7 @@ def _pal(config: Any, seed: int, goals: list[int], found: list[Probe] | None = N
     agent = Agent(env, pusher_spec(), cfg, seed=seed)
 
     def evaluate(point: int, counts: Counts) -> dict[str, Any]:
-        judge = Agent(eval_env, pusher_spec(), cfg, seed=_seed(seed, 92, point), model=agent.model)
+        judge = Agent(eval_env, pusher_spec(), cfg, seed=derived_seed(seed, 92, point), model=agent.model)
         episodes = [agent_episode(judge, s, steps, h) for s in goals]
         _log_point("pal", seed, point, counts, episodes)
         ranking = (
@@ -90,7 +86,9 @@ def _baseline(config: Any, seed: int, goals: list[int], found: list[Probe] | Non
     """The PETS-style baseline's rounds and its checkpoint evaluations."""
     steps, h = config.aggregation.episode_steps, config.plan.action.horizon
     env, eval_env = gymnasium.make(ENV_ID), gymnasium.make(ENV_ID)
-    learner = PetsLearner(env, config.baseline, config.plan, step_cost(config.plan), seed=_seed(seed, 80))
+    learner = PetsLearner(
+        env, config.baseline, config.plan, step_cost(config.plan), seed=derived_seed(seed, 80)
+    )
 
     def evaluate(point: int, counts: Counts) -> dict[str, Any]:
         episodes = [pets_record(learner.run(eval_env, s, steps, False, record=False), h) for s in goals]
@@ -125,9 +123,9 @@ def one_seed(config: Any, seed: int) -> dict[str, Any]:
         (``ranking``: :func:`pusher_ranking.score` on the seed's probes, None without probes or
         before a first fit).
     """
-    goals = [_seed(seed, 91, g) for g in range(config.eval_goals)]
+    goals = [derived_seed(seed, 91, g) for g in range(config.eval_goals)]
     env = gymnasium.make(ENV_ID)
-    seeds = [_seed(seed, 93, g) for g in range(config.ranking.goals)]
+    seeds = [derived_seed(seed, 93, g) for g in range(config.ranking.goals)]
     found = probes(env, config.plan, config.ranking, seeds)
     out = {"pal": _pal(config, seed, goals, found), "baseline": _baseline(config, seed, goals, found)}
     steps = config.aggregation.episode_steps
