@@ -12,14 +12,12 @@ every later episode is gathered with the model. The babbling-heavy protocol (man
 steps, then few model-driven episodes) is the same loop with ``random_rounds`` > 1; no refit runs
 between two random rounds, since a random round does not use the model.
 
-An MPC episode gathers data only along the plans its model already prefers, so the model never
-learns how the alternatives the planner compares would turn out. :class:`Exploration` perturbs
-the executed actions of the model's episodes with colored noise,
-
-    a_t = clip(pi_r(s_t) + sd (high - low) n_t)     n = colored noise over the episode (unit sd, 1/f^beta)
-
-which puts transitions around the plans. The noise depends on the episode seed alone, so two
-learners given the same ``seed`` execute the same perturbations. No state is ever restored.
+An MPC episode gathers data only along the plans its model already prefers. Two remedies of
+:mod:`pal.agent.exploration` apply to the model's episodes: colored noise on the executed
+actions (:class:`Exploration`, no state restored), and perturbed continuations from the
+episode's saved simulator states (:class:`Branching`, a simulator privilege: the learner's
+environment must be wrapped in :class:`pal.sim.restore.StartFromState`). Branch steps count as
+environment steps, and the refit after the episode sees them.
 
 :func:`run_rounds` runs the loop for any :class:`Learner` (the agent here, the PETS-style
 baseline in :mod:`pal.baselines.pets_aggregate`) and calls ``at_checkpoint`` after the first
@@ -41,58 +39,32 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from inference.planning import colored_noise
+from pal.agent.exploration import Branching, Exploration, derived_seed
 from pal.agent.loop import Agent
-from pal.checks import check_float, check_int
+from pal.checks import check_int
+from pal.sim.restore import StartFromState, find_wrapper
 
 __all__ = [
     "AgentLearner",
     "AggregationConfig",
+    "Branching",
+    "BranchingLearner",
     "Counts",
     "Exploration",
     "Learner",
     "Rollout",
     "RoundsResult",
     "aggregate",
+    "branch",
     "derived_seed",
     "episode_seed",
     "goal_episode",
     "parameter_digest",
+    "recorded",
     "run_rounds",
 ]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class Exploration:
-    """Colored noise on the executed actions of the model's episodes (module docstring).
-
-    Attributes:
-        sd: the noise sd as a fraction of each action's range ``high - low`` (0: none).
-        beta: the colour exponent of the noise over the episode's steps (0: white; 2: smooth drifts).
-    """
-
-    sd: float = 0.0
-    beta: float = 2.0
-
-    def __post_init__(self) -> None:
-        check_float("exploration.sd", self.sd, 0.0)
-        check_float("exploration.beta", self.beta, 0.0)
-
-    def offsets(self, seed: int, steps: int, low: np.ndarray, high: np.ndarray) -> np.ndarray | None:
-        """The action offsets ``(steps, A)`` of an episode seeded ``seed``; None when ``sd`` is 0.
-
-        ``low``, ``high``: (A,) action bounds. The same seed gives the same unit noise for any bounds.
-        """
-        if self.sd == 0:
-            return None
-        lo, hi = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
-        if lo.ndim != 1 or lo.shape != hi.shape:
-            raise ValueError(f"action bounds must be two (A,) arrays, got shapes {lo.shape} and {hi.shape}")
-        generator = torch.Generator().manual_seed(derived_seed(seed, 11))
-        unit = colored_noise((len(lo), steps), self.beta, generator, torch.float64).numpy().T
-        return self.sd * (hi - lo) * unit
 
 
 @dataclass(frozen=True)
@@ -107,6 +79,7 @@ class AggregationConfig:
             (``max(random_rounds, 1) * episode_steps``) to the budget ``rounds * episode_steps``,
             at which ``at_checkpoint`` is called.
         exploration: the noise on the executed actions of the model's episodes (default none).
+        branching: the perturbed continuations of the model's episodes (default none).
     """
 
     rounds: int = 60
@@ -114,6 +87,7 @@ class AggregationConfig:
     random_rounds: int = 1
     checkpoints: tuple[int, ...] = ()
     exploration: Exploration = Exploration()
+    branching: Branching = Branching()
 
     def __post_init__(self) -> None:
         if isinstance(self.rounds, int) and not isinstance(self.rounds, bool) and self.rounds < 1:
@@ -123,6 +97,8 @@ class AggregationConfig:
         check_int("random_rounds", self.random_rounds, minimum=0, maximum=self.rounds)
         if not isinstance(self.exploration, Exploration):
             raise ValueError(f"exploration must be an Exploration, got {type(self.exploration).__name__}")
+        if not isinstance(self.branching, Branching):
+            raise ValueError(f"branching must be a Branching, got {type(self.branching).__name__}")
         points = tuple(check_int("checkpoints", c) for c in self.checkpoints)
         for a, b in itertools.pairwise(points):
             if b <= a:
@@ -130,7 +106,7 @@ class AggregationConfig:
         if points and points[-1] > self.budget:
             raise ValueError(
                 f"checkpoint {points[-1]} is beyond the step budget {self.budget} "
-                f"(rounds {self.rounds} x episode_steps {self.episode_steps}); raise rounds or drop it"
+                f"(rounds {self.rounds} x episode_steps {self.episode_steps}, with branches); raise rounds or drop it"
             )
         first = max(self.random_rounds, 1) * self.episode_steps
         if points and points[0] < first:
@@ -143,17 +119,23 @@ class AggregationConfig:
 
     @property
     def budget(self) -> int:
-        """The most environment steps the rounds take: ``rounds * episode_steps``."""
-        return self.rounds * self.episode_steps
+        """The most environment steps the rounds take: ``rounds * episode_steps`` plus the model episodes' branches."""
+        model_rounds = self.rounds - self.random_rounds
+        return self.rounds * self.episode_steps + model_rounds * self.branching.steps_per_episode(self.episode_steps)
 
 
 @dataclass
 class Counts:
-    """What aggregation spent: environment steps, episodes (random among them) and refits (warm among them)."""
+    """What aggregation spent: environment steps, episodes (random among them, and branches) and refits (warm among them).
+
+    ``env_steps`` counts the branches' steps too; ``branch_steps`` counts them alone.
+    """
 
     env_steps: int = 0
     episodes: int = 0
     random_episodes: int = 0
+    branches: int = 0
+    branch_steps: int = 0
     refits: int = 0
     warm_refits: int = 0
 
@@ -164,10 +146,16 @@ class Counts:
 
 @dataclass(frozen=True)
 class Rollout:
-    """One episode of a learner: the environment steps it took and the caller's record of it."""
+    """One episode of a learner: the environment steps it took, the caller's record of it and its trace.
+
+    ``states`` (T, S) and ``actions`` (T, A): the simulator states before each step and the
+    executed actions, for branching (None when the learner's environment does not record them).
+    """
 
     steps: int
     record: Any = None
+    states: np.ndarray | None = None
+    actions: np.ndarray | None = None
 
 
 class Learner(Protocol):
@@ -185,6 +173,20 @@ class Learner(Protocol):
         ...
 
 
+class BranchingLearner(Learner, Protocol):
+    """A :class:`Learner` that can restart from a saved simulator state (for :class:`Branching`)."""
+
+    low: np.ndarray
+    high: np.ndarray
+
+    def branch(self, seed: int, state: np.ndarray, actions: np.ndarray) -> int:
+        """Execute ``actions`` (K, A) from ``reset(seed=seed)`` restored to ``state``, appending the transitions.
+
+        Returns the environment steps taken (fewer than K when the environment ends the episode).
+        """
+        ...
+
+
 @dataclass
 class RoundsResult:
     """The rounds' counts, each episode's record, and ``at_checkpoint``'s result per checkpoint."""
@@ -193,11 +195,6 @@ class RoundsResult:
     episodes: list[Any] = field(default_factory=list)
     steps: list[int] = field(default_factory=list)
     checkpoints: dict[int, Any] = field(default_factory=dict)
-
-
-def derived_seed(*keys: int) -> int:
-    """A 32-bit seed derived from ``keys`` (``numpy.random.SeedSequence``): independent streams per key tuple."""
-    return int(np.random.SeedSequence(list(keys)).generate_state(1)[0])
 
 
 def episode_seed(seed: int, r: int) -> int:
@@ -223,6 +220,12 @@ def run_rounds(
         ``at_checkpoint(checkpoint, counts)`` results keyed by checkpoint.
     """
     check_int("seed", seed, minimum=0)
+    branching = config.branching
+    if branching.per_state and not callable(getattr(learner, "branch", None)):
+        raise ValueError(
+            f"branching.per_state is {branching.per_state} but {type(learner).__name__} cannot branch "
+            "(it needs a branch(seed, state, actions) method and an environment wrapped in StartFromState)"
+        )
     result = RoundsResult(Counts())
     counts, pending = result.counts, list(config.checkpoints)
     for r in tqdm(range(config.rounds), desc="aggregation", disable=not progress_bar, leave=False):
@@ -231,6 +234,10 @@ def run_rounds(
         counts.env_steps += rollout.steps
         counts.episodes += 1
         counts.random_episodes += int(random)
+        if not random and branching.per_state:
+            made, steps = branch(learner, episode_seed(seed, r), rollout, branching)  # type: ignore[arg-type]
+            counts.branches, counts.branch_steps = counts.branches + made, counts.branch_steps + steps
+            counts.env_steps += steps
         result.episodes.append(rollout.record)
         result.steps.append(counts.env_steps)
         if random and r + 1 < config.random_rounds:
@@ -243,6 +250,36 @@ def run_rounds(
             if at_checkpoint is not None:
                 result.checkpoints[point] = at_checkpoint(point, replace(counts))
     return result
+
+
+def branch(learner: BranchingLearner, seed: int, rollout: Rollout, branching: Branching) -> tuple[int, int]:
+    """Run ``branching``'s continuations of ``rollout`` (an episode reset with ``seed``) through ``learner``.
+
+    Returns ``(branches, environment steps)``.
+
+    Raises:
+        ValueError: the rollout carries no states or actions (its environment did not record them).
+    """
+    if rollout.states is None or rollout.actions is None:
+        raise ValueError(
+            "branching needs the episode's simulator states and actions: wrap the learner's environment "
+            "in pal.sim.restore.StartFromState"
+        )
+    made = steps = 0
+    for t in branching.starts(len(rollout.actions)):
+        for k in range(branching.per_state):
+            actions = branching.actions(seed, t, k, rollout.actions, learner.low, learner.high)
+            steps += learner.branch(seed, rollout.states[t], actions)
+            made += 1
+    return made, steps
+
+
+def recorded(env: Any, rollout: Rollout) -> Rollout:
+    """``rollout`` with the states and actions its episode left in ``env``'s :class:`StartFromState` (if any)."""
+    recorder = find_wrapper(env, StartFromState)
+    if recorder is None:
+        return rollout
+    return replace(rollout, states=recorder.states, actions=recorder.actions)
 
 
 def parameter_digest(module: torch.nn.Module) -> tuple[float, ...]:
@@ -290,9 +327,30 @@ class AgentLearner:
         self._episode = episode or goal_episode
         self._digest: tuple[float, ...] | None = None
 
+    @property
+    def low(self) -> np.ndarray:
+        """(A,) the agent's lower action bounds."""
+        return self.agent.low
+
+    @property
+    def high(self) -> np.ndarray:
+        """(A,) the agent's upper action bounds."""
+        return self.agent.high
+
     def episode(self, seed: int, steps: int, random: bool, exploration: Exploration | None = None) -> Rollout:
-        """One episode of the agent (:class:`Learner`)."""
-        return self._episode(self.agent, seed, steps, random, exploration)
+        """One episode of the agent (:class:`Learner`), with its trace when its environment records one."""
+        return recorded(self.agent.env, self._episode(self.agent, seed, steps, random, exploration))
+
+    def branch(self, seed: int, state: np.ndarray, actions: np.ndarray) -> int:
+        """Execute ``actions`` from the restored ``state`` into the agent's history (:class:`BranchingLearner`)."""
+        self.agent.reset(seed=seed, options={"state": state})
+        taken = 0
+        for a in actions:
+            self.agent.step(a)
+            taken += 1
+            if self.agent.done:
+                break
+        return taken
 
     def refit(self) -> bool:
         """Refit the agent's model on its whole history, from its current weights (:class:`Learner`)."""

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import gymnasium
 import numpy as np
 
-from pal.agent.aggregate import Exploration, Rollout, parameter_digest
+from pal.agent.aggregate import Exploration, Rollout, parameter_digest, recorded
 from pal.agent.config import PlanConfig
 from pal.baselines.pets import BaselineConfig, CEMPlanner, Cost, ProbabilisticEnsemble
 
@@ -94,20 +94,34 @@ class PetsLearner:
                 pred.append(final)
                 if offsets is not None:
                     a = np.clip(a + offsets[t], self.low, self.high)
-            obs, _, terminated, truncated, _ = env.step(a.astype(np.float32))
-            path.append(np.asarray(obs, dtype=np.float64))
-            if record:
-                for store, x in zip(self.data, (o, a, path[-1]), strict=True):
-                    store.append(x)
-            if terminated or truncated:
+            terminated = self._step(env, o, a, path, record)
+            if terminated:
                 break
         predicted = np.stack(pred) if pred else np.zeros((0, len(path[0])))
         return PetsEpisode(np.stack(path), predicted, cpu, wall)
 
+    def _step(self, env: gymnasium.Env, o: np.ndarray, a: np.ndarray, path: list, record: bool) -> bool:
+        """Step ``env`` with ``a`` from observation ``o``; append to ``path`` (and the data); True when it ended."""
+        obs, _, terminated, truncated, _ = env.step(a.astype(np.float32))
+        path.append(np.asarray(obs, dtype=np.float64))
+        if record:
+            for store, x in zip(self.data, (o, a, path[-1]), strict=True):
+                store.append(x)
+        return bool(terminated or truncated)
+
     def episode(self, seed: int, steps: int, random: bool, exploration: Exploration | None = None) -> Rollout:
-        """One training episode on its environment (:class:`pal.agent.aggregate.Learner`)."""
+        """One training episode on its environment (:class:`pal.agent.aggregate.Learner`), with its trace."""
         e = self.run(self.env, seed, steps, random, record=True, exploration=exploration)
-        return Rollout(len(e.observations) - 1, e)
+        return recorded(self.env, Rollout(len(e.observations) - 1, e))
+
+    def branch(self, seed: int, state: np.ndarray, actions: np.ndarray) -> int:
+        """Execute ``actions`` (K, A) from the restored ``state`` into the data (:class:`pal.agent.aggregate.BranchingLearner`)."""
+        obs, _ = self.env.reset(seed=seed, options={"state": state})
+        path = [np.asarray(obs, dtype=np.float64)]
+        for a in np.clip(np.asarray(actions, dtype=np.float64), self.low, self.high):
+            if self._step(self.env, path[-1], a, path, record=True):
+                break
+        return len(path) - 1
 
     def refit(self) -> bool:
         """Refit the ensemble on all data from its current weights (:class:`pal.agent.aggregate.Learner`)."""

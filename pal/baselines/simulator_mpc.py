@@ -30,7 +30,10 @@ from torch import Tensor
 from inference.planning import cross_entropy_search, shift_plan
 from pal.agent.config import PlanConfig
 
-__all__ = ["Observe", "SimulatorMPC", "pusher_observation"]
+__all__ = ["PUSHER_BODIES", "Observe", "SimulatorMPC", "pusher_observation"]
+
+#: The bodies whose positions Pusher-v5's observation reads (fingertip, object, goal).
+PUSHER_BODIES = ("tips_arm", "object", "goal")
 
 #: ``(qpos (R, H, nq), qvel (R, H, nv), bodies: name -> (R, H, 3)) -> obs (R, H, D)``.
 Observe = Callable[[np.ndarray, np.ndarray, dict[str, np.ndarray]], np.ndarray]

@@ -7,8 +7,11 @@ Per seed (``seed``, ``seed + 1``, ...), state-based (the spec :func:`pal.agent.p
    uniform random torques (1: PETS's protocol; more: the babbling-heavy one), every later one
    is goal-directed MPC with the current model, its torques perturbed by the episode's colored
    noise when ``aggregation.exploration.sd`` > 0 (the same noise for both learners,
-   :class:`pal.agent.aggregate.Exploration`); after each episode its transitions join the
-   learner's data and the model is refitted from its current weights. The agent plans with its
+   :class:`pal.agent.aggregate.Exploration`), and followed by perturbed continuations from its
+   saved simulator states when ``aggregation.branching.per_state`` > 0
+   (:class:`pal.agent.aggregate.Branching`, a simulator privilege; their steps count as
+   environment steps); after each episode its transitions join the learner's data and the model
+   is refitted from its current weights. The agent plans with its
    world model built from the spec (joints, fingertip and object as causal variables,
    heteroscedastic ensembles, the sampling planner over ``plan.action.horizon`` steps); the
    baseline with its ensemble over the full observation and CEM (:mod:`pal.baselines.pets`,
@@ -45,7 +48,7 @@ from typing import Any
 
 from inference import ActionOptions
 from pal.agent import CorrectionConfig, ModelConfig, PlanConfig
-from pal.agent.aggregate import AggregationConfig, Exploration
+from pal.agent.aggregate import AggregationConfig, Branching, Exploration
 from pal.agent.config import MODEL_SCHEDULE, PLAN_SAMPLING
 from pal.baselines.pets import BaselineConfig
 from pal.checks import check_float, check_int
@@ -175,7 +178,12 @@ QUICK = Config(
 TINY = Config(
     runs=1,
     aggregation=AggregationConfig(
-        rounds=2, episode_steps=3, random_rounds=1, checkpoints=(3, 6), exploration=Exploration(sd=0.05)
+        rounds=2,
+        episode_steps=3,
+        random_rounds=1,
+        checkpoints=(3, 6),
+        exploration=Exploration(sd=0.05),
+        branching=Branching(every=2, per_state=1, steps=2),
     ),
     eval_goals=1,
     model=ModelConfig(members=2, hidden=(8,), schedule=replace(MODEL_SCHEDULE, epochs=2, patience=None)),

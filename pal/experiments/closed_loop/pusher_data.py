@@ -12,7 +12,7 @@ the same ranking probes:
    ``continuations.every``-th state s_t of each expert episode (while ``t + steps`` fits in the
    episode), ``continuations.per_state`` short episodes restart from that exact simulator state
    and execute the expert's next ``steps`` torques plus colored noise
-   (:class:`pal.agent.aggregate.Exploration`):
+   (:class:`pal.agent.exploration.Branching`, the aggregation's branches applied to the expert):
 
        a_{t+i} = clip(a*_{t+i} + sd (high - low) n_i),    i = 0 .. steps - 1
 
@@ -32,47 +32,28 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import gymnasium
-import mujoco
 import numpy as np
 
 from pal.agent import Agent, AgentConfig, ModelConfig, PlanConfig, pusher_spec
-from pal.agent.aggregate import Exploration, derived_seed
+from pal.agent.aggregate import AgentLearner, Branching, Rollout, branch, derived_seed
 from pal.agent.learn import site_data
-from pal.baselines.simulator_mpc import SimulatorMPC, pusher_observation
+from pal.baselines.simulator_mpc import PUSHER_BODIES, SimulatorMPC, pusher_observation
 from pal.checks import check_int
 from pal.experiments.closed_loop.pusher import MODEL, PLAN
 from pal.experiments.closed_loop.pusher import TINY as PUSHER_TINY
-from pal.experiments.closed_loop.pusher_ranking import RankingConfig, pal_predictor, probes, score
-from pal.experiments.closed_loop.pusher_runs import ENV_ID, step_cost
+from pal.experiments.closed_loop.pusher_ranking import (
+    RankingConfig,
+    arm_forced_score,
+    pal_predictor,
+    probes,
+    score,
+)
+from pal.experiments.closed_loop.pusher_runs import ENV_ID, MOVED, Episode, agent_episode, step_cost
 from pal.lab.registry import register
 from pal.lab.report import Precondition, Report, Table, Target
+from pal.sim.restore import StartFromState
 
-__all__ = ["Config", "Continuations", "StartFromState", "run"]
-
-_FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
-_BODIES = ("tips_arm", "object", "goal")
-
-
-@dataclass(frozen=True)
-class Continuations:
-    """The perturbed continuations (module docstring).
-
-    Attributes:
-        every: a start every this many steps of an expert episode (from step 0).
-        per_state: continuations per start. steps: their length.
-        noise: the colored noise on the expert's torques (sd as a fraction of the range).
-    """
-
-    every: int = 10
-    per_state: int = 10
-    steps: int = 25
-    noise: Exploration = Exploration(sd=0.125, beta=2.0)
-
-    def __post_init__(self) -> None:
-        for name in ("every", "per_state", "steps"):
-            check_int(f"continuations.{name}", getattr(self, name))
-        if not isinstance(self.noise, Exploration):
-            raise ValueError(f"continuations.noise must be an Exploration, got {type(self.noise).__name__}")
+__all__ = ["Config", "run"]
 
 
 @dataclass(frozen=True)
@@ -86,76 +67,50 @@ class Config:
         model: the agent's world model (default: the ``pusher`` experiment's with the MJCF body).
         plan: the planner and step cost of the ceiling and the probes.
         ranking: the probes (their ceiling episodes reset with seeds from (seed, 93, g)).
+        eval_goals: closed-loop episodes of the agent's MPC with each fitted model, reset with the
+            ``pusher`` experiment's evaluation seeds (seed, 91, g) (0: none): does a better
+            ranking bring the object closer to its goal?
     """
 
     seed: int = 0
     expert_episodes: int = 10
     episode_steps: int = 100
-    continuations: Continuations = Continuations()
+    continuations: Branching = Branching(every=10, per_state=10, steps=25)
     model: ModelConfig = replace(MODEL, kinematics="mjcf", dynamics="mjcf")
     plan: PlanConfig = PLAN
     ranking: RankingConfig = RankingConfig()
+    eval_goals: int = 4
 
     def __post_init__(self) -> None:
         check_int("seed", self.seed, minimum=0)
         check_int("expert_episodes", self.expert_episodes)
+        check_int("eval_goals", self.eval_goals, minimum=0)
         check_int("episode_steps", self.episode_steps, maximum=100)
-        if not isinstance(self.continuations, Continuations):
-            raise ValueError(
-                f"continuations must be a Continuations, got {type(self.continuations).__name__}"
-            )
+        if not isinstance(self.continuations, Branching):
+            raise ValueError(f"continuations must be a Branching, got {type(self.continuations).__name__}")
+        check_int("continuations.per_state", self.continuations.per_state)
         if self.continuations.steps > self.episode_steps:
             raise ValueError(
                 f"continuations.steps {self.continuations.steps} exceeds episode_steps {self.episode_steps}"
             )
 
 
-QUICK = Config(expert_episodes=3, continuations=Continuations(every=20, per_state=4))
+QUICK = Config(expert_episodes=3, continuations=Branching(every=20, per_state=4, steps=25), eval_goals=1)
 TINY = Config(
     expert_episodes=1,
     episode_steps=6,
-    continuations=Continuations(every=3, per_state=2, steps=3),
+    continuations=Branching(every=3, per_state=2, steps=3),
     model=replace(PUSHER_TINY.model, kinematics="mjcf", dynamics="mjcf", position_sigma=1e-4),
     plan=PUSHER_TINY.plan,
     ranking=PUSHER_TINY.ranking,
+    eval_goals=1,
 )
-
-
-class StartFromState(gymnasium.Wrapper):
-    """Pusher-v5 whose ``reset(options={"state": s})`` continues from a saved MuJoCo state.
-
-    ``s`` is a full-physics state vector (``mujoco.mj_getState`` with ``mjSTATE_FULLPHYSICS``);
-    without it, ``reset`` is the environment's own. The observation is Pusher-v5's layout, read
-    from the restored state (:func:`pal.baselines.simulator_mpc.pusher_observation`): its body
-    positions are those of the state itself, while the environment's own observation after a
-    step reads them as computed before the step's last substep (they differ by one substep of
-    motion, millimetres). Every later step is the environment's.
-    """
-
-    def reset(
-        self, *, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[np.ndarray, dict]:
-        """Reset with ``seed``; then, given ``options["state"]``, restore that state."""
-        obs, info = self.env.reset(seed=seed)
-        state = (options or {}).get("state")
-        if state is None:
-            return obs, info
-        sim = self.env.unwrapped
-        size = mujoco.mj_stateSize(sim.model, _FULL)
-        s = np.asarray(state, dtype=np.float64)
-        if s.shape != (size,) or not np.all(np.isfinite(s)):
-            raise ValueError(
-                f"state has shape {s.shape}; expected a finite full-physics state of shape ({size},)"
-            )
-        mujoco.mj_setState(sim.model, sim.data, s, _FULL)
-        mujoco.mj_forward(sim.model, sim.data)
-        bodies = {b: sim.data.body(b).xpos.copy() for b in _BODIES}
-        return pusher_observation(sim.data.qpos.copy(), sim.data.qvel.copy(), bodies), info
 
 
 def _agent(config: Config) -> Agent:
     cfg = AgentConfig(model=config.model, plan=config.plan, reset_every=None, servo=False)
-    return Agent(StartFromState(gymnasium.make(ENV_ID)), pusher_spec(), cfg, seed=config.seed)
+    env = StartFromState(gymnasium.make(ENV_ID), pusher_observation, PUSHER_BODIES)
+    return Agent(env, pusher_spec(), cfg, seed=config.seed)
 
 
 def _expert(agent: Agent, config: Config) -> list[tuple[int, np.ndarray, np.ndarray]]:
@@ -165,7 +120,7 @@ def _expert(agent: Agent, config: Config) -> list[tuple[int, np.ndarray, np.ndar
         seed = derived_seed(config.seed, 70, e)
         agent.reset(seed=seed)
         planner = SimulatorMPC(
-            agent.env, config.plan, step_cost(config.plan), pusher_observation, _BODIES, seed=seed
+            agent.env, config.plan, step_cost(config.plan), pusher_observation, PUSHER_BODIES, seed=seed
         )
         states, torques = [], []
         for _ in range(config.episode_steps):
@@ -186,26 +141,49 @@ def _replay(agent: Agent, episodes: list[tuple[int, np.ndarray, np.ndarray]]) ->
             agent.step(a)
 
 
-def _continue(agent: Agent, episodes: list[tuple[int, np.ndarray, np.ndarray]], c: Continuations) -> None:
-    """The perturbed continuations of every ``c.every``-th state (module docstring) into ``agent``'s history."""
+def _continue(agent: Agent, episodes: list[tuple[int, np.ndarray, np.ndarray]], c: Branching) -> None:
+    """The perturbed continuations of the expert's episodes (module docstring) into ``agent``'s history."""
+    learner = AgentLearner(agent)
     for seed, states, torques in episodes:
-        for t in range(0, len(torques) - c.steps + 1, c.every):
-            for k in range(c.per_state):
-                agent.reset(seed=seed, options={"state": states[t]})
-                offsets = c.noise.offsets(derived_seed(seed, t, k), c.steps, agent.low, agent.high)
-                base = torques[t : t + c.steps]
-                for i in range(c.steps):
-                    agent.step(base[i] if offsets is None else base[i] + offsets[i])
+        branch(learner, seed, Rollout(len(torques), None, states, torques), c)
 
 
-def _scored(agent: Agent, found: list, plan: PlanConfig, label: str) -> list[Any]:
-    """One table row: the agent's fit on its history, and its ranking scores on the probes."""
-    start = time.process_time()
+def _closed_loop(agent: Agent, config: Config) -> list[Episode]:
+    """The agent's MPC with its current model on the evaluation goals, on its own environment (no data added)."""
+    cfg = AgentConfig(model=config.model, plan=config.plan, reset_every=None, servo=False)
+    env = gymnasium.make(ENV_ID)
+    judge = Agent(env, pusher_spec(), cfg, seed=derived_seed(config.seed, 92), model=agent.model)
+    goals = [derived_seed(config.seed, 91, g) for g in range(config.eval_goals)]
+    episodes = [agent_episode(judge, s, config.episode_steps, config.plan.action.horizon) for s in goals]
+    env.close()
+    return episodes
+
+
+def _scored(agent: Agent, found: list, config: Config, label: str) -> list[Any]:
+    """One table row: the agent's fit on its history, its ranking scores on the probes, its closed loop."""
+    clock = time.process_time()
     agent.refit()
-    fit = time.process_time() - start
+    fit = time.process_time() - clock
     moving = int(site_data(agent.history, agent.spec, config=agent.config.model)["contact.object"].sum())
-    s = score(found, pal_predictor(agent.model, plan), plan)
-    return [label, len(agent.history), moving, fit, s["rho"], s["rho_obj"], s["regret"], s["probes"]]
+    s = score(found, pal_predictor(agent.model, config.plan), config.plan)
+    forced = arm_forced_score(found, agent.model, config.plan)
+    episodes = _closed_loop(agent, config)
+    row = [
+        label,
+        len(agent.history),
+        moving,
+        fit,
+        s["rho"],
+        s["rho_obj"],
+        s["regret"],
+        s["probes"],
+        forced["rho_obj"],
+    ]
+    if not episodes:
+        return [*row, None, None, None]
+    start = float(np.median([e.start_planar for e in episodes]))
+    final = float(np.median([e.final_planar for e in episodes]))
+    return [*row, start, final, float(np.mean([e.moved > MOVED for e in episodes]))]
 
 
 @register("pusher-data", config=Config, quick=QUICK, tiny=TINY)
@@ -221,14 +199,27 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     env.close()
     expert_agent = _agent(config)
     episodes = _expert(expert_agent, config)
-    rows = [_scored(expert_agent, found, config.plan, "expert")]
+    rows = [_scored(expert_agent, found, config, "expert")]
     both = _agent(config)
     _replay(both, episodes)
     _continue(both, episodes, config.continuations)
-    rows.append(_scored(both, found, config.plan, "expert + continuations"))
+    rows.append(_scored(both, found, config, "expert + continuations"))
     expert_agent.env.close()
     both.env.close()
-    header = ["data", "transitions", "moving", "fit CPU [s]", "rho", "rho_obj", "regret", "probes"]
+    header = [
+        "data",
+        "transitions",
+        "moving",
+        "fit CPU [s]",
+        "rho",
+        "rho_obj",
+        "regret",
+        "probes",
+        "rho_obj, arm from the truth",
+        "closed-loop start x-y, median [m]",
+        "closed-loop final x-y, median [m]",
+        "closed-loop moved share",
+    ]
     metrics = {r[0]: dict(zip(header[1:], r[1:], strict=True)) for r in rows}
     before, after = (m["rho_obj"] for m in metrics.values())
     gain = None if before is None or after is None else after - before
@@ -255,7 +246,10 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 caption="Medians over the probes: Spearman correlation of the model's summed step cost (rho) "
                 "and final object-goal distance (rho_obj) with the true ones, and the regret of its pick "
                 "(0: the best candidate, 1: a median one). Moving: transitions whose contact switch is on "
-                "(the object moved more than 3 position_sigma).",
+                "(the object moved more than 3 position_sigma). Arm from the truth: rho_obj with the arm's sites "
+                "set to each candidate's true trajectory, the object layer's own ranking. Closed loop: the agent's MPC with the fitted "
+                f"model on {config.eval_goals} evaluation goals (the pusher experiment's), object-goal distance "
+                f"at the start and the end, and the share of episodes that moved the object > {MOVED * 1000:g} mm.",
             )
         ],
         targets=[target],

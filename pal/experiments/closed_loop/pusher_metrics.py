@@ -246,7 +246,17 @@ def _tables(config: Any, at: dict[str, dict[str, Any]], training: dict[str, Any]
         ),
         Table(
             "What aggregation spent, per learner and seed",
-            ["learner", "seed index", "env steps", "episodes", "random episodes", "refits", "warm refits"],
+            [
+                "learner",
+                "seed index",
+                "env steps",
+                "episodes",
+                "random episodes",
+                "branches",
+                "branch steps",
+                "refits",
+                "warm refits",
+            ],
             counts,
         ),
     ]

@@ -28,6 +28,7 @@ from pal.experiments.closed_loop.pusher_runs import (
     random_episode,
     simulator_episode,
     step_cost,
+    training_env,
 )
 
 __all__ = ["one_seed"]
@@ -55,7 +56,7 @@ def _pal(config: Any, seed: int, goals: list[int], found: list[Probe] | None = N
         model=config.model, plan=config.plan, correction=config.correction, reset_every=None, servo=False
     )
     steps, h = config.aggregation.episode_steps, config.plan.action.horizon
-    env, eval_env = gymnasium.make(ENV_ID), gymnasium.make(ENV_ID)
+    env, eval_env = training_env(), gymnasium.make(ENV_ID)
     agent = Agent(env, pusher_spec(), cfg, seed=seed)
 
     def evaluate(point: int, counts: Counts) -> dict[str, Any]:
@@ -85,7 +86,7 @@ def _pal(config: Any, seed: int, goals: list[int], found: list[Probe] | None = N
 def _baseline(config: Any, seed: int, goals: list[int], found: list[Probe] | None = None) -> dict[str, Any]:
     """The PETS-style baseline's rounds and its checkpoint evaluations."""
     steps, h = config.aggregation.episode_steps, config.plan.action.horizon
-    env, eval_env = gymnasium.make(ENV_ID), gymnasium.make(ENV_ID)
+    env, eval_env = training_env(), gymnasium.make(ENV_ID)
     learner = PetsLearner(
         env, config.baseline, config.plan, step_cost(config.plan), seed=derived_seed(seed, 80)
     )

@@ -16,6 +16,12 @@ clipped to the bounds; then
 ``regret`` is 0 when the model picks the best candidate and 1 for a median one. ``rho_obj`` is
 undefined (None) at a probe where the model predicts the same final object position for every
 candidate (a model that has seen no push). Scores are medians over probes.
+
+:func:`arm_forced_score` separates the object layer's error from the arm's: the agent's model
+rolls the object forward as before, while the arm's sites are set to the true trajectory of each
+candidate at every step, ``do(q_t, v_t, ee_t = truth)`` (given values replace their mechanisms in
+:meth:`models.forward.ForwardQueries.predict`); the object's prediction, the mean over the
+members at each step, feeds its next step.
 """
 
 from __future__ import annotations
@@ -30,11 +36,11 @@ from scipy.stats import spearmanr
 
 from inference.planning import colored_noise
 from pal.agent.config import PlanConfig
-from pal.baselines.simulator_mpc import SimulatorMPC, pusher_observation
+from pal.baselines.simulator_mpc import PUSHER_BODIES, SimulatorMPC, pusher_observation
 from pal.checks import check_float, check_int
 from pal.experiments.closed_loop.pusher_runs import roots, step_cost
 
-__all__ = ["Probe", "RankingConfig", "pal_predictor", "pets_predictor", "probes", "score"]
+__all__ = ["Probe", "RankingConfig", "arm_forced_score", "pal_predictor", "pets_predictor", "probes", "score"]
 
 #: ``(previous obs (D,), obs (D,), actions (N, H, A)) -> (summed cost (N,), final obs (N, D))``.
 Predictor = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -83,7 +89,7 @@ def probes(env: gymnasium.Env, plan: PlanConfig, config: RankingConfig, seeds: l
     out: list[Probe] = []
     for s in seeds[: config.goals]:
         obs, _ = env.reset(seed=s)
-        planner = SimulatorMPC(env, plan, cost, pusher_observation, ("tips_arm", "object", "goal"), seed=s)
+        planner = SimulatorMPC(env, plan, cost, pusher_observation, PUSHER_BODIES, seed=s)
         generator = torch.Generator().manual_seed(s)
         previous = np.asarray(obs, dtype=np.float64)
         for t in range(config.steps):
@@ -164,6 +170,45 @@ def pal_predictor(model: object, plan: PlanConfig) -> Predictor:
         return total.numpy().astype(np.float64), pred[:, :, -1].mean(0).numpy().astype(np.float64)
 
     return predict
+
+
+def _arm_forced(model: object, plan: PlanConfig, truth: np.ndarray) -> Predictor:
+    """The agent's model with the arm set to ``truth`` (N, H, D) at every step (module docstring); mean over members."""
+    cost = step_cost(plan)
+
+    def predict(previous: np.ndarray, obs: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n, h, _ = actions.shape
+        dtype = model.dtype  # type: ignore[attr-defined]
+        act, true = torch.as_tensor(actions, dtype=dtype), torch.as_tensor(truth, dtype=dtype)
+        state = {k: torch.as_tensor(np.tile(v, (n, 1)), dtype=dtype) for k, v in roots(previous, obs).items()}
+        goal = torch.as_tensor(np.tile(obs[_GOAL], (n, 1)), dtype=dtype)
+        steps = []
+        for t in range(h):
+            arm = {"q": true[:, t, :7], "v": true[:, t, 7:14], "ee": true[:, t, 14:17]}
+            with torch.no_grad():
+                pos = model.predict({**state, **arm, "act": act[:, t]}, members=True)["pos.object"].mean(0)  # type: ignore[attr-defined]
+            state = {
+                "q_prev": arm["q"],
+                "v_prev": arm["v"],
+                "ee_prev": arm["ee"],
+                "pos_prev.object": pos,
+                "vel_prev.object": pos - state["pos_prev.object"],
+            }
+            steps.append(torch.cat([arm["q"], arm["v"], arm["ee"], pos, goal], -1))
+        pred = torch.stack(steps, 1)
+        return cost(pred, act).sum(-1).numpy().astype(np.float64), pred[:, -1].numpy().astype(np.float64)
+
+    return predict
+
+
+def arm_forced_score(found: list[Probe], model: object, plan: PlanConfig) -> dict[str, float | int | None]:
+    """:func:`score` of the agent's model with its arm forced to each candidate's true trajectory (module docstring)."""
+    per_probe = [score([p], _arm_forced(model, plan, p.truth), plan) for p in found]
+    out: dict[str, float | int | None] = {"probes": len(found)}
+    for key in ("rho", "rho_obj", "regret"):
+        v = [r[key] for r in per_probe if r[key] is not None]
+        out[key] = float(np.median(v)) if v else None
+    return out
 
 
 def pets_predictor(learner: object) -> Predictor:

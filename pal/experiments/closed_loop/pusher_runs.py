@@ -32,7 +32,8 @@ from pal.agent.aggregate import Exploration, Rollout
 from pal.agent.config import PlanConfig
 from pal.agent.plan import behind, distance
 from pal.baselines.pets_aggregate import PetsEpisode
-from pal.baselines.simulator_mpc import SimulatorMPC, pusher_observation
+from pal.baselines.simulator_mpc import PUSHER_BODIES, SimulatorMPC, pusher_observation
+from pal.sim.restore import StartFromState
 
 __all__ = [
     "ENV_ID",
@@ -46,6 +47,7 @@ __all__ = [
     "roots",
     "simulator_episode",
     "step_cost",
+    "training_env",
 ]
 
 #: Gymnasium's id of the benchmark task.
@@ -207,6 +209,11 @@ def pets_record(episode: PetsEpisode, horizon: int) -> Episode:
     return _record(episode.observations, pred, episode.cpu, episode.wall)
 
 
+def training_env() -> StartFromState:
+    """A learner's Pusher-v5 that records its states and actions and restarts from them (for branching)."""
+    return StartFromState(gymnasium.make(ENV_ID), pusher_observation, PUSHER_BODIES)
+
+
 def random_episode(env: gymnasium.Env, seed: int, steps: int) -> Episode:
     """Uniform random torques for ``steps`` steps from ``env.reset(seed=seed)``."""
     obs, _ = env.reset(seed=seed)
@@ -229,7 +236,7 @@ def simulator_episode(env: gymnasium.Env, config: PlanConfig, seed: int, steps: 
     """
     obs, _ = env.reset(seed=seed)
     planner = SimulatorMPC(
-        env, config, step_cost(config), pusher_observation, ("tips_arm", "object", "goal"), seed=seed
+        env, config, step_cost(config), pusher_observation, PUSHER_BODIES, seed=seed
     )
     path, cpu, wall, pred = [np.asarray(obs, dtype=np.float64)], [], [], None
     for t in range(steps):

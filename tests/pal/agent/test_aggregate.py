@@ -129,6 +129,8 @@ def test_aggregate_runs_the_agent_in_goal_mode():
         "env_steps": 4,
         "episodes": 2,
         "random_episodes": 1,
+        "branches": 0,
+        "branch_steps": 0,
         "refits": 2,
         "warm_refits": 1,
     }

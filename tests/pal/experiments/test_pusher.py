@@ -33,7 +33,10 @@ def test_pusher_reports_checkpoint_rows_for_three_controllers_and_does_not_evalu
                 row[c]["final_planar"]["median"] <= row[c]["final_distance"]["median"]
             )  # the goal sits lower
         for c in ("pal", "baseline"):
-            assert row[c]["env_steps"] == [point]
+            # scored after the refit that reached the point: the first episode, then the whole budget with its branch
+            assert row[c]["env_steps"] == [
+                {agg.checkpoints[0]: agg.episode_steps, agg.checkpoints[1]: agg.budget}[point]
+            ]
             assert row[c]["predicted_final"]["mean"] is not None
             ranking = row[c]["ranking"]  # one probe of the ceiling's episode, 4 candidates
             assert ranking["probes"] == 1 and -1.0 <= ranking["rho"] <= 1.0 and ranking["regret"] >= 0.0
@@ -43,6 +46,8 @@ def test_pusher_reports_checkpoint_rows_for_three_controllers_and_does_not_evalu
             "env_steps": agg.budget,
             "episodes": agg.rounds,
             "random_episodes": 1,
+            "branches": agg.rounds - 1,  # one start per model episode
+            "branch_steps": agg.branching.steps_per_episode(agg.episode_steps) * (agg.rounds - 1),
             "refits": agg.rounds,
             "warm_refits": agg.rounds - 1,
         }
@@ -74,6 +79,8 @@ def test_the_baseline_aggregates_its_own_episodes_with_warm_refits():
         "env_steps": 12,
         "episodes": 3,
         "random_episodes": 1,
+        "branches": 0,
+        "branch_steps": 0,
         "refits": 3,
         "warm_refits": 2,
     }

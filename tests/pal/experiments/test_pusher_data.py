@@ -1,43 +1,12 @@
-"""The ``pusher-data`` experiment: restored states replay the environment, both data sets are scored (tiny sizes)."""
+"""The ``pusher-data`` experiment: both data sets are scored (tiny sizes), bad settings are refused."""
 
 from dataclasses import replace
 
-import gymnasium
-import mujoco
-import numpy as np
 import pytest
 
+from pal.agent.exploration import Branching
 from pal.experiments.closed_loop import pusher_data
-from pal.experiments.closed_loop.pusher_data import Config, Continuations, StartFromState
-
-
-def test_a_restored_state_continues_exactly_as_the_environment_did():
-    env = StartFromState(gymnasium.make("Pusher-v5"))
-    obs, _ = env.reset(seed=3)
-    sim = env.unwrapped
-    rng = np.random.default_rng(0)
-    torques = rng.uniform(-2, 2, size=(8, 7)).astype(np.float32)
-    path, saved = [obs], None
-    for t, a in enumerate(torques):
-        if t == 3:
-            saved = np.empty(mujoco.mj_stateSize(sim.model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
-            mujoco.mj_getState(sim.model, sim.data, saved, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-        path.append(env.step(a)[0])
-    again, _ = env.reset(seed=11, options={"state": saved})  # another seed: the state decides
-    np.testing.assert_allclose(again[:14], path[3][:14], atol=1e-12)  # joint angles and velocities exactly
-    # body positions of the restored state itself; the environment's lag one substep (< 5 mm here)
-    np.testing.assert_allclose(again[14:], path[3][14:], atol=5e-3)
-    for t in range(3, 8):
-        np.testing.assert_allclose(env.step(torques[t])[0], path[t + 1], atol=1e-9)
-    plain, _ = env.reset(seed=3)
-    np.testing.assert_allclose(plain, path[0], atol=0)  # without a state, the environment's own reset
-    with pytest.raises(ValueError, match=r"state has shape \(5,\); expected a finite full-physics state"):
-        env.reset(seed=3, options={"state": np.zeros(5)})
-    bad = saved.copy()
-    bad[4] = np.nan
-    with pytest.raises(ValueError, match="expected a finite full-physics state"):
-        env.reset(seed=3, options={"state": bad})
-    env.close()
+from pal.experiments.closed_loop.pusher_data import Config
 
 
 @pytest.mark.slow
@@ -58,7 +27,14 @@ def test_pusher_data_scores_the_expert_data_and_the_data_with_continuations(tiny
     assert target.name == "continuations_rho_obj_gain" and target.verdict == "not evaluated"  # 1 episode, 1 probe
     for row in m.values():
         assert row["probes"] == 1 and 0 <= row["moving"] <= row["transitions"]
+        # one closed-loop goal per model: distances in the table's range, the moved share a fraction
+        assert 0.0 < row["closed-loop start x-y, median [m]"] < 1.0
+        assert 0.0 < row["closed-loop final x-y, median [m]"] < 1.0
+        assert row["closed-loop moved share"] in (0.0, 1.0)
         assert row["rho"] is None or -1.0 <= row["rho"] <= 1.0
+        forced = row["rho_obj, arm from the truth"]
+        assert forced is None or -1.0 <= forced <= 1.0
+    assert len({row["closed-loop start x-y, median [m]"] for row in m.values()}) == 1  # the same goals for both
 
 
 @pytest.mark.parametrize(
@@ -66,23 +42,12 @@ def test_pusher_data_scores_the_expert_data_and_the_data_with_continuations(tiny
     [
         ({"expert_episodes": 0}, "expert_episodes must be"),
         ({"episode_steps": 101}, "episode_steps must be"),
-        ({"continuations": 3}, "continuations must be a Continuations, got int"),
+        ({"continuations": 3}, "continuations must be a Branching, got int"),
+        ({"continuations": Branching(per_state=0)}, "continuations.per_state must be a positive int, got 0"),
         ({"episode_steps": 10}, "continuations.steps 25 exceeds episode_steps 10"),
+        ({"eval_goals": -1}, "eval_goals must be"),
     ],
 )
 def test_pusher_data_refuses_bad_settings(changes, match):
     with pytest.raises(ValueError, match=match):
         replace(Config(), **changes)
-
-
-@pytest.mark.parametrize(
-    ("changes", "match"),
-    [
-        ({"every": 0}, "continuations.every must be"),
-        ({"per_state": -1}, "continuations.per_state must be"),
-        ({"noise": 0.1}, "continuations.noise must be an Exploration, got float"),
-    ],
-)
-def test_continuations_refuse_bad_settings(changes, match):
-    with pytest.raises(ValueError, match=match):
-        Continuations(**changes)

@@ -6,9 +6,10 @@ import gymnasium
 import numpy as np
 import pytest
 import torch
+from scipy.stats import spearmanr
 
 from pal.experiments.closed_loop import pusher
-from pal.experiments.closed_loop.pusher_ranking import RankingConfig, probes, score
+from pal.experiments.closed_loop.pusher_ranking import RankingConfig, arm_forced_score, probes, score
 from pal.experiments.closed_loop.pusher_runs import step_cost
 
 PLAN = replace(
@@ -62,6 +63,45 @@ def test_an_oracle_ranks_perfectly_a_reversed_model_worst_and_a_blind_one_not_at
 
     none = score(found, blind, PLAN)
     assert none["rho"] is None and none["rho_obj"] is None  # constant predictions rank nothing
+
+
+class _GluedObject:
+    """A model whose object sits on the fingertip it is given (two members); it logs the values it gets."""
+
+    dtype = torch.float64
+
+    def __init__(self) -> None:
+        self.calls: list[dict] = []
+
+    def predict(self, values, members=False):
+        self.calls.append(values)
+        return {"pos.object": values["ee"].expand(2, *values["ee"].shape)}
+
+
+def test_the_arm_forced_score_sets_the_arm_to_the_truth_and_rolls_the_object_on(found):
+    model = _GluedObject()
+    got = arm_forced_score(found, model, PLAN)
+    assert got["probes"] == len(found)
+    p = found[0]
+    for t in range(4):  # the first probe's steps: the arm is the candidates' true trajectory
+        values = model.calls[t]
+        np.testing.assert_array_equal(values["ee"].numpy(), p.truth[:, t, 14:17])
+        np.testing.assert_array_equal(values["act"].numpy(), p.actions[:, t])
+        previous = p.truth[:, t - 1, 14:17] if t else np.tile(p.obs[14:17], (len(p.actions), 1))
+        np.testing.assert_array_equal(values["ee_prev"].numpy(), previous)
+        if t:  # the object's own prediction feeds its next step
+            np.testing.assert_array_equal(values["pos_prev.object"].numpy(), p.truth[:, t - 1, 14:17])
+    # the object glued to the tip: the predicted trajectory is the truth with the object on the tip
+    cost = step_cost(PLAN)
+    expected = []
+    for q in found:
+        glued = q.truth.copy()
+        glued[..., 17:20] = q.truth[..., 14:17]
+        true, model_cost = (
+            cost(torch.as_tensor(x), torch.as_tensor(q.actions)).sum(-1).numpy() for x in (q.truth, glued)
+        )
+        expected.append(spearmanr(true, model_cost).statistic)
+    assert got["rho"] == pytest.approx(float(np.median(expected)), abs=1e-9)
 
 
 @pytest.mark.parametrize(
