@@ -222,6 +222,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
     ]
     metrics = {r[0]: dict(zip(header[1:], r[1:], strict=True)) for r in rows}
     before, after = (m["rho_obj"] for m in metrics.values())
+    probe_count = metrics["expert"]["probes"]
     gain = None if before is None or after is None else after - before
     target = Target(
         "continuations_rho_obj_gain",
@@ -230,9 +231,9 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         ">=",
         "rho_obj with the continuations minus without: do pushes seen with their neighbours teach the ranking?",
         Precondition(
-            config.expert_episodes >= 10 and rows[0][-1] >= 15 and gain is not None,
+            config.expert_episodes >= 10 and probe_count >= 15 and gain is not None,
             f">= 10 expert episodes and >= 15 probes, rho_obj defined for both "
-            f"(this run: {config.expert_episodes} episodes, {rows[0][-1]} probes)",
+            f"(this run: {config.expert_episodes} episodes, {probe_count} probes)",
         ),
     )
     return Report(

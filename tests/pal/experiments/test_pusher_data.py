@@ -51,3 +51,12 @@ def test_pusher_data_scores_the_expert_data_and_the_data_with_continuations(tiny
 def test_pusher_data_refuses_bad_settings(changes, match):
     with pytest.raises(ValueError, match=match):
         replace(Config(), **changes)
+
+
+@pytest.mark.slow
+def test_pusher_data_without_closed_loop_goals_leaves_those_cells_empty():
+    rep = pusher_data.run(replace(pusher_data.TINY, eval_goals=0))
+    for row in rep.metrics.values():
+        assert row["closed-loop final x-y, median [m]"] is None and row["closed-loop moved share"] is None
+        assert row["probes"] == 1
+    assert rep.targets[0].verdict == "not evaluated"
