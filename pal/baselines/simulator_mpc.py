@@ -29,6 +29,7 @@ from torch import Tensor
 
 from inference.planning import cross_entropy_search, shift_plan
 from pal.agent.config import PlanConfig
+from pal.sim.restore import full_state
 
 __all__ = ["PUSHER_BODIES", "Observe", "SimulatorMPC", "pusher_observation"]
 
@@ -37,7 +38,6 @@ PUSHER_BODIES = ("tips_arm", "object", "goal")
 
 #: ``(qpos (R, H, nq), qvel (R, H, nv), bodies: name -> (R, H, 3)) -> obs (R, H, D)``.
 Observe = Callable[[np.ndarray, np.ndarray, dict[str, np.ndarray]], np.ndarray]
-_FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
 def pusher_observation(qpos: np.ndarray, qvel: np.ndarray, bodies: dict[str, np.ndarray]) -> np.ndarray:
@@ -109,9 +109,7 @@ class SimulatorMPC:
 
     def state(self) -> np.ndarray:
         """The environment's full physics state now, ``(nstate,)``."""
-        out = np.empty(mujoco.mj_stateSize(self.sim.model, _FULL))
-        mujoco.mj_getState(self.sim.model, self.sim.data, out, _FULL)
-        return out
+        return full_state(self.sim.model, self.sim.data)
 
     def predict(self, state: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """Observations after each step of ``actions`` (R, H, A) from ``state``: ``(R, H, D)``."""
