@@ -48,7 +48,14 @@ from pal.experiments.closed_loop.pusher_ranking import (
     probes,
     score,
 )
-from pal.experiments.closed_loop.pusher_runs import ENV_ID, MOVED, Episode, agent_episode, step_cost
+from pal.experiments.closed_loop.pusher_runs import (
+    ENV_ID,
+    MOVED,
+    Episode,
+    agent_episode,
+    evaluation_seeds,
+    step_cost,
+)
 from pal.lab.registry import register
 from pal.lab.report import Precondition, Report, Table, Target
 from pal.sim.restore import StartFromState
@@ -107,8 +114,12 @@ TINY = Config(
 )
 
 
+def _agent_config(config: Config) -> AgentConfig:
+    return AgentConfig(model=config.model, plan=config.plan, reset_every=None, servo=False)
+
+
 def _agent(config: Config) -> Agent:
-    cfg = AgentConfig(model=config.model, plan=config.plan, reset_every=None, servo=False)
+    cfg = _agent_config(config)
     env = StartFromState(gymnasium.make(ENV_ID), pusher_observation, PUSHER_BODIES)
     return Agent(env, pusher_spec(), cfg, seed=config.seed)
 
@@ -150,10 +161,11 @@ def _continue(agent: Agent, episodes: list[tuple[int, np.ndarray, np.ndarray]], 
 
 def _closed_loop(agent: Agent, config: Config) -> list[Episode]:
     """The agent's MPC with its current model on the evaluation goals, on its own environment (no data added)."""
-    cfg = AgentConfig(model=config.model, plan=config.plan, reset_every=None, servo=False)
     env = gymnasium.make(ENV_ID)
-    judge = Agent(env, pusher_spec(), cfg, seed=derived_seed(config.seed, 92), model=agent.model)
-    goals = [derived_seed(config.seed, 91, g) for g in range(config.eval_goals)]
+    judge = Agent(
+        env, pusher_spec(), _agent_config(config), seed=derived_seed(config.seed, 92), model=agent.model
+    )
+    goals = evaluation_seeds(config.seed, config.eval_goals)
     episodes = [agent_episode(judge, s, config.episode_steps, config.plan.action.horizon) for s in goals]
     env.close()
     return episodes

@@ -24,6 +24,7 @@ from pal.experiments.closed_loop.pusher_runs import (
     Episode,
     agent_episode,
     agent_rollout,
+    evaluation_seeds,
     pets_record,
     random_episode,
     simulator_episode,
@@ -124,7 +125,7 @@ def one_seed(config: Any, seed: int) -> dict[str, Any]:
         (``ranking``: :func:`pusher_ranking.score` on the seed's probes, None without probes or
         before a first fit).
     """
-    goals = [derived_seed(seed, 91, g) for g in range(config.eval_goals)]
+    goals = evaluation_seeds(seed, config.eval_goals)
     env = gymnasium.make(ENV_ID)
     seeds = [derived_seed(seed, 93, g) for g in range(config.ranking.goals)]
     found = probes(env, config.plan, config.ranking, seeds)

@@ -136,12 +136,13 @@ def score(found: list[Probe], predict: Predictor, plan: PlanConfig) -> dict[str,
         )
         spread = float(np.median(true) - true.min())
         regret.append(float(true[int(np.argmin(model))] - true.min()) / spread if spread > 0 else None)
+    return {"rho": _median(rho), "rho_obj": _median(rho_obj), "regret": _median(regret), "probes": len(found)}
 
-    def median(values: list[float | None]) -> float | None:
-        v = [x for x in values if x is not None]
-        return float(np.median(v)) if v else None
 
-    return {"rho": median(rho), "rho_obj": median(rho_obj), "regret": median(regret), "probes": len(found)}
+def _median(values: list[float | None]) -> float | None:
+    """The median of the defined values, None when there are none."""
+    v = [x for x in values if x is not None]
+    return float(np.median(v)) if v else None
 
 
 def _spearman(a: np.ndarray, b: np.ndarray) -> float | None:
@@ -204,11 +205,10 @@ def _arm_forced(model: object, plan: PlanConfig, truth: np.ndarray) -> Predictor
 def arm_forced_score(found: list[Probe], model: object, plan: PlanConfig) -> dict[str, float | int | None]:
     """:func:`score` of the agent's model with its arm forced to each candidate's true trajectory (module docstring)."""
     per_probe = [score([p], _arm_forced(model, plan, p.truth), plan) for p in found]
-    out: dict[str, float | int | None] = {"probes": len(found)}
-    for key in ("rho", "rho_obj", "regret"):
-        v = [r[key] for r in per_probe if r[key] is not None]
-        out[key] = float(np.median(v)) if v else None
-    return out
+    out: dict[str, float | int | None] = {
+        k: _median([r[k] for r in per_probe]) for k in ("rho", "rho_obj", "regret")
+    }
+    return {**out, "probes": len(found)}
 
 
 def pets_predictor(learner: object) -> Predictor:

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from pal.agent import Agent
-from pal.agent.aggregate import Exploration, Rollout
+from pal.agent.aggregate import Exploration, Rollout, derived_seed
 from pal.agent.config import PlanConfig
 from pal.agent.plan import behind, distance
 from pal.baselines.pets_aggregate import PetsEpisode
@@ -42,6 +42,7 @@ __all__ = [
     "agent_episode",
     "agent_rollout",
     "distances",
+    "evaluation_seeds",
     "pets_record",
     "random_episode",
     "roots",
@@ -55,6 +56,11 @@ ENV_ID = "Pusher-v5"
 #: An episode moved the object when it left its start by more than this in the table plane, m.
 MOVED = 0.005
 _TIP, _OBJ, _GOAL = slice(14, 17), slice(17, 20), slice(20, 23)
+
+
+def evaluation_seeds(seed: int, goals: int) -> list[int]:
+    """The reset seeds of a run's ``goals`` evaluation episodes (the ``pusher`` experiment's, from (seed, 91, g))."""
+    return [derived_seed(seed, 91, g) for g in range(goals)]
 
 
 def distances(obs: np.ndarray) -> tuple[float, float]:
@@ -235,9 +241,7 @@ def simulator_episode(env: gymnasium.Env, config: PlanConfig, seed: int, steps: 
     planner's ceiling on this task.
     """
     obs, _ = env.reset(seed=seed)
-    planner = SimulatorMPC(
-        env, config, step_cost(config), pusher_observation, PUSHER_BODIES, seed=seed
-    )
+    planner = SimulatorMPC(env, config, step_cost(config), pusher_observation, PUSHER_BODIES, seed=seed)
     path, cpu, wall, pred = [np.asarray(obs, dtype=np.float64)], [], [], None
     for t in range(steps):
         c0, w0 = time.process_time(), time.perf_counter()
