@@ -374,6 +374,7 @@ class ForwardQueries:
         generator: torch.Generator | None = None,
         grad: bool = False,
         members: bool = False,
+        assign: Mapping[str, Any] | None = None,
     ) -> dict[str, Tensor]:
         """Mental simulation over h' steps (Alg. 4.1, Eq. 4.40).
 
@@ -392,6 +393,9 @@ class ForwardQueries:
             grad: keep the autograd graph.
             members: roll each ensemble member forward on its own trajectory (member k's
                 state feeds member k's next step; see :meth:`predict`).
+            assign: name -> ``(N, H, dim)`` values of non-root variables set at every step,
+                ``do(x_tau = assign[x][:, tau])`` (e.g. a body's recorded motion, so that only
+                the rest is simulated); their lagged slots carry the assigned values on.
 
         Returns:
             name -> ``(N, H, dim)``: the simulated trajectory T^sim; with ``members``,
@@ -401,6 +405,7 @@ class ForwardQueries:
         members = check_bool("members", members)
         generator = check_generator("generator", generator)
         seq, init, n, horizon = self._rollout_inputs(initial, inputs)
+        fixed = self._rollout_assign(assign, n, horizon)
         noise = self._check_noise(noise, n, extra_dims=(0, 1))
         if isinstance(noise, Mapping):
             for key, e in noise.items():
@@ -415,7 +420,7 @@ class ForwardQueries:
         steps: list[dict[str, Tensor]] = []
         with torch.set_grad_enabled(grad):
             for tau in range(horizon):
-                values = {**state, **{key: v[:, tau] for key, v in seq.items()}}
+                values = {**state, **{key: v[:, tau] for key, v in {**seq, **fixed}.items()}}
                 step_noise: NoiseSpec = noise
                 if isinstance(noise, Mapping):
                     step_noise = {key: (e[:, tau] if e.ndim == 3 else e) for key, e in noise.items()}
@@ -457,6 +462,22 @@ class ForwardQueries:
         check_action_bounds(self.graph, seq, "inputs")
         self.check_codes({**seq, **init}, "inputs")
         return seq, init, n, horizon
+
+    def _rollout_assign(self, assign: Mapping[str, Any] | None, n: int, horizon: int) -> dict[str, Tensor]:
+        """Check a rollout's assigned non-root values ``(N, H, dim)``."""
+        if assign is None:
+            return {}
+        fixed, _ = as_values(self.graph, assign, n=n, what="assign", extra_dims=1, dtype=self.dtype)
+        roots = [k for k in fixed if self.graph.is_root(k)]
+        if roots:
+            raise ValueError(f"assign sets roots {roots}; give roots as initial values or inputs")
+        for key, v in fixed.items():
+            if v.shape[0] != n or v.shape[1] != horizon:
+                raise ValueError(
+                    f"assign[{key!r}] has shape {tuple(v.shape)}, expected ({n}, {horizon}, dim) like the inputs"
+                )
+        self.check_codes(fixed, "assign")
+        return fixed
 
 
 def _code(name: str, logits: Tensor, eps: Tensor | None, at_mode: dict[str, Tensor]) -> Tensor:

@@ -15,6 +15,7 @@ from typing import Any
 from inference import ActionOptions, CalibrationOptions, FitSchedule, SamplingConfig, SVIOptions
 from inference.action_objective import check_risk
 from models.heteroscedastic import check_log_scale_bounds
+from pal.agent.rollout_fit import RolloutFit
 from pal.checks import check_choice, check_float, check_int
 from pal.perception import PipelineConfig
 
@@ -116,6 +117,9 @@ class ModelConfig:
             the torques stepped by MuJoCo through the env's own model, with the body's contacts
             with static geometry and without those with objects (:mod:`pal.agent.dynamics`);
             needs ``kinematics="mjcf"``, so that only the objects are learned.
+        rollout: after the one-step fit, refine the objects' ``contact.o`` and ``dpos.o`` on
+            windows of ``rollout.horizon`` recorded steps, chained as the planner chains them
+            (:mod:`pal.agent.rollout_fit`; horizon 0, the default: off).
     """
 
     kind: str = "hetero"
@@ -131,6 +135,7 @@ class ModelConfig:
     arm_log_scale_bounds: tuple[float, float] = ARM_LOG_SCALE_BOUNDS
     kinematics: str = "learned"
     dynamics: str = "learned"
+    rollout: RolloutFit = RolloutFit()
 
     def __post_init__(self) -> None:
         check_choice("kind", self.kind, ("hetero", "mlp"))
@@ -147,6 +152,7 @@ class ModelConfig:
         if self.arm_hidden is not None:
             object.__setattr__(self, "arm_hidden", _widths("arm_hidden", self.arm_hidden))
         _check_type("schedule", self.schedule, FitSchedule)
+        _check_type("rollout", self.rollout, RolloutFit)
         for name in ("log_scale_bounds", "arm_log_scale_bounds"):
             object.__setattr__(self, name, check_log_scale_bounds(getattr(self, name), name))
         for name in ("position_sigma", "min_sigma"):

@@ -31,6 +31,7 @@ from models import DiscreteMechanism, GatedMechanism, WorldModel
 from pal.agent.config import LearnConfig, ModelConfig
 from pal.agent.graph import contact_rule, learned_sites
 from pal.agent.history import History
+from pal.agent.rollout_fit import refine_objects
 from pal.agent.spec import EnvSpec
 
 __all__ = ["MIN_HELD_OUT_CONTACTS", "Learner", "fit_model", "site_data"]
@@ -100,8 +101,12 @@ def fit_model(
 ) -> dict[str, Any]:
     """Fit every learned site on the history (module docstring).
 
+    With ``config.rollout.horizon`` > 0 the objects whose displacement was fitted are then
+    refined through their own rollouts (:func:`pal.agent.rollout_fit.refine_objects`).
+
     Returns:
-        ``{"rows": {"arm": n, <object>: n ...}, "sites": [...]}``.
+        ``{"rows": {"arm": n, <object>: n ...}, "sites": [...]}`` and, when refined,
+        ``"rollout"``: the refinement's summary.
     """
     rule, floor = contact_rule(spec, config)
     arm, objects = history.columns(source, rows, contact=rule, floor=floor)
@@ -142,10 +147,24 @@ def fit_model(
         mech = model.mechanism(name)
         if not mech.heteroscedastic and not isinstance(mech, DiscreteMechanism):
             mech.set_sigma(mech.sigma.detach().clamp_min(config.min_sigma))
-    return {
+    out: dict[str, Any] = {
         "rows": {"arm": len(arm["act"]), **{o: len(c[f"pos.{o}"]) for o, c in objects.items()}},
         "sites": fitted,
     }
+    if config.rollout.horizon:
+        refined = [o for o in objects if f"dpos.{o}" in fitted]
+        out["rollout"] = refine_objects(
+            model,
+            history,
+            refined,
+            config.rollout,
+            contact=rule,
+            floor=floor,
+            source=source,
+            rows=rows,
+            seed=seed,
+        )
+    return out
 
 
 def _revisable(mech: Any) -> bool:

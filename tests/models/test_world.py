@@ -128,6 +128,37 @@ def test_rollout_feeds_lag0_into_lag1_slots():
     assert float((traj2["q"] - traj["q"])[0, 0, 0]) == pytest.approx(1.0)
 
 
+def test_rollout_assign_sets_a_non_root_at_every_step():
+    g = CausalGraph(
+        [
+            Variable("a", "action", bounds=(-1, 1)),
+            Variable("q_prev", "observed", lag=1, lag_of="q"),
+            Variable("q", "latent"),
+            Variable("y", "latent"),
+        ],
+        [("a", "q"), ("q_prev", "q"), ("q", "y")],
+    )
+    m = WorldModel(
+        g,
+        {
+            "q": LinearMechanism.from_coefficients([[1.0, 0.5]], bias=0.1),
+            "y": LinearMechanism.from_coefficients([[2.0]]),
+        },
+    )
+    actions = torch.zeros(2, 3, 1)
+    forced = torch.tensor([[[1.0], [2.0], [3.0]], [[-1.0], [0.0], [4.0]]])  # (N=2, H=3, 1)
+    traj = m.rollout({"q_prev": torch.zeros(2, 1)}, {"a": actions}, assign={"q": forced})
+    torch.testing.assert_close(traj["q"], forced)  # do(q_t = forced_t), not a + 0.5 q_prev + 0.1
+    torch.testing.assert_close(traj["y"], 2.0 * forced)  # descendants read the assigned value
+    torch.testing.assert_close(traj["q_prev"][:, 1:], forced[:, :-1])  # the lag slot carries it on
+    members = m.rollout({"q_prev": torch.zeros(2, 1)}, {"a": actions}, members=True, assign={"q": forced})
+    torch.testing.assert_close(members["y"][0], 2.0 * forced)
+    with pytest.raises(ValueError, match="assign sets roots \\['a'\\]"):
+        m.rollout({"q_prev": torch.zeros(2, 1)}, {"a": actions}, assign={"a": actions})
+    with pytest.raises(ValueError, match="assign\\['q'\\] has shape \\(2, 2, 1\\)"):
+        m.rollout({"q_prev": torch.zeros(2, 1)}, {"a": actions}, assign={"q": forced[:, :2]})
+
+
 def test_rollout_is_batched_and_checks_inputs():
     m = WorldModel(finger_graph("state"))
     traj = m.rollout({"q_prev.finger": torch.zeros(5, 1)}, {"act.finger": torch.zeros(5, 4, 1)})

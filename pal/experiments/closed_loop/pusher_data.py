@@ -190,12 +190,18 @@ def _scored(agent: Agent, found: list, config: Config, label: str) -> list[Any]:
         s["regret"],
         s["probes"],
         forced["rho_obj"],
+        _cm(forced["error"]),
+        _cm(forced["spread"]),
     ]
     if not episodes:
         return [*row, None, None, None]
     start = float(np.median([e.start_planar for e in episodes]))
     final = float(np.median([e.final_planar for e in episodes]))
     return [*row, start, final, float(np.mean([e.moved > MOVED for e in episodes]))]
+
+
+def _cm(metres: float | int | None) -> float | None:
+    return None if metres is None else 100.0 * float(metres)
 
 
 @register("pusher-data", config=Config, quick=QUICK, tiny=TINY)
@@ -228,6 +234,8 @@ def run(config: Config, progress_bar: bool = False) -> Report:
         "regret",
         "probes",
         "rho_obj, arm from the truth",
+        "final object error, arm from the truth [cm]",
+        "candidates' final spread [cm]",
         "closed-loop start x-y, median [m]",
         "closed-loop final x-y, median [m]",
         "closed-loop moved share",
@@ -260,7 +268,9 @@ def run(config: Config, progress_bar: bool = False) -> Report:
                 "and final object-goal distance (rho_obj) with the true ones, and the regret of its pick "
                 "(0: the best candidate, 1: a median one). Moving: transitions whose contact switch is on "
                 "(the object moved more than 3 position_sigma). Arm from the truth: rho_obj with the arm's sites "
-                "set to each candidate's true trajectory, the object layer's own ranking. Closed loop: the agent's MPC with the fitted "
+                "set to each candidate's true trajectory, the object layer's own ranking; its final object x-y error (RMS over "
+                "the candidates) beside the spread of the true final positions: an error above the spread ranks worse "
+                "than one guess for all. Closed loop: the agent's MPC with the fitted "
                 f"model on {config.eval_goals} evaluation goals (the pusher experiment's), object-goal distance "
                 f"at the start and the end, and the share of episodes that moved the object > {MOVED * 1000:g} mm.",
             )

@@ -203,12 +203,24 @@ def _arm_forced(model: object, plan: PlanConfig, truth: np.ndarray) -> Predictor
 
 
 def arm_forced_score(found: list[Probe], model: object, plan: PlanConfig) -> dict[str, float | int | None]:
-    """:func:`score` of the agent's model with its arm forced to each candidate's true trajectory (module docstring)."""
-    per_probe = [score([p], _arm_forced(model, plan, p.truth), plan) for p in found]
+    """:func:`score` of the agent's model with its arm forced to each candidate's true trajectory (module docstring).
+
+    Adds ``error``: the RMS over a probe's candidates of the predicted final object x-y position
+    against the true one, m, and ``spread``: the RMS of the true final x-y positions around their
+    mean, m (an error above it ranks worse than predicting one position for all); medians over probes.
+    """
+    per_probe, error, spread = [], [], []
+    for p in found:
+        predicted = _arm_forced(model, plan, p.truth)(p.previous, p.obs, p.actions)
+        per_probe.append(score([p], lambda *_, result=predicted: result, plan))
+        final = predicted[1][:, _OBJ][:, :2]
+        true = p.truth[:, -1, _OBJ][:, :2]
+        error.append(float(np.sqrt(((final - true) ** 2).sum(-1).mean())))
+        spread.append(float(np.sqrt(((true - true.mean(0)) ** 2).sum(-1).mean())))
     out: dict[str, float | int | None] = {
         k: _median([r[k] for r in per_probe]) for k in ("rho", "rho_obj", "regret")
     }
-    return {**out, "probes": len(found)}
+    return {**out, "error": _median(error), "spread": _median(spread), "probes": len(found)}
 
 
 def pets_predictor(learner: object) -> Predictor:

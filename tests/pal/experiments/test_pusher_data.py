@@ -34,6 +34,9 @@ def test_pusher_data_scores_the_expert_data_and_the_data_with_continuations(tiny
         assert row["rho"] is None or -1.0 <= row["rho"] <= 1.0
         forced = row["rho_obj, arm from the truth"]
         assert forced is None or -1.0 <= forced <= 1.0
+        # with the arm forced the object cannot be off by more than the table; the probe's truth spreads
+        assert 0.0 <= row["final object error, arm from the truth [cm]"] < 100.0
+        assert row["candidates' final spread [cm]"] >= 0.0
     assert len({row["closed-loop start x-y, median [m]"] for row in m.values()}) == 1  # the same goals for both
 
 

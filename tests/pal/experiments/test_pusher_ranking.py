@@ -102,6 +102,12 @@ def test_the_arm_forced_score_sets_the_arm_to_the_truth_and_rolls_the_object_on(
         )
         expected.append(spearmanr(true, model_cost).statistic)
     assert got["rho"] == pytest.approx(float(np.median(expected)), abs=1e-9)
+    # its final x-y error is the tip's distance from the object at the end; the spread the truth's own
+    gap = [np.sqrt(((q.truth[:, -1, 14:16] - q.truth[:, -1, 17:19]) ** 2).sum(-1).mean()) for q in found]
+    ends = [q.truth[:, -1, 17:19] for q in found]
+    spread = [np.sqrt(((e - e.mean(0)) ** 2).sum(-1).mean()) for e in ends]
+    assert got["error"] == pytest.approx(float(np.median(gap)), rel=1e-9)
+    assert got["spread"] == pytest.approx(float(np.median(spread)), rel=1e-9)
 
 
 @pytest.mark.parametrize(
