@@ -36,7 +36,7 @@ from torch import Tensor
 from models.checks import as_float_tensor, check_finite_tensor, check_float, check_int
 from models.mechanisms import Mechanism, Seed
 
-__all__ = ["JointLimitMechanism", "KinematicChain", "KinematicMechanism"]
+__all__ = ["JointLimitMechanism", "KinematicChain", "KinematicMechanism", "KinematicPointsMechanism"]
 
 
 def _array(value: Any, shape: tuple[int, ...], name: str) -> Tensor:
@@ -265,6 +265,72 @@ class KinematicMechanism(Mechanism):
     @classmethod
     def from_config(cls, config: Mapping[str, Any], seed: Seed = 0) -> KinematicMechanism:
         """Build from :meth:`config` output without ``kind``; ``seed`` is unused (nothing is random)."""
+        return cls(**config)
+
+
+class KinematicPointsMechanism(Mechanism):
+    """Points of the body at the joint angles: ``[x_1(clip(q)), ..., x_P(clip(q))]``, one chain per point.
+
+    Args:
+        chains: P :class:`KinematicChain` (or their configs) over the same hinges.
+        columns: each hinge's column in the body's joint vector q.
+        joints: n, the length of q.
+        sigma: the fixed residual sd, m.
+
+    Shapes: parents ``(..., n)`` = ``q`` -> ``(..., 3 P)``.
+    """
+
+    kind = "kinematic_points"
+    serialisable = True
+    config_keys = frozenset({"chains", "columns", "joints", "sigma", "in_dim"})
+
+    def __init__(
+        self,
+        chains: Sequence[Any],
+        columns: Sequence[int],
+        joints: int,
+        sigma: float = 1e-4,
+        in_dim: int | None = None,
+    ) -> None:
+        built = [KinematicChain.from_config(c) if isinstance(c, Mapping) else c for c in chains]
+        if not built or not all(isinstance(c, KinematicChain) for c in built):
+            raise ValueError(f"chains must be one or more KinematicChains or their configs, got {len(built)}")
+        joints = check_int("joints", joints, minimum=1)
+        cols = [check_int("columns[]", c, minimum=0) for c in columns]
+        if any(len(cols) != c.joints for c in built) or len(set(cols)) != len(cols) or max(cols) >= joints:
+            raise ValueError(
+                f"columns must be {built[0].joints} distinct joint indices below {joints} for every chain, got {list(columns)}"
+            )
+        if in_dim is not None and in_dim != joints:
+            raise ValueError(f"in_dim must be n = {joints}, got {in_dim}")
+        super().__init__(joints, 3 * len(built), check_float("sigma", sigma, minimum=0.0, min_open=True))
+        self.chains = torch.nn.ModuleList(built)
+        self.columns, self.joints = tuple(cols), joints
+
+    @property
+    def trainable(self) -> bool:
+        """False: a known law is given, not learned."""
+        return False
+
+    def core(self, z: Tensor) -> Tensor:
+        """The points from ``q`` (the normalisers stay the identity)."""
+        q = z[..., list(self.columns)]
+        return torch.cat([c(c.clip(q)) for c in self.chains], -1)
+
+    def config(self) -> dict[str, Any]:
+        """JSON-compatible constructor arguments."""
+        return {
+            "kind": self.kind,
+            "in_dim": self.in_dim,
+            "chains": [c.config() for c in self.chains],
+            "columns": list(self.columns),
+            "joints": self.joints,
+            "sigma": float(self.sigma.detach()[0]),
+        }
+
+    @classmethod
+    def from_config(cls, config: Mapping[str, Any], seed: Seed = 0) -> KinematicPointsMechanism:
+        """Build from :meth:`config` output without ``kind``; ``seed`` is unused."""
         return cls(**config)
 
 

@@ -46,6 +46,7 @@ __all__ = [
     "mechanism_classes",
 ]
 
+
 class Tanh(nn.Module):
     """``tanh(x) = 2 sigmoid(2 x) - 1``, elementwise, any shape.
 

@@ -121,7 +121,9 @@ class AggregationConfig:
     def budget(self) -> int:
         """The most environment steps the rounds take: ``rounds * episode_steps`` plus the model episodes' branches."""
         model_rounds = self.rounds - self.random_rounds
-        return self.rounds * self.episode_steps + model_rounds * self.branching.steps_per_episode(self.episode_steps)
+        return self.rounds * self.episode_steps + model_rounds * self.branching.steps_per_episode(
+            self.episode_steps
+        )
 
 
 @dataclass

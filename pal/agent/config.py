@@ -117,6 +117,10 @@ class ModelConfig:
             the torques stepped by MuJoCo through the env's own model, with the body's contacts
             with static geometry and without those with objects (:mod:`pal.agent.dynamics`);
             needs ``kinematics="mjcf"``, so that only the objects are learned.
+        object_frame: ``"world"`` (the default) or ``"push"``: the objects' contact and
+            displacement read their parents turned towards the effector, with the body's
+            ``EnvSpec.effector_points`` among them (:mod:`pal.agent.graph_frame`); for sensed
+            objects (state inference over the push frame is not built).
         rollout: after the one-step fit, refine the objects' ``contact.o`` and ``dpos.o`` on
             windows of ``rollout.horizon`` recorded steps, chained as the planner chains them
             (:mod:`pal.agent.rollout_fit`; horizon 0, the default: off).
@@ -135,6 +139,7 @@ class ModelConfig:
     arm_log_scale_bounds: tuple[float, float] = ARM_LOG_SCALE_BOUNDS
     kinematics: str = "learned"
     dynamics: str = "learned"
+    object_frame: str = "world"
     rollout: RolloutFit = RolloutFit()
 
     def __post_init__(self) -> None:
@@ -146,6 +151,11 @@ class ModelConfig:
                 f"dynamics='mjcf' needs kinematics='mjcf' (the body known from its MJCF), got kinematics={self.kinematics!r}"
             )
         check_choice("structure", self.structure, ("preset", "discover"))
+        check_choice("object_frame", self.object_frame, ("world", "push"))
+        if self.structure == "discover" and self.object_frame == "push":
+            raise ValueError(
+                "structure='discover' searches the world frame's parents; use object_frame='world' with it"
+            )
         check_choice("displacement", self.displacement, DISPLACEMENTS)
         check_int("members", self.members)
         object.__setattr__(self, "hidden", _widths("hidden", self.hidden))

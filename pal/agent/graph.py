@@ -63,6 +63,15 @@ from models import (
     WorldModel,
 )
 from pal.agent.config import ModelConfig
+from pal.agent.graph_frame import (
+    FRAMES,
+    POINT_SITES,
+    frame_fixed_parents,
+    frame_learned_parents,
+    frame_mechanisms,
+    frame_object_variables,
+    point_variables,
+)
 from pal.agent.spec import EnvSpec
 
 __all__ = [
@@ -103,7 +112,7 @@ def _has_contact(spec: EnvSpec, displacement: str) -> bool:
     return spec.touch is not None or displacement == "gated"
 
 
-def _object_sites(spec: EnvSpec, o: str, displacement: str) -> list[Variable]:
+def _object_sites(spec: EnvSpec, o: str, displacement: str, frame: str = "world") -> list[Variable]:
     d, e = spec.object(o).dim, spec.effector.dim
     out = [
         Variable(
@@ -124,7 +133,7 @@ def _object_sites(spec: EnvSpec, o: str, displacement: str) -> list[Variable]:
                 d,
                 unit="m",
                 lag=1,
-                lag_of=f"dpos.{o}",
+                lag_of=f"vel.{o}" if frame == "push" else f"dpos.{o}",
                 description="previous displacement",
             )
         )
@@ -147,6 +156,8 @@ def _object_sites(spec: EnvSpec, o: str, displacement: str) -> list[Variable]:
         Variable(f"dpos.{o}", Role.LATENT, d, unit="m", description="displacement over the step"),
         Variable(f"pos.{o}", Role.LATENT, d, unit="m", description="position after the step"),
     ]
+    if frame == "push":
+        out += frame_object_variables(spec, o)
     if spec.object(o).perceived:
         out.append(
             Variable(
@@ -156,8 +167,10 @@ def _object_sites(spec: EnvSpec, o: str, displacement: str) -> list[Variable]:
     return out
 
 
-def _default_parents(spec: EnvSpec, displacement: str = "gated") -> dict[str, tuple[str, ...]]:
-    """The learned sites' parent sets of the module docstring."""
+def _default_parents(
+    spec: EnvSpec, displacement: str = "gated", frame: str = "world"
+) -> dict[str, tuple[str, ...]]:
+    """The learned sites' parent sets of the module docstring (in the push frame: :mod:`pal.agent.graph_frame`)."""
     vel = ("v_prev",) if spec.velocities is not None else ()
     out: dict[str, tuple[str, ...]] = {"dq": ("act", "q_prev", *vel)}
     if vel:
@@ -165,6 +178,9 @@ def _default_parents(spec: EnvSpec, displacement: str = "gated") -> dict[str, tu
     if spec.effector is not None:
         out["dee"] = ("q_prev", "dq")
     for o in spec.object_names:
+        if frame == "push":
+            out.update(frame_learned_parents(spec, o, _has_contact(spec, displacement)))
+            continue
         contact = (f"contact.{o}",) if _has_contact(spec, displacement) else ()
         if contact:
             out[f"contact.{o}"] = (f"rel_prev.{o}", f"rel.{o}")
@@ -173,7 +189,7 @@ def _default_parents(spec: EnvSpec, displacement: str = "gated") -> dict[str, tu
     return out
 
 
-def _fixed_parents(spec: EnvSpec) -> dict[str, tuple[str, ...]]:
+def _fixed_parents(spec: EnvSpec, frame: str = "world") -> dict[str, tuple[str, ...]]:
     out: dict[str, tuple[str, ...]] = {"q": ("q_prev", "dq")}
     if spec.effector is not None:
         out["ee"] = ("ee_prev", "dee")
@@ -183,6 +199,8 @@ def _fixed_parents(spec: EnvSpec) -> dict[str, tuple[str, ...]]:
         out[f"pos.{o}"] = (f"pos_prev.{o}", f"dpos.{o}")
         if spec.object(o).perceived:
             out[f"meas.{o}"] = (f"pos.{o}",)
+    if frame == "push":
+        out.update(frame_fixed_parents(spec))
     return out
 
 
@@ -257,6 +275,7 @@ def build_graph(
     parents: Mapping[str, Sequence[str]] | None = None,
     *,
     displacement: str = "gated",
+    frame: str = "world",
 ) -> CausalGraph:
     """The graph of the module docstring.
 
@@ -266,21 +285,29 @@ def build_graph(
         parents: optional learned site -> parents, replacing the default parent sets.
         displacement: ``"gated"`` (the default) or ``"smooth"`` (module docstring): ``"gated"``
             gives every object a ``contact.o`` switch.
+        frame: ``"world"`` (the default) or ``"push"``: the objects' learned sites read their
+            parents in the push frame (:mod:`pal.agent.graph_frame`); needs an effector.
 
     Raises:
         ValueError: ``parents`` names a site that is not learned, or the edited graph is not
             admissible (a cycle, an edge into an action, see :class:`models.CausalGraph`).
     """
-    variables = _arm_variables(spec, bounds)
+    if frame not in FRAMES:
+        raise ValueError(f"frame {frame!r} unknown; expected one of {list(FRAMES)}")
+    if frame == "push" and spec.effector is None:
+        raise ValueError(
+            "frame='push' turns the objects' parents towards the effector; the spec has no effector"
+        )
+    variables = _arm_variables(spec, bounds) + (point_variables(spec) if frame == "push" else [])
     for o in spec.object_names:
-        variables += _object_sites(spec, o, displacement)
-    learned = _default_parents(spec, displacement)
+        variables += _object_sites(spec, o, displacement, frame)
+    learned = _default_parents(spec, displacement, frame)
     given = dict(parents or {})
     unknown = sorted(set(given) - set(learned))
     if unknown:
         raise ValueError(f"parents names {unknown}, which are not learned sites; learned: {list(learned)}")
     learned.update({k: tuple(v) for k, v in given.items()})
-    edges = [(p, c) for c, ps in {**learned, **_fixed_parents(spec)}.items() for p in ps]
+    edges = [(p, c) for c, ps in {**learned, **_fixed_parents(spec, frame)}.items() for p in ps]
     return CausalGraph(variables, edges)
 
 
@@ -305,7 +332,7 @@ def _fixed_mechanisms(spec: EnvSpec, graph: CausalGraph, position_sigma: float) 
             out[rel] = _sum([dim(ee), dim(f"pos_prev.{o}")], [1, -1], dim(rel), FIXED_SIGMA)
         out[f"pos.{o}"] = _sum(
             [dim(f"pos_prev.{o}"), dim(f"dpos.{o}")], [1, 1], dim(f"pos.{o}"), position_sigma
-        )
+        )  # in the push frame replaced by pos_prev + vel (frame_mechanisms)
         if spec.object(o).perceived:
             out[f"meas.{o}"] = _sum([dim(f"pos.{o}")], [1], dim(f"meas.{o}"), 0.01)
     return out
@@ -363,6 +390,14 @@ def build_model(
     c = config or ModelConfig()
     generator = torch.Generator().manual_seed(seed)
     mechs: dict[str, Any] = dict(_fixed_mechanisms(spec, graph, c.position_sigma))
+    if any(n.startswith("local.") for n in graph.names):
+        mechs.update(frame_mechanisms(spec, FIXED_SIGMA, c.position_sigma))
+        missing = [n for n in POINT_SITES if n in graph and n not in (mechanisms or {})]
+        if missing:
+            raise ValueError(
+                f"sites {missing} are the body's points from its MJCF; give their mechanisms "
+                "(pal.agent.kinematics.point_mechanisms)"
+            )
     for site in learned_sites(spec, c.displacement):
         if site not in graph:
             continue
@@ -400,8 +435,9 @@ def blanket(model: WorldModel, objects: Sequence[str], *, observed_contact: bool
     """
     g = model.graph
     keep_prefix = ("pos_prev.", "vel_prev.", "rel_prev.", "rel.", "contact.", "dpos.", "pos.", "meas.")
+    keep_prefix += ("prel_prev.", "prel.", "local.", "vel.")  # the push frame's sites
     names = [n for n in g.names if n.startswith(keep_prefix) and n.split(".", 1)[1] in set(objects)]
-    observed = ("rel_prev.", "rel.", "contact.") if observed_contact else ("rel_prev.", "rel.")
+    observed = ("rel_prev.", "rel.", "prel_prev.", "prel.") + (("contact.",) if observed_contact else ())
     roots = {n for n in names if n.startswith(observed)}
     variables = [replace(g[n], role=Role.OBSERVED) if n in roots else g[n] for n in names]
     edges = [(p, c) for p, c in g.edges if p in names and c in names and c not in roots]

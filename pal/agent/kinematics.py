@@ -22,11 +22,24 @@ import mujoco
 import numpy as np
 import torch
 
-from models import JointLimitMechanism, KinematicChain, KinematicMechanism, Mechanism
+from models import (
+    JointLimitMechanism,
+    KinematicChain,
+    KinematicMechanism,
+    KinematicPointsMechanism,
+    Mechanism,
+)
 from pal.agent.body_checks import mujoco_model
 from pal.agent.spec import EnvSpec
 
-__all__ = ["EFFECTOR_TOLERANCE", "check_effector", "known_mechanisms", "mjcf_chain"]
+__all__ = [
+    "EFFECTOR_TOLERANCE",
+    "check_effector",
+    "known_mechanisms",
+    "mjcf_chain",
+    "point_chains",
+    "point_mechanisms",
+]
 
 #: How far (in the effector's units, m) the chain's end point may be from the sensed effector on
 #: the first observation. Gymnasium's MuJoCo tasks read body positions computed at the start of
@@ -47,8 +60,10 @@ def _body_path(model: mujoco.MjModel, body: str) -> list[int]:
     return path[::-1]
 
 
-def mjcf_chain(model: mujoco.MjModel, joints: Sequence[str], body: str) -> tuple[KinematicChain, list[int]]:
-    """The chain from the world to ``body``'s frame origin, and each hinge's index in ``joints``.
+def mjcf_chain(
+    model: mujoco.MjModel, joints: Sequence[str], body: str, offset: Sequence[float] = (0.0, 0.0, 0.0)
+) -> tuple[KinematicChain, list[int]]:
+    """The chain from the world to the point ``offset`` (m) in ``body``'s frame (default its origin), and each hinge's index in ``joints``.
 
     Raises:
         ValueError: an unknown body, a joint on the path that is not a hinge or not among
@@ -81,10 +96,35 @@ def mjcf_chain(model: mujoco.MjModel, joints: Sequence[str], body: str) -> tuple
             rot, pos = np.eye(3), np.zeros(3)
     if not columns:
         raise ValueError(f"no hinge joint on the path from the world to {body!r}; nothing moves it")
+    end = pos + rot @ np.asarray(offset, dtype=np.float64)
     chain = KinematicChain(
-        np.stack(rotations), np.stack(translations), np.stack(anchors), np.stack(axes), refs, pos, limits
+        np.stack(rotations), np.stack(translations), np.stack(anchors), np.stack(axes), refs, end, limits
     )
     return chain, columns
+
+
+def point_chains(env: gymnasium.Env, spec: EnvSpec) -> tuple[list[KinematicChain], list[int]]:
+    """One chain per :attr:`EnvSpec.effector_points` point (from the env's MJCF) and the hinges' columns in q.
+
+    Raises:
+        ValueError: ``env`` is not a MuJoCo env, or the spec has no points (or a chain cannot be read).
+    """
+    found = mujoco_model(env)
+    if found is None:
+        raise ValueError(
+            f"effector points need a MuJoCo env (with unwrapped.model), got {type(env.unwrapped).__name__}"
+        )
+    if not spec.effector_points or spec.effector_body is None:
+        raise ValueError("the spec has no effector_points (points in effector_body's frame)")
+    pairs = [mjcf_chain(found[0], spec.joints, spec.effector_body, p) for p in spec.effector_points]
+    return [c for c, _ in pairs], pairs[0][1]
+
+
+def point_mechanisms(env: gymnasium.Env, spec: EnvSpec, sigma: float) -> dict[str, Mechanism]:
+    """``{"pts_prev": ..., "pts": ...}``: the spec's effector points from ``q_prev`` and ``q`` (:func:`point_chains`)."""
+    chains, columns = point_chains(env, spec)
+    make = lambda: KinematicPointsMechanism(chains, columns, len(spec.joints), sigma=sigma)  # noqa: E731
+    return {"pts_prev": make(), "pts": make()}
 
 
 def _joint_limits(model: mujoco.MjModel, joints: Sequence[str]) -> list[tuple[float, float]]:

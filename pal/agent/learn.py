@@ -30,6 +30,7 @@ from inference import ResidualMonitor, fit, revise
 from models import DiscreteMechanism, GatedMechanism, WorldModel
 from pal.agent.config import LearnConfig, ModelConfig
 from pal.agent.graph import contact_rule, learned_sites
+from pal.agent.graph_frame import frame_columns
 from pal.agent.history import History
 from pal.agent.rollout_fit import refine_objects
 from pal.agent.spec import EnvSpec
@@ -53,10 +54,12 @@ def site_data(
     source: str = "perceived",
     rows: Any = None,
     config: ModelConfig | None = None,
+    model: WorldModel | None = None,
 ) -> dict[str, np.ndarray]:
     """Every variable of the graph on the rows where every object is known (``meas.o = pos.o``).
 
     ``contact.o`` follows :func:`pal.agent.graph.contact_rule` of ``config`` (default: smooth).
+    With ``model`` in the push frame, its columns follow :func:`pal.agent.graph_frame.frame_columns`.
     """
     rule, floor = contact_rule(spec, config or ModelConfig())
     idx = np.arange(len(history))[rows if rows is not None else slice(None)]
@@ -75,7 +78,7 @@ def site_data(
             out[f"meas.{o}"] = cols[f"pos.{o}"]
         if rule == "strength" and spec.touch is None:
             out.pop(f"contact.{o}", None)
-    return out
+    return out if model is None else frame_columns(model, out)
 
 
 def _on_rows(model: WorldModel, site: str, cols: dict[str, np.ndarray]) -> int | None:
@@ -114,7 +117,7 @@ def fit_model(
         for cols in (arm, *objects.values()):
             cols["dq"] = wrap_angle(cols["dq"])
     known = lambda cols: {k: v for k, v in cols.items() if k in model.graph}  # noqa: E731
-    arm, objects = known(arm), {o: known(c) for o, c in objects.items()}
+    arm, objects = known(arm), {o: known(frame_columns(model, c)) for o, c in objects.items()}
     learned = [
         s
         for s in learned_sites(spec, config.displacement)
@@ -200,7 +203,7 @@ class Learner:
         out = fit_model(model, history, self.spec, self.model_config, seed=seed)
         if not self.config.monitor or len(history) < 8:
             return model, out
-        data = site_data(history, self.spec, config=self.model_config)
+        data = site_data(history, self.spec, config=self.model_config, model=model)
         if not data or len(next(iter(data.values()))) < 8:
             return model, out
         fresh = {k: v[-min(len(v), self.config.window) :] for k, v in data.items()}

@@ -45,7 +45,7 @@ from pal.agent.goals import check_reachable, check_targets, current
 from pal.agent.graph import FIXED_SIGMA, build_graph, build_model, discover_parents
 from pal.agent.history import History
 from pal.agent.influence import explore
-from pal.agent.kinematics import check_effector, known_mechanisms
+from pal.agent.kinematics import check_effector, known_mechanisms, point_mechanisms
 from pal.agent.learn import Learner, site_data
 from pal.agent.plan import Plan, one_step, plan
 from pal.agent.record import transition
@@ -150,7 +150,17 @@ class Agent:
         self.rng = np.random.default_rng(np.random.SeedSequence([seed, 2]))
         displacement = cfg.model.displacement
         bounds = (self.low, self.high)
-        self.graph = build_graph(spec, bounds, displacement=displacement) if model is None else model.graph
+        frame = cfg.model.object_frame
+        if frame == "push" and spec.perceived:
+            raise ValueError(
+                f"object_frame='push' is for sensed objects; {list(spec.perceived)} are perceived "
+                "(state inference over the push frame is not built); use object_frame='world'"
+            )
+        self.graph = (
+            build_graph(spec, bounds, displacement=displacement, frame=frame)
+            if model is None
+            else model.graph
+        )
         self.model = model if model is not None else self._new_model(self.graph)
         self.fitted = model is not None
         self.history = History(
@@ -188,6 +198,8 @@ class Agent:
         known = known_mechanisms(self.env, self.spec, FIXED_SIGMA) if model.kinematics == "mjcf" else {}
         if model.dynamics == "mjcf":
             known.update(dynamics_mechanisms(self.env, self.spec, FIXED_SIGMA, self.servo))
+        if model.object_frame == "push" and self.spec.effector_points:
+            known.update(point_mechanisms(self.env, self.spec, FIXED_SIGMA))
         return build_model(self.spec, graph, self.config.model, mechanisms=known, seed=self.seed)
 
     def _probe(self) -> None:

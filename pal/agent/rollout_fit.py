@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from models import WorldModel
+from pal.agent.graph_frame import frame_columns
 from pal.agent.history import History
 from pal.checks import check_choice, check_float, check_int
 
@@ -107,14 +108,14 @@ def object_windows(history: History, horizon: int, stride: int, source: str = "p
 
 
 def _window_columns(
-    history: History, windows: np.ndarray, contact: str, floor: float, source: str
+    model: WorldModel, history: History, windows: np.ndarray, contact: str, floor: float, source: str
 ) -> dict[str, np.ndarray]:
-    """Every column of :meth:`History.columns` on the windows' rows, ``(W, H, dim)``."""
+    """Every column of :meth:`History.columns` on the windows' rows (in ``model``'s frame), ``(W, H, dim)``."""
     w, h = windows.shape
     arm, objects = history.columns(source, windows.reshape(-1), contact=contact, floor=floor)
     cols = dict(arm)
     for o in objects.values():
-        cols.update(o)
+        cols.update(frame_columns(model, o))
     return {k: v.reshape(w, h, v.shape[-1]) for k, v in cols.items()}
 
 
@@ -233,7 +234,7 @@ def refine_objects(
     gen = torch.Generator().manual_seed(seed)
     cols = {
         k: torch.as_tensor(v, dtype=model.dtype)
-        for k, v in _window_columns(history, windows, contact, floor, source).items()
+        for k, v in _window_columns(model, history, windows, contact, floor, source).items()
     }
     val_idx, train_idx = _split(history.array("episode").reshape(-1)[windows[:, 0]], config.validation, gen)
     scale = float(torch.cat([cols[f"dpos.{o}"][train_idx].reshape(-1) for o in objects]).pow(2).mean().sqrt())

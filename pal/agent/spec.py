@@ -181,6 +181,8 @@ class EnvSpec:
         effector_name: the effector's name in goals and targets (``Agent(goal={name: ...})``).
         effector_body: the MJCF body whose frame origin the effector sensor reads, for the
             known kinematics of ``ModelConfig.kinematics = "mjcf"`` (:mod:`pal.agent.kinematics`).
+        effector_points: points fixed in ``effector_body``'s frame, m, that outline the part of
+            the body that touches objects (e.g. a claw's ends), for :func:`pal.agent.kinematics.point_chains`.
         objects: the modelled objects.
         touch: optional ``info`` sensor of the contact with each object (O,), in [0, 1].
         actions: action names; default ``joints`` (one per joint).
@@ -208,6 +210,7 @@ class EnvSpec:
     effector_goal: Sensor | None = None
     effector_name: str = "effector"
     effector_body: str | None = None
+    effector_points: tuple[tuple[float, float, float], ...] = ()
 
     def __post_init__(self) -> None:
         joints = tuple(self.joints)
@@ -257,6 +260,16 @@ class EnvSpec:
         if self.observation_dim is not None:
             check_int("observation_dim", self.observation_dim)
 
+    def _check_points(self) -> None:
+        points = tuple(tuple(float(x) for x in p) for p in self.effector_points)
+        if any(len(p) != 3 or not all(np.isfinite(p)) for p in points):
+            raise ValueError(
+                f"effector_points must be finite (x, y, z) triples, got {list(self.effector_points)}"
+            )
+        if points and self.effector_body is None:
+            raise ValueError("effector_points are placed in effector_body's frame; give effector_body")
+        object.__setattr__(self, "effector_points", points)
+
     def _check_effector_goal(self, names: list[str]) -> None:
         if not isinstance(self.effector_name, str) or not self.effector_name or "." in self.effector_name:
             raise ValueError(f"effector_name {self.effector_name!r} must be a non-empty string without dots")
@@ -270,6 +283,7 @@ class EnvSpec:
             raise ValueError(
                 f"effector_body must be a non-empty MJCF body name or None, got {self.effector_body!r}"
             )
+        self._check_points()
         if self.effector_goal is None:
             return
         if self.effector is None:
@@ -424,6 +438,12 @@ def pushing_spec(objects: tuple[str, ...] = ("box", "ball")) -> EnvSpec:
     )
 
 
+#: Pusher-v5's claw in the frame of ``tips_arm`` (the wrist-roll link's): the ends of its 20 cm
+#: crossbar and the centres of its two fingers (capsules of radius 2 cm). The fingertip sensor reads
+#: the bar's centre, and the arm touches the object with these geoms, not at that centre.
+PUSHER_CLAW = ((0.0, 0.1, 0.0), (0.0, -0.1, 0.0), (0.05, 0.1, 0.0), (0.05, -0.1, 0.0))
+
+
 def pusher_spec() -> EnvSpec:
     """Gymnasium's ``Pusher-v5``: seven torque-driven joints, the fingertip, the object and its goal.
 
@@ -443,6 +463,7 @@ def pusher_spec() -> EnvSpec:
         velocities=Sensor(obs=tuple(range(7, 14))),
         effector=Sensor(obs=(14, 15, 16)),
         effector_body="tips_arm",
+        effector_points=PUSHER_CLAW,
         objects=(ObjectSpec("object", Sensor(obs=(17, 18, 19)), goal=Sensor(obs=(20, 21, 22))),),
         observation_dim=23,
         object_momentum=True,

@@ -11,7 +11,7 @@ import torch
 from models import JointLimitMechanism, KinematicMechanism
 from pal.agent import Agent, AgentConfig, ModelConfig, pusher_spec, reacher_spec
 from pal.agent.config import MODEL_SCHEDULE
-from pal.agent.kinematics import known_mechanisms, mjcf_chain
+from pal.agent.kinematics import known_mechanisms, mjcf_chain, point_chains
 
 TINY = AgentConfig(
     model=ModelConfig(
@@ -44,6 +44,32 @@ def test_the_chain_read_from_the_mjcf_places_the_effector_where_mujoco_does(env_
         x = chain(torch.as_tensor(q)).numpy()
         np.testing.assert_allclose(x, data.body(spec.effector_body).xpos, atol=1e-9, rtol=0)
     env.close()
+
+
+def test_the_claw_points_are_where_mujoco_puts_the_claws_geoms():
+    env = gymnasium.make("Pusher-v5")
+    model, spec = env.unwrapped.model, pusher_spec()
+    data = mujoco.MjData(model)
+    chains, columns = point_chains(env, spec)
+    assert len(chains) == 4 and columns == list(range(7))
+    bar, left, right = (model.geom(i) for i in (13, 14, 15))  # the wrist-roll link's capsules
+    assert bar.size[1] == pytest.approx(0.1)
+    rng = np.random.default_rng(1)
+    for _ in range(10):
+        q = rng.uniform(-1.5, 1.5, 7)
+        data.qpos[:7] = q
+        mujoco.mj_kinematics(model, data)
+        axis = data.geom_xmat[13].reshape(3, 3)[:, 2]  # a capsule lies along its frame's z
+        ends = {tuple(np.round(data.geom_xpos[13] + k * 0.1 * axis, 9)) for k in (1, -1)}
+        got = [c(torch.as_tensor(q)).numpy() for c in chains]
+        assert {tuple(np.round(g, 9)) for g in got[:2]} == ends
+        np.testing.assert_allclose(
+            sorted(map(tuple, got[2:])), sorted(map(tuple, data.geom_xpos[[14, 15]])), atol=1e-9
+        )
+    with pytest.raises(ValueError, match="no effector_points"):
+        point_chains(env, replace(spec, effector_points=()))
+    with pytest.raises(ValueError, match=r"effector_points must be finite \(x, y, z\) triples"):
+        replace(spec, effector_points=((0.0, 1.0),))
 
 
 def test_an_agent_with_mjcf_kinematics_learns_the_joints_and_keeps_the_known_laws():
@@ -80,7 +106,7 @@ def test_bad_bodies_and_envs_name_what_is_wrong():
     with pytest.raises(ValueError, match="'r_shoulder_pan_joint' on the path to 'tips_arm' is not among"):
         mjcf_chain(model, spec.joints[1:], "tips_arm")
     with pytest.raises(ValueError, match="needs a spec with an effector and its effector_body"):
-        known_mechanisms(env, replace(spec, effector_body=None), 1e-4)
+        known_mechanisms(env, replace(spec, effector_body=None, effector_points=()), 1e-4)
     with pytest.raises(ValueError, match="'shoulder' of the spec is not a joint of the MJCF"):
         known_mechanisms(env, replace(spec, joints=("shoulder", *spec.joints[1:])), 1e-4)
     slider = mujoco.MjModel.from_xml_string(SLIDER)

@@ -1,0 +1,194 @@
+"""The objects' sites in the push frame (``ModelConfig.object_frame = "push"``): pushes learnt once for every direction.
+
+Pushing an object on a level table looks the same from every horizontal direction
+(:mod:`models.push_frame`). In the world frame (the default) the learned ``contact.o`` and
+``dpos.o`` read the effector's position relative to the object as it is, so each push direction
+must be learnt from its own data; a model trained on a few placements of object and goal meets
+new directions at every new placement. In the push frame they read their parents turned so that
+the effector before the step lies on the +x axis, and ``dpos.o`` is the displacement in that
+frame. With P points of the body that touch objects (:attr:`pal.agent.spec.EnvSpec.effector_points`,
+e.g. a claw's ends, placed by the MJCF's kinematics) these enter too, since the effector's
+position alone does not say where the body touches the object. Per object o, replacing the
+world frame's parents of ``contact.o`` and ``dpos.o``::
+
+    q_prev -> pts_prev,  q -> pts                        the P points before and after (MJCF, fixed)
+    pts_prev, pos_prev.o -> prel_prev.o                  prel = pts - [pos, 0] per point (fixed)
+    pts, pos_prev.o -> prel.o
+    rel_prev.o, rel.o [, prel_prev.o, prel.o] [, vel_prev.o] -> local.o     all turned by -phi (fixed,
+                                                         phi the direction of rel_prev.o in x-y)
+    local.o -> contact.o                                 (learned)
+    contact.o, local.o -> dpos.o                         displacement in the push frame (learned)
+    rel_prev.o, dpos.o -> vel.o                          turned back by +phi (fixed)
+    pos_prev.o, vel.o -> pos.o                           pos = pos_prev + vel (fixed)
+
+and ``vel_prev.o`` is the lag of ``vel.o`` (the world-frame displacement). The training columns
+follow from the recorded ones (:func:`frame_columns`): ``vel.o`` is the recorded displacement and
+``dpos.o`` that displacement turned by ``-phi``; the fixed sites are computed by their mechanisms.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+import torch
+
+from models import (
+    FromPushFrameMechanism,
+    LinearMechanism,
+    PushFrameMechanism,
+    Role,
+    Variable,
+    WorldModel,
+)
+from models.push_frame import frame_angle, to_push_frame
+from pal.agent.spec import EnvSpec
+
+__all__ = [
+    "FRAMES",
+    "POINT_SITES",
+    "frame_columns",
+    "frame_fixed_parents",
+    "frame_learned_parents",
+    "frame_mechanisms",
+    "frame_object_variables",
+    "point_variables",
+]
+
+#: The frames of the objects' learned sites.
+FRAMES = ("world", "push")
+#: The sites of the body's points, before and after the step (computed from q_prev and q).
+POINT_SITES = ("pts_prev", "pts")
+
+
+def point_variables(spec: EnvSpec) -> list[Variable]:
+    """``pts_prev``, ``pts`` (3 P, m) when the spec has effector points, else none."""
+    p = len(spec.effector_points)
+    if not p:
+        return []
+    return [
+        Variable(
+            "pts_prev", Role.LATENT, 3 * p, unit="m", description="the body's contact points before the step"
+        ),
+        Variable("pts", Role.LATENT, 3 * p, unit="m", description="the body's contact points after the step"),
+    ]
+
+
+def frame_object_variables(spec: EnvSpec, o: str) -> list[Variable]:
+    """``prel_prev.o``, ``prel.o`` (with points), ``local.o`` and ``vel.o`` of the module docstring."""
+    d, e, p = spec.object(o).dim, spec.effector.dim, len(spec.effector_points)  # type: ignore[union-attr]
+    out = []
+    if p:
+        out += [
+            Variable(
+                f"prel_prev.{o}",
+                Role.LATENT,
+                3 * p,
+                unit="m",
+                description="the body's points relative to the object, before",
+            ),
+            Variable(
+                f"prel.{o}",
+                Role.LATENT,
+                3 * p,
+                unit="m",
+                description="the body's points relative to the object, after",
+            ),
+        ]
+    width = 2 * e + 2 * 3 * p + (d if spec.object_momentum else 0)
+    out += [
+        Variable(
+            f"local.{o}",
+            Role.LATENT,
+            width,
+            unit="m",
+            description="the object's surroundings in its push frame",
+        ),
+        Variable(
+            f"vel.{o}", Role.LATENT, d, unit="m", description="displacement over the step (world frame)"
+        ),
+    ]
+    return out
+
+
+def frame_learned_parents(spec: EnvSpec, o: str, contact: bool) -> dict[str, tuple[str, ...]]:
+    """The learned sites' parents in the push frame."""
+    out: dict[str, tuple[str, ...]] = {}
+    if contact:
+        out[f"contact.{o}"] = (f"local.{o}",)
+    out[f"dpos.{o}"] = ((f"contact.{o}",) if contact else ()) + (f"local.{o}",)
+    return out
+
+
+def frame_fixed_parents(spec: EnvSpec) -> dict[str, tuple[str, ...]]:
+    """The fixed relations of the push frame (they replace ``pos.o``'s parents)."""
+    points = bool(spec.effector_points)
+    out: dict[str, tuple[str, ...]] = {"pts_prev": ("q_prev",), "pts": ("q",)} if points else {}
+    for o in spec.object_names:
+        if points:
+            out[f"prel_prev.{o}"] = ("pts_prev", f"pos_prev.{o}")
+            out[f"prel.{o}"] = ("pts", f"pos_prev.{o}")
+        around = (f"prel_prev.{o}", f"prel.{o}") if points else ()
+        momentum = (f"vel_prev.{o}",) if spec.object_momentum else ()
+        out[f"local.{o}"] = (f"rel_prev.{o}", f"rel.{o}", *around, *momentum)
+        out[f"vel.{o}"] = (f"rel_prev.{o}", f"dpos.{o}")
+        out[f"pos.{o}"] = (f"pos_prev.{o}", f"vel.{o}")
+    return out
+
+
+def _relative_points(points: int, d: int, sigma: float) -> LinearMechanism:
+    """``prel = pts - tile([pos, 0])``: parents ``[pts (3 P), pos (d)]``."""
+    weight = torch.zeros(3 * points, 3 * points + d)
+    weight[:, : 3 * points] = torch.eye(3 * points)
+    for k in range(points):
+        weight[3 * k : 3 * k + min(d, 3), 3 * points : 3 * points + min(d, 3)] = -torch.eye(min(d, 3))
+    return LinearMechanism.from_coefficients(weight, sigma=sigma)
+
+
+def frame_mechanisms(spec: EnvSpec, sigma: float, position_sigma: float) -> dict[str, object]:
+    """The fixed mechanisms of :func:`frame_fixed_parents` except ``pts_prev``, ``pts`` (known laws of the MJCF)."""
+    e, p = spec.effector.dim, len(spec.effector_points)  # type: ignore[union-attr]
+    out: dict[str, object] = {}
+    for o in spec.object_names:
+        d = spec.object(o).dim
+        if p:
+            out[f"prel_prev.{o}"] = _relative_points(p, d, sigma)
+            out[f"prel.{o}"] = _relative_points(p, d, sigma)
+        vectors = [e, e, *([3] * (2 * p)), *([d] if spec.object_momentum else [])]
+        out[f"local.{o}"] = PushFrameMechanism(vectors, sigma=sigma)
+        out[f"vel.{o}"] = FromPushFrameMechanism(e, d, sigma=sigma)
+        weight = torch.cat([torch.eye(d), torch.eye(d)], 1)
+        out[f"pos.{o}"] = LinearMechanism.from_coefficients(weight, sigma=position_sigma)
+    return out
+
+
+def frame_columns(model: WorldModel, cols: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Training columns for a push-frame model from recorded ones (module docstring); others pass through.
+
+    ``vel.o`` takes the recorded (world-frame) ``dpos.o``, ``dpos.o`` becomes it turned by ``-phi``,
+    and every fixed site of the push frame missing from ``cols`` is computed by its mechanism from
+    its parents, in topological order. Columns of a world-frame model are returned unchanged.
+    """
+    graph = model.graph
+    out = dict(cols)
+    objects = [n.split(".", 1)[1] for n in graph.names if n.startswith("local.")]
+    if not objects:
+        return out
+    for o in objects:
+        if f"dpos.{o}" in out and f"vel.{o}" not in out:
+            world = torch.as_tensor(out[f"dpos.{o}"], dtype=torch.float64)
+            rel = torch.as_tensor(out[f"rel_prev.{o}"], dtype=torch.float64)
+            c, s = frame_angle(rel, torch.zeros_like(rel[..., :2]))
+            out[f"vel.{o}"] = np.asarray(out[f"dpos.{o}"])
+            out[f"dpos.{o}"] = to_push_frame(world, c, s).numpy().astype(np.asarray(out[f"vel.{o}"]).dtype)
+    computed = ("pts_prev", "pts", "prel_prev.", "prel.", "local.")
+    for name in graph.non_roots:
+        if name in out or not name.startswith(computed):
+            continue
+        parents = graph.parents(name)
+        if not all(p in out for p in parents):
+            continue
+        x = torch.cat([torch.as_tensor(out[p], dtype=model.dtype) for p in parents], -1)
+        with torch.no_grad():
+            out[name] = model.mechanism(name)(x).numpy().astype(np.float32)
+    return out
