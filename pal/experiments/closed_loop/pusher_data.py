@@ -71,7 +71,8 @@ class Config:
         seed: expert episodes reset with seeds from (seed, 70, e); the agents' seed.
         expert_episodes: ceiling episodes of ``episode_steps`` steps (Pusher-v5 truncates at 100).
         continuations: the perturbed continuations of the second data set.
-        model: the agent's world model (default: the ``pusher`` experiment's with the MJCF body).
+        model: the agent's world model (default: the ``pusher`` experiment's with the MJCF body, and
+            the object's sites in the push frame with the claw's points, :mod:`pal.agent.graph_frame`).
         plan: the planner and step cost of the ceiling and the probes.
         ranking: the probes (their ceiling episodes reset with seeds from (seed, 93, g)).
         eval_goals: closed-loop episodes of the agent's MPC with each fitted model, reset with the
@@ -83,7 +84,7 @@ class Config:
     expert_episodes: int = 10
     episode_steps: int = 100
     continuations: Branching = Branching(every=10, per_state=10, steps=25)
-    model: ModelConfig = replace(MODEL, kinematics="mjcf", dynamics="mjcf")
+    model: ModelConfig = replace(MODEL, kinematics="mjcf", dynamics="mjcf", object_frame="push")
     plan: PlanConfig = PLAN
     ranking: RankingConfig = RankingConfig()
     eval_goals: int = 4
@@ -107,7 +108,9 @@ TINY = Config(
     expert_episodes=1,
     episode_steps=6,
     continuations=Branching(every=3, per_state=2, steps=3),
-    model=replace(PUSHER_TINY.model, kinematics="mjcf", dynamics="mjcf", position_sigma=1e-4),
+    model=replace(
+        PUSHER_TINY.model, kinematics="mjcf", dynamics="mjcf", position_sigma=1e-4, object_frame="push"
+    ),
     plan=PUSHER_TINY.plan,
     ranking=PUSHER_TINY.ranking,
     eval_goals=1,
