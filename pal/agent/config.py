@@ -122,8 +122,8 @@ class ModelConfig:
             ``EnvSpec.effector_points`` among them (:mod:`pal.agent.graph_frame`); for sensed
             objects (state inference over the push frame is not built).
         rollout: after the one-step fit, refine the objects' ``contact.o`` and ``dpos.o`` on
-            windows of ``rollout.horizon`` recorded steps, chained as the planner chains them
-            (:mod:`pal.agent.rollout_fit`; horizon 0, the default: off).
+            windows of ``rollout.window`` recorded steps, chained as the planner chains them
+            (:mod:`pal.agent.rollout_fit`; window 0, the default: off).
     """
 
     kind: str = "hetero"

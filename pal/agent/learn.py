@@ -104,7 +104,7 @@ def fit_model(
 ) -> dict[str, Any]:
     """Fit every learned site on the history (module docstring).
 
-    With ``config.rollout.horizon`` > 0 the objects whose displacement was fitted are then
+    With ``config.rollout.window`` > 0 the objects whose displacement was fitted are then
     refined through their own rollouts (:func:`pal.agent.rollout_fit.refine_objects`).
 
     Returns:
@@ -154,7 +154,7 @@ def fit_model(
         "rows": {"arm": len(arm["act"]), **{o: len(c[f"pos.{o}"]) for o, c in objects.items()}},
         "sites": fitted,
     }
-    if config.rollout.horizon:
+    if config.rollout.window:
         refined = [o for o in objects if f"dpos.{o}" in fitted]
         out["rollout"] = refine_objects(
             model,

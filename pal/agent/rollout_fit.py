@@ -3,7 +3,7 @@
 A one-step fit (Eq. 4.33) trains ``contact.o`` and ``dpos.o`` on the recorded ``pos_prev.o``. The
 planner, however, chains them: from step 2 on, member k reads its own predicted position, so a
 small bias per push adds up over a horizon of 25 steps. This refinement continues the fit of
-those two sites on windows of ``horizon`` consecutive recorded steps, with the arm's sites set to
+those two sites on windows of ``window`` consecutive recorded steps, with the arm's sites set to
 their recorded values (``do(q, v, ee, ... = recorded)``: the body is known or fitted apart) and
 the object chained as the planner chains it, the expected prediction of each member::
 
@@ -28,12 +28,13 @@ from typing import Any
 import numpy as np
 import torch
 
+from inference import FitSchedule
 from models import WorldModel
 from pal.agent.graph_frame import frame_columns
 from pal.agent.history import History
-from pal.checks import check_choice, check_float, check_int
+from pal.checks import check_choice, check_int
 
-__all__ = ["RolloutFit", "object_windows", "refine_objects"]
+__all__ = ["ROLLOUT_SCHEDULE", "RolloutFit", "object_windows", "refine_objects"]
 
 log = logging.getLogger(__name__)
 
@@ -41,49 +42,48 @@ log = logging.getLogger(__name__)
 _PREV = {"perceived": "meas_prev", "truth": "truth_prev"}
 
 
+#: The refinement's optimiser: 30 epochs of Adam at 3e-4 on batches of 64 windows, a fifth of the
+#: episodes held out.
+ROLLOUT_SCHEDULE = FitSchedule(epochs=30, batch_size=64, lr=3e-4, validation=0.2)
+
+
 @dataclass(frozen=True)
 class RolloutFit:
     """Settings of :func:`refine_objects` (module docstring).
 
     Attributes:
-        horizon: steps per window H (0: off, the one-step fit alone).
-        epochs: passes over the training windows.
-        lr: Adam's step size.
-        batch: windows per gradient step.
+        window: steps per window H (0: off, the one-step fit alone).
         stride: a window starts every ``stride`` steps of an episode.
-        validation: share of the episodes whose windows are held out to pick the best epoch
-            (whole episodes, since the windows of one episode overlap).
+        schedule: the optimiser; read are ``epochs``, ``batch_size`` (windows), ``lr``,
+            ``validation`` (the share of the episodes whose windows are held out to pick the
+            best epoch: whole episodes, since the windows of one episode overlap) and
+            ``patience`` (stop after this many epochs without a better validation loss).
     """
 
-    horizon: int = 0
-    epochs: int = 30
-    lr: float = 3e-4
-    batch: int = 64
+    window: int = 0
     stride: int = 2
-    validation: float = 0.2
+    schedule: FitSchedule = ROLLOUT_SCHEDULE
 
     def __post_init__(self) -> None:
-        check_int("rollout.horizon", self.horizon, minimum=0)
-        check_int("rollout.epochs", self.epochs)
-        check_float("rollout.lr", self.lr, 0.0, open_low=True)
-        check_int("rollout.batch", self.batch)
+        check_int("rollout.window", self.window, minimum=0)
         check_int("rollout.stride", self.stride)
-        check_float("rollout.validation", self.validation, 0.0, 0.9)
+        if not isinstance(self.schedule, FitSchedule):
+            raise ValueError(f"rollout.schedule must be a FitSchedule, got {type(self.schedule).__name__}")
 
 
-def object_windows(history: History, horizon: int, stride: int, source: str = "perceived") -> np.ndarray:
-    """Row indices ``(W, horizon)`` of consecutive steps of one episode with every object known.
+def object_windows(history: History, window: int, stride: int, source: str = "perceived") -> np.ndarray:
+    """Row indices ``(W, window)`` of consecutive steps of one episode with every object known.
 
     Consecutive: the same ``episode`` and the previous row's position the next row's ``pos_prev``
     (a restart from a saved state is a new episode). A window starts at every ``stride``-th row
     of an episode.
     """
-    check_int("horizon", horizon)
+    check_int("window", window)
     check_int("stride", stride)
     check_choice("source", source, tuple(_PREV))
     n = len(history)
-    if n < horizon:
-        return np.zeros((0, horizon), dtype=np.int64)
+    if n < window:
+        return np.zeros((0, window), dtype=np.int64)
     prev, now = history.array(_PREV[source]), history.array(_PREV[source].removesuffix("_prev"))
     ok = np.isfinite(prev).all((1, 2)) & np.isfinite(now).all((1, 2))
     if history.momentum:
@@ -95,16 +95,16 @@ def object_windows(history: History, horizon: int, stride: int, source: str = "p
     link = ~new
     link[1:] &= np.all(np.abs(prev[1:] - now[:-1]) <= 1e-9, axis=(1, 2))
     # a window of rows s .. s + H - 1 needs every row known and every row after s linked
-    ok_run = np.convolve(ok.astype(int), np.ones(horizon, dtype=int), "valid") == horizon
+    ok_run = np.convolve(ok.astype(int), np.ones(window, dtype=int), "valid") == window
     link_run = (
-        np.convolve(link[1:].astype(int), np.ones(horizon - 1, dtype=int), "valid") == horizon - 1
-        if horizon > 1
+        np.convolve(link[1:].astype(int), np.ones(window - 1, dtype=int), "valid") == window - 1
+        if window > 1
         else ok_run
     )
     starts = np.flatnonzero(
         ok_run & link_run[: len(ok_run)] & ((np.arange(len(ok_run)) - first[: len(ok_run)]) % stride == 0)
     )
-    return starts[:, None] + np.arange(horizon)
+    return starts[:, None] + np.arange(window)
 
 
 def _window_columns(
@@ -159,12 +159,13 @@ def _descend(
     config: RolloutFit,
     gen: torch.Generator,
 ) -> tuple[float, float, int]:
-    """Adam on ``mechs`` for ``config.epochs``; keeps the parameters of the lowest validation loss.
+    """Adam on ``mechs`` for ``config.schedule.epochs``; keeps the parameters of the lowest validation loss.
 
     ``train(batch)`` and ``validation()`` return losses. Returns ``(first, best, best epoch)``.
     """
     params = [p for m in mechs for p in m.parameters() if p.requires_grad]
-    opt = torch.optim.Adam(params, lr=config.lr)
+    sched = config.schedule
+    opt = torch.optim.Adam(params, lr=sched.lr)
 
     def checked() -> float:
         with torch.no_grad():
@@ -172,8 +173,10 @@ def _descend(
 
     first = best = checked()
     best_state, best_epoch = [{k: v.clone() for k, v in m.state_dict().items()} for m in mechs], 0
-    for epoch in range(1, config.epochs + 1):
-        for b in torch.randperm(len(train_idx), generator=gen).split(config.batch):
+    for epoch in range(1, sched.epochs + 1):
+        if sched.patience is not None and epoch - best_epoch > sched.patience:
+            break
+        for b in torch.randperm(len(train_idx), generator=gen).split(sched.batch_size):
             opt.zero_grad()
             train(train_idx[b]).backward()
             opt.step()
@@ -216,9 +219,9 @@ def refine_objects(
         RMS position error over members, steps and windows, m, "epoch": best epoch (0: the
         one-step fit kept)}``; ``{"windows": 0}`` when off or without windows.
     """
-    if config.horizon == 0:
+    if config.window == 0:
         return {"windows": 0}
-    windows = object_windows(history, config.horizon, config.stride, source)
+    windows = object_windows(history, config.window, config.stride, source)
     if rows is not None:
         keep = np.zeros(len(history), dtype=bool)
         keep[np.arange(len(history))[rows]] = True
@@ -236,7 +239,9 @@ def refine_objects(
         k: torch.as_tensor(v, dtype=model.dtype)
         for k, v in _window_columns(model, history, windows, contact, floor, source).items()
     }
-    val_idx, train_idx = _split(history.array("episode").reshape(-1)[windows[:, 0]], config.validation, gen)
+    val_idx, train_idx = _split(
+        history.array("episode").reshape(-1)[windows[:, 0]], config.schedule.validation, gen
+    )
     scale = float(torch.cat([cols[f"dpos.{o}"][train_idx].reshape(-1) for o in objects]).pow(2).mean().sqrt())
     scale = max(scale, 1e-6)
     train = lambda batch: _loss(model, {k: v[batch] for k, v in cols.items()}, objects, scale)  # noqa: E731

@@ -101,7 +101,9 @@ def test_the_training_columns_put_the_recorded_displacement_back_exactly(agent):
         back, recorded["dpos.object"], atol=1e-6
     )  # dpos.o is the recorded one turned by -phi
     np.testing.assert_allclose(  # a turn keeps lengths
-        np.linalg.norm(cols["dpos.object"], axis=1), np.linalg.norm(recorded["dpos.object"], axis=1), atol=1e-7
+        np.linalg.norm(cols["dpos.object"], axis=1),
+        np.linalg.norm(recorded["dpos.object"], axis=1),
+        atol=1e-7,
     )
     assert cols["pts"].shape == (100, 12) and cols["local.object"].shape == (100, 33)
 
@@ -122,7 +124,9 @@ def test_the_push_frame_refuses_what_it_cannot_do():
     env.close()
     with pytest.raises(ValueError, match="structure='discover' searches the world frame"):
         ModelConfig(object_frame="push", structure="discover")
-    with pytest.raises(ValueError, match="object_frame 'object' unknown; expected one of \\['world', 'push'\\]"):
+    with pytest.raises(
+        ValueError, match="object_frame 'object' unknown; expected one of \\['world', 'push'\\]"
+    ):
         ModelConfig(object_frame="object")
     spec = pusher_spec()
     bounds = (np.full(7, -2.0), np.full(7, 2.0))

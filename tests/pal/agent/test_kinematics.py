@@ -52,7 +52,8 @@ def test_the_claw_points_are_where_mujoco_puts_the_claws_geoms():
     data = mujoco.MjData(model)
     chains, columns = point_chains(env, spec)
     assert len(chains) == 4 and columns == list(range(7))
-    bar, left, right = (model.geom(i) for i in (13, 14, 15))  # the wrist-roll link's capsules
+    bar, *fingers = (model.geom(i) for i in (13, 14, 15))  # the wrist-roll link's capsules
+    assert [f.size[1] for f in fingers] == pytest.approx([0.05, 0.05])
     assert bar.size[1] == pytest.approx(0.1)
     rng = np.random.default_rng(1)
     for _ in range(10):

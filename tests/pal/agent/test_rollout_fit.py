@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 import torch
 
+from inference import FitSchedule
 from pal.agent import Agent, AgentConfig, ModelConfig, pusher_spec
 from pal.agent.config import MODEL_SCHEDULE
 from pal.agent.history import History
-from pal.agent.rollout_fit import RolloutFit, object_windows, refine_objects
+from pal.agent.rollout_fit import ROLLOUT_SCHEDULE, RolloutFit, object_windows, refine_objects
 from pal.baselines.scripted_pusher_v5 import ScriptedPusherV5
 
 
@@ -65,10 +66,9 @@ def test_windows_skip_unknown_positions_and_broken_links():
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
-        ({"horizon": -1}, "rollout.horizon"),
-        ({"lr": 0.0}, "rollout.lr"),
-        ({"validation": 0.95}, "rollout.validation"),
-        ({"batch": 0}, "rollout.batch"),
+        ({"window": -1}, "rollout.window"),
+        ({"stride": 0}, "rollout.stride"),
+        ({"schedule": {"lr": 0.1}}, "rollout.schedule must be a FitSchedule, got dict"),
     ],
 )
 def test_bad_settings_name_the_value(kwargs, match):
@@ -123,7 +123,9 @@ def _chained_rms(agent: Agent, windows: np.ndarray) -> float:
 
 
 def test_the_refinement_lowers_the_chained_error_it_reports_and_changes_only_the_object_layer():
-    settings = RolloutFit(horizon=5, epochs=15, lr=3e-3, batch=16, stride=1, validation=0.0)
+    settings = RolloutFit(
+        window=5, stride=1, schedule=FitSchedule(epochs=15, lr=3e-3, batch_size=16, validation=0.0)
+    )
     plain, refined = _pusher_agent(RolloutFit()), _pusher_agent(settings)
     assert plain.history.array("meas")[-1, 0, 0] != plain.history.array("meas_prev")[0, 0, 0]  # it pushed
     assert "rollout" not in plain.refit()
@@ -152,7 +154,7 @@ def test_the_refinement_lowers_the_chained_error_it_reports_and_changes_only_the
 def test_a_row_subset_refines_on_its_own_windows_only():
     agent = _pusher_agent(RolloutFit())
     agent.refit()
-    settings = RolloutFit(horizon=5, epochs=1, stride=1)
+    settings = RolloutFit(window=5, stride=1, schedule=replace(ROLLOUT_SCHEDULE, epochs=1))
     out = refine_objects(
         agent.model,
         agent.history,
