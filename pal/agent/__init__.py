@@ -34,6 +34,7 @@ from pal.agent.graph import blanket, build_graph, build_model, discover_parents,
 from pal.agent.learn import fit_model
 from pal.agent.loop import MODES, Agent, Decision
 from pal.agent.plan import Plan, plan
+from pal.agent.rollout_fit import RolloutFit
 from pal.agent.senses import Percept
 from pal.agent.spec import EnvSpec, ObjectSpec, Sensor, check_env, pusher_spec, pushing_spec, reacher_spec
 from pal.agent.transforms import Transform, absolute_from_relative, angle_from_cos_sin, index_map
@@ -54,6 +55,7 @@ __all__ = [
     "Percept",
     "Plan",
     "PlanConfig",
+    "RolloutFit",
     "Sensor",
     "Transform",
     "absolute_from_relative",
