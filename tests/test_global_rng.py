@@ -56,14 +56,17 @@ from inference.design import choose_interventions, orientation_margins, structur
 from models import (
     CausalGraph,
     EnsembleMechanism,
+    FromPushFrameMechanism,
     FunctionMechanism,
     GatedMechanism,
     HeteroscedasticMechanism,
     JointLimitMechanism,
     KinematicChain,
     KinematicMechanism,
+    KinematicPointsMechanism,
     LinearMechanism,
     MLPMechanism,
+    PushFrameMechanism,
     Variable,
     WorldModel,
     chain_graph,
@@ -177,6 +180,9 @@ def _kinematics(tmp: Path) -> None:
     model = WorldModel(graph, mechs, seed=0)
     model.predict({"q_prev": torch.zeros(2, 2), "dq": torch.ones(2, 2)})
     models.load(models.save(model, tmp / "kinematic.npz"))
+    KinematicPointsMechanism([chain, chain], [0, 1], 2)(torch.zeros(2, 2))  # fixed: no randomness
+    PushFrameMechanism([3, 3])(torch.ones(2, 6))
+    FromPushFrameMechanism(3, 2)(torch.ones(2, 5))
 
 
 def _calibrated_models(tmp: Path) -> None:
@@ -349,7 +355,7 @@ CASES: dict[str, Callable[[Path], object]] = {
         _finger(), _finger_data(), loss="mse", schedule=FitSchedule(epochs=2, batch_size=8, validation=0.0)
     ),
     "heteroscedastic and ensemble models": _calibrated_models,
-    "kinematic chain, KinematicMechanism, JointLimitMechanism": _kinematics,
+    "kinematic chain, KinematicMechanism, JointLimitMechanism, the push frame": _kinematics,
     "gated site: fit, predict, counterfactual_mixture (MixtureCounterfactual), predictive_interval(s)": (
         lambda tmp: _gated_queries()
     ),
