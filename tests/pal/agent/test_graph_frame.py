@@ -3,7 +3,6 @@
 import math
 from dataclasses import replace
 
-import gymnasium
 import numpy as np
 import pytest
 import torch
@@ -12,32 +11,24 @@ import models
 from pal.agent import Agent, AgentConfig, ModelConfig, build_graph, build_model, pusher_spec, pushing_spec
 from pal.agent.config import MODEL_SCHEDULE
 from pal.agent.graph_frame import frame_columns
-from pal.baselines.scripted_pusher_v5 import ScriptedPusherV5
 from pal.sim.pushing import PushingEnv
 
-CONFIG = AgentConfig(
-    model=ModelConfig(
-        members=2,
-        hidden=(16,),
-        kinematics="mjcf",
-        dynamics="mjcf",
-        position_sigma=1e-4,
-        object_frame="push",
-        schedule=replace(MODEL_SCHEDULE, epochs=30, patience=None, validation=0.0),
-    ),
-    reset_every=None,
-    servo=False,
+MODEL = ModelConfig(
+    members=2,
+    hidden=(16,),
+    kinematics="mjcf",
+    dynamics="mjcf",
+    position_sigma=1e-4,
+    object_frame="push",
+    schedule=replace(MODEL_SCHEDULE, epochs=30, patience=None, validation=0.0),
 )
+CONFIG = AgentConfig(model=MODEL, reset_every=None, servo=False)
 
 
 @pytest.fixture(scope="module")
-def agent():
+def agent(scripted_pusher_agent):
     """A push-frame agent on Pusher-v5 fed one scripted episode that pushes the object, then fitted."""
-    a = Agent(gymnasium.make("Pusher-v5"), pusher_spec(), CONFIG, seed=0)
-    pusher = ScriptedPusherV5(a.env)
-    a.reset(seed=1)
-    for _ in range(100):
-        a.step(pusher.act()[0])
+    a = scripted_pusher_agent(MODEL)
     a.refit()
     return a
 
@@ -55,13 +46,9 @@ def test_the_push_frame_graph_reads_the_claw_and_turns_back(agent):
 
 def _turn(v: np.ndarray, angle: float) -> np.ndarray:
     """x-y of every 3-vector of ``v`` (N, 3 k) turned by ``angle`` about the vertical."""
-    out = v.reshape(len(v), -1, 3).copy()
     c, s = math.cos(angle), math.sin(angle)
-    out[..., 0], out[..., 1] = (
-        c * v.reshape(len(v), -1, 3)[..., 0] - s * v.reshape(len(v), -1, 3)[..., 1],
-        (s * v.reshape(len(v), -1, 3)[..., 0] + c * v.reshape(len(v), -1, 3)[..., 1]),
-    )
-    return out.reshape(v.shape)
+    turn = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return (v.reshape(len(v), -1, 3) @ turn.T).reshape(v.shape)
 
 
 def test_a_scene_turned_about_the_object_gives_the_turned_displacement(agent):

@@ -2,17 +2,15 @@
 
 from dataclasses import replace
 
-import gymnasium
 import numpy as np
 import pytest
 import torch
 
 from inference import FitSchedule
-from pal.agent import Agent, AgentConfig, ModelConfig, pusher_spec
+from pal.agent import Agent, ModelConfig
 from pal.agent.config import MODEL_SCHEDULE
 from pal.agent.history import History
 from pal.agent.rollout_fit import ROLLOUT_SCHEDULE, RolloutFit, object_windows, refine_objects
-from pal.baselines.scripted_pusher_v5 import ScriptedPusherV5
 
 
 def _history(
@@ -76,14 +74,10 @@ def test_bad_settings_name_the_value(kwargs, match):
         RolloutFit(**kwargs)
 
 
-#: A reset seed of Pusher-v5 whose scripted episode pushes the object (it moves ~5 cm).
-PUSHED_SEED = 1
-
-
-def _pusher_agent(rollout: RolloutFit) -> Agent:
-    """An agent on Pusher-v5 with its body from the MJCF, fed one scripted episode that pushes the object."""
-    config = AgentConfig(
-        model=ModelConfig(
+def _pusher_agent(make, rollout: RolloutFit) -> Agent:
+    """An agent on Pusher-v5 with its body from the MJCF and ``rollout``, fed one scripted episode that pushes."""
+    return make(
+        ModelConfig(
             members=2,
             hidden=(16,),
             kinematics="mjcf",
@@ -91,18 +85,8 @@ def _pusher_agent(rollout: RolloutFit) -> Agent:
             position_sigma=1e-4,
             schedule=replace(MODEL_SCHEDULE, epochs=200, patience=None, validation=0.0),
             rollout=rollout,
-        ),
-        reset_every=None,
-        servo=False,
+        )
     )
-    agent = Agent(gymnasium.make("Pusher-v5"), pusher_spec(), config, seed=0)
-    pusher = ScriptedPusherV5(agent.env)
-    agent.reset(seed=PUSHED_SEED)
-    for _ in range(100):
-        agent.step(pusher.act()[0])
-        if agent.done:
-            break
-    return agent
 
 
 def _chained_rms(agent: Agent, windows: np.ndarray) -> float:
@@ -122,11 +106,13 @@ def _chained_rms(agent: Agent, windows: np.ndarray) -> float:
     return float((out["pos.object"] - seq["pos.object"]).pow(2).sum(-1).mean().sqrt())
 
 
-def test_the_refinement_lowers_the_chained_error_it_reports_and_changes_only_the_object_layer():
+def test_the_refinement_lowers_the_chained_error_it_reports_and_changes_only_the_object_layer(
+    scripted_pusher_agent,
+):
     settings = RolloutFit(
         window=5, stride=1, schedule=FitSchedule(epochs=15, lr=3e-3, batch_size=16, validation=0.0)
     )
-    plain, refined = _pusher_agent(RolloutFit()), _pusher_agent(settings)
+    plain, refined = (_pusher_agent(scripted_pusher_agent, r) for r in (RolloutFit(), settings))
     assert plain.history.array("meas")[-1, 0, 0] != plain.history.array("meas_prev")[0, 0, 0]  # it pushed
     assert "rollout" not in plain.refit()
     report = refined.refit()["rollout"]
@@ -151,8 +137,8 @@ def test_the_refinement_lowers_the_chained_error_it_reports_and_changes_only_the
     assert changed == ["contact.object", "dpos.object"]
 
 
-def test_a_row_subset_refines_on_its_own_windows_only():
-    agent = _pusher_agent(RolloutFit())
+def test_a_row_subset_refines_on_its_own_windows_only(scripted_pusher_agent):
+    agent = _pusher_agent(scripted_pusher_agent, RolloutFit())
     agent.refit()
     settings = RolloutFit(window=5, stride=1, schedule=replace(ROLLOUT_SCHEDULE, epochs=1))
     out = refine_objects(
