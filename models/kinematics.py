@@ -153,24 +153,33 @@ class KinematicChain(torch.nn.Module):
 
     def forward(self, q: Tensor) -> Tensor:
         """The end point ``x(q)``: ``(..., J) -> (..., 3)`` (world coordinates, the base's units)."""
+        rot, pos = self.frame(q)
+        return pos + (rot @ self._terms[q.dtype][-1][:, None])[..., 0]
+
+    def same_hinges(self, other: KinematicChain) -> bool:
+        """True when ``other`` differs from this chain at most in its end point (one body, other points)."""
+        names = ("rotations", "translations", "anchors", "axes", "refs", "limits")
+        return all(torch.equal(getattr(self, n), getattr(other, n)) for n in names)
+
+    def frame(self, q: Tensor) -> tuple[Tensor, Tensor]:
+        """The last hinge's body frame at ``q`` ``(..., J)``: rotation ``(..., 3, 3)`` and origin ``(..., 3)``.
+
+        A point ``p`` fixed in that body is at ``origin + rotation @ p``.
+        """
         if q.shape[-1] != self.joints:
             raise ValueError(f"joint angles have last dim {q.shape[-1]}, expected {self.joints}")
         if q.dtype not in self._terms:
             raise ValueError(f"joint angles must be float32 or float64, got {q.dtype}")
-        rot_k, a_mat, b_mat, t_k, a_vec, b_vec, refs, end = self._terms[q.dtype]
+        rot_k, a_mat, b_mat, t_k, a_vec, b_vec, refs, _ = self._terms[q.dtype]
         theta = q - refs
-        sin, one_minus_cos = theta.sin(), 1 - theta.cos()
-        rot, pos = None, None
-        for k in range(self.joints):
-            s, c = sin[..., k, None], one_minus_cos[..., k, None]
-            step = t_k[k] - s * a_vec[k] - c * b_vec[k]  # (..., 3)
-            turn = rot_k[k] + s[..., None] * a_mat[k] + c[..., None] * b_mat[k]  # (..., 3, 3)
-            if rot is None:
-                rot, pos = turn, step
-            else:
-                pos = pos + (rot @ step[..., None])[..., 0]
-                rot = rot @ turn
-        return pos + (rot @ end[:, None])[..., 0]
+        s, c = theta.sin()[..., None], (1 - theta.cos())[..., None]  # (..., J, 1)
+        steps = (t_k - s * a_vec - c * b_vec)[..., None]  # (..., J, 3, 1), all hinges at once
+        turns = rot_k + s[..., None] * a_mat + c[..., None] * b_mat  # (..., J, 3, 3)
+        rot, pos = turns[..., 0, :, :], steps[..., 0, :, :]
+        for k in range(1, self.joints):
+            pos = pos + rot @ steps[..., k, :, :]
+            rot = rot @ turns[..., k, :, :]
+        return rot, pos[..., 0]
 
     def config(self) -> dict[str, Any]:
         """JSON-compatible constructor arguments (limits as ``None`` for infinite)."""
@@ -306,6 +315,9 @@ class KinematicPointsMechanism(Mechanism):
         super().__init__(joints, 3 * len(built), check_float("sigma", sigma, minimum=0.0, min_open=True))
         self.chains = torch.nn.ModuleList(built)
         self.columns, self.joints = tuple(cols), joints
+        # Points of one body (chains that differ only in their end) share one pass down the chain.
+        self._shared = all(built[0].same_hinges(c) for c in built[1:])
+        self.register_buffer("ends", torch.stack([c.end for c in built]), persistent=False)
 
     @property
     def trainable(self) -> bool:
@@ -315,7 +327,12 @@ class KinematicPointsMechanism(Mechanism):
     def core(self, z: Tensor) -> Tensor:
         """The points from ``q`` (the normalisers stay the identity)."""
         q = z[..., list(self.columns)]
-        return torch.cat([c(c.clip(q)) for c in self.chains], -1)
+        if not self._shared:
+            return torch.cat([c(c.clip(q)) for c in self.chains], -1)
+        first = self.chains[0]
+        rot, origin = first.frame(first.clip(q))
+        points = origin[..., None, :] + (rot @ self.ends.to(q.dtype).T).transpose(-1, -2)  # (..., P, 3)
+        return points.flatten(-2)
 
     def config(self) -> dict[str, Any]:
         """JSON-compatible constructor arguments."""

@@ -86,29 +86,33 @@ class PushFrameMechanism(Mechanism):
     """The object's surroundings in its push frame: every parent vector turned by ``-phi`` (module docstring).
 
     The parents are vectors relative to the object (the effector before and after the step, other
-    points of the body, the object's previous displacement); ``phi`` is the direction of the first
-    one (the effector before the step), so its output lies on the +x axis.
+    points of the body, the object's previous displacement); ``phi`` is the direction of the
+    ``reference`` one (the effector before the step), so that one's output lies on the +x axis.
 
     Args:
         vectors: the size of each parent vector in order (>= 2 each: x, y first); ``in_dim`` and
             ``out_dim`` are their sum.
         sigma: the fixed residual sd (a definition, not a prediction).
+        reference: the index in ``vectors`` of the vector that defines ``phi``.
 
     Shapes: parents ``(..., sum(vectors))`` -> ``(..., sum(vectors))``.
     """
 
     kind = "push_frame"
     serialisable = True
-    config_keys = frozenset({"vectors", "sigma", "in_dim"})
+    config_keys = frozenset({"vectors", "sigma", "in_dim", "reference"})
 
-    def __init__(self, vectors: Sequence[int], sigma: float = 1e-4, in_dim: int | None = None) -> None:
+    def __init__(
+        self, vectors: Sequence[int], sigma: float = 1e-4, in_dim: int | None = None, reference: int = 0
+    ) -> None:
         sizes = [check_int("vectors[]", v, minimum=2) for v in vectors]
         if not sizes:
             raise ValueError("vectors must list at least one parent vector")
         if in_dim is not None and in_dim != sum(sizes):
             raise ValueError(f"in_dim must be sum(vectors) = {sum(sizes)}, got {in_dim}")
+        reference = check_int("reference", reference, minimum=0, maximum=len(sizes) - 1)
         super().__init__(sum(sizes), sum(sizes), check_float("sigma", sigma, minimum=0.0, min_open=True))
-        self.vectors = tuple(sizes)
+        self.vectors, self.reference = tuple(sizes), reference
 
     @property
     def trainable(self) -> bool:
@@ -118,7 +122,12 @@ class PushFrameMechanism(Mechanism):
     def core(self, z: Tensor) -> Tensor:
         """Each vector of ``z`` turned into the frame of the first (the normalisers stay the identity)."""
         parts = z.split(list(self.vectors), -1)
-        c, s = frame_angle(parts[0], torch.zeros_like(parts[0][..., :2]))
+        ref = parts[self.reference]
+        c, s = frame_angle(ref, torch.zeros_like(ref[..., :2]))
+        size = self.vectors[0]
+        if all(v == size for v in self.vectors):  # one turn of all vectors, (..., n, size)
+            stacked = z.unflatten(-1, (len(self.vectors), size))
+            return to_push_frame(stacked, c[..., None, :], s[..., None, :]).flatten(-2)
         return torch.cat([to_push_frame(p, c, s) for p in parts], -1)
 
     def config(self) -> dict[str, Any]:
@@ -128,6 +137,7 @@ class PushFrameMechanism(Mechanism):
             "in_dim": self.in_dim,
             "vectors": list(self.vectors),
             "sigma": float(self.sigma.detach()[0]),
+            "reference": self.reference,
         }
 
     @classmethod
@@ -139,27 +149,36 @@ class PushFrameMechanism(Mechanism):
 class FromPushFrameMechanism(Mechanism):
     """A push-frame displacement back in the world frame: parents ``[r, u]`` -> ``from_frame(u)``, ``phi`` from ``r``.
 
+    With ``base``, parents ``[b, r, u]`` -> ``b + from_frame(u)``: a position moved by the
+    displacement in one site (``pos = pos_prev + from_frame(dpos)``), so that inference over it
+    needs no latent copy of the world-frame displacement.
+
     Args:
         reference: the size of ``r`` (the effector relative to the object before the step, >= 2).
-        out_dim: the size of ``u`` and of the output (>= 2).
+        out_dim: the size of ``u``, of ``b`` and of the output (>= 2).
         sigma: the fixed residual sd.
+        base: read ``b`` first and add it.
 
-    Shapes: parents ``(..., reference + out_dim)`` -> ``(..., out_dim)``.
+    Shapes: parents ``(..., [out_dim +] reference + out_dim)`` -> ``(..., out_dim)``.
     """
 
     kind = "from_push_frame"
     serialisable = True
-    config_keys = frozenset({"reference", "out_dim", "sigma", "in_dim"})
+    config_keys = frozenset({"reference", "out_dim", "sigma", "in_dim", "base"})
 
-    def __init__(self, reference: int, out_dim: int, sigma: float = 1e-4, in_dim: int | None = None) -> None:
+    def __init__(
+        self, reference: int, out_dim: int, sigma: float = 1e-4, in_dim: int | None = None, base: bool = False
+    ) -> None:
         reference = check_int("reference", reference, minimum=2)
         out_dim = check_int("out_dim", out_dim, minimum=2)
-        if in_dim is not None and in_dim != reference + out_dim:
-            raise ValueError(f"in_dim must be reference + out_dim = {reference + out_dim}, got {in_dim}")
-        super().__init__(
-            reference + out_dim, out_dim, check_float("sigma", sigma, minimum=0.0, min_open=True)
-        )
-        self.reference = reference
+        if not isinstance(base, bool):
+            raise ValueError(f"base must be a bool, got {base!r}")
+        width = reference + out_dim + (out_dim if base else 0)
+        if in_dim is not None and in_dim != width:
+            what = "out_dim + reference + out_dim" if base else "reference + out_dim"
+            raise ValueError(f"in_dim must be {what} = {width}, got {in_dim}")
+        super().__init__(width, out_dim, check_float("sigma", sigma, minimum=0.0, min_open=True))
+        self.reference, self.base = reference, base
 
     @property
     def trainable(self) -> bool:
@@ -167,10 +186,13 @@ class FromPushFrameMechanism(Mechanism):
         return False
 
     def core(self, z: Tensor) -> Tensor:
-        """``u`` turned back by ``phi`` of ``r`` (the normalisers stay the identity)."""
+        """``u`` turned back by ``phi`` of ``r``, plus ``b`` with ``base`` (the normalisers stay the identity)."""
+        d = self.out_dim
+        b, z = (z[..., :d], z[..., d:]) if self.base else (None, z)
         r, u = z[..., : self.reference], z[..., self.reference :]
         c, s = frame_angle(r, torch.zeros_like(r[..., :2]))
-        return from_push_frame(u, c, s)
+        turned = from_push_frame(u, c, s)
+        return turned if b is None else b + turned
 
     def config(self) -> dict[str, Any]:
         """JSON-compatible constructor arguments."""
@@ -180,6 +202,7 @@ class FromPushFrameMechanism(Mechanism):
             "reference": self.reference,
             "out_dim": self.out_dim,
             "sigma": float(self.sigma.detach()[0]),
+            "base": self.base,
         }
 
     @classmethod

@@ -287,7 +287,10 @@ class WorldModel(PyroModule, ForwardQueries, RootPriorSetters):
         pas = [_one_hot(values[p], k) if k else values[p] for p, k in encoding]
         if len(pas) == 1:
             return pas[0]
-        batch = torch.broadcast_shapes(*(p.shape[:-1] for p in pas))
+        leading = {p.shape[:-1] for p in pas}
+        if len(leading) == 1:  # the common case in rollouts: nothing to broadcast
+            return torch.cat(pas, -1)
+        batch = torch.broadcast_shapes(*leading)
         return torch.cat([p.expand(*batch, p.shape[-1]) for p in pas], -1)
 
     def _loc(self, name: str, values: Mapping[str, Tensor]) -> Tensor:

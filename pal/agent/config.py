@@ -119,8 +119,8 @@ class ModelConfig:
             needs ``kinematics="mjcf"``, so that only the objects are learned.
         object_frame: ``"world"`` (the default) or ``"push"``: the objects' contact and
             displacement read their parents turned towards the effector, with the body's
-            ``EnvSpec.effector_points`` among them (:mod:`pal.agent.graph_frame`); for sensed
-            objects (state inference over the push frame is not built).
+            ``EnvSpec.effector_points`` among them (:mod:`pal.agent.graph_frame`); perceived
+            objects are filtered through it (:mod:`pal.agent.estimate`).
         rollout: after the one-step fit, refine the objects' ``contact.o`` and ``dpos.o`` on
             windows of ``rollout.window`` recorded steps, chained as the planner chains them
             (:mod:`pal.agent.rollout_fit`; window 0, the default: off).

@@ -5,8 +5,9 @@ measurement site ``meas.o ~ Normal(pos.o, sigma_perception(t))``: :func:`inferen
 with ``measurement_scale`` returns the posterior over the true position ``pos.o`` given the last
 transition, on the object sites of the model given the sensed effector
 (:func:`pal.agent.graph.blanket`). The evidence is the previous estimate ``pos_prev.o``, the
-effector relative to it before and after (``rel_prev.o``, ``rel.o``), touch ``contact.o`` and,
-for a visible object, ``meas.o`` with perception's sigma. A lost object's ``meas.o`` is left
+effector relative to it before and after (``rel_prev.o``, ``rel.o``; in the push frame also the
+body's points relative to it, ``prel_prev.o``, ``prel.o``, and all of them turned, ``local.o``), touch ``contact.o`` and, for a visible
+object, ``meas.o`` with perception's sigma. A lost object's ``meas.o`` is left
 unobserved, so its posterior is the model's prediction; no NaN ever reaches the model.
 :func:`belief` assembles the state the planner starts from (the graph's lag-1 roots).
 """
@@ -27,6 +28,7 @@ from inference.diagnostics import PoorPosteriorWarning
 from models import WorldModel
 from pal.agent.config import DISPLACEMENTS, EstimateConfig
 from pal.agent.graph import blanket
+from pal.agent.graph_frame import frame_columns
 from pal.agent.history import relative
 from pal.agent.senses import Percept
 from pal.agent.spec import EnvSpec
@@ -64,6 +66,26 @@ def belief(
             p = previous.get(o)
             out[f"vel_prev.{o}"] = np.zeros_like(e) if p is None else e - p
     return out
+
+
+def _frame_evidence(
+    model: WorldModel, o: str, q_prev: np.ndarray, q: np.ndarray, obs: Mapping[str, Any]
+) -> dict[str, np.ndarray]:
+    """The push frame's evidence of object ``o``: ``prel_prev.o``, ``prel.o`` ``(1, 3 P)`` and ``local.o``.
+
+    The body's points before and after the step follow from the sensed ``q_prev`` and ``q`` by the
+    model's fixed kinematics, relative to the previous estimate ``pos_prev.o``; ``local.o`` turns
+    them and the effector's relations in ``obs`` into the push frame. All are functions of the
+    evidence, computed as :func:`pal.agent.graph_frame.frame_columns` computes them for training,
+    and enter as observed (a latent copy with its fixed sigma would only stiffen the inference).
+    A world-frame model: none.
+    """
+    if f"local.{o}" not in model.graph:
+        return {}
+    cols = {"q_prev": np.asarray(q_prev)[None], "q": np.asarray(q)[None], **obs}
+    computed = frame_columns(model, cols)
+    wanted = [k for k in (f"prel_prev.{o}", f"prel.{o}", f"local.{o}") if k in model.graph]
+    return {k: computed[k] for k in wanted}
 
 
 class Estimator:
@@ -148,6 +170,7 @@ class Estimator:
             if self.spec.object_momentum:
                 v = vel_prev.get(o)
                 obs[f"vel_prev.{o}"] = (np.zeros_like(p) if v is None else np.asarray(v))[None]
+            obs.update(_frame_evidence(model, o, prev.q, new.q, obs))
             m = meas[o]
             if m is not None:
                 obs[f"meas.{o}"] = m.position[None]

@@ -391,7 +391,7 @@ def build_model(
     generator = torch.Generator().manual_seed(seed)
     mechs: dict[str, Any] = dict(_fixed_mechanisms(spec, graph, c.position_sigma))
     if any(n.startswith("local.") for n in graph.names):
-        mechs.update(frame_mechanisms(spec, FIXED_SIGMA, c.position_sigma))
+        mechs.update(frame_mechanisms(spec, graph, FIXED_SIGMA, c.position_sigma))
         missing = [n for n in POINT_SITES if n in graph and n not in (mechanisms or {})]
         if missing:
             raise ValueError(
@@ -427,17 +427,20 @@ def restrict(model: WorldModel, objects: Sequence[str]) -> WorldModel:
 def blanket(model: WorldModel, objects: Sequence[str], *, observed_contact: bool = True) -> WorldModel:
     """The object sites of ``objects`` given the effector relations: a warm-started copy for state inference.
 
-    ``rel_prev.o``, ``rel.o`` (and ``contact.o``, ``vel_prev.o``) become observed roots: with the
-    effector sensed they are known, and they d-separate the arm sites from the object sites, so
+    ``rel_prev.o``, ``rel.o`` (and ``contact.o``, ``vel_prev.o``; in the push frame ``prel_prev.o``,
+    ``prel.o`` and ``local.o``) become observed roots: with the effector sensed they are known, and
+    they d-separate the arm sites from the object sites, so
     the posterior over ``dpos.o`` and ``pos.o`` is that of the full program at a fraction of its sites.
     With ``observed_contact=False`` (a gated switch without touch sensing) ``contact.o`` stays a
     latent site of ``rel_prev.o``, ``rel.o``, enumerated by the inference.
     """
     g = model.graph
     keep_prefix = ("pos_prev.", "vel_prev.", "rel_prev.", "rel.", "contact.", "dpos.", "pos.", "meas.")
-    keep_prefix += ("prel_prev.", "prel.", "local.", "vel.")  # the push frame's sites
+    keep_prefix += ("prel_prev.", "prel.", "local.")  # the push frame's (vel.o: a leaf here, left out)
     names = [n for n in g.names if n.startswith(keep_prefix) and n.split(".", 1)[1] in set(objects)]
-    observed = ("rel_prev.", "rel.", "prel_prev.", "prel.") + (("contact.",) if observed_contact else ())
+    observed = ("rel_prev.", "rel.", "prel_prev.", "prel.", "local.") + (
+        ("contact.",) if observed_contact else ()
+    )
     roots = {n for n in names if n.startswith(observed)}
     variables = [replace(g[n], role=Role.OBSERVED) if n in roots else g[n] for n in names]
     edges = [(p, c) for p, c in g.edges if p in names and c in names and c not in roots]

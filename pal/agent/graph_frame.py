@@ -19,7 +19,7 @@ world frame's parents of ``contact.o`` and ``dpos.o``::
     local.o -> contact.o                                 (learned)
     contact.o, local.o -> dpos.o                         displacement in the push frame (learned)
     rel_prev.o, dpos.o -> vel.o                          turned back by +phi (fixed)
-    pos_prev.o, vel.o -> pos.o                           pos = pos_prev + vel (fixed)
+    pos_prev.o, rel_prev.o, dpos.o -> pos.o              pos = pos_prev + vel, in one site (fixed)
 
 and ``vel_prev.o`` is the lag of ``vel.o`` (the world-frame displacement). The training columns
 follow from the recorded ones (:func:`frame_columns`): ``vel.o`` is the recorded displacement and
@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from models import (
+    CausalGraph,
     FromPushFrameMechanism,
     LinearMechanism,
     PushFrameMechanism,
@@ -132,7 +133,7 @@ def frame_fixed_parents(spec: EnvSpec) -> dict[str, tuple[str, ...]]:
         momentum = (f"vel_prev.{o}",) if spec.object_momentum else ()
         out[f"local.{o}"] = (f"rel_prev.{o}", f"rel.{o}", *around, *momentum)
         out[f"vel.{o}"] = (f"rel_prev.{o}", f"dpos.{o}")
-        out[f"pos.{o}"] = (f"pos_prev.{o}", f"vel.{o}")
+        out[f"pos.{o}"] = (f"pos_prev.{o}", f"rel_prev.{o}", f"dpos.{o}")
     return out
 
 
@@ -145,21 +146,48 @@ def _relative_points(points: int, d: int, sigma: float) -> LinearMechanism:
     return LinearMechanism.from_coefficients(weight, sigma=sigma)
 
 
-def frame_mechanisms(spec: EnvSpec, sigma: float, position_sigma: float) -> dict[str, object]:
-    """The fixed mechanisms of :func:`frame_fixed_parents` except ``pts_prev``, ``pts`` (known laws of the MJCF)."""
+def frame_mechanisms(
+    spec: EnvSpec, graph: CausalGraph, sigma: float, position_sigma: float
+) -> dict[str, object]:
+    """The fixed mechanisms of :func:`frame_fixed_parents` except ``pts_prev``, ``pts`` (known laws of the MJCF).
+
+    A mechanism reads its parents concatenated in the graph's declaration order, so the layouts
+    are taken from ``graph`` (e.g. ``vel_prev.o``, a lag root, comes before ``rel_prev.o``).
+
+    Raises:
+        ValueError: a site whose parents are not those of :func:`frame_fixed_parents` in an order
+            the mechanism reads.
+    """
     e, p = spec.effector.dim, len(spec.effector_points)  # type: ignore[union-attr]
     out: dict[str, object] = {}
     for o in spec.object_names:
         d = spec.object(o).dim
         if p:
+            _check_order(graph, f"prel_prev.{o}", ("pts_prev", f"pos_prev.{o}"))
+            _check_order(graph, f"prel.{o}", ("pts", f"pos_prev.{o}"))
             out[f"prel_prev.{o}"] = _relative_points(p, d, sigma)
             out[f"prel.{o}"] = _relative_points(p, d, sigma)
-        vectors = [e, e, *([3] * (2 * p)), *([d] if spec.object_momentum else [])]
-        out[f"local.{o}"] = PushFrameMechanism(vectors, sigma=sigma)
+        parents = graph.parents(f"local.{o}")
+        if set(parents) != set(frame_fixed_parents(spec)[f"local.{o}"]):
+            raise ValueError(f"local.{o} has parents {list(parents)}, not those of the push frame")
+        # each body point is its own 3-vector; every other parent is one vector
+        sizes = [[3] * p if n.startswith(("prel_prev.", "prel.")) else [graph[n].dim] for n in parents]
+        reference = sum(len(v) for v in sizes[: parents.index(f"rel_prev.{o}")])
+        vectors = [v for group in sizes for v in group]
+        out[f"local.{o}"] = PushFrameMechanism(vectors, sigma=sigma, reference=reference)
+        _check_order(graph, f"vel.{o}", (f"rel_prev.{o}", f"dpos.{o}"))
+        _check_order(graph, f"pos.{o}", (f"pos_prev.{o}", f"rel_prev.{o}", f"dpos.{o}"))
         out[f"vel.{o}"] = FromPushFrameMechanism(e, d, sigma=sigma)
-        weight = torch.cat([torch.eye(d), torch.eye(d)], 1)
-        out[f"pos.{o}"] = LinearMechanism.from_coefficients(weight, sigma=position_sigma)
+        out[f"pos.{o}"] = FromPushFrameMechanism(e, d, sigma=position_sigma, base=True)
     return out
+
+
+def _check_order(graph: CausalGraph, site: str, expected: tuple[str, ...]) -> None:
+    """Refuse a fixed site whose parents the mechanism would read in another layout."""
+    if graph.parents(site) != expected:
+        raise ValueError(
+            f"{site} has parents {list(graph.parents(site))}; its mechanism reads {list(expected)}"
+        )
 
 
 def frame_columns(model: WorldModel, cols: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:

@@ -150,14 +150,8 @@ class Agent:
         self.rng = np.random.default_rng(np.random.SeedSequence([seed, 2]))
         displacement = cfg.model.displacement
         bounds = (self.low, self.high)
-        frame = cfg.model.object_frame
-        if frame == "push" and spec.perceived:
-            raise ValueError(
-                f"object_frame='push' is for sensed objects; {list(spec.perceived)} are perceived "
-                "(state inference over the push frame is not built); use object_frame='world'"
-            )
         self.graph = (
-            build_graph(spec, bounds, displacement=displacement, frame=frame)
+            build_graph(spec, bounds, displacement=displacement, frame=cfg.model.object_frame)
             if model is None
             else model.graph
         )

@@ -74,6 +74,10 @@ def test_the_frame_mechanisms_turn_and_turn_back_and_check_their_layout():
     back = FromPushFrameMechanism(3, 2)(torch.cat([rel, local[:, 9:]], -1))
     torch.testing.assert_close(back, vel, atol=1e-6, rtol=0)
     assert not PushFrameMechanism([2]).trainable and not FromPushFrameMechanism(2, 2).trainable
+    same = torch.cat([rel, other], -1)  # vectors of one size take the stacked path
+    turned = PushFrameMechanism([3, 3, 3])(same)
+    parts = [to_push_frame(v, c, s) for v in same.split(3, -1)]
+    torch.testing.assert_close(turned, torch.cat(parts, -1), atol=1e-6, rtol=0)
     with pytest.raises(ValueError, match="vectors must list at least one"):
         PushFrameMechanism([])
     with pytest.raises(ValueError, match=r"vectors\[\] must be"):
@@ -111,8 +115,58 @@ def test_the_points_mechanism_places_each_point_by_its_own_chain():
     )
     mech = KinematicPointsMechanism([far, near], [0, 1], joints=2)
     q = torch.tensor([[math.pi / 2, 0.0]])
-    torch.testing.assert_close(
-        mech(q), torch.tensor([[0.0, 2.0, 0.0, 0.0, 1.5, 0.0]]), atol=1e-6, rtol=0
-    )
+    torch.testing.assert_close(mech(q), torch.tensor([[0.0, 2.0, 0.0, 0.0, 1.5, 0.0]]), atol=1e-6, rtol=0)
     rebuilt = KinematicPointsMechanism(**{k: v for k, v in mech.config().items() if k != "kind"})
     torch.testing.assert_close(rebuilt(q), mech(q))
+
+
+def test_points_of_one_body_share_one_pass_and_equal_their_own_chains():
+    ends = ([1, 0, 0], [0.5, 0.2, 0], [0, -0.1, 0.3])
+    chains = [
+        KinematicChain(
+            torch.eye(3).expand(2, 3, 3),
+            [[0, 0, 0], [1, 0, 0]],
+            torch.zeros(2, 3),
+            [[0, 0, 1], [0, 1, 0]],
+            [0.1, 0],
+            end,
+            [[-1.0, 1.0], [None, None]],
+        )
+        for end in ends
+    ]
+    other = KinematicChain(  # another axis on the second hinge: its own pass
+        torch.eye(3).expand(2, 3, 3),
+        [[0, 0, 0], [1, 0, 0]],
+        torch.zeros(2, 3),
+        [[0, 0, 1], [1, 0, 0]],
+        [0.1, 0],
+        [1, 0, 0],
+        [[-1.0, 1.0], [None, None]],
+    )
+    q = torch.randn(4, 5, 2, generator=torch.Generator().manual_seed(3), dtype=torch.float64) * 2
+    for group in (chains, [*chains, other]):
+        mech = KinematicPointsMechanism(group, [0, 1], joints=2)
+        assert mech._shared == (group is chains)
+        expected = torch.cat([c(c.clip(q)) for c in group], -1)
+        torch.testing.assert_close(mech.core(q), expected, atol=1e-12, rtol=0)
+        torch.testing.assert_close(mech.core(q.float()), expected.float(), atol=1e-5, rtol=0)
+
+
+def test_the_frame_may_be_set_by_any_parent_and_a_position_moved_in_one_site():
+    g = torch.Generator().manual_seed(4)
+    vel, rel, u, base = (torch.randn(6, k, generator=g) for k in (3, 3, 3, 3))
+    local = PushFrameMechanism([3, 3], reference=1)(torch.cat([vel, rel], -1))
+    c, s = frame_angle(rel, torch.zeros(6, 2))
+    torch.testing.assert_close(local, torch.cat([to_push_frame(vel, c, s), to_push_frame(rel, c, s)], -1))
+    assert torch.allclose(local[:, 4], torch.zeros(6), atol=1e-6)  # the reference lies on +x
+    moved = FromPushFrameMechanism(3, 3, base=True)(torch.cat([base, rel, u], -1))
+    torch.testing.assert_close(moved, base + FromPushFrameMechanism(3, 3)(torch.cat([rel, u], -1)))
+    for mech in (PushFrameMechanism([3, 3], reference=1), FromPushFrameMechanism(3, 3, base=True)):
+        rebuilt = type(mech)(**{k: v for k, v in mech.config().items() if k != "kind"})
+        assert rebuilt.config() == mech.config()
+    with pytest.raises(ValueError, match="reference"):
+        PushFrameMechanism([3, 3], reference=2)
+    with pytest.raises(ValueError, match="in_dim must be out_dim \\+ reference \\+ out_dim = 9, got 6"):
+        FromPushFrameMechanism(3, 3, in_dim=6, base=True)
+    with pytest.raises(ValueError, match="base must be a bool"):
+        FromPushFrameMechanism(3, 3, base=1)

@@ -59,7 +59,7 @@ from pal.lab.registry import register
 from pal.lab.report import Report
 from pal.lab.timing import torch_threads
 
-__all__ = ["AGGREGATION", "CONTROLLERS", "MODEL", "PLAN", "Config", "run"]
+__all__ = ["AGGREGATION", "CONTROLLERS", "MODEL", "PLAN", "PUSH_MODEL", "Config", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +102,12 @@ MODEL = ModelConfig(
     position_sigma=1e-4,
     schedule=replace(MODEL_SCHEDULE, epochs=200),
 )
+#: The agent's model in the protocol: :data:`MODEL` with the body read from Pusher-v5's MJCF (its
+#: kinematics, with the claw's points, and its joint dynamics, as fixed mechanisms) and the object's
+#: contact and displacement learned in the push frame (:mod:`pal.agent.graph_frame`), so a push
+#: learnt in one direction holds in all. ``--set model.object_frame=world --set
+#: model.kinematics=learned --set model.dynamics=learned`` is the world-frame model learned whole.
+PUSH_MODEL = replace(MODEL, kinematics="mjcf", dynamics="mjcf", object_frame="push")
 #: 60 episodes of 100 steps, the first random, scored at 1.5k, 3k and 6k steps (15k: ``--set
 #: aggregation.rounds=150 --set 'aggregation.checkpoints=[1500,3000,6000,15000]'``; to shrink, set the
 #: checkpoints before the rounds, since each setting is checked as it is applied).
@@ -131,7 +137,7 @@ class Config:
     aggregation: AggregationConfig = AGGREGATION
     eval_goals: int = 20
     success: float = 0.05
-    model: ModelConfig = MODEL
+    model: ModelConfig = PUSH_MODEL
     plan: PlanConfig = PLAN
     correction: CorrectionConfig = CorrectionConfig()
     baseline: BaselineConfig = BaselineConfig(epochs=20)
@@ -165,7 +171,7 @@ QUICK = Config(
     runs=1,
     aggregation=AggregationConfig(rounds=3, episode_steps=30, random_rounds=1, checkpoints=(60, 90)),
     eval_goals=2,
-    model=replace(MODEL, schedule=replace(MODEL.schedule, epochs=30)),
+    model=replace(PUSH_MODEL, schedule=replace(MODEL.schedule, epochs=30)),
     plan=replace(
         PLAN,
         action=replace(
@@ -186,7 +192,13 @@ TINY = Config(
         branching=Branching(every=2, per_state=1, steps=2),
     ),
     eval_goals=1,
-    model=ModelConfig(members=2, hidden=(8,), schedule=replace(MODEL_SCHEDULE, epochs=2, patience=None)),
+    model=replace(
+        PUSH_MODEL,
+        members=2,
+        hidden=(8,),
+        arm_hidden=(8,),
+        schedule=replace(MODEL_SCHEDULE, epochs=2, patience=None),
+    ),
     plan=replace(
         PLAN,
         action=replace(

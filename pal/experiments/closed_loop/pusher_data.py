@@ -28,7 +28,7 @@ probes of ``ranking.goals`` ceiling episodes (other seeds than the expert's).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium
@@ -39,7 +39,7 @@ from pal.agent.aggregate import AgentLearner, Branching, Rollout, branch, derive
 from pal.agent.learn import site_data
 from pal.baselines.simulator_mpc import PUSHER_BODIES, SimulatorMPC, pusher_observation
 from pal.checks import check_int
-from pal.experiments.closed_loop.pusher import MODEL, PLAN
+from pal.experiments.closed_loop.pusher import PLAN, PUSH_MODEL
 from pal.experiments.closed_loop.pusher import TINY as PUSHER_TINY
 from pal.experiments.closed_loop.pusher_ranking import (
     RankingConfig,
@@ -84,7 +84,7 @@ class Config:
     expert_episodes: int = 10
     episode_steps: int = 100
     continuations: Branching = Branching(every=10, per_state=10, steps=25)
-    model: ModelConfig = replace(MODEL, kinematics="mjcf", dynamics="mjcf", object_frame="push")
+    model: ModelConfig = PUSH_MODEL
     plan: PlanConfig = PLAN
     ranking: RankingConfig = RankingConfig()
     eval_goals: int = 4
@@ -108,9 +108,7 @@ TINY = Config(
     expert_episodes=1,
     episode_steps=6,
     continuations=Branching(every=3, per_state=2, steps=3),
-    model=replace(
-        PUSHER_TINY.model, kinematics="mjcf", dynamics="mjcf", position_sigma=1e-4, object_frame="push"
-    ),
+    model=PUSHER_TINY.model,
     plan=PUSHER_TINY.plan,
     ranking=PUSHER_TINY.ranking,
     eval_goals=1,

@@ -165,7 +165,7 @@ def test_poor_posteriors_are_counted_not_warned_per_step(fitted):
 # the tiny agent's state estimate runs few SVI steps on purpose
 @pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
 @pytest.mark.parametrize("std", [1e-4, 1.0])
-def test_measurement_sites_weigh_perception_by_its_uncertainty(fitted, std):
+def test_measurement_sites_weigh_perception_by_its_uncertainty(fitted, std, weighs_measurements):
     agent = Agent(
         fitted.env,
         pushing_spec(),
@@ -173,32 +173,7 @@ def test_measurement_sites_weigh_perception_by_its_uncertainty(fitted, std):
         seed=1,
         model=fitted.model,
     )
-    agent.reset(seed=5)
-    prev, est_prev = agent.percept, dict(agent.estimate)
-    offset = np.array([0.02, -0.015])
-    shifted = {
-        o: replace(m, position=m.position + offset, std=np.full(2, std)) for o, m in prev.measurements.items()
-    }
-    est = agent.estimator.update(agent.model, prev, est_prev, {}, replace(prev, measurements=shifted), seed=0)
-    blanket = agent.estimator.blanket(agent.model, ("box", "ball"))
-    roots = {}
-    for o in ("box", "ball"):
-        rel = prev.effector - np.append(est_prev[o], 0.0)
-        roots.update(
-            {
-                f"pos_prev.{o}": est_prev[o][None],
-                f"rel_prev.{o}": rel[None],
-                f"rel.{o}": rel[None],
-                f"contact.{o}": np.zeros((1, 1)),
-            }
-        )
-    pred = blanket.predict({k: torch.as_tensor(v, dtype=torch.float32) for k, v in roots.items()})
-    for o in ("box", "ball"):
-        if std < 0.01:  # a sharp measurement wins
-            np.testing.assert_allclose(est[o], shifted[o].position, atol=0.004)
-        else:  # a vague one is ignored: the model's prediction stays (within the short SVI's noise)
-            p = pred[f"pos.{o}"][0].numpy()
-            assert np.linalg.norm(est[o] - p) < 0.01 < np.linalg.norm(est[o] - shifted[o].position)
+    weighs_measurements(agent, std)
 
 
 def test_history_columns_drop_rows_with_missing_positions_and_round_trip(tmp_path):

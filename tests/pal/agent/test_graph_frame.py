@@ -8,6 +8,7 @@ import pytest
 import torch
 
 import models
+from models import Role
 from pal.agent import Agent, AgentConfig, ModelConfig, build_graph, build_model, pusher_spec, pushing_spec
 from pal.agent.config import MODEL_SCHEDULE
 from pal.agent.graph_frame import frame_columns
@@ -38,7 +39,7 @@ def test_the_push_frame_graph_reads_the_claw_and_turns_back(agent):
     assert g.parents("contact.object") == ("local.object",)
     assert g.parents("dpos.object") == ("contact.object", "local.object")
     assert g.parents("vel.object") == ("rel_prev.object", "dpos.object")
-    assert g.parents("pos.object") == ("pos_prev.object", "vel.object")
+    assert g.parents("pos.object") == ("pos_prev.object", "rel_prev.object", "dpos.object")
     assert g.parents("pts") == ("q",) and g["pts"].dim == 12  # four claw points
     assert g["local.object"].dim == 2 * 3 + 2 * 12 + 3  # effector before/after, the points, momentum
     assert g["vel_prev.object"].lag_of == "vel.object"
@@ -104,11 +105,64 @@ def test_the_push_frame_model_saves_and_loads(agent, tmp_path):
         torch.testing.assert_close(loaded.predict(values)[name], agent.model.predict(values)[name])
 
 
-def test_the_push_frame_refuses_what_it_cannot_do():
+# the state estimate runs a short SVI on purpose
+@pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
+@pytest.mark.parametrize("std", [1e-4, 1.0])
+def test_perceived_objects_are_filtered_through_the_push_frame(std, weighs_measurements):
+    """State inference over the push frame: a sharp measurement wins, a vague one leaves the model's prediction."""
     env = PushingEnv(camera=True)
-    with pytest.raises(ValueError, match="object_frame='push' is for sensed objects; \\['box', 'ball'\\]"):
-        Agent(env, pushing_spec(), replace(CONFIG, servo=None), seed=0)  # its objects are perceived
+    model = ModelConfig(
+        members=2, hidden=(8,), object_frame="push", schedule=replace(MODEL_SCHEDULE, epochs=3, patience=None)
+    )
+    agent = Agent(env, pushing_spec(), AgentConfig(model=model, reset_every=None), seed=1)
+    agent.run(6, "babble")
+    agent.refit()
+    agent.config = replace(agent.config, estimate=replace(agent.config.estimate, num_steps=200))
+    agent.estimator.config = agent.config.estimate
+    blanket = agent.estimator.blanket(agent.model, ("box", "ball"))
+    assert blanket.graph["local.box"].role is Role.OBSERVED and "vel.box" not in blanket.graph.names
+    weighs_measurements(agent, std)
     env.close()
+
+
+def test_the_estimate_reads_the_body_points_relative_to_the_previous_estimate(agent):
+    """With body points, the push frame's evidence holds the claw relative to the estimate, as in training."""
+    from pal.agent.estimate import _frame_evidence
+
+    q_prev, q = np.zeros(7), np.full(7, 0.1)
+    pos = np.array([[0.4, -0.1, -0.275]])
+    rel, rel_after, vel_prev = (
+        np.array([[0.1, 0.05, 0.0]]),
+        np.array([[0.08, 0.06, 0.01]]),
+        np.array([[0.0, 0.003, 0.0]]),
+    )
+    evidence = {
+        "pos_prev.object": pos,
+        "rel_prev.object": rel,
+        "rel.object": rel_after,
+        "vel_prev.object": vel_prev,
+    }
+    got = _frame_evidence(agent.model, "object", q_prev, q, evidence)
+    with torch.no_grad():
+        pts = agent.model.mechanism("pts")(torch.as_tensor(q[None], dtype=agent.model.dtype)).numpy()
+    expected = (pts.reshape(4, 3) - pos).reshape(1, 12)
+    np.testing.assert_allclose(got["prel.object"], expected, atol=1e-6)
+    assert got["prel_prev.object"].shape == (1, 12) and got["local.object"].shape == (1, 33)
+    # local.o: every parent, each body point on its own, turned by -phi, phi the direction of rel_prev.o
+    given = {**evidence, "prel_prev.object": got["prel_prev.object"], "prel.object": got["prel.object"]}
+    parents = agent.graph.parents("local.object")
+    expected_local = np.concatenate(
+        [_turn(np.asarray(given[n]), -math.atan2(0.05, 0.1)) for n in parents], -1
+    )
+    np.testing.assert_allclose(got["local.object"], expected_local, atol=1e-6)
+    at = 3 * parents.index("rel_prev.object")
+    np.testing.assert_allclose(
+        got["local.object"][0, at : at + 3], [math.hypot(0.1, 0.05), 0.0, 0.0], atol=1e-6
+    )
+    assert _frame_evidence(agent.model, "ball", q_prev, q, {}) == {}  # no such site: nothing
+
+
+def test_the_push_frame_refuses_what_it_cannot_do():
     with pytest.raises(ValueError, match="structure='discover' searches the world frame"):
         ModelConfig(object_frame="push", structure="discover")
     with pytest.raises(

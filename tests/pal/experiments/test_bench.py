@@ -181,3 +181,22 @@ def test_babble_quick_on_the_arm():
     assert m["body"] == "arm" and _positive(m["transitions_per_s"]) and _positive(m["raw_steps_per_s"])
     assert m["ratio"] == pytest.approx(m["transitions_per_s"] / m["raw_steps_per_s"])
     assert [r[0] for r in rep.tables[0].rows] == ["source", "raw_loop", "raw_nstep", "recorded"]
+
+
+def test_planner_agreement_compares_continuous_sites_where_no_switch_flips():
+    from types import SimpleNamespace
+
+    from pal.experiments.bench.planner import _agreement
+
+    model = SimpleNamespace(discrete={"contact": 2})
+    contact = torch.zeros(2, 3, 4, 1)
+    pos = torch.zeros(2, 3, 4, 2)
+    flipped, moved = contact.clone(), pos.clone()
+    flipped[1, 2, 3] = 1.0  # member 1, candidate 2 flips at its last step
+    moved[1, 2] += 5.0  # ... and parts from there
+    moved[0, 0, 0, 0] += 3e-5  # rounding elsewhere
+    got = _agreement(model, {"contact": contact, "pos": pos}, {"contact": flipped, "pos": moved})
+    assert got["discrete_flipped"] == pytest.approx(1 / 6)
+    assert got["max_abs_diff"] == pytest.approx(3e-5, rel=1e-3)
+    everything = _agreement(model, {"contact": contact, "pos": pos}, {"contact": 1 - contact, "pos": pos})
+    assert everything == {"max_abs_diff": float("inf"), "discrete_flipped": 1.0}
