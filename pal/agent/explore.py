@@ -115,8 +115,10 @@ def step_gate(
     mixed = model.predict(values, members=True)  # the expected step: the mixture over the switch
     p_on, spread, position = {}, {}, {}
     for o in objects:
-        rel = {f"rel_prev.{o}": forced[f"rel_prev.{o}"], f"rel.{o}": forced[f"rel.{o}"]}
-        p_on[o] = model.probs(f"contact.{o}", rel)[..., 1].mean(0)
+        given = {
+            p: forced[p] for p in model.graph.parents(f"contact.{o}")
+        }  # rel_prev, rel (push frame: local)
+        p_on[o] = model.probs(f"contact.{o}", given)[..., 1].mean(0)
         spread[o] = forced[f"dpos.{o}"].var(0, unbiased=False).sum(-1) / scale**2
         position[o] = mixed[f"pos.{o}"].mean(0)
     nxt = {root: mixed[src].mean(0) for root, src in model.graph.lagged.items() if model.graph.is_root(root)}

@@ -48,6 +48,7 @@ from pal.agent.spec import EnvSpec
 __all__ = [
     "FRAMES",
     "POINT_SITES",
+    "displacement_site",
     "frame_columns",
     "frame_fixed_parents",
     "frame_learned_parents",
@@ -60,6 +61,11 @@ __all__ = [
 FRAMES = ("world", "push")
 #: The sites of the body's points, before and after the step (computed from q_prev and q).
 POINT_SITES = ("pts_prev", "pts")
+
+
+def displacement_site(graph: CausalGraph, o: str) -> str:
+    """The site of object ``o``'s world-frame displacement over the step: ``vel.o`` in the push frame, else ``dpos.o``."""
+    return f"vel.{o}" if f"vel.{o}" in graph else f"dpos.{o}"
 
 
 def point_variables(spec: EnvSpec) -> list[Variable]:

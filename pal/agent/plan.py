@@ -40,6 +40,7 @@ from torch import Tensor
 from inference import ReplayNoise, infer_action
 from models import WorldModel
 from pal.agent.config import PlanConfig
+from pal.agent.graph_frame import displacement_site
 
 __all__ = ["Plan", "behind", "distance", "one_step", "plan", "preference", "site"]
 
@@ -152,7 +153,7 @@ def one_step(
     mean = model.predict(values)
     sd = model.predict_scale(values)
     members = model.predict(values, members=True)
-    d = {o: "dee" if o == effector else f"dpos.{o}" for o in objects}
+    d = {o: "dee" if o == effector else displacement_site(model.graph, o) for o in objects}
     m = {o: mean[d[o]][0].numpy().astype(np.float64) for o in objects}
     s = {o: sd[d[o]][0].numpy().astype(np.float64) for o in objects}
     k = {o: members[d[o]][:, 0].numpy().astype(np.float64) for o in objects}

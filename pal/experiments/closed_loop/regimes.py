@@ -28,6 +28,7 @@ from inference import coverage_by_regime, predictive_interval, predictive_interv
 from models import WorldModel
 from pal.agent import ModelConfig, pushing_spec
 from pal.agent.graph import contact_rule
+from pal.agent.graph_frame import displacement_site
 from pal.agent.history import History, contact_label
 from pal.checks import check_float, check_int
 
@@ -192,7 +193,8 @@ def regime_rows(
         if not keep.any():
             continue
         given = {n: torch.as_tensor(v[keep], dtype=model.dtype) for n, v in values.items()}
-        intervals = predictive_intervals(model, given, f"dpos.{o}", levels, num_samples, seed)
+        site = displacement_site(model.graph, o)
+        intervals = predictive_intervals(model, given, site, levels, num_samples, seed)
         true = (truth[keep, k] - truth_prev[keep, k]).astype(np.float64)
         inside = np.stack(
             [(true >= i.lower.double().numpy()) & (true <= i.upper.double().numpy()) for i in intervals]
@@ -293,7 +295,7 @@ def contact_coverage(
     out: dict[str, dict[str, Any]] = {}
     for k, o in enumerate(history.objects):
         interval = predictive_interval(
-            model, values, f"dpos.{o}", level=level, num_samples=num_samples, seed=seed
+            model, values, displacement_site(model.graph, o), level=level, num_samples=num_samples, seed=seed
         )
         true = truth[:, k] - truth_prev[:, k]
         regime = contact_label(touch[:, k], true, rule, floor)[:, 0].astype(np.int64)

@@ -176,3 +176,36 @@ def test_the_push_frame_refuses_what_it_cannot_do():
         build_model(spec, graph, CONFIG.model)
     with pytest.raises(ValueError, match="frame 'claw' unknown"):
         build_graph(spec, bounds, frame="claw")
+
+
+# the state estimate runs a short SVI on purpose
+@pytest.mark.filterwarnings("ignore::inference.PoorPosteriorWarning")
+def test_a_push_frame_agent_explores_and_plans_with_perceived_objects():
+    """Curiosity's contact gate reads the push frame's parents; predictions are world-frame displacements."""
+    from inference import SamplingConfig
+    from pal.agent import CuriosityConfig
+    from pal.agent.plan import one_step
+
+    env = PushingEnv(camera=True)
+    model = ModelConfig(
+        members=2, hidden=(8,), object_frame="push", schedule=replace(MODEL_SCHEDULE, epochs=2, patience=None)
+    )
+    curiosity = CuriosityConfig(
+        sampling=SamplingConfig(population=8, elites=2, iterations=1), influence_samples=4
+    )
+    config = AgentConfig(model=model, curiosity=curiosity, reset_every=None)
+    agent = Agent(
+        env, pushing_spec(), replace(config, estimate=replace(config.estimate, num_steps=5)), seed=2
+    )
+    agent.run(6, "babble")
+    agent.refit()
+    decisions = agent.run(2, "curious")
+    assert len(decisions) == 2 and all(np.isfinite(d.action).all() for d in decisions)
+    belief = agent.belief()
+    mean, sd, members = one_step(agent.model, belief, decisions[-1].action, ("box",))
+    values = {k: torch.as_tensor(np.asarray(v)[None], dtype=agent.model.dtype) for k, v in belief.items()}
+    values["act"] = torch.as_tensor(decisions[-1].action[None], dtype=agent.model.dtype)
+    world = agent.model.predict(values)["vel.box"][0].numpy()
+    np.testing.assert_allclose(mean["box"], world, atol=1e-6)
+    assert sd["box"].shape == (2,) and members["box"].shape == (2, 2)
+    env.close()
