@@ -55,6 +55,7 @@ __all__ = [
     "frame_mechanisms",
     "frame_object_variables",
     "point_variables",
+    "world_displacement",
 ]
 
 #: The frames of the objects' learned sites.
@@ -66,6 +67,26 @@ POINT_SITES = ("pts_prev", "pts")
 def displacement_site(graph: CausalGraph, o: str) -> str:
     """The site of object ``o``'s world-frame displacement over the step: ``vel.o`` in the push frame, else ``dpos.o``."""
     return f"vel.{o}" if f"vel.{o}" in graph else f"dpos.{o}"
+
+
+def world_displacement(
+    graph: CausalGraph, mean: Mapping[str, torch.Tensor], scale: Mapping[str, torch.Tensor], o: str
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Object ``o``'s one-step displacement in the world frame: mean and sd ``(..., d)``, m.
+
+    ``mean`` and ``scale`` are a model's ``predict`` and ``predict_scale`` (each site's sd at its
+    parents). In the push frame ``vel.o``'s own sd is its fixed definition's, so the sd is that of
+    ``dpos.o`` turned back: per component ``var_x = c^2 v_x + s^2 v_y``, ``var_y = s^2 v_x + c^2 v_y``
+    with ``(c, s)`` the frame's angle (independent components), other components as they are.
+    """
+    if displacement_site(graph, o) == f"dpos.{o}":
+        return mean[f"dpos.{o}"], scale[f"dpos.{o}"]
+    rel = mean[f"rel_prev.{o}"]
+    c, s = frame_angle(rel, torch.zeros_like(rel[..., :2]))
+    var = scale[f"dpos.{o}"].pow(2)
+    vx, vy = var[..., :1], var[..., 1:2]
+    turned = torch.cat([c.pow(2) * vx + s.pow(2) * vy, s.pow(2) * vx + c.pow(2) * vy, var[..., 2:]], -1)
+    return mean[f"vel.{o}"], turned.sqrt()
 
 
 def point_variables(spec: EnvSpec) -> list[Variable]:

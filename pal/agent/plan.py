@@ -40,7 +40,7 @@ from torch import Tensor
 from inference import ReplayNoise, infer_action
 from models import WorldModel
 from pal.agent.config import PlanConfig
-from pal.agent.graph_frame import displacement_site
+from pal.agent.graph_frame import displacement_site, world_displacement
 
 __all__ = ["Plan", "behind", "distance", "one_step", "plan", "preference", "site"]
 
@@ -154,8 +154,12 @@ def one_step(
     sd = model.predict_scale(values)
     members = model.predict(values, members=True)
     d = {o: "dee" if o == effector else displacement_site(model.graph, o) for o in objects}
-    m = {o: mean[d[o]][0].numpy().astype(np.float64) for o in objects}
-    s = {o: sd[d[o]][0].numpy().astype(np.float64) for o in objects}
+    step = {
+        o: (mean["dee"], sd["dee"]) if o == effector else world_displacement(model.graph, mean, sd, o)
+        for o in objects
+    }
+    m = {o: step[o][0][0].numpy().astype(np.float64) for o in objects}
+    s = {o: step[o][1][0].numpy().astype(np.float64) for o in objects}
     k = {o: members[d[o]][:, 0].numpy().astype(np.float64) for o in objects}
     return m, s, k
 

@@ -33,7 +33,7 @@ from pal.agent import (
     pushing_spec,
 )
 from pal.agent.config import ESTIMATE_SVI, MODEL_SCHEDULE, PLAN_ACTION, PLAN_SAMPLING
-from pal.agent.graph_frame import displacement_site
+from pal.agent.graph_frame import world_displacement
 from pal.agent.history import History
 from pal.checks import check_float, check_int
 from pal.experiments.closed_loop.regimes import contact_coverage
@@ -201,10 +201,10 @@ def predict_displacements(
         tensors = {n: torch.as_tensor(v, dtype=model.dtype) for n, v in values.items()}
         pred = model.predict(tensors)
         scale = model.predict_scale(tensors)
-        site = displacement_site(model.graph, o)
+        predicted, sd = world_displacement(model.graph, pred, scale, o)
         out[o] = {
-            "predicted": pred[site].numpy().astype(np.float64),
-            "sd": scale[site].numpy().astype(np.float64),
+            "predicted": predicted.numpy().astype(np.float64),
+            "sd": sd.numpy().astype(np.float64),
             "true": truth[ok, k] - truth_prev[ok, k],
             "rows": np.asarray(rows)[ok],
             "touch": touch[ok, k],

@@ -208,4 +208,11 @@ def test_a_push_frame_agent_explores_and_plans_with_perceived_objects():
     world = agent.model.predict(values)["vel.box"][0].numpy()
     np.testing.assert_allclose(mean["box"], world, atol=1e-6)
     assert sd["box"].shape == (2,) and members["box"].shape == (2, 2)
+    # its sd: dpos.box's, turned back to the world (vel.box's own sd is its definition's, 1e-4 m)
+    push_sd = agent.model.predict_scale(values)["dpos.box"][0].double().numpy()
+    rel = np.asarray(belief["ee_prev"])[:2] - np.asarray(belief["pos_prev.box"])[:2]
+    c, s = rel / np.linalg.norm(rel)
+    turn = np.array([[c, -s], [s, c]])
+    np.testing.assert_allclose(sd["box"] ** 2, turn**2 @ push_sd**2, rtol=1e-4)
+    assert sd["box"].min() > 10 * 1e-4
     env.close()
