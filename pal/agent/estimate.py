@@ -6,9 +6,10 @@ with ``measurement_scale`` returns the posterior over the true position ``pos.o`
 transition, on the object sites of the model given the sensed effector
 (:func:`pal.agent.graph.blanket`). The evidence is the previous estimate ``pos_prev.o``, the
 effector relative to it before and after (``rel_prev.o``, ``rel.o``; in the push frame also the
-body's points relative to it, ``prel_prev.o``, ``prel.o``, and all of them turned, ``local.o``), touch ``contact.o`` and, for a visible
-object, ``meas.o`` with perception's sigma. A lost object's ``meas.o`` is left
-unobserved, so its posterior is the model's prediction; no NaN ever reaches the model.
+body's points relative to it, ``prel_prev.o``, ``prel.o``, and all of them turned, ``local.o``),
+touch ``contact.o`` and, for a visible object, ``meas.o`` with perception's sigma. A lost object's
+``meas.o`` is left unobserved, so its posterior is the model's prediction; no NaN ever reaches the
+model.
 :func:`belief` assembles the state the planner starts from (the graph's lag-1 roots).
 """
 
