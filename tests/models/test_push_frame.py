@@ -88,31 +88,18 @@ def test_the_frame_mechanisms_turn_and_turn_back_and_check_their_layout():
         KinematicPointsMechanism([_chain()], [0, 0], joints=2)
 
 
-def _chain() -> KinematicChain:
-    """Two hinges about z, links of 1 m."""
-    eye = torch.eye(3).expand(2, 3, 3)
+def _chain(
+    end=(1, 0, 0), axes=((0, 0, 1), (0, 0, 1)), refs=(0, 0), limits=((None, None),) * 2
+) -> KinematicChain:
+    """Two hinges, links of 1 m along x (by default both about z, ending 1 m beyond the second)."""
     return KinematicChain(
-        eye,
-        [[0, 0, 0], [1, 0, 0]],
-        torch.zeros(2, 3),
-        [[0, 0, 1], [0, 0, 1]],
-        [0, 0],
-        [1, 0, 0],
-        [[None, None]] * 2,
+        torch.eye(3).expand(2, 3, 3), [[0, 0, 0], [1, 0, 0]], torch.zeros(2, 3), axes, refs, end, limits
     )
 
 
 def test_the_points_mechanism_places_each_point_by_its_own_chain():
     far = _chain()
-    near = KinematicChain(
-        torch.eye(3).expand(2, 3, 3),
-        [[0, 0, 0], [1, 0, 0]],
-        torch.zeros(2, 3),
-        [[0, 0, 1], [0, 0, 1]],
-        [0, 0],
-        [0.5, 0, 0],
-        [[None, None]] * 2,
-    )
+    near = _chain(end=(0.5, 0, 0))
     mech = KinematicPointsMechanism([far, near], [0, 1], joints=2)
     q = torch.tensor([[math.pi / 2, 0.0]])
     torch.testing.assert_close(mech(q), torch.tensor([[0.0, 2.0, 0.0, 0.0, 1.5, 0.0]]), atol=1e-6, rtol=0)
@@ -122,27 +109,9 @@ def test_the_points_mechanism_places_each_point_by_its_own_chain():
 
 def test_points_of_one_body_share_one_pass_and_equal_their_own_chains():
     ends = ([1, 0, 0], [0.5, 0.2, 0], [0, -0.1, 0.3])
-    chains = [
-        KinematicChain(
-            torch.eye(3).expand(2, 3, 3),
-            [[0, 0, 0], [1, 0, 0]],
-            torch.zeros(2, 3),
-            [[0, 0, 1], [0, 1, 0]],
-            [0.1, 0],
-            end,
-            [[-1.0, 1.0], [None, None]],
-        )
-        for end in ends
-    ]
-    other = KinematicChain(  # another axis on the second hinge: its own pass
-        torch.eye(3).expand(2, 3, 3),
-        [[0, 0, 0], [1, 0, 0]],
-        torch.zeros(2, 3),
-        [[0, 0, 1], [1, 0, 0]],
-        [0.1, 0],
-        [1, 0, 0],
-        [[-1.0, 1.0], [None, None]],
-    )
+    bounded = ((-1.0, 1.0), (None, None))
+    chains = [_chain(end, ((0, 0, 1), (0, 1, 0)), (0.1, 0), bounded) for end in ends]
+    other = _chain((1, 0, 0), ((0, 0, 1), (1, 0, 0)), (0.1, 0), bounded)  # another axis: its own pass
     q = torch.randn(4, 5, 2, generator=torch.Generator().manual_seed(3), dtype=torch.float64) * 2
     for group in (chains, [*chains, other]):
         mech = KinematicPointsMechanism(group, [0, 1], joints=2)
