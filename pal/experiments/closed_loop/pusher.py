@@ -55,6 +55,7 @@ from pal.checks import check_float, check_int
 from pal.experiments.closed_loop.pusher_metrics import CONTROLLERS, summarise
 from pal.experiments.closed_loop.pusher_protocol import one_seed
 from pal.experiments.closed_loop.pusher_ranking import RankingConfig
+from pal.experiments.closed_loop.pusher_store import PARTS, seed_parts, stored_report
 from pal.lab.registry import register
 from pal.lab.report import Report
 from pal.lab.timing import torch_threads
@@ -130,6 +131,11 @@ class Config:
         ranking: the probes of the models' rankings of candidate plans
             (:mod:`pal.experiments.closed_loop.pusher_ranking`). threads: torch threads per
             process (one core: 1). workers: seeds run in this many processes at once.
+        store: a directory for finished parts of seeds (:mod:`pal.experiments.closed_loop.pusher_store`):
+            each part is written there when it finishes and read back, not run again, by a later
+            run with the same settings. parts: the parts this run may compute (of ``pal``,
+            ``baseline``, ``reference``); the others must be in ``store``, or the report lists
+            what is missing.
     """
 
     seed: int = 0
@@ -144,6 +150,8 @@ class Config:
     ranking: RankingConfig = RankingConfig()
     threads: int = 1
     workers: int = 1
+    store: str | None = None
+    parts: tuple[str, ...] = PARTS
 
     def __post_init__(self) -> None:
         check_int("seed", self.seed, minimum=0)
@@ -160,6 +168,11 @@ class Config:
                 )
         check_int("aggregation.episode_steps", self.aggregation.episode_steps, maximum=100)
         check_float("success", self.success, 0.0, open_low=True)
+        unknown = [p for p in self.parts if p not in PARTS]
+        if unknown or not self.parts or len(set(self.parts)) != len(self.parts):
+            raise ValueError(f"parts must be distinct names of {PARTS}, got {list(self.parts)}")
+        if set(self.parts) != set(PARTS) and self.store is None:
+            raise ValueError(f"parts {list(self.parts)} leave out some of {PARTS}: set store to keep them")
 
     @property
     def seeds(self) -> tuple[int, ...]:
@@ -214,7 +227,9 @@ TINY = Config(
 
 def _seed_run(config: Config, seed: int) -> dict[str, Any]:
     with torch_threads(config.threads):
-        return one_seed(config, seed)
+        if config.store is None:
+            return one_seed(config, seed)
+        return seed_parts(config, seed)
 
 
 @register("pusher", config=Config, quick=QUICK, tiny=TINY)
@@ -225,4 +240,7 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             results = list(pool.map(_seed_run, [config] * config.runs, config.seeds))
     else:
         results = [_seed_run(config, s) for s in config.seeds]
-    return summarise(config, dict(zip(config.seeds, results, strict=True)))
+    per_seed = dict(zip(config.seeds, results, strict=True))
+    if config.store is None:
+        return summarise(config, per_seed)
+    return stored_report(config, per_seed, summarise)

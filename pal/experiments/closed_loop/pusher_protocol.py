@@ -32,7 +32,7 @@ from pal.experiments.closed_loop.pusher_runs import (
     training_env,
 )
 
-__all__ = ["one_seed"]
+__all__ = ["one_seed", "run_part"]
 
 log = logging.getLogger(__name__)
 
@@ -110,28 +110,55 @@ def _baseline(config: Any, seed: int, goals: list[int], found: list[Probe] | Non
     }
 
 
+def _probes(config: Any, seed: int) -> list[Probe]:
+    """The seed's ranking probes: states of the ceiling's episodes (deterministic in the seed)."""
+    env = gymnasium.make(ENV_ID)
+    seeds = [derived_seed(seed, 93, g) for g in range(config.ranking.goals)]
+    found = probes(env, config.plan, config.ranking, seeds)
+    env.close()
+    return found
+
+
+def _reference(config: Any, seed: int, goals: list[int]) -> dict[str, Any]:
+    """The goals run once by the planner's ceiling (the true simulator) and by random torques."""
+    env, steps = gymnasium.make(ENV_ID), config.aggregation.episode_steps
+    out = {
+        "simulator": [simulator_episode(env, config.plan, s, steps) for s in goals],
+        "random": [random_episode(env, s, steps) for s in goals],
+    }
+    env.close()
+    return out
+
+
+def run_part(config: Any, seed: int, part: str) -> dict[str, Any]:
+    """One part of a seed (:data:`pusher_store.PARTS`): ``pal``, ``baseline`` or ``reference``.
+
+    Returns:
+        ``pal`` / ``baseline``: the learner's run
+        ``{"counts", "training": [Episode per round], "steps": [env steps after each round],
+        "at": {checkpoint: {"counts", "episodes": [Episode per goal], "ranking": scores or None}}}``
+        (``ranking``: :func:`pusher_ranking.score` on the seed's probes, None without probes or
+        before a first fit); ``reference``: ``{"simulator": [Episode per goal], "random": [...]}``.
+    """
+    goals = evaluation_seeds(seed, config.eval_goals)
+    if part == "reference":
+        return _reference(config, seed, goals)
+    learners = {"pal": _pal, "baseline": _baseline}
+    if part not in learners:
+        raise ValueError(f"part must be 'pal', 'baseline' or 'reference', got {part!r}")
+    return learners[part](config, seed, goals, _probes(config, seed))
+
+
 def one_seed(config: Any, seed: int) -> dict[str, Any]:
-    """Both learners' rounds and random torques for one seed.
+    """Both learners' rounds, the ceiling and random torques for one seed.
 
     Args:
         config: the experiment's :class:`pal.experiments.closed_loop.pusher.Config`.
         seed: this run's seed (episode seeds, weights, samples).
 
     Returns:
-        ``{"pal": run, "baseline": run, "simulator": [Episode per goal], "random": [Episode per goal]}``,
-        each run
-        ``{"counts", "training": [Episode per round], "steps": [env steps after each round],
-        "at": {checkpoint: {"counts", "episodes": [Episode per goal], "ranking": scores or None}}}``
-        (``ranking``: :func:`pusher_ranking.score` on the seed's probes, None without probes or
-        before a first fit).
+        ``{"pal": run, "baseline": run, "simulator": [Episode per goal], "random": [Episode per goal]}``
+        (the runs of :func:`run_part`).
     """
-    goals = evaluation_seeds(seed, config.eval_goals)
-    env = gymnasium.make(ENV_ID)
-    seeds = [derived_seed(seed, 93, g) for g in range(config.ranking.goals)]
-    found = probes(env, config.plan, config.ranking, seeds)
-    out = {"pal": _pal(config, seed, goals, found), "baseline": _baseline(config, seed, goals, found)}
-    steps = config.aggregation.episode_steps
-    out["simulator"] = [simulator_episode(env, config.plan, s, steps) for s in goals]
-    out["random"] = [random_episode(env, s, steps) for s in goals]
-    env.close()
-    return out
+    out = {"pal": run_part(config, seed, "pal"), "baseline": run_part(config, seed, "baseline")}
+    return out | run_part(config, seed, "reference")
