@@ -22,9 +22,11 @@ controllers get ``episode_steps`` steps from the same start:
 environment's ``info``; the random and scripted controllers run on a second, camera-less world
 with the same starts). For the agent, ``model_err_cm``: the distance to its goal that the world
 model predicted for its last executed action, and ``belief_err_cm``: the distance of its final
-state estimate (posterior mean) from it. For every executed push (touch), the model's predicted
-displacement of the box over the step with its 90 % interval is held against the true one
-(``pushes``, ``push_interval_coverage``: the planner's own Normal of the step, per component).
+state estimate (posterior mean) from it; ``prediction_factor``: how far the median realized
+final error is from the median ``model_err_cm`` (the larger of the two ratios; target ≤ 1.5).
+For every executed push (touch), the model's predicted displacement of the box over the step
+with its 90 % interval is held against the true one (``pushes``, ``push_interval_coverage``:
+the planner's own Normal of the step, per component).
 
 Calibration per regime (:mod:`.regimes`, :mod:`.regime_report`): every step the agent took in
 goal mode (its planned actions) is a held-out row of each object; the agent's model gives the
@@ -36,8 +38,9 @@ where the median predicted sd should be at most 1 mm (``regimes``; figure ``cali
 
 Metrics: ``{inferred|random|scripted: {final_err_cm_median, _mean, _p25, _p75, within_2cm}}``,
 ``model_err_cm_median``, ``belief_err_cm_median``, ``initial_err_cm_median``,
-``random_over_inferred``, ``scripted_over_inferred``, ``regimes`` (regime -> coverage, median
-sd and |error| in mm, rows, reliability), ``episodes`` (one record per target) and ``info``.
+``random_over_inferred``, ``scripted_over_inferred``, ``prediction_factor``, ``regimes`` (regime
+-> coverage, median sd and |error| in mm, rows, reliability), ``episodes`` (one record per
+target) and ``info``.
 """
 
 from __future__ import annotations
@@ -63,7 +66,16 @@ from pal.sim.pushing import PushingEnv
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["CONDITIONS", "REGIMES", "TARGET_ERR_CM", "TARGET_VS_RANDOM", "Config", "goals", "run"]
+__all__ = [
+    "CONDITIONS",
+    "REGIMES",
+    "TARGET_ERR_CM",
+    "TARGET_PREDICTION_FACTOR",
+    "TARGET_VS_RANDOM",
+    "Config",
+    "goals",
+    "run",
+]
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +86,8 @@ TARGET_ERR_CM = 1.5
 TARGET_VS_RANDOM = 5.0
 #: A ratio of two conditions' distances counts only if each moved the box this far in an episode, cm.
 MOVED_CM = 0.5
+#: The agent's median realized final error should be within this factor of its model's median prediction of it.
+TARGET_PREDICTION_FACTOR = 1.5
 #: The regimes of the agent's goal-mode steps.
 REGIMES = ("planned contact", "planned no contact")
 #: Where the ball waits during C2 (out of the arm's reach, in view), table frame, m.
@@ -259,6 +273,7 @@ def _metrics(episodes: list[dict[str, Any]], pushes: np.ndarray, fitted: int) ->
     metrics["initial_err_cm_median"] = summary([e["initial_err_cm"] for e in episodes])["median"]
     med = {c: metrics[c]["final_err_cm_median"] for c in CONDITIONS}
     metrics["random_over_inferred"] = _ratio(med["random"], med["inferred"])
+    metrics["prediction_factor"] = _factor(med["inferred"], metrics["model_err_cm_median"])
     metrics["scripted_over_inferred"] = _ratio(med["scripted"], med["inferred"])
     metrics["inferred_modes"] = dict(sum((Counter(r["modes"]) for r in inferred), Counter()))
     metrics["pushes"] = {
@@ -271,6 +286,13 @@ def _metrics(episodes: list[dict[str, Any]], pushes: np.ndarray, fitted: int) ->
     metrics["episodes"] = episodes
     metrics["info"] = {"fitted_rows": fitted}
     return metrics
+
+
+def _factor(realized: float | None, predicted: float | None) -> float | None:
+    """``max(r, 1 / r)`` of ``r = realized / predicted`` (1: equal), None without two positive values."""
+    if realized is None or predicted is None or realized <= 0 or predicted <= 0:
+        return None
+    return float(max(realized / predicted, predicted / realized))
 
 
 def _moved_cm(paths: list[np.ndarray]) -> float:
@@ -303,6 +325,18 @@ def _targets(metrics: dict[str, Any]) -> list[Target]:
             ">",
             "median final distance of the scripted pusher / of the agent (> 1: the agent is closer)",
             moved("inferred", "scripted"),
+        ),
+        Target(
+            "prediction_factor",
+            metrics["prediction_factor"],
+            TARGET_PREDICTION_FACTOR,
+            "<=",
+            "median realized final distance of the agent against its model's median prediction of it (the "
+            "predicted distance at the horizon of its last planned step): the larger of the two ratios",
+            Precondition(
+                metrics["inferred"]["max_box_displacement_cm"] > MOVED_CM,
+                f"the agent moved the box > {MOVED_CM:g} cm in an episode",
+            ),
         ),
         *regime_targets(metrics["regimes"], "planned"),
         Target(

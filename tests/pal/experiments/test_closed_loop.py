@@ -77,6 +77,14 @@ def test_c2_inferred_actions_beat_random_babbling(tiny_run):
     assert rep.target("inferred_below_scripted").value == pytest.approx(
         m["scripted"]["final_err_cm_median"] / m["inferred"]["final_err_cm_median"]
     )
+    predicted, realized = m["model_err_cm_median"], m["inferred"]["final_err_cm_median"]
+    if predicted is None:  # no goal-mode decision in the tiny run: nothing to hold the realized error against
+        assert rep.target("prediction_factor").value is None
+        assert rep.target("prediction_factor").verdict in ("not measured", "not evaluated")
+    else:
+        assert rep.target("prediction_factor").value == pytest.approx(
+            max(realized / predicted, predicted / realized)
+        )
     assert sum(m["inferred_modes"].values()) == c2.TINY.targets * c2.TINY.episode_steps
     lines = rep.figures["episodes"].axes[0].get_lines()
     assert len(lines) == 3 * c2.TINY.targets + 1  # a trace per controller and goal, and the target line
