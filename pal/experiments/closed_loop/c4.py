@@ -4,13 +4,15 @@ For each of ``runs`` seeds (``seed``, ``seed + 1``, ...), two agents start from 
 ``setup.babble_steps`` steps of random babbling (same seed, so the same actions and the same
 world), then spend ``budget`` more steps:
 
-- ``curiosity``: the gated world model (heteroscedastic ensembles) is fitted on the warm-up, then
-  every step the agent searches the action sequence (horizon ``setup.agent.curiosity.horizon``)
-  of highest contact gate, ``P(contact | a)`` times the on branches' disagreement, times the
-  novelty of the predicted object position, minus a joint-limit penalty (:mod:`pal.agent.explore`),
-  executes its first action, and refits every ``setup.agent.curiosity.refit_every`` steps; below
-  ``setup.agent.curiosity.min_score`` it babbles (``setup.agent.curiosity.method`` selects the
-  older CAI-gated disagreement or the grid targets of Eq. 4.34-4.38 instead);
+- ``curiosity``: the gated world model (heteroscedastic ensembles, the objects' sites in the push
+  frame of :mod:`pal.agent.graph_frame`; ``--set setup.agent.model.object_frame=world`` for the
+  world frame) is fitted on the warm-up, then every step the agent searches the action sequence
+  (horizon ``setup.agent.curiosity.horizon``) of highest contact gate, ``P(contact | a)`` times the
+  on branches' disagreement, times the novelty of the predicted object position, minus a
+  joint-limit penalty (:mod:`pal.agent.explore`), executes its first action, and refits every
+  ``setup.agent.curiosity.refit_every`` steps; below ``setup.agent.curiosity.min_score`` it babbles
+  (``setup.agent.curiosity.method`` selects the older CAI-gated disagreement or the grid targets of
+  Eq. 4.34-4.38 instead);
 - ``random``: random babbling goes on.
 
 Objects are put back at the same seeded places every ``setup.agent.reset_every`` steps in both runs.
@@ -82,7 +84,9 @@ class Config:
 
     seed: int = 0
     runs: int = 5
-    setup: SetupConfig = SetupConfig(babble_steps=400)
+    setup: SetupConfig = SetupConfig(
+        babble_steps=400, agent=AgentConfig(model=ModelConfig(object_frame="push"))
+    )
     budget: int = 200
     checkpoint_every: int = 20
     min_motion: float = 0.005
@@ -104,7 +108,7 @@ QUICK = Config(
     setup=SetupConfig(
         babble_steps=120,
         agent=AgentConfig(
-            model=ModelConfig(schedule=replace(MODEL_SCHEDULE, epochs=30)),
+            model=ModelConfig(schedule=replace(MODEL_SCHEDULE, epochs=30), object_frame="push"),
             curiosity=CuriosityConfig(refit_every=1000),
         ),
     ),
@@ -118,6 +122,7 @@ TINY = Config(
         babble_steps=8,
         agent=replace(
             TINY_AGENT,
+            model=replace(TINY_AGENT.model, object_frame="push"),
             curiosity=CuriosityConfig(
                 horizon=2,
                 sampling=replace(CURIOSITY_SAMPLING, population=8, elites=2, iterations=1),
