@@ -43,6 +43,7 @@ from pal.perception.calibration import resolve_calibration
 from pal.perception.folder_layouts import (
     COLOR_EXTENSIONS,
     DEPTH_EXTENSIONS,
+    LAYOUTS,
     FolderLayout,
     find_layout,
     layout_named,
@@ -58,6 +59,7 @@ __all__ = [
     "find_folder_layout",
     "pose_matrices",
 ]
+
 
 def find_folder_layout(path: Path) -> tuple[str, list[tuple[str, Path, Path]]] | None:
     """The built-in layout of ``path`` and its ``(stem, colour file, depth file)`` frames, or None.
@@ -131,10 +133,10 @@ class FolderSequence(FrameSequence):
             raise SequenceError(f"sequence directory {self.path} does not exist or is not a directory")
         chosen = find_layout(self.path) if layout is None else layout_named(layout)
         if chosen is None:
+            patterns = "; ".join(f"{x.name!r} ({x.describe()})" for x in LAYOUTS)
             raise SequenceError(
-                f"{self.path} holds no colour/depth image pairs: expected <stem>.png with <stem>_depth.png, "
-                "<stem>-color.png with <stem>-depth.png, or color/<stem>.png with depth/<stem>.png|.pgm "
-                "(or pass layout=FolderLayout(...))"
+                f"{self.path} holds no colour/depth image pairs of a built-in layout: expected one of "
+                f"{patterns} (or pass layout=FolderLayout(...) for another naming pattern)"
             )
         frames = paired_frames(self.path, chosen)
         self.layout = chosen.name

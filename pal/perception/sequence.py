@@ -37,7 +37,7 @@ from pal.io.sequence_files import (
     read_text_rows,
     resolve_inside,
 )
-from pal.perception.folder_layouts import FolderLayout
+from pal.perception.folder_layouts import LAYOUTS, FolderLayout
 from pal.perception.folders import FolderSequence, find_folder_layout
 from pal.perception.tum import TUMSequence
 
@@ -247,8 +247,8 @@ def open_sequence(
         return FolderSequence(p, K=K, depth_scale=depth_scale, fps=fps, layout=layout)
     if (p / "rgb").is_dir():
         return RecordedSequence(p)  # an incomplete pal sequence: its reader names what is missing
+    layouts = "; ".join(f"{x.name!r} ({x.describe()})" for x in LAYOUTS)
     raise SequenceError(
         f"{p} is neither a pal sequence (sequence.json), a TUM RGB-D sequence (rgb.txt + depth.txt), "
-        "nor a folder of frames (<stem>.png + <stem>_depth.png, <stem>-color.png + <stem>-depth.png, "
-        "or color/ + depth/)"
+        f"nor a folder of frames of a built-in layout: {layouts}"
     )

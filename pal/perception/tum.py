@@ -178,7 +178,10 @@ class TUMSequence(FrameSequence):
         check_timestamps(depth_t, str(self.path / "depth.txt"))
         pairs = associate(rgb_t, depth_t, max_difference)
         if not pairs:
-            raise SequenceError(f"{self.path}: no RGB image has a depth image within {max_difference} s")
+            raise SequenceError(
+                f"{self.path}: no image of rgb.txt has one of depth.txt within {max_difference} s "
+                "(max_difference)"
+            )
         self.num_listed = len(pairs)
         pairs = self._present(pairs, rgb_f, depth_f, missing)
         self.timestamps = np.array([rgb_t[i] for i, _ in pairs])
@@ -196,8 +199,11 @@ class TUMSequence(FrameSequence):
             return pairs
         gone = [(i, j) for i, j in pairs if not (rgb_f[i].is_file() and depth_f[j].is_file())]
         i, j = gone[0]
-        first = rgb_f[i] if not rgb_f[i].is_file() else depth_f[j]
-        what = f"{len(gone)} of {len(pairs)} listed frames have an image missing (first: {first.name})"
+        first, listed = (rgb_f[i], "rgb.txt") if not rgb_f[i].is_file() else (depth_f[j], "depth.txt")
+        what = (
+            f"{len(gone)} of {len(pairs)} frames paired from rgb.txt and depth.txt have an image missing "
+            f"(first: {first.name} of {listed})"
+        )
         if missing == "raise":
             raise SequenceError(f"{self.path}: {what}; open a partial download with missing='skip'")
         if not present:
@@ -244,16 +250,22 @@ class TUMSequence(FrameSequence):
         path = self.path / "groundtruth.txt"
         data = _groundtruth_rows(path)
         if not np.isfinite(offset) or abs(offset) > max_gap:
-            raise ValueError(f"offset is {offset!r} s; expected a finite clock offset within +-{max_gap} s (max_gap)")
+            raise ValueError(
+                f"offset is {offset!r} s; expected a finite clock offset within +-{max_gap} s (max_gap)"
+            )
         out, valid = _interpolate_poses(data, self.timestamps + offset, max_difference, max_gap)
         if not valid.any():
+            times = self.timestamps + offset
+            shifted = f" with offset {offset:+.3f} s" if offset else ""
             raise SequenceError(
                 f"{path}: its {len(data)} poses ({data[0, 0]:.3f}-{data[-1, 0]:.3f} s) cover none of the "
-                f"{len(self)} frames ({self.timestamps[0]:.3f}-{self.timestamps[-1]:.3f} s) within {max_difference} s"
+                f"{len(self)} frames ({times[0]:.3f}-{times[-1]:.3f} s{shifted}) within {max_difference} s"
             )
         return out, valid
 
-    def camera_poses(self, max_difference: float = 0.02, max_gap: float = 0.1, offset: float = 0.0) -> CameraPoses:
+    def camera_poses(
+        self, max_difference: float = 0.02, max_gap: float = 0.1, offset: float = 0.0
+    ) -> CameraPoses:
         """Camera-to-world poses at the frame timestamps plus ``offset`` s (:meth:`groundtruth`), and their validity.
 
         Frames without ground truth are marked invalid and get the identity.

@@ -56,6 +56,7 @@ import cv2
 
 from pal.checks import check_choice, check_int
 from pal.experiments.perception.real_frames import RealConfig, evaluate_real
+from pal.experiments.perception.relation_checks import FAR_GAP
 from pal.experiments.perception.sequence import (
     sequence_metrics,
     sequence_results,
@@ -442,8 +443,29 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             f"{real_frames} real frames of {', '.join(config.real.samples)} at 640x480; {total['seen_in_both']} objects "
             f"seen in both frames of a pair, {total['kept_id']} kept their id, {total['with_pose']} had an estimated pose "
             f"(by solver: {total['pose_solvers']}).",
+            _relations_note(quality["relations"]),
             "Limits in force while timing: "
             + ", ".join(f"{k} {'not limited' if v is None else v}" for k, v in limits.items())
             + ".",
         ],
     )
+
+
+def _relations_note(checks: dict[str, Any]) -> str:
+    """The label-free relation checks of the real frames in words."""
+    on = checks["on_max"]
+    return (
+        f"Relations on the real frames: largest near over {checks['far_pairs']} pairs more than "
+        f"{FAR_GAP:g} m apart {_fmt(checks['near_far_max'])}; largest on_support over {checks['hidden_bottoms']} "
+        f"objects with a hidden bottom {_fmt(checks['on_support_hidden_max'])}; largest on "
+        + (
+            "none"
+            if on is None
+            else f"{on['grade']:.2f} (frame {on['frame']}, ids {on['pair'][0]} on {on['pair'][1]})"
+        )
+        + "."
+    )
+
+
+def _fmt(value: float | None) -> str:
+    return "none" if value is None else f"{value:.3f}"

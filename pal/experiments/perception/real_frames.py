@@ -23,7 +23,10 @@ finds, without labels. Per consecutive frame pair (i, j) of a sample:
 - the **support plane** of every frame is chosen with seeds ``0 .. support_seeds - 1`` and
   compared with the reference plane of the sample's ``support.json`` (a robust fit to a box that
   shows only the desk or the floor): it is that surface when its normal is within 5 degrees and
-  its offset within 5 cm.
+  its offset within 5 cm;
+- the **relations** of every frame are checked without labels
+  (:mod:`pal.experiments.perception.relation_checks`): far pairs not near, hidden bottoms not
+  resting on the support.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ import numpy as np
 
 from pal.checks import check_float, check_int
 from pal.experiments.perception.evaluation import rotation_angle_deg
+from pal.experiments.perception.relation_checks import merge_relation_checks, relation_checks
 from pal.experiments.perception.runs import names
 from pal.io.sequence_files import SequenceError
 from pal.perception import PerceptionState, Pipeline, PipelineConfig
@@ -275,6 +279,7 @@ def evaluate_sample(
         **summarise(rows),
         "rows": rows,
         "support": support_check(name, frames, seq.stems[:n], config.support_seeds, pipeline.segmentation),
+        "relations": relation_checks(states),
     }
     return metrics, frames, states
 
@@ -304,4 +309,5 @@ def evaluate_real(
         "support_correct": sum(s["correct"] for s in support),
         "support_checks": sum(s["checks"] for s in support),
         "desk_camera_vs_published": published,
+        "relations": merge_relation_checks([m["relations"] for m in per.values()]),
     }

@@ -12,6 +12,7 @@ import pytest
 from pal.cli import main
 from pal.experiments.bench import perception as bench_perception
 from pal.experiments.perception import a1_kinematic, a2_visual, a3_multidomain
+from pal.experiments.perception import sequence as perception_sequence
 from pal.experiments.perception.concept_eval import (
     FamilyScaler,
     leave_one_out,
@@ -321,6 +322,71 @@ def test_bench_perception_tiny(tiny_run):
         "stride 3",
     ]
     assert {r[0] for r in stages.rows} >= {"pose", "segmentation"} and stages.rows[-1][1] > 0
+
+
+#: perception-sequence's per-stride targets and the result each one reports.
+SEQUENCE_TARGETS = {
+    "pose_fraction": "pose_fraction",
+    "rot_err_deg": "rot_err_deg_median",
+    "trans_err_m": "trans_err_m_median",
+    "wrong_estimated": "wrong_estimated",
+    "ids_kept": "kept_fraction",
+}
+
+
+def test_perception_sequence_tiny_reports_both_strides_and_their_targets(tiny_run):
+    rep = tiny_run("experiment", "perception-sequence").report
+    m = rep.metrics
+    assert list(m) == ["stride_1", "stride_3"] and [m[k]["stride"] for k in m] == [1, 3]
+    assert [m[k]["frames"] for k in m] == [4, 2] and "strides [1, 3]" in rep.notes[0]
+    assert [row[0] for row in rep.tables[0].rows] == [1, 3]
+    assert list(rep.tables[1].columns) == ["stage", "stride 1", "stride 3"]
+    assert [t.name for t in rep.targets] == [
+        *(f"seq_s1_{k}" for k in SEQUENCE_TARGETS),
+        "seq_s1_rot_beats_still",
+        "seq_s1_fps_cpu",
+        *(f"seq_s3_{k}" for k in SEQUENCE_TARGETS),
+    ]
+    for s in (1, 3):
+        for name, key in SEQUENCE_TARGETS.items():
+            assert rep.target(f"seq_s{s}_{name}").value == pytest.approx(m[f"stride_{s}"][key], abs=1e-12)
+    assert rep.target("seq_s1_rot_beats_still").value == pytest.approx(
+        m["stride_1"]["rot_better_than_still"], abs=1e-12
+    )
+    assert rep.target("seq_s1_fps_cpu").value == pytest.approx(m["stride_1"]["fps_cpu"], rel=1e-12)
+    # both strides pose objects seen in both frames: every precondition holds and every verdict
+    # is the comparison with the threshold
+    for t in rep.targets:
+        assert t.evaluated and t.verdict == ("met" if t.met else "not met"), t.name
+    assert rep.target("seq_s1_wrong_estimated").verdict == "met"
+
+
+def test_perception_sequence_targets_are_not_evaluated_without_posed_or_seen_objects():
+    nothing = {
+        "with_pose": 0,
+        "seen_in_both": 0,
+        "pose_fraction": None,
+        "rot_err_deg_median": None,
+        "trans_err_m_median": None,
+        "wrong_estimated": 0,
+        "kept_fraction": None,
+        "rot_better_than_still": None,
+        "fps_cpu": 20.0,
+    }
+    seen_unposed = {**nothing, "seen_in_both": 4, "pose_fraction": 0.0, "kept_fraction": 1.0}
+    verdicts = {
+        t.name: t.verdict for t in perception_sequence.sequence_targets({1: seen_unposed, 3: nothing})
+    }
+    assert verdicts == {
+        "seq_s1_pose_fraction": "not met",
+        "seq_s1_rot_err_deg": "not evaluated",
+        "seq_s1_trans_err_m": "not evaluated",
+        "seq_s1_wrong_estimated": "not evaluated",
+        "seq_s1_ids_kept": "met",
+        "seq_s1_rot_beats_still": "not evaluated",
+        "seq_s1_fps_cpu": "met",
+        **{f"seq_s3_{k}": "not evaluated" for k in SEQUENCE_TARGETS},
+    }
 
 
 @pytest.mark.render

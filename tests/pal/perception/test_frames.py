@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from pal.perception.folder_layouts import LAYOUTS
 from pal.perception.frames import RGBDFrame, backproject, crop_intrinsics, project
 from pal.perception.sequence import (
     RecordedSequence,
@@ -152,8 +153,10 @@ def test_unreadable_sequences_raise_clear_errors(tmp_path):
     with pytest.raises(SequenceError, match="does not exist"):
         open_sequence(tmp_path / "missing")
     (tmp_path / "empty").mkdir()
-    with pytest.raises(SequenceError, match="neither a pal sequence"):
+    with pytest.raises(SequenceError, match="neither a pal sequence") as refused:
         open_sequence(tmp_path / "empty")
+    assert str(tmp_path / "empty") in str(refused.value)
+    assert all(f"'{layout.name}' ({layout.describe()})" in str(refused.value) for layout in LAYOUTS)
     (tmp_path / "partial" / "rgb").mkdir(parents=True)
     with pytest.raises(SequenceError, match=r"sequence\.json does not exist"):
         open_sequence(tmp_path / "partial")
@@ -198,7 +201,11 @@ def test_tum_layout_with_association_scale_and_intrinsics(tmp_path):
     assert f.depth[0, 0] == pytest.approx(3.0) and f.rgb[0, 0, 0] == 20
     assert f.timestamp == pytest.approx(1.066)
     gt, valid = seq.groundtruth()
-    assert valid.tolist() == [True, True, False] and gt[0, :3].tolist() == [1, 2, 3]  # nearest, before the first
+    assert valid.tolist() == [True, True, False] and gt[0, :3].tolist() == [
+        1,
+        2,
+        3,
+    ]  # nearest, before the first
     w = (1.033 - 1.001) / (1.034 - 1.001)  # interpolated between the two samples
     assert np.allclose(gt[1, :3], [1 + 3 * w, 2 + 3 * w, 3 + 3 * w], atol=1e-9) and gt[2].tolist() == [0] * 7
     (d / "calibration.json").write_text(

@@ -11,6 +11,7 @@ from pal.experiments.perception.real_frames import (
     evaluate_sample,
     support_check,
 )
+from pal.experiments.perception.relation_checks import merge_relation_checks, relation_checks
 from pal.frames import RGBDFrame
 from pal.perception import Pipeline, PipelineConfig
 from pal.perception.relations import synchrony
@@ -120,3 +121,19 @@ def test_proposal_counts_are_stable_across_seeds():
     for f in (desk[0], room[1]):
         counts = [len(GeometricSegmenter(SegmentationConfig(), rng=s)(f)) for s in range(10)]
         assert max(counts) - min(counts) <= 2 and min(counts) >= 5, counts
+
+
+def test_far_pairs_are_not_near_and_hidden_bottoms_do_not_rest_on_the_real_frames(desk):
+    """The room's wall-sized segments are not near objects a metre away, and objects whose bottom
+    is hidden behind a nearer surface are not graded as resting on the support (label-free checks
+    of :mod:`pal.experiments.perception.relation_checks`)."""
+    room = open_sample("kinect_room")
+    pipe = Pipeline(PipelineConfig(estimate_pose=False))
+    checks = [relation_checks([pipe(room[k]) for k in range(3)]), desk[0]["relations"]]
+    for c in checks:
+        assert c["far_pairs"] >= 50 and c["hidden_bottoms"] >= 2
+        assert c["near_far_max"] < 0.05
+        assert c["on_support_hidden_max"] < 0.1
+    merged = merge_relation_checks(checks)
+    assert merged["far_pairs"] == checks[0]["far_pairs"] + checks[1]["far_pairs"]
+    assert merged["on_max"]["grade"] == max(c["on_max"]["grade"] for c in checks)
