@@ -210,6 +210,8 @@ def run_rounds(
     *,
     seed: int = 0,
     at_checkpoint: Callable[[int, Counts], Any] | None = None,
+    after_checkpoint: Callable[[RoundsResult], Any] | None = None,
+    resume: RoundsResult | None = None,
     progress_bar: bool = False,
 ) -> RoundsResult:
     """Run ``config.rounds`` aggregation rounds (module docstring).
@@ -217,9 +219,25 @@ def run_rounds(
     Episode ``r`` resets with a seed derived from ``(seed, r)``, so two learners given the same
     ``seed`` see the same sequence of starts and goals.
 
+    Args:
+        learner: the learner (:class:`Learner`).
+        config: rounds, episode length, random rounds, checkpoints, exploration, branching.
+        seed: the run's seed.
+        at_checkpoint: ``(checkpoint, counts) -> result``, called at each checkpoint (after the
+            refit of the round that reaches it).
+        after_checkpoint: called with the result so far once a checkpoint's result is in it,
+            e.g. to snapshot the learner (:mod:`pal.agent.snapshot`) so that a stopped run resumes.
+        resume: the result handed to ``after_checkpoint`` by an earlier run with the same
+            learner settings, config and seed, the learner restored to its state then: the rounds
+            go on from round ``resume.counts.episodes``, as if never stopped.
+        progress_bar: show a progress bar over the rounds.
+
     Returns:
         the counts, the episodes' records, the step count after each episode, and the
         ``at_checkpoint(checkpoint, counts)`` results keyed by checkpoint.
+
+    Raises:
+        ValueError: a ``resume`` whose records do not match its counts or lie beyond ``config``.
     """
     check_int("seed", seed, minimum=0)
     branching = config.branching
@@ -228,9 +246,13 @@ def run_rounds(
             f"branching.per_state is {branching.per_state} but {type(learner).__name__} cannot branch "
             "(it needs a branch(seed, state, actions) method and an environment wrapped in StartFromState)"
         )
-    result = RoundsResult(Counts())
-    counts, pending = result.counts, list(config.checkpoints)
-    for r in tqdm(range(config.rounds), desc="aggregation", disable=not progress_bar, leave=False):
+    result = RoundsResult(Counts()) if resume is None else _resumed(resume, config)
+    counts = result.counts
+    pending = [c for c in config.checkpoints if c > counts.env_steps and c not in result.checkpoints]
+    first = counts.episodes
+    for r in tqdm(
+        range(first, config.rounds), desc="aggregation", initial=first, disable=not progress_bar, leave=False
+    ):
         random = r < config.random_rounds
         rollout = learner.episode(episode_seed(seed, r), config.episode_steps, random, config.exploration)
         counts.env_steps += rollout.steps
@@ -251,7 +273,26 @@ def run_rounds(
             point = pending.pop(0)
             if at_checkpoint is not None:
                 result.checkpoints[point] = at_checkpoint(point, replace(counts))
+            if after_checkpoint is not None:
+                after_checkpoint(result)
     return result
+
+
+def _resumed(resume: RoundsResult, config: AggregationConfig) -> RoundsResult:
+    """A copy of ``resume`` to go on from, checked against ``config``."""
+    n = resume.counts.episodes
+    if not (len(resume.episodes) == len(resume.steps) == n <= config.rounds):
+        raise ValueError(
+            f"resume holds {len(resume.episodes)} episodes and {len(resume.steps)} step counts for "
+            f"{n} counted episodes; expected equal numbers, at most config.rounds = {config.rounds}"
+        )
+    if n < config.random_rounds:
+        raise ValueError(
+            f"resume after {n} episodes, within the {config.random_rounds} random rounds (no refit yet)"
+        )
+    return RoundsResult(
+        replace(resume.counts), list(resume.episodes), list(resume.steps), dict(resume.checkpoints)
+    )
 
 
 def branch(learner: BranchingLearner, seed: int, rollout: Rollout, branching: Branching) -> tuple[int, int]:
@@ -327,7 +368,8 @@ class AgentLearner:
     def __init__(self, agent: Agent, episode: Callable[..., Rollout] | None = None) -> None:
         self.agent = agent
         self._episode = episode or goal_episode
-        self._digest: tuple[float, ...] | None = None
+        # a fitted agent's next refit starts from its weights: warm (also after a restored snapshot)
+        self._digest: tuple[float, ...] | None = parameter_digest(agent.model) if agent.fitted else None
 
     @property
     def low(self) -> np.ndarray:

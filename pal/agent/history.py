@@ -290,11 +290,13 @@ class History:
         clash = sorted(set(extra) & {"joints", "objects", "provenance", "layout"})
         if clash:
             raise ValueError(f"metadata keys {clash} are reserved for the history's own fields")
-        meta = {"joints": list(self.joints), "objects": list(self.objects), "provenance": prov, **extra}
-        meta["layout"] = self.options
+        meta = {**self.layout_meta(), "provenance": prov, **extra}
         check_json(meta, "history metadata")
-        arrays = {f: self.array(f) for f in self.fields} if len(self) else {}
-        return write_npz(path, arrays, meta, format=FORMAT, compress=True)
+        return write_npz(path, self.arrays(), meta, format=FORMAT, compress=True)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every field as one ``(N, ...)`` array (empty dict without rows); :meth:`from_arrays` inverts it."""
+        return {f: self.array(f) for f in self.fields} if len(self) else {}
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> tuple[History, dict[str, Any]]:
@@ -307,27 +309,50 @@ class History:
             FileFormatError: missing, corrupted or inconsistent file; names it.
         """
         f = read_npz(path, format=FORMAT)
-        meta, arrays = f.meta, f.arrays
+        return cls.from_arrays(f.meta, f.arrays, str(path)), {
+            **f.meta,
+            "versions": f.versions,
+            "format": f.format,
+        }
+
+    @classmethod
+    def from_arrays(cls, meta: Mapping[str, Any], arrays: Mapping[str, np.ndarray], source: str) -> History:
+        """A history from :meth:`layout_meta`'s metadata and :meth:`arrays`.
+
+        ``source`` names where they came from in errors.
+
+        Raises:
+            FileFormatError: metadata or arrays that do not make a history; names ``source``.
+        """
         joints, objects = meta.get("joints"), meta.get("objects")
         if not (
             isinstance(joints, list)
             and isinstance(objects, list)
             and isinstance(meta.get("provenance"), dict)
         ):
-            raise FileFormatError(f"{path}: metadata lacks joints, objects or provenance")
+            raise FileFormatError(f"{source}: metadata lacks joints, objects or provenance")
         layout = meta.get("layout", {})
         if not isinstance(layout, dict) or sorted(set(layout) - set(_DEFAULT_OPTIONS)):
-            raise FileFormatError(f"{path}: layout {layout!r} is not a history layout")
+            raise FileFormatError(f"{source}: layout {layout!r} is not a history layout")
         out = cls(
             joints, objects, meta["provenance"], **{**_DEFAULT_OPTIONS, "actions": len(joints), **layout}
         )
         if arrays:
             if set(arrays) != set(out.fields):
-                raise FileFormatError(f"{path}: fields {sorted(arrays)}, expected {sorted(out.fields)}")
+                raise FileFormatError(f"{source}: fields {sorted(arrays)}, expected {sorted(out.fields)}")
             n = len(arrays["episode"])
             bad = [k for k, a in arrays.items() if a.ndim == 0 or a.shape[0] != n]
             if bad:
-                raise FileFormatError(f"{path}: fields {bad} do not have the {n} rows of 'episode'")
+                raise FileFormatError(f"{source}: fields {bad} do not have the {n} rows of 'episode'")
             for key in out.fields:
                 out._rows[key] = list(arrays[key])
-        return out, {**meta, "versions": f.versions, "format": f.format}
+        return out
+
+    def layout_meta(self) -> dict[str, Any]:
+        """The metadata :meth:`from_arrays` needs besides the arrays."""
+        return {
+            "joints": list(self.joints),
+            "objects": list(self.objects),
+            "provenance": dict(self.provenance),
+            "layout": self.options,
+        }

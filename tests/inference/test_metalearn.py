@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -79,6 +81,22 @@ def test_split_mechanism_switches_on_the_cut():
     split = SplitMechanism(low, high, 0, 0.5)
     out = split(torch.tensor([[0.0], [1.0]]))
     torch.testing.assert_close(out, torch.tensor([[0.0], [-1.0]]))
+
+
+def test_a_monitor_restored_from_its_state_flags_as_the_original():
+    data = spring_truth().sample(400, torch.Generator().manual_seed(0))
+    model = WorldModel(finger_graph("thesis"), seed=0)
+    monitor = ResidualMonitor(model, window=300, tolerance={"dq.finger": 0.05}, patience=2)
+    monitor.update(model, {n: v[:200] for n, v in data.items()})
+    state = json.loads(json.dumps(monitor.state()))  # JSON-ready
+    copy = ResidualMonitor.from_state(model, state)
+    for m in (monitor, copy):
+        m.update(model, {n: v[200:] for n, v in data.items()})
+    assert copy.levels == monitor.levels and copy.history == monitor.history
+    assert copy.flagged() == monitor.flagged() and len(copy.history["dq.finger"]) == 300
+    other = WorldModel(finger_graph("thesis", joint="thumb"), seed=0)
+    with pytest.raises(ValueError, match="monitor state covers"):
+        ResidualMonitor.from_state(other, state)
 
 
 def test_revise_and_monitor_check_inputs():

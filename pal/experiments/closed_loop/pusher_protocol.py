@@ -51,8 +51,10 @@ def _log_point(name: str, seed: int, point: int, counts: Counts, episodes: list[
     )
 
 
-def _pal(config: Any, seed: int, goals: list[int], found: list[Probe] | None = None) -> dict[str, Any]:
-    """The agent's rounds and its checkpoint evaluations."""
+def _pal(
+    config: Any, seed: int, goals: list[int], found: list[Probe] | None = None, resume: Any = None
+) -> dict[str, Any]:
+    """The agent's rounds and its checkpoint evaluations (``resume``: see :func:`run_part`)."""
     cfg = AgentConfig(
         model=config.model, plan=config.plan, correction=config.correction, reset_every=None, servo=False
     )
@@ -71,8 +73,14 @@ def _pal(config: Any, seed: int, goals: list[int], found: list[Probe] | None = N
         )
         return {"counts": counts.to_dict(), "episodes": episodes, "ranking": ranking}
 
+    start = None if resume is None else resume.restore(agent)
     result = run_rounds(
-        AgentLearner(agent, agent_rollout(h)), config.aggregation, seed=seed, at_checkpoint=evaluate
+        AgentLearner(agent, agent_rollout(h)),
+        config.aggregation,
+        seed=seed,
+        at_checkpoint=evaluate,
+        after_checkpoint=None if resume is None else lambda rounds: resume.save(agent, rounds),
+        resume=start,
     )
     env.close()
     eval_env.close()
@@ -130,8 +138,12 @@ def _reference(config: Any, seed: int, goals: list[int]) -> dict[str, Any]:
     return out
 
 
-def run_part(config: Any, seed: int, part: str) -> dict[str, Any]:
+def run_part(config: Any, seed: int, part: str, resume: Any = None) -> dict[str, Any]:
     """One part of a seed (:data:`pusher_store.PARTS`): ``pal``, ``baseline`` or ``reference``.
+
+    ``resume`` (``pal`` only; :class:`pusher_store.Resume`): ``restore(agent)`` returns the rounds'
+    result of a stopped run with the agent restored (or None), and ``save(agent, result)`` is
+    called after each checkpoint.
 
     Returns:
         ``pal`` / ``baseline``: the learner's run
@@ -143,10 +155,13 @@ def run_part(config: Any, seed: int, part: str) -> dict[str, Any]:
     goals = evaluation_seeds(seed, config.eval_goals)
     if part == "reference":
         return _reference(config, seed, goals)
-    learners = {"pal": _pal, "baseline": _baseline}
-    if part not in learners:
+    if part == "pal":
+        return _pal(config, seed, goals, _probes(config, seed), resume)
+    if part != "baseline":
         raise ValueError(f"part must be 'pal', 'baseline' or 'reference', got {part!r}")
-    return learners[part](config, seed, goals, _probes(config, seed))
+    if resume is not None:
+        raise ValueError("only the 'pal' part resumes; the baseline's learner has no snapshot")
+    return _baseline(config, seed, goals, _probes(config, seed))
 
 
 def one_seed(config: Any, seed: int) -> dict[str, Any]:

@@ -30,13 +30,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from pal.agent.aggregate import Counts, RoundsResult
+from pal.agent.snapshot import restore_agent, save_agent, snapshot_metadata
 from pal.experiments.closed_loop.pusher_protocol import run_part
 from pal.experiments.closed_loop.pusher_runs import Episode
 from pal.io.files import FileFormatError, atomic_write_json, read_json, versions
 from pal.lab import configs
 from pal.lab.report import Report, Table
 
-__all__ = ["FORMAT", "PARTS", "PartStore", "StoredPart", "seed_parts", "stored_report"]
+__all__ = ["FORMAT", "PARTS", "PartStore", "Resume", "StoredPart", "seed_parts", "stored_report"]
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +105,18 @@ def _differences(stored: Any, current: Any, prefix: str = "") -> list[str]:
     return [] if stored == current else [prefix.rstrip(".")]
 
 
+def _check_settings(path: Path, doc: dict[str, Any], config: Any) -> None:
+    """Refuse a stored document computed with other settings or library versions (named)."""
+    differ = _differences(doc.get("settings"), settings(config))
+    if differ:
+        raise ValueError(
+            f"{path} was computed with other settings ({', '.join(differ[:8])}); remove it or run with its settings"
+        )
+    now = versions()
+    if doc.get("versions") != now:
+        raise ValueError(f"{path} was computed with versions {doc.get('versions')}, these are {now}")
+
+
 class PartStore:
     """Finished parts of seeds in one directory (module docstring).
 
@@ -138,15 +152,7 @@ class PartStore:
             raise FileFormatError(
                 f"{path} holds seed {doc.get('seed')} part {doc.get('part')!r}, not {seed} {part!r}"
             )
-        differ = _differences(doc.get("settings"), settings(config))
-        if differ:
-            raise ValueError(
-                f"{path} was computed with other settings ({', '.join(differ[:8])}); "
-                "remove it or run with its settings"
-            )
-        now = versions()
-        if doc.get("versions") != now:
-            raise ValueError(f"{path} was computed with versions {doc.get('versions')}, these are {now}")
+        _check_settings(path, doc, config)
         return StoredPart(_decode(doc["result"]), float(doc["cpu"]), float(doc["wall"]))
 
     def save(self, config: Any, seed: int, part: str, result: Any, cpu: float, wall: float) -> Path:
@@ -166,16 +172,89 @@ class PartStore:
         return atomic_write_json(path, doc, name=str(path))
 
 
+class Resume:
+    """The ``pal`` part's snapshot at its last checkpoint, so a stopped part goes on from there.
+
+    ``store/seed{S}_pal.resume.npz`` (:mod:`pal.agent.snapshot`) holds the agent's learned state
+    and, in its metadata, the rounds' result so far, the settings, versions, seed and the CPU
+    and wall seconds spent until then. It is rewritten after each checkpoint's evaluation and
+    removed when the part is stored. A snapshot of other settings or versions is refused (named).
+
+    Args:
+        store: the store.
+        config: the experiment's config.
+        seed: the seed whose ``pal`` part runs.
+    """
+
+    def __init__(self, store: PartStore, config: Any, seed: int) -> None:
+        self.path = store.directory / f"seed{seed}_pal.resume.npz"
+        self.config, self.seed = config, seed
+        self.cpu, self.wall = 0.0, 0.0  # spent by earlier processes
+        self._start = (time.process_time(), time.perf_counter())
+
+    def restore(self, agent: Any) -> RoundsResult | None:
+        """Load the snapshot into ``agent`` and return the rounds' result so far; None without one."""
+        if not self.path.exists():
+            return None
+        doc = snapshot_metadata(self.path)
+        if doc.get("format") != FORMAT or doc.get("seed") != self.seed:
+            raise FileFormatError(f"{self.path} is not the pal part's snapshot of seed {self.seed}")
+        _check_settings(self.path, doc, self.config)
+        restore_agent(agent, self.path)
+        self.cpu, self.wall = float(doc["cpu"]), float(doc["wall"])
+        rounds = _decode(doc["result"])
+        log.info(
+            "pusher seed %d part pal resumed after %d episodes from %s",
+            self.seed,
+            len(rounds["steps"]),
+            self.path,
+        )
+        return RoundsResult(
+            Counts(**rounds["counts"]),
+            rounds["episodes"],
+            rounds["steps"],
+            {int(k): v for k, v in rounds["checkpoints"].items()},
+        )
+
+    def spent(self) -> tuple[float, float]:
+        """CPU and wall seconds of the part so far, earlier processes included."""
+        return (
+            self.cpu + time.process_time() - self._start[0],
+            self.wall + time.perf_counter() - self._start[1],
+        )
+
+    def save(self, agent: Any, result: RoundsResult) -> None:
+        """Snapshot ``agent`` with the rounds' ``result`` so far (called after each checkpoint)."""
+        cpu, wall = self.spent()
+        rounds = {
+            "counts": result.counts.to_dict(),
+            "episodes": result.episodes,
+            "steps": result.steps,
+            "checkpoints": result.checkpoints,
+        }
+        doc = {"format": FORMAT, "seed": self.seed, "settings": settings(self.config), "versions": versions()}
+        save_agent(agent, self.path, {**doc, "cpu": cpu, "wall": wall, "result": _encode(rounds)})
+
+
 def seed_parts(config: Any, seed: int) -> dict[str, StoredPart | None]:
-    """Each part of ``seed``: read from ``config.store``, else computed (when in ``config.parts``) and stored, else None."""
+    """Each part of ``seed``: read from ``config.store``, else computed (when in ``config.parts``) and stored, else None.
+
+    The ``pal`` part snapshots its agent after each checkpoint (:class:`Resume`) and goes on from
+    the last snapshot when it was stopped.
+    """
     store, out = PartStore(config.store), {}
     for part in PARTS:
         found = store.load(config, seed, part)
         if found is None and part in config.parts:
+            resume = Resume(store, config, seed) if part == "pal" else None
             cpu, wall = time.process_time(), time.perf_counter()
-            result = run_part(config, seed, part)
+            result = run_part(config, seed, part, resume)
             cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
+            if resume is not None:
+                cpu, wall = resume.spent()
             path = store.save(config, seed, part, result, cpu, wall)
+            if resume is not None:
+                resume.path.unlink(missing_ok=True)
             log.info(
                 "pusher seed %d part %s stored in %s (%.0f s CPU, %.0f s wall)", seed, part, path, cpu, wall
             )

@@ -5,7 +5,7 @@ from dataclasses import replace
 
 import pytest
 
-from pal.experiments.closed_loop import pusher
+from pal.experiments.closed_loop import pusher, pusher_store
 from pal.experiments.closed_loop.pusher_runs import Episode
 from pal.experiments.closed_loop.pusher_store import PartStore, _decode, _encode
 from pal.lab.registry import get
@@ -13,8 +13,13 @@ from pal.lab.runner import execute
 
 
 def _untimed(tree):
+    """``tree`` without its timings (which differ between runs of the same numbers)."""
     if isinstance(tree, dict):
         return {k: _untimed(v) for k, v in tree.items() if k != "step_cpu_seconds"}
+    if isinstance(tree, list):
+        return [_untimed(v) for v in tree]
+    if isinstance(tree, Episode):
+        return replace(tree, cpu=None, wall=None)
     return tree
 
 
@@ -55,6 +60,39 @@ def test_a_part_computed_with_other_settings_is_refused_naming_them(tmp_path):
         _run(replace(config, eval_goals=2))
     # how a run goes (seeds, workers, threads, parts) is not a setting of the part
     assert PartStore(tmp_path).load(replace(config, threads=2, parts=pusher.Config.parts), 0, "reference")
+
+
+class Stopped(Exception):
+    """Stands for a process killed right after the pal part's first snapshot."""
+
+
+@pytest.mark.slow
+def test_a_stopped_pal_part_goes_on_from_its_snapshot_to_the_same_result(tmp_path, monkeypatch):
+    whole, pieces = tmp_path / "whole", tmp_path / "pieces"
+    config = replace(pusher.TINY, store=str(whole), parts=("pal",))
+    _run(config)
+    save = pusher_store.Resume.save
+
+    def save_then_stop(self, agent, result):
+        save(self, agent, result)
+        raise Stopped
+
+    monkeypatch.setattr(pusher_store.Resume, "save", save_then_stop)
+    with pytest.raises(Stopped):
+        _run(replace(config, store=str(pieces)))
+    assert sorted(p.name for p in pieces.iterdir()) == ["seed0_pal.resume.npz"]
+    with pytest.raises(
+        ValueError, match=r"seed0_pal\.resume\.npz was computed with other settings \(eval_goals\)"
+    ):
+        _run(replace(config, store=str(pieces), eval_goals=2))
+    monkeypatch.setattr(pusher_store.Resume, "save", save)
+    _run(replace(config, store=str(pieces)))
+    assert sorted(p.name for p in pieces.iterdir()) == ["seed0_pal.json"]  # the snapshot is gone
+    expected = PartStore(whole).load(config, 0, "pal")
+    resumed = PartStore(pieces).load(config, 0, "pal")
+    assert expected is not None and resumed is not None
+    assert _untimed(resumed.result) == _untimed(expected.result)
+    assert sorted(resumed.result["at"]) == [3, 6] and resumed.cpu > 0
 
 
 def test_episodes_survive_the_round_trip_with_a_missing_distance_as_nan():
