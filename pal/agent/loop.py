@@ -75,6 +75,7 @@ class Decision:
         score: the curiosity score (gated disagreement; the contact method's information), or None.
         diagnostics: the contact method's gate, contact probability and CAI of the executed
             action per object (:func:`pal.agent.explore.diagnose`), else empty.
+        sequence: (H, A) the planned sequence whose first action this is (None without a plan).
     """
 
     mode: str
@@ -86,11 +87,20 @@ class Decision:
     step_sd: dict[str, np.ndarray] = field(default_factory=dict)
     score: float | None = None
     diagnostics: dict[str, dict[str, float]] = field(default_factory=dict)
+    sequence: np.ndarray | None = None
 
 
 def _decision(p: Plan, mode: str | None = None, score: float | None = None) -> Decision:
     return Decision(
-        mode or p.mode, p.action, p.targets, p.predicted, p.objective, p.step_mean, p.step_sd, score
+        mode or p.mode,
+        p.action,
+        p.targets,
+        p.predicted,
+        p.objective,
+        p.step_mean,
+        p.step_sd,
+        score,
+        sequence=p.sequence,
     )
 
 

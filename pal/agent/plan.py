@@ -41,8 +41,9 @@ from inference import ReplayNoise, infer_action
 from models import WorldModel
 from pal.agent.config import PlanConfig
 from pal.agent.graph_frame import displacement_site, world_displacement
+from pal.checks import check_int
 
-__all__ = ["Plan", "behind", "distance", "one_step", "plan", "preference", "site"]
+__all__ = ["Plan", "behind", "distance", "expected_distance", "one_step", "plan", "preference", "site"]
 
 
 @dataclass(frozen=True)
@@ -162,6 +163,46 @@ def one_step(
     s = {o: step[o][1][0].numpy().astype(np.float64) for o in objects}
     k = {o: members[d[o]][:, 0].numpy().astype(np.float64) for o in objects}
     return m, s, k
+
+
+def expected_distance(
+    model: WorldModel,
+    belief: Mapping[str, np.ndarray],
+    sequence: np.ndarray,
+    targets: Mapping[str, np.ndarray],
+    *,
+    draws: int = 16,
+    seed: int = 0,
+    effector: str | None = None,
+) -> float:
+    """The model's expected distance to the targets at the end of ``sequence``, m.
+
+    ``E ||x_H - t||`` summed over targets, the expectation over the model's predictive
+    distribution: ``draws`` rollouts of ``sequence`` (H, A) from ``belief`` with sampled residuals
+    (and sampled switches), each on every ensemble member's own trajectory (TS), K x draws paths.
+    A plan's ``objective`` is ``||E x_H - t||`` of the members' mean without noise, which is never
+    larger (Jensen) and, chosen by the planner, optimistic; this is the model's prediction of the
+    distance that will be realized.
+    """
+    draws = check_int("draws", draws)
+    seq = np.asarray(sequence, dtype=np.float64)
+    if seq.ndim != 2:
+        raise ValueError(f"sequence must be (H, A), got shape {seq.shape}")
+    dtype = model.dtype
+    initial = {
+        k: torch.as_tensor(np.repeat(np.asarray(v, np.float64)[None], draws, 0), dtype=dtype)
+        for k, v in belief.items()
+    }
+    acts = torch.as_tensor(np.repeat(seq[None], draws, 0), dtype=dtype)
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        out = model.rollout(initial, {"act": acts}, noise="sampled", generator=gen, members=True)
+    total = 0.0
+    for o, t in targets.items():
+        goal = torch.as_tensor(np.asarray(t, np.float64), dtype=dtype)
+        final = out[site(o, effector)][..., -1, : goal.shape[-1]]
+        total += float(torch.linalg.norm(final - goal, dim=-1).mean())
+    return total
 
 
 def plan(

@@ -77,7 +77,7 @@ def test_c2_inferred_actions_beat_random_babbling(tiny_run):
     assert rep.target("inferred_below_scripted").value == pytest.approx(
         m["scripted"]["final_err_cm_median"] / m["inferred"]["final_err_cm_median"]
     )
-    predicted, realized = m["model_err_cm_median"], m["inferred"]["final_err_cm_median"]
+    predicted, realized = m["model_expected_err_cm_median"], m["inferred"]["final_err_cm_median"]
     if predicted is None:  # no goal-mode decision in the tiny run: nothing to hold the realized error against
         assert rep.target("prediction_factor").value is None
         assert rep.target("prediction_factor").verdict in ("not measured", "not evaluated")
