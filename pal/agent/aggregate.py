@@ -210,7 +210,7 @@ def run_rounds(
     *,
     seed: int = 0,
     at_checkpoint: Callable[[int, Counts], Any] | None = None,
-    after_checkpoint: Callable[[RoundsResult], Any] | None = None,
+    after_round: Callable[[RoundsResult], Any] | None = None,
     resume: RoundsResult | None = None,
     progress_bar: bool = False,
 ) -> RoundsResult:
@@ -225,9 +225,10 @@ def run_rounds(
         seed: the run's seed.
         at_checkpoint: ``(checkpoint, counts) -> result``, called at each checkpoint (after the
             refit of the round that reaches it).
-        after_checkpoint: called with the result so far once a checkpoint's result is in it,
-            e.g. to snapshot the learner (:mod:`pal.agent.snapshot`) so that a stopped run resumes.
-        resume: the result handed to ``after_checkpoint`` by an earlier run with the same
+        after_round: called with the result so far at the end of every round that refits (after
+            its checkpoints' results are in), e.g. to snapshot the learner
+            (:mod:`pal.agent.snapshot`) so that a stopped run resumes.
+        resume: the result handed to ``after_round`` by an earlier run with the same
             learner settings, config and seed, the learner restored to its state then: the rounds
             go on from round ``resume.counts.episodes``, as if never stopped.
         progress_bar: show a progress bar over the rounds.
@@ -273,8 +274,8 @@ def run_rounds(
             point = pending.pop(0)
             if at_checkpoint is not None:
                 result.checkpoints[point] = at_checkpoint(point, replace(counts))
-            if after_checkpoint is not None:
-                after_checkpoint(result)
+        if after_round is not None:
+            after_round(result)
     return result
 
 

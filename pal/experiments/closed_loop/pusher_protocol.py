@@ -79,7 +79,7 @@ def _pal(
         config.aggregation,
         seed=seed,
         at_checkpoint=evaluate,
-        after_checkpoint=None if resume is None else lambda rounds: resume.save(agent, rounds),
+        after_round=None if resume is None else lambda rounds: resume.save(agent, rounds),
         resume=start,
     )
     env.close()
@@ -143,7 +143,7 @@ def run_part(config: Any, seed: int, part: str, resume: Any = None) -> dict[str,
 
     ``resume`` (``pal`` only; :class:`pusher_store.Resume`): ``restore(agent)`` returns the rounds'
     result of a stopped run with the agent restored (or None), and ``save(agent, result)`` is
-    called after each checkpoint.
+    called after every round.
 
     Returns:
         ``pal`` / ``baseline``: the learner's run

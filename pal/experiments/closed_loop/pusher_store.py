@@ -173,11 +173,12 @@ class PartStore:
 
 
 class Resume:
-    """The ``pal`` part's snapshot at its last checkpoint, so a stopped part goes on from there.
+    """The ``pal`` part's snapshot after its last round, so a stopped part goes on from there.
 
     ``store/seed{S}_pal.resume.npz`` (:mod:`pal.agent.snapshot`) holds the agent's learned state
     and, in its metadata, the rounds' result so far, the settings, versions, seed and the CPU
-    and wall seconds spent until then. It is rewritten after each checkpoint's evaluation and
+    and wall seconds spent until then. It is rewritten after every round (its refit and any
+    checkpoint's evaluation; a few seconds against minutes per round) and
     removed when the part is stored. A snapshot of other settings or versions is refused (named).
 
     Args:
@@ -224,7 +225,7 @@ class Resume:
         )
 
     def save(self, agent: Any, result: RoundsResult) -> None:
-        """Snapshot ``agent`` with the rounds' ``result`` so far (called after each checkpoint)."""
+        """Snapshot ``agent`` with the rounds' ``result`` so far (called after every round)."""
         cpu, wall = self.spent()
         rounds = {
             "counts": result.counts.to_dict(),
@@ -239,7 +240,7 @@ class Resume:
 def seed_parts(config: Any, seed: int) -> dict[str, StoredPart | None]:
     """Each part of ``seed``: read from ``config.store``, else computed (when in ``config.parts``) and stored, else None.
 
-    The ``pal`` part snapshots its agent after each checkpoint (:class:`Resume`) and goes on from
+    The ``pal`` part snapshots its agent after every round (:class:`Resume`) and goes on from
     the last snapshot when it was stopped.
     """
     store, out = PartStore(config.store), {}

@@ -39,17 +39,18 @@ def rounds(learner: Agent, **kwargs) -> RoundsResult:
 
 
 def stopped_run(path) -> tuple[RoundsResult, Agent]:
-    """A run stopped right after the snapshot at its first checkpoint; returns what the hook saw."""
+    """A run snapshotted after every round and stopped after the round of its first checkpoint."""
     seen: dict[str, RoundsResult] = {}
     stopped = agent()
 
     def snapshot(result: RoundsResult) -> None:
         save_agent(stopped, path, {"round": result.counts.episodes})
         seen["result"] = copy.deepcopy(result)
-        raise Stopped
+        if result.checkpoints:
+            raise Stopped
 
     with pytest.raises(Stopped):
-        rounds(stopped, after_checkpoint=snapshot)
+        rounds(stopped, after_round=snapshot)
     return seen["result"], stopped
 
 
