@@ -92,7 +92,13 @@ def restore_agent(agent: Agent, path: str | os.PathLike[str]) -> dict[str, Any]:
         {k[len("history/") :]: v for k, v in f.arrays.items() if k.startswith("history/")},
         source,
     )
-    agent.model.load_state_dict(state, strict=True)
+    try:
+        monitor = (
+            None if meta["monitor"] is None else ResidualMonitor.from_state(agent.model, meta["monitor"])
+        )
+    except ValueError as err:
+        raise FileFormatError(f"{source}: {err}") from None
+    agent.model.load_state_dict(state, strict=True)  # nothing is changed before this line
     agent.history = history
     agent.rng.bit_generator.state = _rng_state(meta["rng"])
     agent.fitted = bool(meta["fitted"])
@@ -102,8 +108,7 @@ def restore_agent(agent: Agent, path: str | os.PathLike[str]) -> dict[str, Any]:
         int(counters["steps"]),
         counters["clock"],
     )
-    monitor = meta["monitor"]
-    agent.learner.monitor = None if monitor is None else ResidualMonitor.from_state(agent.model, monitor)
+    agent.learner.monitor = monitor
     agent.learner.revisions = list(meta["revisions"])
     return dict(meta["metadata"])
 
