@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from pal.experiments.perception.mask_scores import score_masks
+from pal.perception.frames import RGBDFrame
 from pal.perception.grounding import (
     GroundingConfig,
     ObjectGeometry,
@@ -79,7 +80,9 @@ def test_on_support_needs_the_foot_to_be_seen():
     )
 
 
-def test_on_grades_a_rendered_stack_and_not_its_neighbour():
+def _rendered_stack() -> tuple[RGBDFrame, np.ndarray]:
+    """Box 2 on box 1, box 3 beside box 1 (10.6 cm away) on a table at 320x240; the frame and
+    the support frame of the true table plane."""
     cam = SyntheticCamera(320, 240)
 
     def at(x: float, z: float) -> np.ndarray:
@@ -90,12 +93,16 @@ def test_on_grades_a_rendered_stack_and_not_its_neighbour():
     frame = cam.render(
         [
             Box((0.14, 0.12, 0.08), at(-0.05, 0.04), label=1, seed=1),
-            Box((0.08, 0.08, 0.06), at(-0.05, 0.11), label=2, seed=2),  # on box 1
-            Box((0.06, 0.06, 0.06), at(0.15, 0.03), label=3, seed=3),  # beside it, 10.6 cm away
+            Box((0.08, 0.08, 0.06), at(-0.05, 0.11), label=2, seed=2),
+            Box((0.06, 0.06, 0.06), at(0.15, 0.03), label=3, seed=3),
         ]
     )
     n = cam.table[:3, 2]
-    S = support_frame(Plane(n, -float(n @ cam.table[:3, 3])))
+    return frame, support_frame(Plane(n, -float(n @ cam.table[:3, 3])))
+
+
+def test_on_grades_a_rendered_stack_and_not_its_neighbour():
+    frame, S = _rendered_stack()
     g = {k: object_geometry(frame, Mask.from_full(frame.labels == k), S, CONFIG) for k in (1, 2, 3)}
     assert grade(g[2], g[1], CONFIG)["on"] > 0.7 and grade(g[1], g[2], CONFIG)["on"] == 0.0
     assert grade(g[3], g[1], CONFIG)["on"] == 0.0 and grade(g[2], g[3], CONFIG)["on"] == 0.0
@@ -111,25 +118,10 @@ def test_on_holds_for_the_segmenters_own_masks_of_a_rendered_stack():
     stacked pair only. It is lower than on the true masks (0.55 against 0.82): the cut between the
     stacked boxes leaves a band of the upper box (8 % of the lower one's mask) in the lower one,
     which lifts its top (98th percentile of the heights) by 2 cm."""
-    cam = SyntheticCamera(320, 240)
-
-    def at(x: float, z: float) -> np.ndarray:
-        t = np.eye(4)
-        t[:3, 3] = [x, 0.0, z]
-        return cam.table @ t
-
-    frame = cam.render(
-        [
-            Box((0.14, 0.12, 0.08), at(-0.05, 0.04), label=1, seed=1),
-            Box((0.08, 0.08, 0.06), at(-0.05, 0.11), label=2, seed=2),
-            Box((0.06, 0.06, 0.06), at(0.15, 0.03), label=3, seed=3),
-        ]
-    )
+    frame, S = _rendered_stack()
     masks = [c.mask for c in GeometricSegmenter(SegmentationConfig(), rng=0)(frame)]
     assert [s.outcome for s in score_masks(frame.labels, masks, clean_iou=0.7)] == ["clean"] * 3
     best = {k: max(masks, key=lambda m: _iou(m.full(), frame.labels == k)) for k in (1, 2, 3)}
-    n = cam.table[:3, 2]
-    S = support_frame(Plane(n, -float(n @ cam.table[:3, 3])))
     g = {k: object_geometry(frame, best[k], S, CONFIG) for k in (1, 2, 3)}
     assert grade(g[2], g[1], CONFIG)["on"] > 0.5
     assert grade(g[1], g[2], CONFIG)["on"] == 0.0 and grade(g[3], g[1], CONFIG)["on"] == 0.0
