@@ -117,8 +117,8 @@ class ResidualMonitor:
                 f"monitor state covers {sorted(names)}, but the model's non-roots are {sorted(model.graph.non_roots)}"
             )
         out = cls(model, state["window"], state["scale"], state["threshold"], state["patience"])
-        out.history = {n: [float(v) for v in state["history"][n]] for n in names}
-        out.levels = {n: [float(v) for v in state["levels"][n]] for n in names}
+        out.history = {n: [float(v) for v in state["history"][n]] for n in out.scale}
+        out.levels = {n: [float(v) for v in state["levels"][n]] for n in out.scale}
         return out
 
     def flagged(self) -> list[str]:
