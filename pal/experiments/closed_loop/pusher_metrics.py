@@ -14,10 +14,12 @@ their goals run once and stand at every checkpoint.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
 
+from pal.agent.aggregate import Counts
 from pal.experiments.closed_loop.pusher_plots import curve_figure, paths_figure, prediction_figure
 from pal.experiments.closed_loop.pusher_runs import MOVED, Episode
 from pal.lab.report import Precondition, Report, Table, Target
@@ -202,7 +204,12 @@ def _tables(config: Any, at: dict[str, dict[str, Any]], training: dict[str, Any]
                     b["step_cpu_seconds"],
                 ]
             )
-    counts = [[c, i, *r.values()] for c in ("pal", "baseline") for i, r in enumerate(training[c]["counts"])]
+    fields = [f.name for f in dataclasses.fields(Counts)]  # by name: a part read back has its keys sorted
+    counts = [
+        [c, i, *(r[f] for f in fields)]
+        for c in ("pal", "baseline")
+        for i, r in enumerate(training[c]["counts"])
+    ]
     ranking = [
         [int(point), c, *(row[c]["ranking"][k] for k in ("rho", "rho_obj", "regret", "probes"))]
         for point, row in at.items()
@@ -246,17 +253,7 @@ def _tables(config: Any, at: dict[str, dict[str, Any]], training: dict[str, Any]
         ),
         Table(
             "What aggregation spent, per learner and seed",
-            [
-                "learner",
-                "seed index",
-                "env steps",
-                "episodes",
-                "random episodes",
-                "branches",
-                "branch steps",
-                "refits",
-                "warm refits",
-            ],
+            ["learner", "seed index", *(f.replace("_", " ") for f in fields)],
             counts,
         ),
     ]

@@ -50,6 +50,12 @@ def test_parts_run_apart_and_read_back_score_as_the_whole_run(tmp_path, tiny_run
     third = _run(config).report  # everything read back
     assert [r[4] for r in third.tables[-1].rows] == ["read back"] * 3
     assert third.metrics["at"] == second.metrics["at"]
+    # the spending table reads the counts by name (a part read back has its keys sorted)
+    spent = next(t for t in third.tables if t.title.startswith("What aggregation spent"))
+    assert [r[2:] for r in spent.rows] == [
+        r[2:] for r in next(t for t in whole.tables if t.title.startswith("What aggregation spent")).rows
+    ]
+    assert spent.rows[0][2] == pusher.TINY.aggregation.budget  # env steps
 
 
 @pytest.mark.slow
