@@ -296,7 +296,10 @@ def summarise(config: Any, per_seed: dict[int, dict[str, Any]]) -> Report:
         ],
         figures={
             "learning_curve": curve_figure(points, at),
-            "paths": paths_figure(_first_goals(first, int(last))),
+            "paths": paths_figure(
+                _first_goals(first, int(last)),
+                f"seed {next(iter(per_seed))}: the first evaluation goals after {last} environment steps",
+            ),
             "predicted_vs_realized": prediction_figure(
                 {
                     c: [e for r in per_seed.values() for e in r[c]["at"][int(last)]["episodes"]]

@@ -57,8 +57,11 @@ def curve_figure(steps: Sequence[int], at: Mapping[str, Mapping[str, Any]]) -> F
     return fig
 
 
-def paths_figure(episodes: Mapping[str, Sequence[Episode]]) -> Figure:
-    """Fingertip (dotted) and object (solid) x-y paths per controller, one panel per goal (at most 3), and the goal."""
+def paths_figure(episodes: Mapping[str, Sequence[Episode]], title: str = "") -> Figure:
+    """Fingertip (dotted) and object (solid) x-y paths per controller, one panel per goal (at most 3), and the goal.
+
+    ``title``: the figure's title (e.g. which seed and checkpoint the episodes come from).
+    """
     import matplotlib.pyplot as plt
 
     n = max((len(v) for v in episodes.values()), default=0)
@@ -78,6 +81,8 @@ def paths_figure(episodes: Mapping[str, Sequence[Episode]]) -> Figure:
             ax.plot(goal[0], goal[1], color="k", marker="*", ms=12, ls="none", label="goal")
         ax.set(xlabel="x, m", ylabel="y, m", title=f"goal {g + 1}", aspect="equal")
     axes[0][0].legend(fontsize=6)
+    if title:
+        fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig
 

@@ -64,6 +64,9 @@ def test_pusher_reports_checkpoint_rows_for_three_controllers_and_does_not_evalu
     assert rep.figures["learning_curve"].axes[0].get_xlabel() == "environment steps"
     # one goal: tip and object of each controller, their starts, and the goal
     assert len(rep.figures["paths"].axes[0].get_lines()) == 3 * len(pusher.CONTROLLERS) + 1
+    assert rep.figures["paths"].get_suptitle() == (
+        f"seed {pusher.TINY.seed}: the first evaluation goals after {agg.checkpoints[-1]} environment steps"
+    )
     json.dumps(rep.metrics, allow_nan=False)
 
 
