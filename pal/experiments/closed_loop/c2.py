@@ -103,8 +103,8 @@ BALL_PARK = (-0.22, 0.0, 0.0)
 #: C2's agent plans over 4 steps instead of the agent's default 2: a 2-step plan cannot bring the
 #: hand round to the box's far side once it is close, so the agent holds or nudges ~2 cm from its
 #: goal. Measured (``pal experiment c2 --set seed=S --set setup.agent.plan.action.horizon=H``, 20
-#: goals): median final error 2.10 / 2.42 cm at H = 2 for seeds 0 / 1, 1.74 / 1.61 cm at H = 4
-#: (means 3.43 / 4.60 against 2.15 / 2.25 cm); H = 6 gave 1.88 cm on seed 0.
+#: goals): median final error 2.10 / 2.42 / 3.88 cm at H = 2 for seeds 0 / 1 / 2, 1.74 / 1.61 /
+#: 2.70 cm at H = 4 (means 3.43 / 4.60 / 4.24 against 2.15 / 2.25 / 3.04 cm); H = 6 gave 1.88 cm on seed 0.
 SETUP = SetupConfig(agent=AgentConfig(plan=PlanConfig(action=replace(PLAN_ACTION, horizon=4))))
 
 
