@@ -59,6 +59,7 @@ from pal.agent.config import PLAN_ACTION
 from pal.agent.plan import expected_distance
 from pal.baselines.scripted_pusher import ScriptedPusher
 from pal.checks import check_int
+from pal.experiments.closed_loop.c2_plots import Z90, episodes_figure, paths_figure, pushes_figure
 from pal.experiments.closed_loop.push_goals import GoalGeometry, push_goals
 from pal.experiments.closed_loop.regime_report import calibration_figure, regime_table, regime_targets
 from pal.experiments.closed_loop.regimes import regime_rows, summarize
@@ -69,7 +70,7 @@ from pal.lab.timing import ratio
 from pal.sim.pushing import PushingEnv
 
 if TYPE_CHECKING:
-    from matplotlib.figure import Figure
+    pass
 
 __all__ = [
     "CONDITIONS",
@@ -146,9 +147,6 @@ TINY = Config(setup=TINY_SETUP, targets=1, episode_steps=2, num_samples=20)
 def goals(config: Config, heading: float, shoulder: np.ndarray) -> list[dict[str, Any]]:
     """The seeded episodes (:func:`pal.experiments.closed_loop.push_goals.push_goals`, stream 62)."""
     return push_goals(config.geometry, config.seed, config.targets, heading, shoulder, stream=62)
-
-
-_Z90 = 1.6448536269514722
 
 
 def _truth(agent: Agent) -> np.ndarray:
@@ -268,7 +266,7 @@ def _run_episodes(config: Config, progress_bar: bool) -> tuple[list, dict, dict,
 
 
 def _metrics(episodes: list[dict[str, Any]], pushes: np.ndarray, fitted: int) -> dict[str, Any]:
-    inside = np.abs(pushes[:, 4:] - pushes[:, :2]) <= _Z90 * pushes[:, 2:4]
+    inside = np.abs(pushes[:, 4:] - pushes[:, :2]) <= Z90 * pushes[:, 2:4]
     metrics: dict[str, Any] = {}
     for c in CONDITIONS:
         errors = [e[c]["final_err_cm"] for e in episodes]
@@ -385,9 +383,9 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             "Errors are the true box centre's distance from the goal at the end of the episode, cm.",
         ],
         figures={
-            "episodes": _episodes_figure(traces),
-            "paths": _paths_figure(paths, specs),
-            "pushes": _pushes_figure(pushes),
+            "episodes": episodes_figure(traces, TARGET_ERR_CM),
+            "paths": paths_figure(paths, specs),
+            "pushes": pushes_figure(pushes),
             "calibration": calibration_figure(
                 {metrics["form"]: regimes}, REGIMES, "C2: reliability of the planned steps' displacement"
             ),
@@ -437,74 +435,3 @@ def _tables(m: dict[str, Any]) -> list[Table]:
         Table("Episodes [cm]", ["goal", "start", *CONDITIONS], episodes),
         regime_table({m["form"]: m["regimes"]}, REGIMES),
     ]
-
-
-def _pushes_figure(pushes: np.ndarray) -> Figure:
-    """Predicted against realized box displacement over each push, per component, with the 90 % intervals."""
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(4.2, 3.8))
-    for k, (axis, colour) in enumerate((("x", "C0"), ("y", "C1"))):
-        ax.errorbar(
-            100 * pushes[:, 4 + k],
-            100 * pushes[:, k],
-            yerr=100 * _Z90 * pushes[:, 2 + k],
-            fmt=".",
-            color=colour,
-            ecolor=colour,
-            alpha=0.6,
-            lw=0.8,
-            label=axis,
-        )
-    lim = float(np.abs(100 * pushes[:, [0, 1, 4, 5]]).max()) if len(pushes) else 1.0
-    ax.plot([-lim, lim], [-lim, lim], color="k", lw=1, ls=":")
-    ax.set(xlabel="realized displacement, cm", ylabel="predicted (90 % interval), cm", title="C2 pushes")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    return fig
-
-
-def _paths_figure(paths: dict[str, list[np.ndarray]], specs: list[dict[str, Any]], n: int = 4) -> Figure:
-    """The box centre's path under each controller in the first ``n`` episodes, with its start and goal (table plane)."""
-    import matplotlib.pyplot as plt
-
-    n = min(n, len(specs))
-    cols = min(n, 2)
-    rows = -(-n // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, 3.2 * rows), squeeze=False)
-    for k, ax in enumerate(axes.flat):
-        if k >= n:
-            ax.set_axis_off()
-            continue
-        for c, colour in zip(CONDITIONS, ("C0", "C3", "C2"), strict=True):
-            p = 100 * paths[c][k]
-            ax.plot(p[:, 0], p[:, 1], color=colour, marker=".", ms=3, lw=1, label=c)
-        start, goal = 100 * np.asarray(specs[k]["box"][:2]), 100 * np.asarray(specs[k]["goal"])
-        ax.plot(*start, color="k", marker="o", ls="none", label="start")
-        ax.plot(*goal, color="k", marker="*", ms=11, ls="none", label="goal")
-        ax.set(xlabel="x, cm", ylabel="y, cm", title=f"goal {k}", aspect="equal")
-    axes.flat[0].legend(fontsize=6)
-    fig.suptitle("C2: the box's path and its goal")
-    fig.tight_layout()
-    return fig
-
-
-def _episodes_figure(traces: dict[str, list[np.ndarray]]) -> Figure:
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5.5, 3.6))
-    for c, colour in zip(CONDITIONS, ("C0", "C3", "C2"), strict=True):
-        for k, trace in enumerate(traces[c]):
-            ax.plot(
-                np.arange(len(trace)),
-                trace * 100,
-                color=colour,
-                alpha=0.35,
-                lw=1,
-                label=c if k == 0 else None,
-            )
-    ax.axhline(TARGET_ERR_CM, color="k", ls=":", lw=1)
-    ax.set(xlabel="step", ylabel="box distance to goal, cm", title="C2 episodes")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    return fig
