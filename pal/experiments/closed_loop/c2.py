@@ -50,7 +50,7 @@ from __future__ import annotations
 import logging
 from collections import Counter
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -68,9 +68,6 @@ from pal.lab.registry import register
 from pal.lab.report import Precondition, Report, Table, Target
 from pal.lab.timing import ratio
 from pal.sim.pushing import PushingEnv
-
-if TYPE_CHECKING:
-    pass
 
 __all__ = [
     "CONDITIONS",
