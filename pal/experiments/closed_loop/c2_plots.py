@@ -57,7 +57,7 @@ def paths_figure(paths: dict[str, list[np.ndarray]], specs: list[dict[str, Any]]
         if k >= n:
             ax.set_axis_off()
             continue
-        for (c, runs), colour in zip(paths.items(), _COLOURS, strict=False):
+        for (c, runs), colour in zip(paths.items(), _COLOURS, strict=True):
             p = 100 * runs[k]
             ax.plot(p[:, 0], p[:, 1], color=colour, marker=".", ms=3, lw=1, label=c)
         start, goal = 100 * np.asarray(specs[k]["box"][:2]), 100 * np.asarray(specs[k]["goal"])
@@ -75,7 +75,7 @@ def episodes_figure(traces: dict[str, list[np.ndarray]], target_cm: float) -> Fi
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(5.5, 3.6))
-    for (c, runs), colour in zip(traces.items(), _COLOURS, strict=False):
+    for (c, runs), colour in zip(traces.items(), _COLOURS, strict=True):
         for k, trace in enumerate(runs):
             ax.plot(
                 np.arange(len(trace)),
