@@ -274,7 +274,11 @@ def _sweep(args: argparse.Namespace) -> int:
                 )
     except sweep.SweepError as err:
         raise UsageError(f"pal sweep: {err}") from None
-    print(result.paths["markdown"].read_text(encoding="utf-8"))
+    for key in ("markdown", "pooled.markdown"):  # pooled: an entry whose report pools the seeds
+        if key in result.paths:
+            print(result.paths[key].read_text(encoding="utf-8"))
+    if "pooled" in result.failed:
+        print(f"The pooled report failed: {result.failed['pooled'][2]}")
     print(f"(wrote {', '.join(str(p) for p in result.paths.values())})")
     return 1 if result.failed else 0
 
@@ -430,12 +434,8 @@ def _add_sweep_parser(sub: Subparsers) -> None:
     group.add_argument("--quick", action="store_true", help="start from the quick config")
     group.add_argument("--tiny", action="store_true", help="start from the tiny (test) config")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="fixed setting of every run")
-    p.add_argument(
-        "--workers",
-        type=int,
-        default=1,
-        help="local processes, or local Ray CPUs (default 1: in this process)",
-    )
+    workers = "local processes, or local Ray CPUs (default 1: in this process)"
+    p.add_argument("--workers", type=int, default=1, help=workers)
     add_engine_flags(p, "runs go through local processes or Ray Tune")
     p.add_argument("--retry-failed", action="store_true", help="run only the failed runs of --out again")
     p.set_defaults(func=_sweep)

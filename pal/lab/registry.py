@@ -18,7 +18,7 @@ from typing import Any, Literal
 
 from pal.lab.report import Report
 
-__all__ = ["KINDS", "PACKAGE", "Entry", "entries", "entry_modules", "get", "register"]
+__all__ = ["KINDS", "PACKAGE", "Entry", "Pool", "entries", "entry_modules", "get", "register"]
 
 KINDS = ("experiment", "bench")
 
@@ -26,6 +26,10 @@ KINDS = ("experiment", "bench")
 PACKAGE = "pal.experiments"
 
 Run = Callable[[Any, bool], Report]
+#: ``pool(config, seeds) -> config``: the config of one run that reports over all of a sweep's
+#: ``seeds`` at once from what their runs left (e.g. a store of finished parts), computing nothing
+#: new; raises ``ValueError`` (named) when the sweep's config cannot be pooled.
+Pool = Callable[[Any, tuple[int, ...]], Any]
 
 
 @dataclass(frozen=True)
@@ -40,6 +44,8 @@ class Entry:
         tiny: the smallest configuration that runs every code path (the contract test).
         run: ``run(config, progress_bar=False) -> Report``.
         summary: one line on what it measures.
+        pool: optional :data:`Pool`: a sweep of the entry also writes the report of this
+            config (:mod:`pal.lab.sweep_pool`), for entries whose report needs every seed at once.
     """
 
     name: str
@@ -49,6 +55,7 @@ class Entry:
     tiny: Any
     run: Run
     summary: str
+    pool: Pool | None = None
 
     def default(self) -> Any:
         """The full-protocol configuration."""
@@ -66,6 +73,7 @@ def register(
     config: type,
     quick: Any,
     tiny: Any,
+    pool: Pool | None = None,
 ) -> Callable[[Run], Run]:
     """Decorator: register ``run`` as ``pal <kind> <name>``.
 
@@ -75,6 +83,7 @@ def register(
         config: the frozen dataclass config type; it must have a ``seed`` field.
         quick: the ``config`` instance of ``--quick`` and ``pal demo``.
         tiny: the smallest ``config`` instance that runs every code path (the contract test).
+        pool: optional :data:`Pool` (a sweep's report over all its seeds at once).
     """
     if kind not in KINDS:
         raise ValueError(f"kind {kind!r} unknown; expected one of {KINDS}")
@@ -88,6 +97,9 @@ def register(
                 f"{kind} {name!r}: {label} config is a {type(value).__name__}, not {config.__name__}"
             )
 
+    if pool is not None and not callable(pool):
+        raise ValueError(f"{kind} {name!r}: pool must be callable, got {type(pool).__name__}")
+
     def decorate(run: Run) -> Run:
         key = (kind, name)
         if key in _REGISTRY and _REGISTRY[key].run.__module__ != run.__module__:
@@ -95,7 +107,7 @@ def register(
                 f"{kind} {name!r} is registered twice ({_REGISTRY[key].run.__module__}, {run.__module__})"
             )
         doc = inspect.getdoc(run) or ""
-        _REGISTRY[key] = Entry(name, kind, config, quick, tiny, run, doc.split("\n", 1)[0])
+        _REGISTRY[key] = Entry(name, kind, config, quick, tiny, run, doc.split("\n", 1)[0], pool)
         return run
 
     return decorate

@@ -40,6 +40,7 @@ from pal.io.locks import LOCK_NAME, DirectoryLock, DirectoryLockedError
 from pal.lab import configs, registry, render, runner
 from pal.lab.registry import Entry
 from pal.lab.sweep_plan import Base, Run, SweepPlan, configure_from, run_config
+from pal.lab.sweep_pool import pooled_config, write_pooled
 from pal.lab.sweep_summary import MANIFEST, RUNS, SweepResult, summarise
 
 __all__ = [
@@ -198,7 +199,12 @@ def plan(
         start = run_config(entry, base, sets, {}, seed_list[0])
     except ValueError as err:
         raise SweepError(f"pal sweep {name}: {err}") from None
-    return SweepPlan(kind, name, base, tuple(sets), parse_grid(grid, start), seed_list)
+    planned = SweepPlan(kind, name, base, tuple(sets), parse_grid(grid, start), seed_list)
+    try:
+        pooled_config(planned)
+    except ValueError as err:
+        raise SweepError(f"pal sweep {name}: its pooled report: {err}") from None
+    return planned
 
 
 Engine = Callable[[SweepPlan, list[Run], Path], None]
@@ -348,4 +354,16 @@ def _run_locked(
                     f.result()
                 except BrokenProcessPool as err:  # the worker died: the run is failed, not dropped
                     record_run(out, r, None, f"worker process died ({err})".splitlines()[0])
-    return summarise(sweep, out, ran=tuple(r.id for r in todo))
+    result = summarise(sweep, out, ran=tuple(r.id for r in todo))
+    return _pool(sweep, out, result)
+
+
+def _pool(sweep: SweepPlan, out: Path, result: SweepResult) -> SweepResult:
+    """``result`` with the pooled report's paths (:mod:`pal.lab.sweep_pool`), or its failure among the failed."""
+    try:
+        result.paths.update(write_pooled(sweep, out))
+    except Exception as err:  # the runs are kept and summarised; the pooled report's failure is listed
+        line = f"{type(err).__name__}: {err}".splitlines()[0]
+        log.error("sweep %s: the pooled report failed: %s", sweep.name, line)
+        result.failed["pooled"] = ({}, sweep.seeds[0], line)
+    return result

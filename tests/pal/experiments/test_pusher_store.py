@@ -8,6 +8,7 @@ import pytest
 from pal.experiments.closed_loop import pusher, pusher_store
 from pal.experiments.closed_loop.pusher_runs import Episode
 from pal.experiments.closed_loop.pusher_store import PartStore, _decode, _encode
+from pal.io.files import read_json
 from pal.lab.registry import get
 from pal.lab.runner import execute
 
@@ -131,3 +132,52 @@ def test_a_file_of_another_format_is_refused(tmp_path):
     atomic_write_json(tmp_path / "seed0_pal.json", {"format": "x"})
     with pytest.raises(FileFormatError, match="not a stored pusher part"):
         PartStore(tmp_path).load(pusher.TINY, 0, "pal")
+
+
+@pytest.mark.slow
+def test_a_sweep_computes_the_seeds_parts_and_pools_them_into_one_report(tmp_path):
+    from pal.lab import sweep
+
+    store, out = tmp_path / "store", tmp_path / "sweep"
+    planned = sweep.plan(
+        "pusher",
+        ['parts=["pal"],["baseline","reference"]'],
+        "0-1",
+        base="tiny",
+        sets=[f"store={store}", "runs=1"],
+    )
+    result = sweep.run_sweep(planned, out)
+    assert not result.failed
+    assert len(list((out / "runs").glob("r*.json"))) == 4  # 2 cells x 2 seeds, one seed each
+    assert sorted(p.name for p in store.iterdir()) == [
+        f"seed{s}_{p}.json" for s in (0, 1) for p in ("baseline", "pal", "reference")
+    ]
+    pooled = read_json(result.paths["pooled.json"])
+    assert pooled["config"]["seed"] == 0 and pooled["config"]["runs"] == 2 and pooled["config"]["parts"] == []
+    at = pooled["metrics"]["at"]
+    last = str(pusher.TINY.aggregation.checkpoints[-1])
+    assert at[last]["pal"]["episodes"] == 2 * pusher.TINY.eval_goals  # both seeds' goals in one report
+    assert [r[4] for r in pooled["tables"][-1]["rows"]] == ["read back"] * 6  # nothing computed again
+    assert "missing" not in pooled["metrics"]
+
+
+@pytest.mark.parametrize(
+    ("sets", "seeds", "message"),
+    [
+        (["runs=1"], "0-1", "set --set store=DIR"),
+        (["store=S", "runs=2"], "0-1", "set --set runs=1, got runs=2"),
+        (["store=S", "runs=1"], "0,2", r"consecutive seeds, got \[0, 2\]"),
+    ],
+)
+def test_a_pusher_sweep_that_cannot_be_pooled_is_refused_before_any_run(tmp_path, sets, seeds, message):
+    from pal.lab import sweep
+
+    sets = [s.replace("store=S", f"store={tmp_path}") for s in sets]
+    with pytest.raises(sweep.SweepError, match=message):
+        sweep.plan("pusher", [], seeds, base="tiny", sets=sets)
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_read_only_pusher_run_needs_a_store():
+    with pytest.raises(ValueError, match=r"parts \[\] leave out"):
+        replace(pusher.TINY, parts=())

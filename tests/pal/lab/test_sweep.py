@@ -290,3 +290,60 @@ def test_a_second_sweep_process_on_the_same_directory_is_refused_naming_the_hold
     holder = next(p.pid for p in procs if p.returncode == 0)
     assert f"--out {str(out)!r}: another sweep runs in it" in answers[1][1]
     assert f"pid {holder}" in answers[1][1]
+
+
+@dataclass(frozen=True)
+class PooledConfig:
+    """A config whose pooled run reports the sum of its seeds' values (``first`` .. ``first + n - 1``)."""
+
+    seed: int = 0
+    n: int = 1
+    broken: bool = False
+
+
+def _pooled_run(config: PooledConfig, progress_bar: bool = False) -> Report:
+    if config.broken and config.n > 1:
+        raise RuntimeError("the pooled run broke")
+    total = sum(s + 1 for s in range(config.seed, config.seed + config.n))
+    return Report("pooled fake", metrics={"total": total, "n": config.n})
+
+
+def _pool(config: PooledConfig, seeds: tuple[int, ...]) -> PooledConfig:
+    if seeds[0] != 0:
+        raise ValueError(f"seeds must start at 0, got {list(seeds)}")
+    return PooledConfig(seed=seeds[0], n=len(seeds), broken=config.broken)
+
+
+@pytest.fixture
+def pooled_fake(monkeypatch):
+    registry.entries()
+    entry = Entry(
+        "pool_fake", "experiment", PooledConfig, PooledConfig(), PooledConfig(), _pooled_run, "fake", _pool
+    )
+    monkeypatch.setitem(registry._REGISTRY, ("experiment", "pool_fake"), entry)
+
+
+def test_an_entry_with_a_pool_gets_one_report_over_all_the_sweeps_seeds(pooled_fake, tmp_path, capsys):
+    out = tmp_path / "sweep"
+    assert main(["sweep", "pool_fake", "--seeds", "0-3", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    doc = json.loads((out / "pooled" / "pool_fake.json").read_text())
+    assert doc["metrics"] == {"total": 1 + 2 + 3 + 4, "n": 4}  # one run over the 4 seeds
+    assert doc["config"] == {"seed": 0, "n": 4, "broken": False}
+    assert "pooled fake" in text and "pooled" + os.sep + "pool_fake.md" in text
+    assert len(list((out / "runs").glob("r*.json"))) == 4  # the per-seed runs as before
+
+
+def test_a_sweep_its_pool_refuses_is_refused_before_any_run_and_a_failed_pool_is_listed(
+    pooled_fake, tmp_path, capsys
+):
+    out = tmp_path / "refused"
+    assert main(["sweep", "pool_fake", "--seeds", "1-2", "--out", str(out)]) == 2
+    assert "its pooled report: seeds must start at 0, got [1, 2]" in capsys.readouterr().err
+    assert not out.exists() or not any(out.iterdir())
+    broken = tmp_path / "broken"
+    assert main(["sweep", "pool_fake", "--seeds", "0-1", "--set", "broken=true", "--out", str(broken)]) == 1
+    result = sweep.summarise(sweep._read_plan(broken), broken)  # the runs themselves are fine
+    assert not result.failed and len(list((broken / "runs").glob("r*.json"))) == 2
+    assert not (broken / "pooled" / "pool_fake.json").exists()
+    assert "RuntimeError: the pooled run broke" in capsys.readouterr().out
