@@ -327,7 +327,8 @@ def plan(
     Without ``sampling`` Adam runs from ``start``. With it, Adam refines the best
     ``sampling.refine_elites`` elites for ``sampling.refine_steps`` steps (default
     ``steps``), and each unit keeps the lowest loss among the refined elites and the
-    unrefined best elite.
+    unrefined best elite. With ``refine_steps == 0`` the search's best elite is returned with the
+    loss it was ranked by (no further evaluation).
 
     Args:
         objective: ``a (R, N, H, D) -> L (R, N)``.
@@ -350,6 +351,8 @@ def plan(
         return refined[0], history, (), final
     found = cross_entropy_search(objective, start, low, high, sampling, generator)
     refine_steps = steps if sampling.refine_steps is None else sampling.refine_steps
+    if refine_steps == 0:  # nothing refined: the search's best elite, with the loss it was ranked by
+        return found.elites[0], (), found.history, found.losses[0]
     refined, history = projected_adam(
         objective, found.elites[: sampling.refine_elites], low, high, refine_steps, lr, progress_bar
     )
