@@ -33,6 +33,7 @@ from typing import Any
 from pal.cli_args import babble_steps, check_dataset_dir, fps, out_dir, seed
 from pal.cli_body import UsageError, UsageParser, action_ranges, add_body_flags, body_fields, check_data
 from pal.cli_engine import add_engine_flags, connected, ray_engine
+from pal.lab.runner import log_like
 
 __all__ = ["UsageError", "build_parser", "main"]
 
@@ -53,11 +54,7 @@ def _configure(verbose: bool, threads: int, quiet: bool = False) -> None:
     # slow down by orders of magnitude when another process holds the second core.
     torch.set_num_threads(threads)
     level = logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO
-    logging.basicConfig(
-        level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr
-    )
-    # basicConfig leaves the level alone when the root logger has handlers (e.g. main() in a test)
-    logging.getLogger().setLevel(level)
+    log_like(level)  # basicConfig, and the level also when the root logger has handlers (main() in a test)
     for noisy in ("matplotlib", "PIL", "OpenGL", "numexpr", "h5py", "jax"):
         logging.getLogger(noisy).setLevel(logging.WARNING)
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 import tempfile
 import time
 from collections.abc import Mapping, Sequence
@@ -22,9 +23,18 @@ from pal.lab import configs
 from pal.lab.registry import Entry
 from pal.lab.report import Report
 
-__all__ = ["OutputError", "RunRecord", "check_output_dir", "configure", "execute"]
+__all__ = ["LOG_FORMAT", "OutputError", "RunRecord", "check_output_dir", "configure", "execute", "log_like"]
 
 log = logging.getLogger(__name__)
+
+#: The command line's log lines; its worker processes log the same way (:func:`log_like`).
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
+def log_like(level: int) -> None:
+    """Log at ``level`` to stderr in :data:`LOG_FORMAT`: a worker process set up like the command that started it."""
+    logging.basicConfig(level=level, format=LOG_FORMAT, stream=sys.stderr)
+    logging.getLogger().setLevel(level)
 
 
 class OutputError(ValueError):

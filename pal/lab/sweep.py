@@ -251,10 +251,13 @@ def _close(figures: Any) -> None:
         plt.close(fig)
 
 
-def _run_in_worker(kind: str, name: str, base: Base, sets: list[str], run: Run, out_dir: str) -> str | None:
+def _run_in_worker(
+    kind: str, name: str, base: Base, sets: list[str], run: Run, out_dir: str, level: int
+) -> str | None:
     import torch
 
     torch.set_num_threads(1)
+    runner.log_like(level)  # a spawned process starts without the sweep's logging
     return _run_one(kind, name, base, sets, run, out_dir)
 
 
@@ -348,7 +351,8 @@ def _run_locked(
 
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=ctx) as pool:
-            futures = [(r, pool.submit(_run_in_worker, *args, r, str(out))) for r in todo]
+            level = logging.getLogger().getEffectiveLevel()
+            futures = [(r, pool.submit(_run_in_worker, *args, r, str(out), level)) for r in todo]
             for r, f in futures:
                 try:
                     f.result()

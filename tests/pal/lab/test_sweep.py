@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import math
 import os
 import subprocess
@@ -186,10 +187,12 @@ def test_a_real_experiment_2_configs_x_2_seeds_gives_one_table_and_a_figure_per_
 
 
 @pytest.mark.slow
-def test_two_local_workers_give_the_same_reports_as_one_process(spring_sweep, tmp_path):
+def test_two_local_workers_give_the_same_reports_as_one_process(spring_sweep, tmp_path, caplog, capfd):
+    caplog.set_level(logging.INFO)  # the workers log at the sweep's level, to their (inherited) stderr
     plan = sweep.plan("spring", ["schedule.epochs=1"], "0-1", base="tiny")
     result = sweep.run_sweep(plan, tmp_path / "par", workers=2)
     assert not result.failed
+    assert capfd.readouterr().err.count("INFO pal.lab.runner: experiment spring took") == 2
     serial = spring_sweep.paths["manifest"].parent / "runs"
     for i in range(2):
         a = json.loads((tmp_path / "par" / "runs" / f"r{i:03d}.json").read_text())
