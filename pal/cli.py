@@ -82,6 +82,7 @@ def _run_entry(kind: str, name: str, args: argparse.Namespace, fields: dict[str,
         config = configure(
             entry,
             quick=getattr(args, "quick", False),
+            tiny=getattr(args, "tiny", False),
             sets=getattr(args, "set", None) or (),
             fields={**body_fields(entry, args), **(fields or {})},
         )
@@ -329,7 +330,9 @@ def _add_run_flags(p: argparse.ArgumentParser, *, body: bool = True) -> None:
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--out", type=out_dir, default=None, help="directory for JSON, markdown, PNG figures")
     if body:
-        p.add_argument("--quick", action="store_true", help="small configuration")
+        size = p.add_mutually_exclusive_group()
+        size.add_argument("--quick", action="store_true", help="small configuration")
+        size.add_argument("--tiny", action="store_true", help="the smallest configuration (the tests')")
         p.add_argument(
             "--set",
             action="append",

@@ -74,12 +74,14 @@ def configure(
     quick: bool = False,
     sets: Sequence[str] = (),
     fields: Mapping[str, Any] | None = None,
+    tiny: bool = False,
 ) -> Any:
-    """The entry's config: default or quick, then ``fields`` and ``sets`` applied in order.
+    """The entry's config: default, quick or tiny, then ``fields`` and ``sets`` applied in order.
 
     Args:
         entry: the registry entry.
         quick: start from the quick config instead of the full protocol.
+        tiny: start from the tiny config (the smallest that runs every code path; not with ``quick``).
         sets: ``"a.b=VALUE"`` strings (``--set``); VALUE is JSON or a bare string.
         fields: dotted path -> value, applied before ``sets`` (e.g. from the body flags).
 
@@ -87,7 +89,9 @@ def configure(
         configs.ConfigError: a malformed item, an unknown path or a value of the wrong type.
         ValueError: the config's own checks refuse a value.
     """
-    config = entry.quick if quick else entry.default()
+    if quick and tiny:
+        raise ValueError("choose one of quick and tiny, not both")
+    config = entry.quick if quick else entry.tiny if tiny else entry.default()
     for path, value in (fields or {}).items():
         config = configs.override(config, path, value)
     for item in sets:

@@ -49,6 +49,21 @@ def test_list_names_every_entry(capsys):
         assert f" {name} " in out
 
 
+def test_tiny_runs_the_entrys_tiny_config(capsys):
+    from pal.lab.configs import to_dict
+    from pal.lab.registry import get
+
+    assert main(["experiment", "queries", "--tiny", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert (
+        doc["config"]
+        == to_dict(get("experiment", "queries").tiny)
+        != to_dict(get("experiment", "queries").quick)
+    )
+    with pytest.raises(ValueError, match="choose one of quick and tiny"):
+        runner.configure(get("experiment", "queries"), quick=True, tiny=True)
+
+
 @pytest.fixture
 def a_file(tmp_path) -> Path:
     path = tmp_path / "taken"
@@ -122,6 +137,7 @@ BAD_INVOCATIONS = [
     (["sweep", "queries", "--retry-failed", "--out", "d"], "holds no sweep"),
     (["sweep", "queries", "--out", "{file}"], "is a file, expected a directory"),
     (["sweep", "queries", "--quick", "--tiny", "--out", "d"], "not allowed with argument"),
+    (["experiment", "queries", "--quick", "--tiny"], "not allowed with argument"),
     # values past the documented limits: refused naming the flag and the value
     (
         ["experiment", "b1", "--set", f"protocol.fit.schedule.epochs={'[' * 5000}{']' * 5000}"],
