@@ -10,7 +10,15 @@ import math
 import numbers
 from typing import Any
 
-__all__ = ["MAX_LOOP_STEPS", "MAX_SEED", "MAX_STEPS", "check_choice", "check_float", "check_int", "check_seed"]
+__all__ = [
+    "MAX_LOOP_STEPS",
+    "MAX_SEED",
+    "MAX_STEPS",
+    "check_choice",
+    "check_float",
+    "check_int",
+    "check_seed",
+]
 
 #: The largest seed pal accepts (seeds are 32-bit: numpy, torch and MuJoCo all take them).
 MAX_SEED = 2**32 - 1

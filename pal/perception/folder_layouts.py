@@ -47,7 +47,9 @@ _STEM = "{stem}"
 
 def _check_template(name: str, role: str, template: object) -> str:
     if not isinstance(template, str) or template.count(_STEM) != 1:
-        raise ValueError(f"layout {name!r}: the {role} template {template!r} must hold '{{stem}}' exactly once")
+        raise ValueError(
+            f"layout {name!r}: the {role} template {template!r} must hold '{{stem}}' exactly once"
+        )
     parts = Path(template).parts
     if Path(template).is_absolute() or ".." in parts or _STEM not in parts[-1]:
         raise ValueError(
@@ -98,7 +100,9 @@ def layout_named(layout: str | FolderLayout) -> FolderLayout:
     for known in LAYOUTS:
         if known.name == layout:
             return known
-    raise ValueError(f"layout {layout!r} is unknown; expected a FolderLayout or one of {[x.name for x in LAYOUTS]}")
+    raise ValueError(
+        f"layout {layout!r} is unknown; expected a FolderLayout or one of {[x.name for x in LAYOUTS]}"
+    )
 
 
 def _affixes(template: str) -> tuple[str, str, str]:
@@ -108,7 +112,11 @@ def _affixes(template: str) -> tuple[str, str, str]:
 
 
 def _stem_of(file_stem: str, prefix: str, suffix: str) -> str | None:
-    if len(file_stem) > len(prefix) + len(suffix) and file_stem.startswith(prefix) and file_stem.endswith(suffix):
+    if (
+        len(file_stem) > len(prefix) + len(suffix)
+        and file_stem.startswith(prefix)
+        and file_stem.endswith(suffix)
+    ):
         return file_stem[len(prefix) : len(file_stem) - len(suffix)]
     return None
 
@@ -145,7 +153,9 @@ def match_layout(folder: Path, layout: FolderLayout) -> tuple[dict[str, Path], d
     same = _affixes(layout.color)[0] == _affixes(layout.depth)[0]
     more_specific = _specific(layout.depth) > _specific(layout.color)
     color = _files(folder, layout.color, COLOR_EXTENSIONS, layout.depth if same and more_specific else None)
-    depth = _files(folder, layout.depth, DEPTH_EXTENSIONS, layout.color if same and not more_specific else None)
+    depth = _files(
+        folder, layout.depth, DEPTH_EXTENSIONS, layout.color if same and not more_specific else None
+    )
     return color, depth
 
 

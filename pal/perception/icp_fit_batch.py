@@ -94,7 +94,12 @@ class _Steps:
         act = np.flatnonzero(self.active)
         na = len(act)
         bm = associate_all(
-            [self.models[i] for i in act], self.R[act], self.t[act], [self.terms[i][0] for i in act], frame, cfg
+            [self.models[i] for i in act],
+            self.R[act],
+            self.t[act],
+            [self.terms[i][0] for i in act],
+            frame,
+            cfg,
         )
         gi, q, nrm = bm.gi, bm.q, bm.n
         y, X = bm.y[bm.idx], bm.X[bm.idx]
@@ -133,7 +138,14 @@ class _Steps:
         self._update(act, fail, stop, go, H, g, k)
 
     def _update(
-        self, act: np.ndarray, fail: np.ndarray, stop: np.ndarray, go: np.ndarray, H: np.ndarray, g: np.ndarray, k: int
+        self,
+        act: np.ndarray,
+        fail: np.ndarray,
+        stop: np.ndarray,
+        go: np.ndarray,
+        H: np.ndarray,
+        g: np.ndarray,
+        k: int,
     ) -> None:
         """Apply the solved steps of the objects that go on; retire the failed, stopped and converged."""
         delta, solved = _solve_all(H[go], g[go])

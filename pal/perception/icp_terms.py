@@ -17,7 +17,16 @@ from pal.perception.frames import RGBDFrame, backproject
 from pal.perception.masks import Mask
 from pal.perception.quantiles import median
 
-__all__ = ["LiveSurface", "Match", "Photometric", "associate", "bilinear", "cross", "smooth", "surface_normals"]
+__all__ = [
+    "LiveSurface",
+    "Match",
+    "Photometric",
+    "associate",
+    "bilinear",
+    "cross",
+    "smooth",
+    "surface_normals",
+]
 
 
 def smooth(gray: np.ndarray, sigma: float) -> np.ndarray:
@@ -85,7 +94,13 @@ class LiveSurface:
 
 
 def surface_normals(
-    z: np.ndarray, u: np.ndarray, v: np.ndarray, origin: tuple[int, int], K: np.ndarray, b: int, max_jump: float
+    z: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    origin: tuple[int, int],
+    K: np.ndarray,
+    b: int,
+    max_jump: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Points and camera-facing unit normals from depth differences over +-``b`` pixels.
 

@@ -136,7 +136,9 @@ def warp_mask(
     crop = np.zeros((by1 - by0, bx1 - bx0), np.float32)
     crop[vi - by0, ui - bx0] = zi  # one object's own points: any of them may take a pixel
     far = np.where(crop > 0, crop, np.float32(np.inf))
-    near = far if r == 0 else cv2.erode(far, np.ones((2 * r + 1, 2 * r + 1), np.uint8))  # splat: nearest depth
+    near = (
+        far if r == 0 else cv2.erode(far, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
+    )  # splat: nearest depth
     return bx0, by0, np.where(np.isfinite(near), near, 0.0).astype(np.float32)
 
 
@@ -206,7 +208,9 @@ def propagate_masks(
         survive refinement and occlusion).
     """
     if previous_depth.shape != frame.shape:
-        raise ValueError(f"previous depth has shape {previous_depth.shape}, expected the frame's {frame.shape}")
+        raise ValueError(
+            f"previous depth has shape {previous_depth.shape}, expected the frame's {frame.shape}"
+        )
     scale = frame.width / 640.0
     step, r = max(1, round(config.step * scale)), round(config.border * scale)
     refined = []

@@ -326,7 +326,9 @@ def _pair_relations(
     cfg: RelationConfig,
 ) -> list[PairRelation]:
     """Both ordered relations of each selected pair (a < b): positions, gaps and grades of all pairs at once."""
-    located = [k for k, (a, b) in enumerate(selected) if spatial.get(a) is not None and spatial.get(b) is not None]
+    located = [
+        k for k, (a, b) in enumerate(selected) if spatial.get(a) is not None and spatial.get(b) is not None
+    ]
     rel: dict[int, tuple[np.ndarray, float, np.ndarray]] = {}
     if located:
         ca = np.array([spatial[selected[k][0]].centroid for k in located])  # type: ignore[union-attr]
@@ -336,7 +338,9 @@ def _pair_relations(
         for j, k in enumerate(located):
             rel[k] = (disp[j], float(dist[j]), direc[j])
             rel[-k - 1] = (back[j], float(dist[j]), back_dir[j])
-    shaped = [k for k, (a, b) in enumerate(selected) if geometry.get(a) is not None and geometry.get(b) is not None]
+    shaped = [
+        k for k, (a, b) in enumerate(selected) if geometry.get(a) is not None and geometry.get(b) is not None
+    ]
     grades: dict[int, dict[str, float]] = {}
     if shaped:
         geo: dict[int, ObjectGeometry] = {i: g for i, g in geometry.items() if g is not None}

@@ -31,7 +31,11 @@ def distinct_history(history: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray
 
 
 def velocity_correlation(
-    a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], now: float, window: float, min_speed: float
+    a: tuple[np.ndarray, np.ndarray],
+    b: tuple[np.ndarray, np.ndarray],
+    now: float,
+    window: float,
+    min_speed: float,
 ) -> float | None:
     """The synchrony (module docstring) of two histories already made distinct (:func:`distinct_history`).
 

@@ -35,9 +35,13 @@ def check_distortion(coefficients: object, name: str = "distortion") -> np.ndarr
     try:
         d = np.asarray(coefficients, dtype=np.float64).reshape(-1)
     except (TypeError, ValueError):
-        raise ValueError(f"{name} is {coefficients!r}; expected 4, 5 or 8 numbers k1, k2, p1, p2[, k3, ...]") from None
+        raise ValueError(
+            f"{name} is {coefficients!r}; expected 4, 5 or 8 numbers k1, k2, p1, p2[, k3, ...]"
+        ) from None
     if d.size not in (4, 5, 8):
-        raise ValueError(f"{name} has {d.size} values {d.tolist()}; expected 4, 5 or 8 (k1, k2, p1, p2[, k3, ...])")
+        raise ValueError(
+            f"{name} has {d.size} values {d.tolist()}; expected 4, 5 or 8 (k1, k2, p1, p2[, k3, ...])"
+        )
     if not np.all(np.isfinite(d)):
         raise ValueError(f"{name} is {d.tolist()}; every coefficient must be finite")
     return d
@@ -84,7 +88,9 @@ class Undistortion:
             ValueError: colour and depth differ in size, or depth is not 2-D.
         """
         if depth.ndim != 2 or rgb.shape[:2] != depth.shape:
-            raise ValueError(f"colour is {rgb.shape[:2]} and depth {depth.shape}; undistortion needs one (H, W) for both")
+            raise ValueError(
+                f"colour is {rgb.shape[:2]} and depth {depth.shape}; undistortion needs one (H, W) for both"
+            )
         if self.is_identity:
             return rgb, depth
         m1, m2, nx, ny = self._maps_for(*depth.shape)
@@ -95,4 +101,3 @@ class Undistortion:
     def __repr__(self) -> str:
         k = ", ".join(f"{c:g}" for c in self.coefficients)
         return f"Undistortion(fx={self.K[0, 0]:g}, fy={self.K[1, 1]:g}, coefficients=[{k}])"
-
