@@ -238,21 +238,23 @@ def cross_entropy_search(
     return SearchResult(best, best_losses, tuple(history))
 
 
-def shift_plan(sequence: Tensor, fill: Tensor | None = None) -> Tensor:
-    """The previous plan shifted by one step: the warm start of the next MPC step.
+def shift_plan(sequence: Tensor, fill: Tensor | None = None, steps: int = 1) -> Tensor:
+    """The previous plan shifted by ``steps`` (k) steps: the warm start of the next MPC step.
 
-        a'_t = a_{t+1}  (t < H - 1),    a'_{H-1} = fill  (default: a_{H-1}, the last step repeated)
+        a'_t = a_{t+k}  (t < H - k),    a'_t = fill  (t >= H - k; default: a_{H-1}, the last step repeated)
 
     Args:
-        sequence: ``(..., H, D)`` the plan made at the previous step.
-        fill: optional ``(D,)`` value of the new last step (e.g. the box midpoint).
+        sequence: ``(..., H, D)`` the plan made k steps before.
+        fill: optional ``(D,)`` value of the new last steps (e.g. the box midpoint).
+        steps: k >= 1, the plan's actions executed since it was made (k >= H: all ``fill``).
 
     Returns:
         ``(..., H, D)``; a horizon of 1 gives ``fill`` or the sequence itself.
 
     Raises:
-        ValueError: a sequence with fewer than 2 dims, or a ``fill`` of the wrong shape.
+        ValueError: a sequence with fewer than 2 dims, a ``fill`` of the wrong shape, steps < 1.
     """
+    steps = check_int("steps", steps, minimum=1)
     if not isinstance(sequence, Tensor) or sequence.ndim < 2:
         got = tuple(sequence.shape) if isinstance(sequence, Tensor) else type(sequence).__name__
         raise ValueError(f"sequence has shape {got}, expected (..., H, D)")
@@ -262,7 +264,8 @@ def shift_plan(sequence: Tensor, fill: Tensor | None = None) -> Tensor:
             got = tuple(fill.shape) if isinstance(fill, Tensor) else type(fill).__name__
             raise ValueError(f"fill has shape {got}, expected ({sequence.shape[-1]},)")
         last = fill.to(sequence.dtype).expand_as(last)
-    return torch.cat([sequence[..., 1:, :], last], dim=-2)
+    k = min(steps, sequence.shape[-2])
+    return torch.cat([sequence[..., k:, :], last.expand(*last.shape[:-2], k, last.shape[-1])], dim=-2)
 
 
 def projected_adam(

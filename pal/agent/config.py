@@ -265,7 +265,9 @@ class PlanConfig:
         action_weight: weight of ``|a|^2`` (action units squared) in the preference.
         move_weight: weight of ``|a - q_prev|^2`` (rad^2): for position servos, the size of the move
             (small moves have outcomes the model knows better).
-        warm_start: start the search from the previous plan shifted by one step.
+        warm_start: start the search from the previous plan shifted by the steps executed from it.
+        replan_every: plan anew every k steps and execute the plan's next actions in between
+            (1: every step, PETS's MPC; :mod:`pal.agent.replan`).
         min_progress: a goal step predicted to gain less than this (m) holds still.
         goal_tolerance: a goal closer than this (m, by the estimate) is held.
     """
@@ -279,12 +281,14 @@ class PlanConfig:
     action_weight: float = 0.0
     move_weight: float = 0.0
     warm_start: bool = True
+    replan_every: int = 1
     min_progress: float = 0.002
     goal_tolerance: float = 0.005
 
     def __post_init__(self) -> None:
         a = _check_type("action", self.action, ActionOptions)
         check_int("action.horizon", a.horizon)
+        check_int("replan_every", self.replan_every)
         for name in ("lr", "scale"):
             check_float(f"action.{name}", getattr(a, name), 0.0, open_low=True)
         check_choice("action.target_at", a.target_at, ("final", "every"))

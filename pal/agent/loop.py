@@ -7,9 +7,9 @@
 2. **estimate** (:mod:`pal.agent.estimate`): the belief over the object positions, through the
    measurement sites for perceived objects (a lost object stays unobserved);
 3. **plan** (:mod:`pal.agent.plan`): a pure function of the model, the belief and a target; the
-   sampling planner over a horizon, replanned every step (MPC); curious actions come from
-   :mod:`pal.agent.explore` (the contact gate), :mod:`pal.agent.influence` (gated ensemble
-   disagreement) or :mod:`pal.agent.curiosity` (the density of Eq. 4.34-4.38);
+   sampling planner over a horizon, replanned every k steps (MPC, :mod:`pal.agent.replan`); curious
+   actions come from :mod:`pal.agent.explore` (the contact gate), :mod:`pal.agent.influence` (gated
+   ensemble disagreement) or :mod:`pal.agent.curiosity` (the density of Eq. 4.34-4.38);
 4. **act**: ``env.step(a)``, the transition recorded in :class:`pal.agent.history.History`
    (:mod:`pal.agent.record`);
 5. **learn** (:mod:`pal.agent.learn`): refits (Eq. 4.33) and revisions when the residual monitor fires.
@@ -33,6 +33,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from inference.planning import shift_plan
 from models import KinematicMechanism, WorldModel
 from pal.agent.body_checks import check_joint_sensors, resolve_servo
 from pal.agent.config import AgentConfig
@@ -49,6 +50,7 @@ from pal.agent.kinematics import check_effector, known_mechanisms, point_mechani
 from pal.agent.learn import Learner, site_data
 from pal.agent.plan import Plan, one_step, plan
 from pal.agent.record import transition
+from pal.agent.replan import Replanning
 from pal.agent.senses import Percept, Senses
 from pal.agent.spec import EnvSpec, check_env
 from pal.checks import check_int
@@ -193,6 +195,8 @@ class Agent:
         self.previous: dict[str, np.ndarray | None] = {}
         self.done = False
         self._sequence: np.ndarray | None = None
+        self._plan: Plan | None = None
+        self._replan = Replanning(self.config.plan.replan_every)
         self._target_index = 0
         self._dt = float(getattr(env.unwrapped, "dt", 1.0))
         self._probe()
@@ -239,6 +243,7 @@ class Agent:
         self.senses.reset()
         self.done = False
         self._sequence = None
+        self._replan.reset()
         self.percept = self.senses.read(obs, info, self.clock)
         self.estimate = self.estimator.initial(self.percept)
         self.previous = {}
@@ -275,11 +280,10 @@ class Agent:
             raise ValueError(f"no state estimate for {missing}; they have not been perceived in this episode")
         cfg = self.config.plan
         init = None
-        if cfg.warm_start and self._sequence is not None:
-            init = np.concatenate([self._sequence[1:], self._sequence[-1:]])
+        if cfg.warm_start and self._sequence is not None:  # shifted by the actions executed from it
+            init = shift_plan(torch.as_tensor(self._sequence), steps=self._replan.shift()).numpy()
         elif self.servo and len(self.low) == len(self.percept.q):  # start the search from holding still
             init = np.tile(np.clip(self.percept.q, self.low, self.high), (cfg.action.horizon, 1))
-        effector = self.spec.effector_name if self.spec.effector is not None else None
         noise = self.correction.noise(self.model)
         p = plan(
             self.model,
@@ -289,10 +293,11 @@ class Agent:
             seed=self._seed(),
             init=init,
             mode=mode,
-            effector=effector,
+            effector=self.spec.effector_name if self.spec.effector is not None else None,
             noise=noise,
         )
-        self._sequence = p.sequence
+        self._sequence, self._plan = p.sequence, p
+        self._replan.planned()
         return p
 
     def random_action(self) -> np.ndarray:
@@ -380,11 +385,25 @@ class Agent:
         cfg = self.config.plan
         if self.servo and now <= cfg.goal_tolerance:
             return Decision("hold", self._hold(), goal)
+        if (held := self._held(goal)) is not None:  # a plan's next action (PlanConfig.replan_every)
+            return held
         p = self.plan(goal)
         if self.servo and p.objective > now - cfg.min_progress:
             self._sequence = None
             return Decision("hold", self._hold(), p.targets, p.predicted, p.objective)
         return _decision(p)
+
+    def _held(self, goal: Mapping[str, np.ndarray]) -> Decision | None:
+        """The current plan's next action while no new plan is due (``PlanConfig.replan_every``)."""
+        p = self._plan
+        if self._sequence is None or p is None or self._replan.due(len(self._sequence)):
+            return None
+        if set(p.targets) != set(goal) or any(not np.array_equal(p.targets[o], goal[o]) for o in goal):
+            return None  # the goal moved: plan for the new one
+        action = self._sequence[self._replan.take()].copy()
+        effector = self.spec.effector_name if self.spec.effector is not None else None
+        mean, sd, _ = one_step(self.model, self.belief(), action, tuple(p.targets), effector)
+        return Decision(p.mode, action, p.targets, p.predicted, p.objective, mean, sd, sequence=p.sequence)
 
     # ------------------------------------------------------------------ act, learn
     def step(self, action: Any) -> Percept:

@@ -35,6 +35,7 @@ from torch import Tensor, nn
 
 from inference.planning import cross_entropy_search, shift_plan
 from pal.agent.config import PlanConfig
+from pal.agent.replan import Replanning
 from pal.checks import check_float, check_int
 
 __all__ = ["BaselineConfig", "CEMPlanner", "ProbabilisticEnsemble"]
@@ -142,13 +143,13 @@ class ProbabilisticEnsemble(nn.Module):
 
 
 class CEMPlanner:
-    """iCEM / CEM over action sequences through the ensemble, replanned every step (module docstring).
+    """iCEM / CEM over action sequences through the ensemble, replanned every k steps (module docstring).
 
     Args:
         model: the fitted ensemble.
         low, high: (A,) action bounds.
-        config: ``action.horizon``, ``action.sampling`` and ``warm_start`` (the agent's planner
-            settings; the preference fields are the cost's business).
+        config: ``action.horizon``, ``action.sampling``, ``warm_start`` and ``replan_every`` = k
+            (the agent's planner settings; the preference fields are the cost's business).
         cost: ``(obs (..., D), act (..., A)) -> (...)`` step cost.
         seed: the sampling's only source of randomness.
     """
@@ -167,10 +168,13 @@ class CEMPlanner:
         self.high = torch.as_tensor(high, dtype=torch.float32)
         self.generator = torch.Generator().manual_seed(seed)
         self._mean: Tensor | None = None
+        self._final: np.ndarray | None = None  # the plan's predicted final observation
+        self._replan = Replanning(config.replan_every)
 
     def reset(self) -> None:
         """Forget the warm start (a new episode)."""
         self._mean = None
+        self._replan.reset()
 
     def costs(self, obs: Tensor, seqs: Tensor) -> tuple[Tensor, Tensor]:
         """Mean over members of the summed cost ``(P,)`` and the members' mean final observation ``(P, D)``.
@@ -192,10 +196,12 @@ class CEMPlanner:
     def act(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(first action (A,), predicted final observation of the plan (D,))`` from ``obs`` (D,)."""
         h = self.config.action.horizon
+        if self._mean is not None and self._final is not None and not self._replan.due(h):
+            return self._mean[self._replan.take()].numpy().astype(np.float64), self._final.copy()
         o = torch.as_tensor(obs, dtype=torch.float32)[None]
         start = ((self.low + self.high) / 2).expand(1, h, self.low.shape[0]).clone()
         if self.config.warm_start and self._mean is not None:
-            start = shift_plan(self._mean)[None]
+            start = shift_plan(self._mean, steps=self._replan.shift())[None]
 
         def objective(a: Tensor) -> Tensor:  # (R, 1, H, A) -> (R, 1)
             return self.costs(o, a[:, 0])[0][:, None]
@@ -206,5 +212,6 @@ class CEMPlanner:
         best = found.elites[0, 0]
         with torch.no_grad():
             _, final = self.costs(o, best[None])
-        self._mean = best
-        return best[0].numpy().astype(np.float64), final[0].numpy().astype(np.float64)
+        self._mean, self._final = best, final[0].numpy().astype(np.float64)
+        self._replan.planned()
+        return best[0].numpy().astype(np.float64), self._final.copy()

@@ -29,6 +29,7 @@ from torch import Tensor
 
 from inference.planning import cross_entropy_search, shift_plan
 from pal.agent.config import PlanConfig
+from pal.agent.replan import Replanning
 from pal.sim.restore import full_state
 
 __all__ = ["PUSHER_BODIES", "Observe", "SimulatorMPC", "pusher_observation"]
@@ -53,7 +54,7 @@ class SimulatorMPC:
     Args:
         env: a Gymnasium MuJoCo environment (its unwrapped env has ``model``, ``data``,
             ``fullpath`` and ``frame_skip``); the planner reads its state at every :meth:`act`.
-        config: ``action.horizon``, ``action.sampling`` and ``warm_start`` (the learners' settings).
+        config: ``action.horizon``, ``action.sampling``, ``warm_start``, ``replan_every`` (the learners').
         cost: ``(obs (..., D), act (..., A)) -> (...)`` step cost.
         observe: the observation of rolled-out states (e.g. :func:`pusher_observation`).
         bodies: the bodies whose positions ``observe`` reads.
@@ -91,10 +92,13 @@ class SimulatorMPC:
         self.high = torch.as_tensor(env.action_space.high, dtype=torch.float32)
         self.generator = torch.Generator().manual_seed(seed)
         self._mean: Tensor | None = None
+        self._final: np.ndarray | None = None  # the plan's predicted final observation
+        self._replan = Replanning(config.replan_every)
 
     def reset(self) -> None:
         """Forget the warm start (a new episode)."""
         self._mean = None
+        self._replan.reset()
 
     @property
     def plan(self) -> Tensor:
@@ -133,10 +137,12 @@ class SimulatorMPC:
     def act(self) -> tuple[np.ndarray, np.ndarray]:
         """``(first action (A,), predicted final observation of the plan (D,))`` from the env's state."""
         h = self.config.action.horizon
+        if self._mean is not None and self._final is not None and not self._replan.due(h):
+            return self._mean[self._replan.take()].numpy().astype(np.float64), self._final.copy()
         state = self.state()
         start = ((self.low + self.high) / 2).expand(1, h, self.low.shape[0]).clone()
         if self.config.warm_start and self._mean is not None:
-            start = shift_plan(self._mean)[None]
+            start = shift_plan(self._mean, steps=self._replan.shift())[None]
 
         def objective(a: Tensor) -> Tensor:  # (R, 1, H, A) -> (R, 1)
             return self._loss(state, a[:, 0])[:, None]
@@ -145,6 +151,6 @@ class SimulatorMPC:
             objective, start, self.low, self.high, self.config.action.sampling, self.generator
         )
         best = found.elites[0, 0]
-        self._mean = best
-        final = self.predict(state, best[None].numpy())[0, -1]
-        return best[0].numpy().astype(np.float64), final
+        self._mean, self._final = best, self.predict(state, best[None].numpy())[0, -1]
+        self._replan.planned()
+        return best[0].numpy().astype(np.float64), self._final.copy()

@@ -95,7 +95,8 @@ class Episode:
         start_planar: at the start (x-y).
         predicted_final: the plan's predicted x-y distance at its horizon's end, made at the
             step whose horizon ends with the episode (None for random actions).
-        cpu, wall: planning time per step (process CPU, wall clock; None for random actions).
+        cpu, wall: planning time per step (process CPU, wall clock; None for random actions; with
+            ``plan.replan_every`` k > 1 the mean over every step, the held ones included).
         path: (T + 1, 2) object x-y; tip: (T + 1, 2) fingertip x-y; goal: (2,) goal x-y.
         min_tip_object: the smallest 3-D fingertip-object distance over the episode.
         moved: the object's largest x-y displacement from its start.
