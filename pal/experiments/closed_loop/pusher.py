@@ -75,7 +75,7 @@ log = logging.getLogger(__name__)
 #: (``pusher-ceiling``, the same 20 goals, one run each on one machine) it ends at a median
 #: 0.0071 m with 65 % within 5 cm, population 100 at 0.0085 m and 70 %, for 0.24 against 0.47 s of
 #: CPU per step; 50 x 2 iterations falls to 0.044 m and 50 %. With the learned model the step
-#: costs 0.64 against 0.76 s at 100 (``pal bench planner``: its Python overhead per rollout step
+#: costs 0.60 against 0.78 s at 100 (``pal bench planner``: its Python overhead per rollout step
 #: does not shrink with the population). init_std 0.25 of the torque range as in mbrl-lib's iCEM.
 #: A plan every 2 steps (``--set plan.replan_every=2``) halves the planning; on the simulator it
 #: ends at 0.019 m with 55 % within 5 cm (0.127 s per step), so it is an option, not the default.

@@ -7,14 +7,10 @@ import pytest
 
 from inference import CalibrationOptions
 from pal.agent.plan import plan
+from pal.experiments.closed_loop import pusher
 from pal.experiments.closed_loop.pusher import PLAN, PUSH_MODEL
 
-SMALL = replace(
-    PUSH_MODEL,
-    members=2,
-    hidden=(8,),
-    schedule=replace(PUSH_MODEL.schedule, epochs=3, patience=None),
-)
+SMALL = pusher.TINY.model
 SMALL_PLAN = replace(
     PLAN,
     action=replace(
