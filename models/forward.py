@@ -45,6 +45,7 @@ from models.checks import (
     describe,
 )
 from models.discrete import gumbel, gumbel_max
+from models.driven import driven
 from models.ensemble import EnsembleMechanism
 from models.gated import switch_p_on
 from models.values import as_values, check_action_bounds
@@ -419,6 +420,10 @@ class ForwardQueries:
         state = dict(init)
         steps: list[dict[str, Tensor]] = []
         with torch.set_grad_enabled(grad):
+            known = {**seq, **fixed}
+            fixed |= driven(
+                self.graph, self._mech_by_name, set(self._categories), self._parents, known, init, noise
+            )
             for tau in range(horizon):
                 values = {**state, **{key: v[:, tau] for key, v in {**seq, **fixed}.items()}}
                 step_noise: NoiseSpec = noise
