@@ -331,7 +331,7 @@ def plan(
     ``sampling.refine_elites`` elites for ``sampling.refine_steps`` steps (default
     ``steps``), and each unit keeps the lowest loss among the refined elites and the
     unrefined best elite. With ``refine_steps == 0`` the search's best elite is returned with the
-    loss it was ranked by (no further evaluation).
+    loss it was ranked by (no further evaluation), and the search runs in ``torch.inference_mode``.
 
     Args:
         objective: ``a (R, N, H, D) -> L (R, N)``.
@@ -352,10 +352,12 @@ def plan(
         with torch.no_grad():
             final = objective(refined)[0]
         return refined[0], history, (), final
-    found = cross_entropy_search(objective, start, low, high, sampling, generator)
     refine_steps = steps if sampling.refine_steps is None else sampling.refine_steps
     if refine_steps == 0:  # nothing refined: the search's best elite, with the loss it was ranked by
-        return found.elites[0], (), found.history, found.losses[0]
+        with torch.inference_mode():  # no gradient is ever taken: no autograd bookkeeping either
+            found = cross_entropy_search(objective, start, low, high, sampling, generator)
+        return found.elites[0].clone(), (), found.history, found.losses[0].clone()
+    found = cross_entropy_search(objective, start, low, high, sampling, generator)
     refined, history = projected_adam(
         objective, found.elites[: sampling.refine_elites], low, high, refine_steps, lr, progress_bar
     )

@@ -206,10 +206,11 @@ class CEMPlanner:
         def objective(a: Tensor) -> Tensor:  # (R, 1, H, A) -> (R, 1)
             return self.costs(o, a[:, 0])[0][:, None]
 
-        found = cross_entropy_search(
-            objective, start, self.low, self.high, self.config.action.sampling, self.generator
-        )
-        best = found.elites[0, 0]
+        with torch.inference_mode():  # the search takes no gradient
+            found = cross_entropy_search(
+                objective, start, self.low, self.high, self.config.action.sampling, self.generator
+            )
+        best = found.elites[0, 0].clone()
         with torch.no_grad():
             _, final = self.costs(o, best[None])
         self._mean, self._final = best, final[0].numpy().astype(np.float64)
