@@ -34,13 +34,13 @@ if TYPE_CHECKING:
     from models.graph import CausalGraph
     from models.mechanisms import Mechanism
 
-__all__ = ["driven", "driven_sites", "driven_trajectories"]
+__all__ = ["driven_sites", "driven_trajectories", "roll_driven"]
 
 #: ``(name, values) -> concat(pa_name)`` over any leading dims (the model's ``_parents``).
 ParentsFn = Callable[[str, Mapping[str, Tensor]], Tensor]
 
 
-def driven(
+def roll_driven(
     graph: CausalGraph,
     mechanisms: Mapping[str, Mechanism],
     discrete: set[str],

@@ -45,7 +45,7 @@ from models.checks import (
     describe,
 )
 from models.discrete import gumbel, gumbel_max
-from models.driven import driven
+from models.driven import roll_driven
 from models.ensemble import EnsembleMechanism
 from models.gated import switch_p_on
 from models.values import as_values, check_action_bounds
@@ -376,6 +376,7 @@ class ForwardQueries:
         grad: bool = False,
         members: bool = False,
         assign: Mapping[str, Any] | None = None,
+        driven: bool = True,
     ) -> dict[str, Tensor]:
         """Mental simulation over h' steps (Alg. 4.1, Eq. 4.40).
 
@@ -397,13 +398,16 @@ class ForwardQueries:
             assign: name -> ``(N, H, dim)`` values of non-root variables set at every step,
                 ``do(x_tau = assign[x][:, tau])`` (e.g. a body's recorded motion, so that only
                 the rest is simulated); their lagged slots carry the assigned values on.
+            driven: roll the sites that the inputs alone determine (a body given by its MJCF)
+                over the whole horizon before the step loop (:mod:`models.driven`; the same
+                values); False: every site in the step loop.
 
         Returns:
             name -> ``(N, H, dim)``: the simulated trajectory T^sim; with ``members``,
             ``(K, N, H, dim)``.
         """
-        grad = check_bool("grad", grad)
-        members = check_bool("members", members)
+        grad, members = check_bool("grad", grad), check_bool("members", members)
+        driven_first = check_bool("driven", driven)
         generator = check_generator("generator", generator)
         seq, init, n, horizon = self._rollout_inputs(initial, inputs)
         fixed = self._rollout_assign(assign, n, horizon)
@@ -420,10 +424,11 @@ class ForwardQueries:
         state = dict(init)
         steps: list[dict[str, Tensor]] = []
         with torch.set_grad_enabled(grad):
-            known = {**seq, **fixed}
-            fixed |= driven(
-                self.graph, self._mech_by_name, set(self._categories), self._parents, known, init, noise
-            )
+            if driven_first:
+                known = {**seq, **fixed}
+                fixed |= roll_driven(
+                    self.graph, self._mech_by_name, set(self._categories), self._parents, known, init, noise
+                )
             for tau in range(horizon):
                 values = {**state, **{key: v[:, tau] for key, v in {**seq, **fixed}.items()}}
                 step_noise: NoiseSpec = noise
