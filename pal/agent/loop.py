@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from typing import Any
 
 import gymnasium
@@ -39,6 +39,7 @@ from pal.agent.body_checks import check_joint_sensors, resolve_servo
 from pal.agent.config import AgentConfig
 from pal.agent.correction import Correction
 from pal.agent.curiosity import GridCuriosity
+from pal.agent.decision import MODES, Decision, check_mode, from_plan
 from pal.agent.dynamics import dynamics_mechanisms
 from pal.agent.estimate import Estimator, belief
 from pal.agent.explore import contact_search, diagnose, push_counts
@@ -48,7 +49,7 @@ from pal.agent.history import History
 from pal.agent.influence import explore
 from pal.agent.kinematics import check_effector, known_mechanisms, point_mechanisms
 from pal.agent.learn import Learner, site_data
-from pal.agent.plan import Plan, one_step, plan
+from pal.agent.plan import Plan, PlanRequest, one_step, plan_batch
 from pal.agent.record import transition
 from pal.agent.replan import Replanning
 from pal.agent.senses import Percept, Senses
@@ -58,59 +59,6 @@ from pal.checks import check_int
 __all__ = ["MODES", "Agent", "Decision"]
 
 log = logging.getLogger(__name__)
-
-#: Ways :meth:`Agent.decide` chooses an action.
-MODES = ("babble", "curious", "goal")
-
-
-@dataclass(frozen=True)
-class Decision:
-    """An action and why it was chosen.
-
-    Attributes:
-        mode: babble / curious / goal / hold.
-        action: (A,) the action.
-        targets: object -> (d,) target, m.
-        predicted: object -> (d,) position the model predicts at the plan's horizon, m.
-        objective: predicted distance to the targets at the horizon, m (None without a plan).
-        step_mean, step_sd: object -> (d,) predicted displacement over this step and its sd, m.
-        score: the curiosity score (gated disagreement; the contact method's information), or None.
-        diagnostics: the contact method's gate, contact probability and CAI of the executed
-            action per object (:func:`pal.agent.explore.diagnose`), else empty.
-        sequence: (H, A) the planned sequence whose first action this is (None without a plan).
-    """
-
-    mode: str
-    action: np.ndarray
-    targets: dict[str, np.ndarray] = field(default_factory=dict)
-    predicted: dict[str, np.ndarray] = field(default_factory=dict)
-    objective: float | None = None
-    step_mean: dict[str, np.ndarray] = field(default_factory=dict)
-    step_sd: dict[str, np.ndarray] = field(default_factory=dict)
-    score: float | None = None
-    diagnostics: dict[str, dict[str, float]] = field(default_factory=dict)
-    sequence: np.ndarray | None = None
-
-
-def _decision(p: Plan, mode: str | None = None, score: float | None = None) -> Decision:
-    return Decision(
-        mode or p.mode,
-        p.action,
-        p.targets,
-        p.predicted,
-        p.objective,
-        p.step_mean,
-        p.step_sd,
-        score,
-        sequence=p.sequence,
-    )
-
-
-def _check_mode(mode: str) -> str:
-    """``mode`` if it is one of :data:`MODES`, else a ValueError naming it."""
-    if mode not in MODES:
-        raise ValueError(f"mode {mode!r} unknown; expected one of {MODES}")
-    return mode
 
 
 class Agent:
@@ -150,7 +98,7 @@ class Agent:
     ) -> None:
         if not isinstance(spec, EnvSpec):
             raise ValueError(f"spec must be an EnvSpec, got {type(spec).__name__}")
-        self.mode = None if mode is None else _check_mode(mode)
+        self.mode = None if mode is None else check_mode(mode)
         self.env, self.spec, self.config = env, spec, config or AgentConfig()
         self.seed = check_int("seed", seed, minimum=0)
         self.low, self.high = check_env(spec, env)
@@ -266,12 +214,22 @@ class Agent:
     def _seed(self) -> int:
         return int(self.rng.integers(2**31))
 
+    @property
+    def effector_name(self) -> str | None:
+        """The effector's name in targets, or None for a spec without one."""
+        return self.spec.effector_name if self.spec.effector is not None else None
+
     def plan(self, targets: Mapping[str, Any], mode: str = "goal") -> Plan:
         """Plan towards ``targets`` (object or effector -> (d,) m) from the belief, warm-started (:func:`pal.agent.plan.plan`).
 
         With ``config.correction.window`` the rollouts carry the filtered residuals abducted from
         the last executed transitions (:mod:`pal.agent.correction`).
         """
+        request = self.plan_request(targets, mode)
+        return self.adopt(plan_batch(self.model, [request], self.config.plan, effector=self.effector_name)[0])
+
+    def plan_request(self, targets: Mapping[str, Any], mode: str = "goal") -> PlanRequest:
+        """What :meth:`plan` plans for: the belief, the targets, a seed, the warm start, the residuals."""
         if self.percept is None:
             raise ValueError("call reset() before plan()")
         targets = self._check_targets(targets)
@@ -285,17 +243,10 @@ class Agent:
         elif self.servo and len(self.low) == len(self.percept.q):  # start the search from holding still
             init = np.tile(np.clip(self.percept.q, self.low, self.high), (cfg.action.horizon, 1))
         noise = self.correction.noise(self.model)
-        p = plan(
-            self.model,
-            self.belief(),
-            targets,
-            cfg,
-            seed=self._seed(),
-            init=init,
-            mode=mode,
-            effector=self.spec.effector_name if self.spec.effector is not None else None,
-            noise=noise,
-        )
+        return PlanRequest(self.belief(), targets, self._seed(), init, mode, noise)
+
+    def adopt(self, p: Plan) -> Plan:
+        """Take ``p`` as the current plan: its rest warm-starts the next search, or is executed (``replan_every``)."""
         self._sequence, self._plan = p.sequence, p
         self._replan.planned()
         return p
@@ -318,16 +269,19 @@ class Agent:
 
     def decide(self, mode: str) -> Decision:
         """Choose a(t): ``"babble"`` (random), ``"curious"`` or ``"goal"`` (the goal, or the observed goals)."""
-        _check_mode(mode)
+        check_mode(mode)
         if self.percept is None:
             raise ValueError("call reset() before decide()")
         if mode == "goal":
-            check_reachable(self.spec, self.goal)
+            pending = self.goal_pending()
+            return (
+                pending
+                if isinstance(pending, Decision)
+                else self.goal_decided(self.plan(pending[0]), pending[1])
+            )
         if mode == "babble" or not self.fitted:
             return Decision("babble", self.random_action())
         known = [o for o in self.spec.object_names if self.estimate.get(o) is not None]
-        if mode == "goal":
-            return self._goal(known)
         if not known:
             return Decision("babble", self.random_action())
         c = self.config.curiosity
@@ -349,7 +303,7 @@ class Agent:
         self._sequence = None
         if np.linalg.norm(self.estimate[o] - target) - p.objective < self.config.plan.min_progress:
             return Decision("babble", self.random_action(), p.targets, p.predicted, p.objective)
-        return _decision(p)
+        return from_plan(p)
 
     def _contact(self, known: tuple[str, ...]) -> Decision:
         """A curious step of the contact method (:mod:`pal.agent.explore`); babbles below ``min_score``."""
@@ -370,7 +324,19 @@ class Agent:
         diag = diagnose(self.model, self.belief(), action, known, c, scale, generator)
         return Decision(mode, action, score=found.information, diagnostics=diag)
 
-    def _goal(self, known: list[str]) -> Decision:
+    def goal_pending(self) -> Decision | tuple[dict[str, np.ndarray], float]:
+        """Goal mode up to its plan: a decision that needs no new plan, or the goal to plan for and its distance now (m).
+
+        A decision: babble before the first fit, hold while no goal object is known (or, for a
+        servo, within ``goal_tolerance``), the current plan's next action (``replan_every``).
+        ``decide("goal")`` is ``goal_decided(plan(goal), now)`` when a goal is returned.
+        """
+        if self.percept is None:
+            raise ValueError("call reset() before decide()")
+        check_reachable(self.spec, self.goal)
+        if not self.fitted:
+            return Decision("babble", self.random_action())
+        known = [o for o in self.spec.object_names if self.estimate.get(o) is not None]
         goal = self.goal or dict(self.percept.goals)
         now_at = {o: current(self.spec, self.percept, self.estimate, o) for o in goal}
         goal = {
@@ -382,16 +348,18 @@ class Agent:
             log.debug("goal mode: no goal's object is known yet; holding")
             return Decision("hold", self._hold())
         now = sum(float(np.linalg.norm(now_at[o] - t)) for o, t in goal.items())
-        cfg = self.config.plan
-        if self.servo and now <= cfg.goal_tolerance:
+        if self.servo and now <= self.config.plan.goal_tolerance:
             return Decision("hold", self._hold(), goal)
         if (held := self._held(goal)) is not None:  # a plan's next action (PlanConfig.replan_every)
             return held
-        p = self.plan(goal)
-        if self.servo and p.objective > now - cfg.min_progress:
+        return goal, now
+
+    def goal_decided(self, p: Plan, now: float) -> Decision:
+        """The goal-mode decision from the plan made for :meth:`goal_pending`'s goal (a servo holds when it gains too little)."""
+        if self.servo and p.objective > now - self.config.plan.min_progress:
             self._sequence = None
             return Decision("hold", self._hold(), p.targets, p.predicted, p.objective)
-        return _decision(p)
+        return from_plan(p)
 
     def _held(self, goal: Mapping[str, np.ndarray]) -> Decision | None:
         """The current plan's next action while no new plan is due (``PlanConfig.replan_every``)."""
@@ -401,8 +369,7 @@ class Agent:
         if set(p.targets) != set(goal) or any(not np.array_equal(p.targets[o], goal[o]) for o in goal):
             return None  # the goal moved: plan for the new one
         action = self._sequence[self._replan.take()].copy()
-        effector = self.spec.effector_name if self.spec.effector is not None else None
-        mean, sd, _ = one_step(self.model, self.belief(), action, tuple(p.targets), effector)
+        mean, sd, _ = one_step(self.model, self.belief(), action, tuple(p.targets), self.effector_name)
         return Decision(p.mode, action, p.targets, p.predicted, p.objective, mean, sd, sequence=p.sequence)
 
     # ------------------------------------------------------------------ act, learn
@@ -480,7 +447,7 @@ class Agent:
         """
         check_int("steps", steps, minimum=0)
         mode = (self.mode or "curious") if mode is None else mode
-        _check_mode(mode)
+        check_mode(mode)
         if mode == "goal":
             check_reachable(self.spec, self.goal)
         default = self.config.curiosity.refit_every if mode == "curious" else self.config.learn.refit_every

@@ -30,8 +30,9 @@ and each member's value: the intervals that the experiments hold against what ha
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 import torch
@@ -43,7 +44,18 @@ from pal.agent.config import PlanConfig
 from pal.agent.graph_frame import displacement_site, world_displacement
 from pal.checks import check_int
 
-__all__ = ["Plan", "behind", "distance", "expected_distance", "one_step", "plan", "preference", "site"]
+__all__ = [
+    "Plan",
+    "PlanRequest",
+    "behind",
+    "distance",
+    "expected_distance",
+    "one_step",
+    "plan",
+    "plan_batch",
+    "preference",
+    "site",
+]
 
 
 @dataclass(frozen=True)
@@ -234,21 +246,59 @@ def plan(
         ValueError: a target or belief entry that is missing or of the wrong shape (see
             :func:`inference.infer_action`).
     """
+    request = PlanRequest(belief, targets, seed, init, mode, noise)
+    return plan_batch(model, [request], config, effector=effector)[0]
+
+
+@dataclass(frozen=True)
+class PlanRequest:
+    """One unit's planning problem: the arguments of :func:`plan` that differ between units."""
+
+    belief: Mapping[str, np.ndarray]
+    targets: Mapping[str, np.ndarray]
+    seed: int
+    init: np.ndarray | None = None
+    mode: str = "goal"
+    noise: Mapping[str, np.ndarray] | None = None
+
+
+def plan_batch(
+    model: WorldModel, requests: Sequence[PlanRequest], config: PlanConfig, *, effector: str | None = None
+) -> list[Plan]:
+    """Plan for N units in one search: unit i's plan is :func:`plan`'s for ``requests[i]``.
+
+    The units' candidates (R, N, H, A) go through each rollout step together, so the step's
+    Python cost is paid once for all N (the MPC steps of agents run in lockstep). Each unit keeps
+    its own elites; the units' samples come from one generator seeded by the first request's
+    seed, so with N > 1 a unit's plan differs from the one it gets alone by its random draws.
+
+    Raises:
+        ValueError: no requests; requests with different belief or target names; residuals
+            (``noise``, per unit) with N > 1; or as :func:`plan`.
+    """
+    if not requests:
+        raise ValueError("plan_batch needs at least one request, got none")
+    first = requests[0]
+    for k, r in enumerate(requests):
+        if set(r.belief) != set(first.belief) or set(r.targets) != set(first.targets):
+            raise ValueError(
+                f"request {k} has belief {sorted(r.belief)} and targets {sorted(r.targets)}, expected the "
+                f"names of request 0: {sorted(first.belief)} and {sorted(first.targets)}"
+            )
+    if len(requests) > 1 and any(r.noise for r in requests):
+        raise ValueError(
+            f"residuals (noise) are replayed for one unit only; got them with {len(requests)} requests"
+        )
     dtype = model.dtype
-    state = {
-        k: torch.as_tensor(np.asarray(v, dtype=np.float64)[None], dtype=dtype) for k, v in belief.items()
-    }
-    tgt = {o: torch.as_tensor(np.asarray(t, dtype=np.float64)[None], dtype=dtype) for o, t in targets.items()}
+    state = {k: _stacked([r.belief[k] for r in requests], dtype) for k in first.belief}
+    tgt = {o: _stacked([r.targets[o] for r in requests], dtype) for o in first.targets}
     options = config.action
-    h = options.horizon
     disagreement = isinstance(options.risk, tuple) and options.risk[0] == "disagreement"
-    start: object = "midpoint"
-    if init is not None:
-        a = torch.as_tensor(np.asarray(init, dtype=np.float64), dtype=dtype)
-        start = {"act": a[None] if h > 1 else a[:1]}
     program = model
-    if noise:  # the correction: residuals replayed on every rollout step (the torch twin of ReplayNoise)
-        eps = {k: torch.as_tensor(np.asarray(v, np.float64)[None], dtype=dtype) for k, v in noise.items()}
+    if (
+        first.noise
+    ):  # the correction: residuals replayed on every rollout step (the torch twin of ReplayNoise)
+        eps = {k: _stacked([v], dtype) for k, v in first.noise.items()}
         program = ReplayNoise(eps, default="expected")(model)
     result = infer_action(
         program,
@@ -256,30 +306,56 @@ def plan(
         {site(o, effector): t for o, t in tgt.items()} if disagreement else None,
         num_steps=max(options.sampling.refine_steps, 1),
         options=replace(
-            options, log_preference=preference(tgt, config, "ee" in model.graph, effector), init=start
+            options,
+            log_preference=preference(tgt, config, "ee" in model.graph, effector),
+            init=_start(model, [r.init for r in requests], options.horizon),
         ),
-        seed=seed,
+        seed=first.seed,
     )
-    acts = result.actions["act"][0].numpy().astype(np.float64).reshape(h, -1)
-    final = {
-        o: result.predicted[site(o, effector)][0]
-        .reshape(-1, result.predicted[site(o, effector)].shape[-1])[-1]
-        .numpy()[: tgt[o].shape[-1]]
-        for o in tgt
-    }
-    predicted = {o: v.astype(np.float64) for o, v in final.items()}
-    objective = float(
-        sum(np.linalg.norm(predicted[o] - np.asarray(targets[o], dtype=np.float64)) for o in tgt)
+    return [_unit_plan(model, result, i, r, config, effector) for i, r in enumerate(requests)]
+
+
+def _stacked(values: Sequence[np.ndarray], dtype: torch.dtype) -> Tensor:
+    """Per-unit ``(dim,)`` values as one ``(N, dim)`` tensor of the model's dtype."""
+    return torch.as_tensor(np.stack([np.asarray(v, dtype=np.float64) for v in values]), dtype=dtype)
+
+
+def _start(model: WorldModel, inits: Sequence[np.ndarray | None], horizon: int) -> str | dict[str, Tensor]:
+    """The search's start: the box midpoint, or the units' ``(H, A)`` warm starts (the midpoint where None)."""
+    if all(i is None for i in inits):
+        return "midpoint"
+    low, high = model.bounds("act")
+    mid = ((low + high) / 2).expand(horizon, low.shape[0])
+    rows = torch.stack(
+        [
+            mid if i is None else torch.as_tensor(np.asarray(i, dtype=np.float64), dtype=model.dtype)
+            for i in inits
+        ]
     )
-    mean, sd, _ = one_step(model, belief, acts[0], tuple(tgt), effector)
+    return {"act": rows if horizon > 1 else rows[:, 0]}
+
+
+def _unit_plan(
+    model: WorldModel, result: Any, i: int, request: PlanRequest, config: PlanConfig, effector
+) -> Plan:
+    """Unit i's :class:`Plan` from the batched search's ``result``."""
+    h = config.action.horizon
+    acts = result.actions["act"][i].numpy().astype(np.float64).reshape(h, -1)
+    targets = {o: np.asarray(t, dtype=np.float64) for o, t in request.targets.items()}
+    predicted = {}
+    for o, t in targets.items():
+        path = result.predicted[site(o, effector)][i]
+        predicted[o] = path.reshape(-1, path.shape[-1])[-1].numpy()[: t.shape[-1]].astype(np.float64)
+    objective = float(sum(np.linalg.norm(predicted[o] - targets[o]) for o in targets))
+    mean, sd, _ = one_step(model, request.belief, acts[0], tuple(targets), effector)
     return Plan(
         acts[0].copy(),
         acts,
-        {o: np.asarray(t, np.float64) for o, t in targets.items()},
+        targets,
         predicted,
         objective,
         mean,
         sd,
-        mode,
-        float(result.final_loss[0]),
+        request.mode,
+        float(result.final_loss[i]),
     )

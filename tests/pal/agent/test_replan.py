@@ -124,8 +124,8 @@ def test_the_agent_executes_its_plan_between_plans_and_replans_for_a_new_goal(mo
     import pal.agent.loop as module
 
     plans = []
-    original = module.plan
-    monkeypatch.setattr(module, "plan", lambda *a, **k: plans.append(1) or original(*a, **k))
+    original = module.plan_batch
+    monkeypatch.setattr(module, "plan_batch", lambda *a, **k: plans.append(1) or original(*a, **k))
     cfg = AgentConfig(model=pusher.TINY.model, plan=EVERY_3, reset_every=None, servo=False)
     agent = Agent(gymnasium.make("Pusher-v5"), pusher_spec(), cfg, seed=0)
     agent.run(8, "babble")
