@@ -136,6 +136,10 @@ class Config:
         seed: the first run's seed. runs: seeds (mean ± sd over seeds × goals).
         aggregation: rounds, steps per episode (Pusher-v5 truncates at 100), random rounds, checkpoints.
         eval_goals: evaluation episodes per seed and checkpoint.
+        lockstep: the agent's evaluation episodes run in lockstep, their MPC plans made in one
+            batched search per step (:mod:`pal.agent.lockstep`; the same planner, one generator
+            for the batch's draws); False: one episode after the other. The baseline's run one
+            after the other.
         success: an episode succeeds when it ends within this x-y distance, m.
         model: the agent's world model and fit. plan: both planners' settings and step cost.
         correction: the agent's online correction of its MPC rollouts from abducted residuals
@@ -155,6 +159,7 @@ class Config:
     runs: int = 3
     aggregation: AggregationConfig = AGGREGATION
     eval_goals: int = 20
+    lockstep: bool = True
     success: float = 0.05
     model: ModelConfig = PUSH_MODEL
     plan: PlanConfig = PLAN
@@ -181,6 +186,8 @@ class Config:
                 )
         check_int("aggregation.episode_steps", self.aggregation.episode_steps, maximum=100)
         check_float("success", self.success, 0.0, open_low=True)
+        if not isinstance(self.lockstep, bool):
+            raise ValueError(f"lockstep must be a bool, got {self.lockstep!r}")
         unknown = [p for p in self.parts if p not in PARTS]
         if unknown or len(set(self.parts)) != len(self.parts):
             raise ValueError(f"parts must be distinct names of {PARTS}, got {list(self.parts)}")

@@ -58,7 +58,6 @@ def block(per_seed: list[list[Episode]], success: float) -> dict[str, Any]:
     """The scores of one controller at one checkpoint from its episodes per seed (module docstring)."""
     eps = [e for seed in per_seed for e in seed]
     seed_means = [float(np.mean([e.final_planar for e in s])) for s in per_seed if s]
-    cpu = [e.cpu for e in eps if e.cpu is not None]
     return {
         "final_planar": _stat([e.final_planar for e in eps]),
         "final_distance": _stat([e.final_distance for e in eps]),
@@ -70,7 +69,7 @@ def block(per_seed: list[list[Episode]], success: float) -> dict[str, Any]:
         "max_moved": max((e.moved for e in eps), default=0.0),
         "min_tip_object": _stat([e.min_tip_object for e in eps]),
         "predicted_final": _stat([e.predicted_final for e in eps]),
-        "step_cpu_seconds": float(np.median(cpu)) if cpu else None,
+        "step_cpu_seconds": _median([e.cpu for e in eps]),
         "episodes": len(eps),
     }
 
@@ -117,11 +116,18 @@ def _training(per_seed: dict[int, dict[str, Any]]) -> dict[str, Any]:
             "final_planar": [[e.final_planar for e in r["training"]] for r in runs],
             "min_tip_object": [[e.min_tip_object for e in r["training"]] for r in runs],
             "moved": [[e.moved for e in r["training"]] for r in runs],
+            "step_cpu_seconds": _median([e.cpu for r in runs for e in r["training"]]),
         }
     return out
 
 
-def targets(config: Any, at: dict[str, dict[str, Any]]) -> list[Target]:
+def _median(values: list[float | None]) -> float | None:
+    """The median of the values that are not None, or None."""
+    found = [v for v in values if v is not None]
+    return float(np.median(found)) if found else None
+
+
+def targets(config: Any, at: dict[str, dict[str, Any]], step_cpu: float | None) -> list[Target]:
     """The issue's targets; each ratio counts only if both controllers moved the object (module docstring)."""
     last = str(config.aggregation.checkpoints[-1])
     full = Precondition(
@@ -172,10 +178,11 @@ def targets(config: Any, at: dict[str, dict[str, Any]]) -> list[Target]:
     out.append(
         Target(
             "pal_step_cpu_seconds",
-            pal["step_cpu_seconds"],
+            step_cpu,
             TARGET_STEP_SECONDS,
             "<=",
-            "the agent's planning time per MPC step, process CPU s on one torch thread (median over episodes)",
+            "the agent's planning time per MPC step, process CPU s on one torch thread (median over its MPC "
+            "training episodes, each the mean of its steps)",
             Precondition(
                 horizon >= TARGET_HORIZON and config.threads == 1 and config.plan.replan_every == 1,
                 f"horizon >= {TARGET_HORIZON} on one thread, a plan at every step (this run: horizon {horizon}, "
@@ -284,7 +291,7 @@ def summarise(config: Any, per_seed: dict[int, dict[str, Any]]) -> Report:
         title="Pusher-v5 learning curves: the agent, a PETS-style baseline and random torques at equal environment steps",
         metrics=metrics,
         tables=_tables(config, at, training),
-        targets=targets(config, at),
+        targets=targets(config, at, training["pal"]["step_cpu_seconds"]),
         notes=[
             f"Seeds {', '.join(map(str, config.seeds))}; per seed {agg.rounds} episodes of {agg.episode_steps} steps "
             f"({agg.random_rounds} random, then MPC), each followed by a warm refit; {config.eval_goals} evaluation "

@@ -23,6 +23,7 @@ from pal.experiments.closed_loop.pusher_runs import (
     MOVED,
     Episode,
     agent_episode,
+    agent_episodes_together,
     agent_rollout,
     evaluation_seeds,
     pets_record,
@@ -63,8 +64,18 @@ def _pal(
     agent = Agent(env, pusher_spec(), cfg, seed=seed)
 
     def evaluate(point: int, counts: Counts) -> dict[str, Any]:
-        judge = Agent(eval_env, pusher_spec(), cfg, seed=derived_seed(seed, 92, point), model=agent.model)
-        episodes = [agent_episode(judge, s, steps, h) for s in goals]
+        if config.lockstep:  # one judge per goal, their plans made together
+            envs = [gymnasium.make(ENV_ID) for _ in goals]
+            judges = [
+                Agent(e, pusher_spec(), cfg, seed=derived_seed(seed, 92, point, g), model=agent.model)
+                for g, e in enumerate(envs)
+            ]
+            episodes = agent_episodes_together(judges, goals, steps, h)
+            for e in envs:
+                e.close()
+        else:
+            judge = Agent(eval_env, pusher_spec(), cfg, seed=derived_seed(seed, 92, point), model=agent.model)
+            episodes = [agent_episode(judge, s, steps, h) for s in goals]
         _log_point("pal", seed, point, counts, episodes)
         ranking = (
             score(found, pal_predictor(agent.model, config.plan), config.plan)

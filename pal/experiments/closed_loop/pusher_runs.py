@@ -20,6 +20,7 @@ PETS's 0.1).
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -30,6 +31,8 @@ import torch
 from pal.agent import Agent
 from pal.agent.aggregate import Exploration, Rollout, derived_seed
 from pal.agent.config import PlanConfig
+from pal.agent.decision import Decision
+from pal.agent.lockstep import decide_goal_together
 from pal.agent.plan import behind, distance
 from pal.baselines.pets_aggregate import PetsEpisode
 from pal.baselines.simulator_mpc import PUSHER_BODIES, SimulatorMPC, pusher_observation
@@ -40,6 +43,7 @@ __all__ = [
     "MOVED",
     "Episode",
     "agent_episode",
+    "agent_episodes_together",
     "agent_rollout",
     "distances",
     "evaluation_seeds",
@@ -186,13 +190,42 @@ def agent_episode(
             wall.append(time.perf_counter() - w0)
             action = decision.action if offsets is None else decision.action + offsets[t]
             if t == max(steps - horizon, 0) and decision.predicted:
-                goal = agent.percept.goals["object"]
-                pred = float(np.linalg.norm((decision.predicted["object"] - goal)[:2]))
+                pred = _predicted_final(agent, decision)
         percept = agent.step(action)
         obs.append(_observation(percept))
         if agent.done:
             break
     return _record(np.stack(obs), pred, cpu, wall)
+
+
+def _predicted_final(agent: Agent, decision: Decision) -> float:
+    """The x-y distance to the goal that a plan made ``horizon`` steps before the end predicts for the end, m."""
+    goal = agent.percept.goals["object"]
+    return float(np.linalg.norm((decision.predicted["object"] - goal)[:2]))
+
+
+def agent_episodes_together(
+    agents: Sequence[Agent], seeds: Sequence[int], steps: int, horizon: int
+) -> list[Episode]:
+    """:func:`agent_episode` in goal mode for each agent and seed, the agents in lockstep.
+
+    At each step the agents whose episodes go on decide together
+    (:func:`pal.agent.lockstep.decide_goal_together`: their plans in one batched search). The
+    episodes' ``cpu`` and ``wall`` stay None: a step of the batch is not one agent's MPC step.
+    """
+    obs = [[_observation(a.reset(seed=s))] for a, s in zip(agents, seeds, strict=True)]
+    pred: list[float | None] = [None] * len(agents)
+    live = list(range(len(agents)))
+    for t in range(steps):
+        decisions = decide_goal_together([agents[k] for k in live])
+        for k, decision in zip(live, decisions, strict=True):
+            if t == max(steps - horizon, 0) and decision.predicted:
+                pred[k] = _predicted_final(agents[k], decision)
+            obs[k].append(_observation(agents[k].step(decision.action)))
+        live = [k for k in live if not agents[k].done]
+        if not live:
+            break
+    return [_record(np.stack(o), p, [], []) for o, p in zip(obs, pred, strict=True)]
 
 
 def agent_rollout(horizon: int) -> Any:

@@ -162,21 +162,28 @@ def test_a_ratio_counts_only_when_pal_moved_the_object_in_90_percent_and_the_bas
     config = replace(
         pusher.TINY, runs=3, eval_goals=20, aggregation=AggregationConfig(rounds=60, checkpoints=(6000,))
     )
-    still = {t.name: t for t in targets(config, _at({"pal": [0.0] * 10, "baseline": [0.0] * 10}))}
+    still = {t.name: t for t in targets(config, _at({"pal": [0.0] * 10, "baseline": [0.0] * 10}), 0.3)}
     ratio = still["pal_over_baseline_at_6000"]
     assert ratio.value == 1.0 and ratio.verdict == "not evaluated" and ratio.met is False
     assert "moved > 5 mm" in ratio.precondition.reason
-    some = {t.name: t for t in targets(config, _at({"pal": [0.1] * 8 + [0.0] * 2, "baseline": [0.02] * 10}))}
+    some = {
+        t.name: t for t in targets(config, _at({"pal": [0.1] * 8 + [0.0] * 2, "baseline": [0.02] * 10}), 0.3)
+    }
     assert some["pal_over_baseline_at_6000"].verdict == "not evaluated"  # pal moved it in 80 % only
     both = {
-        t.name: t for t in targets(config, _at({"pal": [0.1] * 9 + [0.0], "baseline": [0.0] * 9 + [0.02]}))
+        t.name: t
+        for t in targets(config, _at({"pal": [0.1] * 9 + [0.0], "baseline": [0.0] * 9 + [0.02]}), 0.3)
     }
     t = both["pal_over_baseline_at_6000"]
     assert t.evaluated and t.verdict == "met" and t.value == pytest.approx(0.1 / 0.2)
     assert both["pal_median_final"].evaluated  # 6000 steps, 3 seeds x 20 goals: the full protocol
+    assert both["pal_step_cpu_seconds"].value == 0.3  # the training episodes' median, given
     # one seed of 5 goals is too small a sample for the ratio, however much moved
     small = replace(config, runs=1, eval_goals=5)
-    few = {t.name: t for t in targets(small, _at({"pal": [0.1] * 9 + [0.0], "baseline": [0.0] * 9 + [0.02]}))}
+    few = {
+        t.name: t
+        for t in targets(small, _at({"pal": [0.1] * 9 + [0.0], "baseline": [0.0] * 9 + [0.02]}), 0.3)
+    }
     assert few["pal_over_baseline_at_6000"].verdict == "not evaluated"
     assert "this run: 1 x 5" in few["pal_over_baseline_at_6000"].precondition.reason
     assert few["pal_median_final"].verdict == "not evaluated"
@@ -196,6 +203,7 @@ def test_the_agents_half_runs_with_mjcf_kinematics_and_the_online_correction():
         pusher.TINY,
         model=replace(pusher.TINY.model, kinematics="mjcf"),
         correction=CorrectionConfig(enabled=True),
+        lockstep=False,
     )
     out = _pal(config, 0, goals=[7])
     assert out["counts"]["env_steps"] == config.aggregation.budget
@@ -204,3 +212,33 @@ def test_the_agents_half_runs_with_mjcf_kinematics_and_the_online_correction():
         assert len(episode.path) == config.aggregation.episode_steps + 1 and episode.cpu is not None
     with pytest.raises(ValueError, match="correction must be a CorrectionConfig, got int"):
         replace(pusher.TINY, correction=1)
+
+
+def test_the_agents_goals_are_evaluated_in_lockstep_and_its_step_time_comes_from_training():
+    from pal.experiments.closed_loop.pusher_metrics import summarise
+    from pal.experiments.closed_loop.pusher_protocol import _pal
+
+    assert pusher.Config().lockstep is True
+    out = _pal(pusher.TINY, 0, goals=[7, 8, 9])
+    for point in pusher.TINY.aggregation.checkpoints:
+        episodes = out["at"][point]["episodes"]
+        assert len(episodes) == 3 and all(
+            e.cpu is None for e in episodes
+        )  # a batch's step is not one agent's
+        assert all(len(e.path) == pusher.TINY.aggregation.episode_steps + 1 for e in episodes)
+        assert len({e.start_planar for e in episodes}) == 3  # three goals, not one run thrice
+    cpu = [e.cpu for e in out["training"] if e.cpu is not None]
+    assert cpu and out["training"][0].cpu is None  # the random first round plans nothing
+    per_seed = {
+        0: {
+            "pal": out,
+            "baseline": out,
+            "simulator": out["at"][pusher.TINY.aggregation.checkpoints[0]]["episodes"],
+            "random": out["at"][pusher.TINY.aggregation.checkpoints[0]]["episodes"],
+        }
+    }
+    config = replace(pusher.TINY, eval_goals=3)
+    rep = summarise(config, per_seed)
+    assert rep.target("pal_step_cpu_seconds").value == pytest.approx(float(np.median(cpu)))
+    with pytest.raises(ValueError, match="lockstep must be a bool, got 1"):
+        replace(pusher.TINY, lockstep=1)
