@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,7 +38,7 @@ from pal.agent.config import PlanConfig
 from pal.agent.replan import Replanning
 from pal.checks import check_float, check_int
 
-__all__ = ["BaselineConfig", "CEMPlanner", "ProbabilisticEnsemble"]
+__all__ = ["BaselineConfig", "CEMPlanner", "ProbabilisticEnsemble", "act_together"]
 
 Cost = Callable[[Tensor, Tensor], Tensor]
 
@@ -180,7 +180,7 @@ class CEMPlanner:
         """Mean over members of the summed cost ``(P,)`` and the members' mean final observation ``(P, D)``.
 
         Args:
-            obs: ``(1, D)`` the observation now.
+            obs: ``(1, D)`` the observation now, or ``(P, D)`` one per candidate.
             seqs: ``(P, H, A)`` candidate action sequences.
         """
         k = self.model.config.members
@@ -195,24 +195,79 @@ class CEMPlanner:
 
     def act(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(first action (A,), predicted final observation of the plan (D,))`` from ``obs`` (D,)."""
-        h = self.config.action.horizon
-        if self._mean is not None and self._final is not None and not self._replan.due(h):
-            return self._mean[self._replan.take()].numpy().astype(np.float64), self._final.copy()
-        o = torch.as_tensor(obs, dtype=torch.float32)[None]
-        start = ((self.low + self.high) / 2).expand(1, h, self.low.shape[0]).clone()
-        if self.config.warm_start and self._mean is not None:
-            start = shift_plan(self._mean, steps=self._replan.shift())[None]
+        return act_together([self], np.asarray(obs)[None])[0]
 
-        def objective(a: Tensor) -> Tensor:  # (R, 1, H, A) -> (R, 1)
-            return self.costs(o, a[:, 0])[0][:, None]
+    def _held(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The current plan's next action and final observation while no new plan is due, else None."""
+        if self._mean is None or self._final is None or self._replan.due(self.config.action.horizon):
+            return None
+        return self._mean[self._replan.take()].numpy().astype(np.float64), self._final.copy()
 
-        with torch.inference_mode():  # the search takes no gradient
-            found = cross_entropy_search(
-                objective, start, self.low, self.high, self.config.action.sampling, self.generator
-            )
-        best = found.elites[0, 0].clone()
-        with torch.no_grad():
-            _, final = self.costs(o, best[None])
-        self._mean, self._final = best, final[0].numpy().astype(np.float64)
-        self._replan.planned()
-        return best[0].numpy().astype(np.float64), self._final.copy()
+
+def act_together(planners: Sequence[CEMPlanner], obs: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:meth:`CEMPlanner.act` for N planners over one ensemble, their searches in one batched call.
+
+    A planner that holds a plan (``replan_every``) takes its next action; the others search
+    together, each unit with its own warm start and elites, the batch's samples drawn from the
+    first searching planner's generator (one planner: exactly its :meth:`CEMPlanner.act`).
+
+    Args:
+        planners: planners over the same ensemble with the same settings and cost.
+        obs: ``(N, D)`` each planner's observation.
+
+    Raises:
+        ValueError: no planners, other ensembles or settings, or ``obs`` not ``(N, D)``.
+    """
+    if not planners:
+        raise ValueError("act_together needs at least one planner, got none")
+    first = planners[0]
+    if any(
+        p.model is not first.model or p.config != first.config or p.cost is not first.cost for p in planners
+    ):
+        raise ValueError("act_together needs planners over one ensemble with the same settings and cost")
+    obs = np.asarray(obs, dtype=np.float64)
+    if obs.ndim != 2 or obs.shape[0] != len(planners):
+        raise ValueError(
+            f"obs has shape {obs.shape}, expected ({len(planners)}, D): one observation per planner"
+        )
+    out: list[tuple[np.ndarray, np.ndarray] | None] = [p._held() for p in planners]
+    due = [k for k, held in enumerate(out) if held is None]
+    if due:
+        for k, result in zip(due, _search([planners[k] for k in due], obs[due]), strict=True):
+            out[k] = result
+    return [r for r in out if r is not None]
+
+
+def _search(planners: Sequence[CEMPlanner], obs: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """One batched iCEM search for the planners' observations ``(n, D)``; each planner adopts its plan."""
+    first = planners[0]
+    h, a_dim = first.config.action.horizon, first.low.shape[0]
+    o = torch.as_tensor(obs, dtype=torch.float32)
+    mid = ((first.low + first.high) / 2).expand(h, a_dim)
+    start = torch.stack(
+        [
+            shift_plan(p._mean, steps=p._replan.shift())
+            if p.config.warm_start and p._mean is not None
+            else mid
+            for p in planners
+        ]
+    ).clone()
+
+    def objective(a: Tensor) -> Tensor:  # (R, n, H, A) -> (R, n)
+        r, n = a.shape[:2]
+        rows = o[None].expand(r, n, o.shape[-1]).reshape(r * n, o.shape[-1])
+        return first.costs(rows, a.reshape(r * n, h, a_dim))[0].reshape(r, n)
+
+    with torch.inference_mode():  # the search takes no gradient
+        found = cross_entropy_search(
+            objective, start, first.low, first.high, first.config.action.sampling, first.generator
+        )
+    best = found.elites[0].clone()
+    with torch.no_grad():
+        _, final = first.costs(o, best)
+    results = []
+    for k, p in enumerate(planners):
+        p._mean, p._final = best[k], final[k].numpy().astype(np.float64)
+        p._replan.planned()
+        results.append((best[k, 0].numpy().astype(np.float64), p._final.copy()))
+    return results

@@ -11,14 +11,15 @@ rounds, episode seeds and environment steps.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import gymnasium
 import numpy as np
 
-from pal.agent.aggregate import Exploration, Rollout, parameter_digest, recorded
+from pal.agent.aggregate import Exploration, Rollout, derived_seed, parameter_digest, recorded
 from pal.agent.config import PlanConfig
-from pal.baselines.pets import BaselineConfig, CEMPlanner, Cost, ProbabilisticEnsemble
+from pal.baselines.pets import BaselineConfig, CEMPlanner, Cost, ProbabilisticEnsemble, act_together
 
 __all__ = ["PetsEpisode", "PetsLearner"]
 
@@ -99,6 +100,43 @@ class PetsLearner:
                 break
         predicted = np.stack(pred) if pred else np.zeros((0, len(path[0])))
         return PetsEpisode(np.stack(path), predicted, cpu, wall)
+
+    def run_together(
+        self, envs: Sequence[gymnasium.Env], seeds: Sequence[int], steps: int
+    ) -> list[PetsEpisode]:
+        """:meth:`run` of evaluation episodes (nothing recorded, no exploration) on ``envs``, in lockstep.
+
+        One planner per episode over the current ensemble; at each step the planners of the
+        episodes that go on search together (:func:`pal.baselines.pets.act_together`). The
+        episodes' ``cpu`` and ``wall`` stay empty: a step of the batch is not one planner's step.
+        Before the first fit the episodes run one after the other with random torques, as :meth:`run`.
+        """
+        if not self.fitted:
+            return [self.run(env, s, steps, False, False) for env, s in zip(envs, seeds, strict=True)]
+        p = self.planner
+        planners = [
+            CEMPlanner(self.model, self.low, self.high, p.config, p.cost, seed=derived_seed(s, 81))
+            for s in seeds
+        ]
+        paths = [
+            [np.asarray(env.reset(seed=s)[0], dtype=np.float64)] for env, s in zip(envs, seeds, strict=True)
+        ]
+        preds: list[list[np.ndarray]] = [[] for _ in envs]
+        live = list(range(len(envs)))
+        for _ in range(steps):
+            acted = act_together([planners[k] for k in live], np.stack([paths[k][-1] for k in live]))
+            ended = set()
+            for k, (a, final) in zip(live, acted, strict=True):
+                preds[k].append(final)
+                if self._step(envs[k], paths[k][-1], a, paths[k], False):
+                    ended.add(k)
+            live = [k for k in live if k not in ended]
+            if not live:
+                break
+        return [
+            PetsEpisode(np.stack(path), np.stack(pred), [], [])
+            for path, pred in zip(paths, preds, strict=True)
+        ]
 
     def _step(self, env: gymnasium.Env, o: np.ndarray, a: np.ndarray, path: list, record: bool) -> bool:
         """Step ``env`` with ``a`` from observation ``o``; append to ``path`` (and the data); True when it ended."""

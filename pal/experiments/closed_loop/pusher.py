@@ -136,10 +136,9 @@ class Config:
         seed: the first run's seed. runs: seeds (mean ± sd over seeds × goals).
         aggregation: rounds, steps per episode (Pusher-v5 truncates at 100), random rounds, checkpoints.
         eval_goals: evaluation episodes per seed and checkpoint.
-        lockstep: the agent's evaluation episodes run in lockstep, their MPC plans made in one
-            batched search per step (:mod:`pal.agent.lockstep`; the same planner, one generator
-            for the batch's draws); False: one episode after the other. The baseline's run one
-            after the other.
+        lockstep: each learner's evaluation episodes run in lockstep, their MPC plans made in one
+            batched search per step (:mod:`pal.agent.lockstep`, :func:`pal.baselines.pets.act_together`;
+            the same planner, one generator for the batch's draws); False: one after the other.
         success: an episode succeeds when it ends within this x-y distance, m.
         model: the agent's world model and fit. plan: both planners' settings and step cost.
         correction: the agent's online correction of its MPC rollouts from abducted residuals

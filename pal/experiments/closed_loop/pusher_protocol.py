@@ -112,7 +112,13 @@ def _baseline(config: Any, seed: int, goals: list[int], found: list[Probe] | Non
     )
 
     def evaluate(point: int, counts: Counts) -> dict[str, Any]:
-        episodes = [pets_record(learner.run(eval_env, s, steps, False, record=False), h) for s in goals]
+        if config.lockstep:  # one planner per goal, their searches made together
+            envs = [gymnasium.make(ENV_ID) for _ in goals]
+            episodes = [pets_record(e, h) for e in learner.run_together(envs, goals, steps)]
+            for e in envs:
+                e.close()
+        else:
+            episodes = [pets_record(learner.run(eval_env, s, steps, False, record=False), h) for s in goals]
         _log_point("baseline", seed, point, counts, episodes)
         ranking = score(found, pets_predictor(learner), config.plan) if found and learner.fitted else None
         return {"counts": counts.to_dict(), "episodes": episodes, "ranking": ranking}
