@@ -19,7 +19,9 @@ wall clock; median over states and repeats, after one warm-up). Figures:
   rollouts in which no discrete site flips at its threshold by rounding: ``stacked_discrete_flipped``);
 * ``driven_speedup``: the seconds of the stacked rollout with every site in the step loop over
   those with the body rolled over the horizon first (:mod:`models.driven`); the values agree to
-  ``driven_max_abs_diff``.
+  ``driven_max_abs_diff``;
+* ``lockstep_speedup``: the CPU seconds per unit of ``lockstep`` units planned one by one over
+  those of one batched search of all of them (:func:`pal.agent.plan.plan_batch`).
 
 The model is fitted on random torques only, so its plans are not good pushes; the figures are
 the planner's cost and its quality relative to a larger search on the same model.
@@ -39,7 +41,7 @@ import torch
 
 from models.stacked import stacked_members
 from pal.agent import Agent, AgentConfig, ModelConfig, PlanConfig, pusher_spec
-from pal.agent.plan import plan
+from pal.agent.plan import PlanRequest, plan, plan_batch
 from pal.checks import check_int
 from pal.experiments.closed_loop.pusher import PLAN, PUSH_MODEL
 from pal.lab.registry import register
@@ -68,6 +70,8 @@ class Config:
         states: start states (seeded resets) each population plans from.
         repeats: timed repeats per state (after one warm-up).
         threads: torch threads during the run (one core: 1).
+        lockstep: G, the units of the lockstep timing: G seeded resets planned one by one and in
+            one batched search (:func:`pal.agent.plan.plan_batch`, as evaluation goals in lockstep).
     """
 
     seed: int = 0
@@ -80,9 +84,18 @@ class Config:
     states: int = 3
     repeats: int = 2
     threads: int = 1
+    lockstep: int = 20
 
     def __post_init__(self) -> None:
-        for key in ("babble_steps", "reference", "reference_iterations", "states", "repeats", "threads"):
+        for key in (
+            "babble_steps",
+            "reference",
+            "reference_iterations",
+            "states",
+            "repeats",
+            "threads",
+            "lockstep",
+        ):
             check_int(key, getattr(self, key))
         object.__setattr__(self, "populations", tuple(check_int("populations", p) for p in self.populations))
 
@@ -196,7 +209,13 @@ def _agreement(model: Any, a: dict[str, torch.Tensor], b: dict[str, torch.Tensor
     kind="bench",
     config=Config,
     quick=Config(
-        babble_steps=200, populations=(50, 100), reference=300, reference_iterations=4, states=2, repeats=1
+        babble_steps=200,
+        populations=(50, 100),
+        reference=300,
+        reference_iterations=4,
+        states=2,
+        repeats=1,
+        lockstep=8,
     ),
     tiny=Config(
         babble_steps=30,
@@ -213,6 +232,7 @@ def _agreement(model: Any, a: dict[str, torch.Tensor], b: dict[str, torch.Tensor
         reference_iterations=2,
         states=1,
         repeats=1,
+        lockstep=3,
     ),
 )
 def run(config: Config, progress_bar: bool = False) -> Report:
@@ -231,7 +251,29 @@ def run(config: Config, progress_bar: bool = False) -> Report:
             rows[p] = _time_plans(agent, starts, cfg, config.repeats, config.seed)
             log.info("planner P=%d: %.3f s CPU, %.3f s wall, loss %.4f", p, *rows[p].values())
         rollout = _rollouts(agent, starts, chosen, horizon, config.seed)
+        rollout["lockstep"] = _lockstep(agent, config)
     return _report(config, rows, reference, rollout)
+
+
+def _lockstep(agent: Agent, config: Config) -> dict[str, float]:
+    """CPU seconds per unit of G single plans and of one batched search over the same G units."""
+    requests = []
+    for k in range(config.lockstep):
+        agent.reset(seed=config.seed + 200 + k)
+        requests.append(
+            PlanRequest(agent.belief(), {"object": agent.percept.goals["object"]}, config.seed + k)
+        )
+    c0 = time.process_time()
+    for r in requests:
+        plan_batch(agent.model, [r], config.plan)
+    single = (time.process_time() - c0) / len(requests)
+    c0 = time.process_time()
+    plan_batch(agent.model, requests, config.plan)
+    batched = (time.process_time() - c0) / len(requests)
+    log.info(
+        "planner lockstep G=%d: %.3f s per unit alone, %.3f s in one batch", len(requests), single, batched
+    )
+    return {"units": len(requests), "single": single, "batched": batched}
 
 
 def _tables(
@@ -274,6 +316,11 @@ def _tables(
             caption="The body given by its MJCF is rolled over the horizon before the step loop "
             "(models.driven) except in the last row.",
         ),
+        Table(
+            f"{rollout['lockstep']['units']} units planned one by one and in one batched search (lockstep)",
+            ("path", "CPU s per unit"),
+            [("one by one", rollout["lockstep"]["single"]), ("one batch", rollout["lockstep"]["batched"])],
+        ),
     ]
 
 
@@ -310,45 +357,15 @@ def _report(
             "stacked_max_abs_diff": rollout["max_abs_diff"],
             "driven_speedup": ratio(rollout["step_loop"], rollout["stacked"]),
             "driven_max_abs_diff": rollout["driven_max_abs_diff"],
+            "lockstep": rollout["lockstep"],
+            "lockstep_speedup": ratio(rollout["lockstep"]["single"], rollout["lockstep"]["batched"]),
             "stacked_discrete_flipped": rollout["discrete_flipped"],
             "threads": config.threads,
             "cpu_count": os.cpu_count(),
             "load_average_1min": os.getloadavg()[0],
         },
         tables=_tables(config, rows, reference, rollout, loss_ratio),
-        targets=[
-            Target(
-                "step_cpu_seconds",
-                step["cpu"],
-                TARGET_STEP_SECONDS,
-                "<=",
-                f"process CPU seconds of one MPC step at horizon {horizon}, population {chosen}, "
-                f"{config.threads} torch thread(s)",
-                Precondition(horizon == 25 and config.threads == 1, "horizon 25 on one thread"),
-            ),
-            Target(
-                "stacked_speedup",
-                speedup,
-                1.0,
-                ">=",
-                "member-by-member rollout seconds / stacked rollout seconds (same values)",
-                Precondition(
-                    rollout["max_abs_diff"] < 1e-4 and rollout["discrete_flipped"] <= 0.01,
-                    "the stacked rollout equals the member-by-member one (continuous sites within 1e-4 "
-                    "where no discrete site flips at its threshold, flips in at most 1 % of the rollouts)",
-                ),
-            ),
-            Target(
-                "driven_speedup",
-                ratio(rollout["step_loop"], rollout["stacked"]),
-                1.0,
-                ">=",
-                "stacked rollout seconds with the body in the step loop / with the body rolled first",
-                Precondition(
-                    rollout["driven_max_abs_diff"] < 1e-6, "both rollouts give the same values (within 1e-6)"
-                ),
-            ),
-        ],
+        targets=_targets(config, step["cpu"], rollout),
         notes=[
             f"Model fitted on {config.babble_steps} random-torque steps ({config.model.members} members); "
             f"{config.states} start states x {config.repeats} repeats per population after one warm-up; "
@@ -356,3 +373,51 @@ def _report(
             "CPU seconds are the process's (time.process_time); wall seconds grow with the load of other processes.",
         ],
     )
+
+
+def _targets(config: Config, step_cpu: float, rollout: dict) -> list[Target]:
+    """The bench's targets: the step time, and the speedups with their sameness preconditions."""
+    chosen = config.plan.action.sampling.population
+    horizon = config.plan.action.horizon
+    speedup = ratio(rollout["loop"], rollout["stacked"])
+    return [
+        Target(
+            "step_cpu_seconds",
+            step_cpu,
+            TARGET_STEP_SECONDS,
+            "<=",
+            f"process CPU seconds of one MPC step at horizon {horizon}, population {chosen}, "
+            f"{config.threads} torch thread(s)",
+            Precondition(horizon == 25 and config.threads == 1, "horizon 25 on one thread"),
+        ),
+        Target(
+            "stacked_speedup",
+            speedup,
+            1.0,
+            ">=",
+            "member-by-member rollout seconds / stacked rollout seconds (same values)",
+            Precondition(
+                rollout["max_abs_diff"] < 1e-4 and rollout["discrete_flipped"] <= 0.01,
+                "the stacked rollout equals the member-by-member one (continuous sites within 1e-4 "
+                "where no discrete site flips at its threshold, flips in at most 1 % of the rollouts)",
+            ),
+        ),
+        Target(
+            "driven_speedup",
+            ratio(rollout["step_loop"], rollout["stacked"]),
+            1.0,
+            ">=",
+            "stacked rollout seconds with the body in the step loop / with the body rolled first",
+            Precondition(
+                rollout["driven_max_abs_diff"] < 1e-6, "both rollouts give the same values (within 1e-6)"
+            ),
+        ),
+        Target(
+            "lockstep_speedup",
+            ratio(rollout["lockstep"]["single"], rollout["lockstep"]["batched"]),
+            1.0,
+            ">=",
+            "CPU seconds per unit planned alone / in one batched search of all units",
+            Precondition(rollout["lockstep"]["units"] > 1, "more than one unit"),
+        ),
+    ]

@@ -212,3 +212,6 @@ def test_bench_planner_tiny_rolls_the_body_first_with_the_same_values(tiny_run):
     )
     assert rep.target("driven_speedup").verdict in ("met", "not met")  # its precondition holds
     assert [r[0] for r in rep.tables[1].rows][-1] == "stacked, the body in the step loop (driven=False)"
+    lock = m["lockstep"]
+    assert lock["units"] == 3 and m["lockstep_speedup"] == pytest.approx(lock["single"] / lock["batched"])
+    assert rep.target("lockstep_speedup").verdict in ("met", "not met")
