@@ -87,22 +87,10 @@ def driven_sites(
         and mechanisms[n].size == 1
         and not isinstance(mechanisms[n], GatedMechanism)
     ]
-    driven: set[str] = set()
-    changed = True
-    while changed:  # the greatest set closed under "every parent known or driven"
-        changed = False
-        for name in candidates:
-            if name in driven:
-                continue
-            if all(_ready(p, graph, lagged, known, driven, candidates) for p in graph.parents(name)):
-                driven.add(name)
-                changed = True
-    # a lag-1 parent counts only if its lag_of site ends up driven: prune until stable
-    while True:
+    driven = set(candidates)
+    while True:  # the greatest set closed under "every parent known or driven"
         drop = {
-            n
-            for n in driven
-            if not all(_ready(p, graph, lagged, known, driven, driven) for p in graph.parents(n))
+            n for n in driven if not all(_ready(p, graph, lagged, known, driven) for p in graph.parents(n))
         }
         if not drop:
             return [n for n in graph.non_roots if n in driven]
@@ -110,13 +98,13 @@ def driven_sites(
 
 
 def _ready(
-    parent: str, graph: CausalGraph, lagged: Mapping[str, str], known: set[str], driven: set[str], pool
+    parent: str, graph: CausalGraph, lagged: Mapping[str, str], known: set[str], driven: set[str]
 ) -> bool:
-    """Whether a parent's trajectory is known or driven (a lag-1 root's: its ``lag_of`` site's, from ``pool``)."""
+    """Whether a parent's trajectory is known or driven (a lag-1 root's: its ``lag_of`` site's)."""
     if parent in known or parent in driven:
         return True
     if graph.is_root(parent) and graph[parent].lag == 1:
-        return lagged.get(parent) in pool or lagged.get(parent) in known
+        return lagged.get(parent) in driven or lagged.get(parent) in known
     return False
 
 
